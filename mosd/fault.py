@@ -1,0 +1,74 @@
+"""Sensor faults g_k added to one output channel from an onset time.
+
+Magnitudes are in units of σ, the in-control residual standard deviation of the
+faulty channel from Phase-I calibration, so that the residual follows
+N(μ + aσ, b²σ²) after the onset as in paper 000 (§2.1). The variance fault adds
+independent noise of standard deviation σ√(b² − 1) to the sensor: for a residual
+that does not feed the faulty sensor back into its own prediction (the dedicated
+observer of :mod:`mosd.estimator`) the residual's standard deviation becomes bσ.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .validation import ConfigError, Interval, check_choice, check_in, check_int
+
+FAULT_KINDS = ("offset", "variance", "offset_var", "drift")
+
+
+class SensorFault:
+    """An additive sensor fault on one output channel.
+
+    Parameters
+    ----------
+    kind : {"offset", "variance", "offset_var", "drift"}
+        offset: g = aσ; variance: extra noise so the std becomes bσ; offset_var:
+        both; drift: g = aσ (t − t_onset) per second (a ramp).
+    channel : int
+        Index of the faulty output channel (paper 000: 0, the displacement x_p).
+    onset : float
+        Time (s) from which the fault is active.
+    a : float
+        Offset in σ (drift: σ per second).
+    b : float
+        Standard-deviation factor, b >= 1.
+    """
+
+    def __init__(self, kind: str = "offset", channel: int = 0, onset: float = 2.7, a: float = 2.0, b: float = 1.0):
+        self.kind = check_choice("fault.kind", kind, FAULT_KINDS)
+        self.channel = check_int("fault.channel", channel, 0)
+        self.onset = check_in("fault.onset", onset, Interval(0.0, math.inf))
+        self.a = check_in("fault.a", a, Interval(-1e6, 1e6))
+        self.b = check_in("fault.b", b, Interval(1.0, 1e6))
+        if self.kind in ("offset", "offset_var", "drift") and self.a == 0.0:
+            raise ConfigError(f"fault.a=0 makes the {kind} fault empty; allowed: a != 0")
+        if self.kind in ("variance", "offset_var") and self.b == 1.0:
+            raise ConfigError(f"fault.b=1 makes the {kind} fault empty; allowed: b > 1")
+
+    def __repr__(self) -> str:
+        return f"SensorFault(kind={self.kind!r}, channel={self.channel}, onset={self.onset}, a={self.a}, b={self.b})"
+
+    def active(self, t: np.ndarray) -> np.ndarray:
+        """Boolean mask of the samples at which the fault is present."""
+        return np.asarray(t) >= self.onset - 1e-12
+
+    def signal(self, t: np.ndarray, scale: float, rng: np.random.Generator) -> np.ndarray:
+        """g_k for one replication, shape (N,), in the channel's units.
+
+        ``scale`` is σ of the channel's residual; ``rng`` draws the extra noise
+        of the variance faults (one draw per sample, made whatever the kind so
+        that the fault-free part of a run does not depend on it).
+        """
+        t = np.asarray(t, float)
+        on = self.active(t)
+        noise = rng.standard_normal(t.shape[0])
+        g = np.zeros_like(t)
+        if self.kind in ("offset", "offset_var"):
+            g += self.a * scale
+        elif self.kind == "drift":
+            g += self.a * scale * np.clip(t - self.onset, 0.0, None)
+        if self.kind in ("variance", "offset_var"):
+            g += math.sqrt(self.b**2 - 1.0) * scale * noise
+        return np.where(on, g, 0.0)

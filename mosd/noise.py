@@ -1,0 +1,44 @@
+"""Noise models: what disturbs the plant and its sensors.
+
+A noise model draws process noise w_k and measurement noise v_k for a batch of
+replications and tells the estimator the covariances it should assume.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .validation import check_matrix
+
+
+class GaussianNoise:
+    """Additive white Gaussian process and measurement noise.
+
+    Parameters
+    ----------
+    process_cov : float, sequence or matrix
+        Covariance Ξ_ω of w_k per sample (a scalar, the diagonal, or the matrix).
+        Paper 000 uses diag(0.01, 0.01, 0.01).
+    measurement_cov : float, sequence or matrix
+        Covariance Ξ_ν of v_k.
+    n_x, n_y : int
+        State and output dimensions (the app fills these in from the plant).
+    """
+
+    def __init__(self, process_cov=0.01, measurement_cov=0.01, n_x: int = 3, n_y: int = 3):
+        self.process_cov = check_matrix("noise.process_cov", process_cov, (n_x, n_x))
+        self.measurement_cov = check_matrix("noise.measurement_cov", measurement_cov, (n_y, n_y))
+        self.n_x, self.n_y = n_x, n_y
+        self._chol_q = _psd_sqrt(self.process_cov)
+        self._chol_r = _psd_sqrt(self.measurement_cov)
+
+    def draw(self, rng: np.random.Generator, n_samples: int) -> tuple[np.ndarray, np.ndarray]:
+        """Process noise (N, n_x) and measurement noise (N, n_y) for one replication."""
+        w = rng.standard_normal((n_samples, self.n_x)) @ self._chol_q.T
+        v = rng.standard_normal((n_samples, self.n_y)) @ self._chol_r.T
+        return w, v
+
+
+def _psd_sqrt(cov: np.ndarray) -> np.ndarray:
+    """A matrix A with A Aᵀ = cov that tolerates zero variances (eigen-decomposition)."""
+    vals, vecs = np.linalg.eigh(cov)
+    return vecs * np.sqrt(np.clip(vals, 0.0, None))
