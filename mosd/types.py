@@ -77,3 +77,20 @@ class Residuals:
         """The residual of one channel, shape (R, N)."""
         idx = self.channels.index(name_or_index) if isinstance(name_or_index, str) else int(name_or_index)
         return self.r[..., idx]
+
+
+@dataclass(frozen=True)
+class Subgroups:
+    """Standardised residual subgroups, the charts' input.
+
+    Attributes
+    ----------
+    z : ndarray, shape (R, K, n)
+        K subgroups of size n per replication, each value standardised by the
+        Phase-I mean and standard deviation of its channel (in control: i.i.d. N(0, 1)).
+    fault_mask : ndarray of bool, shape (R, K)
+        True where the fault is active at the subgroup's last sample.
+    """
+
+    z: np.ndarray
+    fault_mask: np.ndarray
