@@ -196,26 +196,36 @@ class Chart:
         return f"{type(self).__name__}({params}, limit={self.limit!r}, denoiser={self.denoiser!r})"
 
 
-class SSDEWMA(Chart):
-    """Sum-of-squares double EWMA chart (Teh, Khoo & Wu 2011; paper 000 eqs. 19–27, 35).
+def max_abs_normal_moments() -> tuple[float, float]:
+    """Mean and standard deviation of max(|X₁|, |X₂|), X₁, X₂ i.i.d. N(0, 1).
 
-    U_k (eq. 19) and V_k (eq. 20) are smoothed twice with the same λ:
-    Y_k, Z_k (eqs. 21–22), W_k, Q_k (eqs. 23–24), all started at 0, and
-    L_k = W_k² + Q_k² (eq. 25). The plotted l_k is L_k after denoising (§3.2),
-    or L_k/σ²_{W_k} before denoising for ``limit="normalised"``.
+    P(M <= m) = (2Φ(m) − 1)², so E M = ∫(1 − (2Φ(m) − 1)²) dm and
+    E M² = ∫ 2m (1 − (2Φ(m) − 1)²) dm, evaluated by quadrature (E M = 2/√π ≈ 1.128379,
+    sd M ≈ 0.602810, the constants of Chen, Cheng & Xie 2001).
+    """
+    from scipy import integrate
 
-    Parameters
-    ----------
-    lam : float in (0, 1)
-        Smoothing parameter λ.
-    K : float in [0, 10]
-        Control width K_SD.
-    limit : {"phase1", "theoretical", "normalised"}
-        See the module docstring.
-    denoiser : optional
-        E.g. :class:`mosd.denoise.WaveletDenoiser`.
+    tail = lambda m: 1.0 - (2.0 * special.ndtr(m) - 1.0) ** 2  # noqa: E731
+    mean = integrate.quad(tail, 0.0, np.inf, epsabs=1e-13)[0]
+    second = integrate.quad(lambda m: 2.0 * m * tail(m), 0.0, np.inf, epsabs=1e-13)[0]
+    return mean, math.sqrt(second - mean**2)
+
+
+class _MeanVarianceChart(Chart):
+    """One chart for the process mean and variance together (U_k and V_k of eqs. 19–20).
+
+    Both statistics are smoothed ``order`` times with the same λ (1: EWMA, eqs.
+    21–22; 2: double EWMA, eqs. 23–24) and combined as a sum of squares
+    (``combine="ss"``, eq. 25) or as the larger absolute value (``"max"``).
+
+    Limits: ``"phase1"`` (eq. 27), ``"theoretical"`` and ``"normalised"`` (module
+    docstring). The theoretical limit uses the exact in-control law at each k:
+    SS/σ²_k ~ χ²₂ gives UCL_k = 2σ²_k(1 + K) (eq. 35); max/σ_k ~ max(|X₁|, |X₂|)
+    gives UCL_k = σ_k(E M + K sd M).
     """
 
+    order: ClassVar[int] = 2
+    combine: ClassVar[str] = "ss"
     tunable = {"lam": _OPEN_UNIT, "K": Interval(0.0, 10.0)}
     limits = ("phase1", "theoretical", "normalised")
 
@@ -224,22 +234,79 @@ class SSDEWMA(Chart):
         self.lam = check_in("chart.lam", lam, self.tunable["lam"])
         self.K = check_in("chart.K", K, self.tunable["K"])
 
+    def smoothed_variance(self, n_points: int) -> np.ndarray:
+        """In-control variance of the smoothed statistics at k = 1..n_points (eq. 29 or 31)."""
+        if self.order == 1:
+            return ewma_variance(self.lam, n_points)
+        return dewma_variance(self.lam, n_points)
+
     def features(self, z: np.ndarray) -> np.ndarray:
         return np.stack([subgroup_mean_statistic(z), subgroup_variance_statistic(z)], axis=-2)
 
     def raw_statistic(self, features: np.ndarray) -> np.ndarray:
-        wq = ewma(features, self.lam, order=2)
-        return wq[..., 0, :] ** 2 + wq[..., 1, :] ** 2
+        smoothed = ewma(features, self.lam, order=self.order)
+        if self.combine == "ss":
+            return smoothed[..., 0, :] ** 2 + smoothed[..., 1, :] ** 2
+        return np.maximum(np.abs(smoothed[..., 0, :]), np.abs(smoothed[..., 1, :]))
+
+    def _scale(self, n_points: int) -> np.ndarray:
+        var = self.smoothed_variance(n_points)
+        return var if self.combine == "ss" else np.sqrt(var)
 
     def normalise(self, raw: np.ndarray) -> np.ndarray:
         if self.limit == "normalised":
-            return raw / dewma_variance(self.lam, raw.shape[-1])
+            return raw / self._scale(raw.shape[-1])
         return raw
 
     def control_limit(self, n_points: int) -> np.ndarray:
-        if self.limit == "theoretical":
-            return 2.0 * dewma_variance(self.lam, n_points) * (1.0 + self.K)
-        return self._phase1_limit(self.K, n_points)
+        if self.limit != "theoretical":
+            return self._phase1_limit(self.K, n_points)
+        if self.combine == "ss":
+            return 2.0 * self.smoothed_variance(n_points) * (1.0 + self.K)
+        mean, sd = _MAX_ABS_MOMENTS
+        return self._scale(n_points) * (mean + self.K * sd)
+
+
+_MAX_ABS_MOMENTS = max_abs_normal_moments()
+
+
+class SSDEWMA(_MeanVarianceChart):
+    """Sum-of-squares double EWMA chart (Teh, Khoo & Wu 2011; paper 000 eqs. 19–27, 35).
+
+    L_k = W_k² + Q_k² (eq. 25), W and Q the double EWMAs of U_k and V_k; the
+    plotted l_k is L_k after denoising (§3.2), or L_k/σ²_{W_k} before denoising
+    for ``limit="normalised"``.
+
+    Parameters
+    ----------
+    lam : float in (0, 1)
+        Smoothing parameter λ.
+    K : float in [0, 10]
+        Control width K_SD.
+    limit : {"phase1", "theoretical", "normalised"}
+    denoiser : optional
+        E.g. :class:`mosd.denoise.WaveletDenoiser`.
+    """
+
+    order, combine = 2, "ss"
+
+
+class SSEWMA(_MeanVarianceChart):
+    """Sum-of-squares EWMA chart: Y_k² + Z_k² (eqs. 21–22; Xie 1999)."""
+
+    order, combine = 1, "ss"
+
+
+class MDEWMA(_MeanVarianceChart):
+    """Maximum double EWMA chart: max(|W_k|, |Q_k|) (Khoo, Teh & Wu 2010)."""
+
+    order, combine = 2, "max"
+
+
+class MaxEWMA(_MeanVarianceChart):
+    """Max-EWMA chart: max(|Y_k|, |Z_k|) (Chen, Cheng & Xie 2001)."""
+
+    order, combine = 1, "max"
 
 
 class EWMA(Chart):
