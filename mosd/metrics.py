@@ -8,7 +8,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import stats
+from scipy import special
 
 
 def false_alarm_rate(alarms: np.ndarray, fault_mask: np.ndarray) -> np.ndarray:
@@ -70,7 +70,7 @@ class Estimate:
         if v.size == 1:
             return cls(float(v[0]), float("nan"), 1)
         sem = v.std(ddof=1) / np.sqrt(v.size)
-        return cls(float(v.mean()), float(stats.t.ppf(0.5 + level / 2, v.size - 1) * sem), int(v.size))
+        return cls(float(v.mean()), float(special.stdtrit(v.size - 1, 0.5 + level / 2) * sem), int(v.size))
 
     def __str__(self) -> str:
         return f"{self.mean:.4g} ± {self.half_width:.2g}"
