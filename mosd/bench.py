@@ -1,0 +1,220 @@
+"""``python -m mosd.bench``: speed and quality, measured side by side in one run.
+
+Every row is a ratio of two things timed in the same process, one after the
+other, so machine noise hits both. Sections:
+
+* ``candidates`` — chart-tuning candidate evaluations per second on the paper
+  workload (1,000 subgroups of 5 per sequence, SS-DEWMA, wavelet on, Phase-I
+  limit, FAR and MDR), vectorised population against a naive per-candidate
+  Python loop;
+* ``filter`` — CESCKF replication-steps per second, batched against one
+  replication at a time;
+* ``zdt`` — hypervolume and IGD on ZDT1–3 at 10,000 evaluations (slow: minutes);
+* ``tuning`` — hypervolume of MOPSO against NSGA-II on the paper's (λ, K) problem
+  at equal budget;
+* ``parallel`` — wall time of n_jobs=2 against n_jobs=1 on the paper workload.
+
+Usage: ``python -m mosd.bench [--only candidates,filter,...] [--quick]``.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import sys
+import time
+
+import numpy as np
+
+SECTIONS = ("candidates", "filter", "parallel", "tuning", "zdt")
+
+
+def paper_workload(n_phase1: int = 10, n_train: int = 10, n_subgroups: int = 1000, n: int = 5, seed: int = 0):
+    """Standardised subgroups as the paper's simulation produces them (offset+variance fault).
+
+    Residual subgroups are N(0, 1) in control and N(a, b²) with a = 2, b = 2
+    from subgroup 501 on, like the paper's r ~ N(μ + aσ, b²σ²).
+    """
+    rng = np.random.default_rng(seed)
+    phase1 = rng.standard_normal((n_phase1, n_subgroups, n))
+    train = rng.standard_normal((n_train, n_subgroups, n))
+    half = n_subgroups // 2
+    train[:, half:] = 2.0 + 2.0 * train[:, half:]
+    mask = np.zeros((n_train, n_subgroups), bool)
+    mask[:, half:] = True
+    return phase1, train, mask
+
+
+def _paper_chart():
+    from .chart import SSDEWMA
+    from .denoise import WaveletDenoiser
+
+    return SSDEWMA(lam=0.3, K=3.0, limit="phase1", denoiser=WaveletDenoiser(scaling="one"))
+
+
+def _naive_objectives(chart, phase1, train, mask, x):
+    """One candidate the obvious way: Python loops over sequences and time."""
+    lam, K = x
+    p = 1.0 - lam
+
+    def statistic(z):
+        u = math.sqrt(z.shape[-1]) * z.mean(axis=-1)
+        from .chart import subgroup_variance_statistic
+
+        v = subgroup_variance_statistic(z)
+        y = zz = w = q = 0.0
+        out = []
+        for uk, vk in zip(u, v):
+            y = p * y + lam * uk
+            zz = p * zz + lam * vk
+            w = p * w + lam * y
+            q = p * q + lam * zz
+            out.append(w * w + q * q)
+        return chart.denoiser.denoise(np.array(out)[None, :])[0]
+
+    l1 = np.concatenate([statistic(z) for z in phase1])
+    ucl = l1.mean() + K * l1.std(ddof=1)
+    far, mdr = [], []
+    for z, m in zip(train, mask):
+        alarm = statistic(z) > ucl
+        far.append(alarm[~m].mean())
+        mdr.append((~alarm[m]).mean())
+    return np.mean(far), np.mean(mdr)
+
+
+def bench_candidates(quick: bool = False) -> list[tuple[str, float, str]]:
+    from .optim.problem import CandidateEvaluator
+
+    chart = _paper_chart()
+    phase1, train, mask = paper_workload()
+    evaluator = CandidateEvaluator(chart, chart.features(phase1), chart.features(train), mask)
+    rng = np.random.default_rng(1)
+    X = np.column_stack([rng.uniform(0.01, 0.99, 100), rng.uniform(0.0, 5.0, 100)])
+    evaluator(X[:10])  # warm caches
+    t0 = time.perf_counter()
+    repeats = 1 if quick else 3
+    for _ in range(repeats):
+        F = evaluator(X)
+    vectorised = (time.perf_counter() - t0) / repeats
+    n_naive = 2 if quick else 4
+    t0 = time.perf_counter()
+    naive_F = [_naive_objectives(chart, phase1, train, mask, x) for x in X[:n_naive]]
+    naive = (time.perf_counter() - t0) / n_naive * len(X)
+    np.testing.assert_allclose(F[:n_naive], naive_F, atol=2e-3)  # same numbers, up to rounding at the limit
+    n_seq = train.shape[0]
+    return [
+        ("candidate evaluations/s, vectorised (1 candidate x 1 training sequence, Phase-I limit included)",
+         len(X) * n_seq / vectorised, "target >= 25,000 on one core"),
+        ("candidate evaluations/s, naive per-candidate Python loop", len(X) * n_seq / naive, ""),
+        ("speed-up vectorised / naive", naive / vectorised, ""),
+        ("sequences processed/s, vectorised (Phase-I + training, 1,000 subgroups each)",
+         len(X) * (n_seq + phase1.shape[0]) / vectorised, ""),
+    ]
+
+
+def bench_filter(quick: bool = False) -> list[tuple[str, float, str]]:
+    from .estimator import benchmark_filter
+
+    result = benchmark_filter(n_reps=20 if quick else 100, n_steps=1000 if quick else 5000)
+    rows = []
+    for key, value in result.items():
+        if isinstance(value, (int, float)):
+            rows.append((f"CESCKF {key}", float(value), "target batched >= 200,000 steps/s" if "batched" in key else ""))
+    return rows
+
+
+def _tuning_setup(n_jobs: int):
+    from .optim.problem import CandidateEvaluator, ChartTuningProblem
+
+    chart = _paper_chart()
+    phase1, train, mask = paper_workload()
+    evaluator = CandidateEvaluator(chart, chart.features(phase1), chart.features(train), mask)
+    return ChartTuningProblem(evaluator, bounds={"K": (0.0, 5.0)}, n_jobs=n_jobs)
+
+
+def bench_parallel(quick: bool = False) -> list[tuple[str, float, str]]:
+    from pymoo.optimize import minimize
+
+    from .optim import MOPSO
+
+    n_gen = 5 if quick else 20
+    times = {}
+    results = {}
+    for n_jobs in (1, 2):
+        problem = _tuning_setup(n_jobs)
+        problem.evaluate_population(np.array([[0.3, 1.0], [0.4, 2.0]]))  # start the pool outside the timing
+        t0 = time.perf_counter()
+        res = minimize(problem, MOPSO(pop_size=100, archive_size=100), ("n_gen", n_gen), seed=1)
+        times[n_jobs] = time.perf_counter() - t0
+        results[n_jobs] = res.F
+        problem.close()
+    same = results[1].shape == results[2].shape and np.array_equal(results[1], results[2])
+    evals = 100 * n_gen * 10
+    return [
+        ("wall time n_jobs=1 (s)", times[1], f"MOPSO 100 x {n_gen}"),
+        ("wall time n_jobs=2 (s)", times[2], ""),
+        ("speed-up n_jobs=2 vs 1", times[1] / times[2], "target >= 1.8"),
+        ("candidate evaluations/s on 2 cores", evals / times[2], "target >= 50,000"),
+        ("identical archives for n_jobs 1 and 2", float(same), "1 = yes"),
+    ]
+
+
+def bench_tuning(quick: bool = False) -> list[tuple[str, float, str]]:
+    from pymoo.algorithms.moo.nsga2 import NSGA2
+    from pymoo.indicators.hv import HV
+    from pymoo.optimize import minimize
+
+    from .optim import MOPSO
+
+    problem = _tuning_setup(1 if quick else 2)
+    hv = HV(ref_point=np.array([1.1, 1.1]))
+    n_gen = 10 if quick else 50
+    seeds = (1, 2) if quick else (1, 2, 3)
+    rows = []
+    try:
+        for name, make in (("MOPSO", lambda: MOPSO(pop_size=100, archive_size=100)), ("NSGA-II", lambda: NSGA2(pop_size=100))):
+            values = [hv(minimize(problem, make(), ("n_gen", n_gen), seed=s).F) for s in seeds]
+            rows.append((f"hypervolume (FAR, MDR) {name}, median of {len(seeds)} seeds", float(np.median(values)),
+                         f"100 x {n_gen}, ref (1.1, 1.1)"))
+    finally:
+        problem.close()
+    rows.append(("hypervolume ratio MOPSO / NSGA-II", rows[0][1] / rows[1][1], ""))
+    return rows
+
+
+def bench_zdt(quick: bool = False) -> list[tuple[str, float, str]]:
+    from .optim.benchmarks import zdt_table
+
+    table = zdt_table(n_eval=2000 if quick else 10_000, seeds=(1, 2) if quick else (1, 2, 3, 4, 5))
+    rows = []
+    for row in table:
+        label = f"{row.get('problem')} {row.get('algorithm')}"
+        rows.append((f"{label} hypervolume (median)", float(row.get("hv", float("nan"))), ""))
+        rows.append((f"{label} IGD (median)", float(row.get("igd", float("nan"))), ""))
+    return rows
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m mosd.bench", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--only", default="candidates,filter,parallel,tuning",
+                        help=f"comma-separated sections out of {', '.join(SECTIONS)} (zdt takes minutes)")
+    parser.add_argument("--quick", action="store_true", help="smaller sizes, for a smoke run")
+    args = parser.parse_args(argv)
+    chosen = [s.strip() for s in args.only.split(",") if s.strip()]
+    unknown = [s for s in chosen if s not in SECTIONS]
+    if unknown:
+        print(f"error: --only {unknown[0]!r} is unknown; allowed: {', '.join(SECTIONS)}", file=sys.stderr)
+        return 2
+    print(f"# mosd.bench — {os.cpu_count()} CPUs, numpy {np.__version__}; numbers are this machine's, this run's")
+    print("| section | measure | value | note |\n|---|---|---:|---|")
+    for section in chosen:
+        fn = globals()[f"bench_{section}"]
+        t0 = time.perf_counter()
+        for name, value, note in fn(args.quick):
+            print(f"| {section} | {name} | {value:,.4g} | {note} |", flush=True)
+        print(f"| {section} | (section wall time, s) | {time.perf_counter() - t0:.1f} | |", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
