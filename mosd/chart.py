@@ -78,31 +78,42 @@ def ewma(x: np.ndarray, lam: float, order: int = 1) -> np.ndarray:
     return signal.lfilter([lam**order], a, x, axis=-1)
 
 
-def ewma_population(x: np.ndarray, lams: np.ndarray, order: int = 1) -> np.ndarray:
-    """:func:`ewma` for many smoothing parameters at once: shape (P, *x.shape).
+def ewma_time_major(x: np.ndarray, lams: np.ndarray, order: int = 1) -> np.ndarray:
+    """:func:`ewma` of x (..., K) for many smoothing parameters, time-major: (K, P, M).
 
-    One Python loop over time runs on all (candidate, sequence) columns together;
-    for a population of candidates this beats one IIR filter call per candidate
-    (see ``python -m mosd.bench``). Columns never mix, so a candidate's result
-    does not depend on which other candidates share the call.
+    M indexes the flattened leading axes of x. The ``order``-fold EWMA is the IIR filter λ^order / (1 − (1−λ)z⁻¹)^order; its
+    difference equation runs in one Python loop over time on all (candidate,
+    sequence) columns together, which for a population of candidates beats one
+    filter call per candidate (see ``python -m mosd.bench``). Columns never mix, so
+    a candidate's result does not depend on which other candidates share the call.
     """
     lams = np.asarray(lams, float).ravel()
     n_points = x.shape[-1]
-    columns = x.reshape(-1, n_points).T  # time-major: each step is one contiguous row
-    n_cols = columns.shape[1]
-    decay = np.repeat(1.0 - lams, n_cols)
-    gain = np.repeat(lams, n_cols)
-    current = np.tile(columns, (1, lams.size)) * gain
-    for stage in range(order):
-        state = np.zeros(current.shape[1])
-        out = np.empty_like(current)
-        for k in range(n_points):
-            state *= decay
-            state += current[k]
-            out[k] = state
-        if stage + 1 < order:
-            current = out * gain
-    return out.T.reshape(lams.size, *x.shape)
+    columns = np.ascontiguousarray(x.reshape(-1, n_points).T)  # time-major (K, M)
+    shape = (lams.size, columns.shape[1])
+    # denominator 1 + a_1 z⁻¹ + ... + a_order z⁻order, per candidate
+    denominator = np.array([np.poly(np.full(order, 1.0 - lam)) for lam in lams])
+    feedback = [np.ascontiguousarray(np.broadcast_to(-denominator[:, i, None], shape)) for i in range(1, order + 1)]
+    gain = np.ascontiguousarray(np.broadcast_to((lams**order)[:, None], shape))
+    out = np.zeros((n_points,) + shape)
+    scratch = np.empty(shape)
+    for k in range(n_points):
+        current = out[k]
+        np.multiply(gain, columns[k], out=current)
+        for lag, coefficient in enumerate(feedback, start=1):
+            if k >= lag:
+                np.multiply(out[k - lag], coefficient, out=scratch)
+                current += scratch
+    return out
+
+
+def ewma_population(x: np.ndarray, lams: np.ndarray, order: int = 1) -> np.ndarray:
+    """:func:`ewma` for many smoothing parameters at once: shape (P, *x.shape).
+
+    See :func:`ewma_time_major`, which this reshapes.
+    """
+    out = ewma_time_major(x, lams, order)
+    return np.moveaxis(out, 0, -1).reshape((out.shape[1],) + x.shape)
 
 
 def dewma_variance(lam: float, n_points: int) -> np.ndarray:
@@ -181,6 +192,15 @@ class Chart:
         names = list(self.tunable)
         charts = [self.with_params(**dict(zip(names, x))) for x in np.atleast_2d(X)]
         return self.denoiser.denoise(np.stack([c.normalise(c.raw_statistic(features)) for c in charts]))
+
+    def population_limits(self, phase1_statistics: np.ndarray, X: np.ndarray) -> np.ndarray:
+        """Control limits (P, K) for parameter vectors X given each one's Phase-I statistic (P, ..., K)."""
+        names = list(self.tunable)
+        n_points = phase1_statistics.shape[-1]
+        return np.stack([
+            self.with_params(**dict(zip(names, x))).fit_statistic(l1).control_limit(n_points)
+            for x, l1 in zip(np.atleast_2d(X), phase1_statistics)
+        ])
 
     # -- the limit --------------------------------------------------------------------
     def fit(self, z_phase1: np.ndarray) -> "Chart":
@@ -265,15 +285,20 @@ class _MeanVarianceChart(Chart):
     def population_statistics(self, features: np.ndarray, X: np.ndarray) -> np.ndarray:
         names = list(self.tunable)
         charts = [self.with_params(**dict(zip(names, x))) for x in np.atleast_2d(X)]
-        raw = self._combine(ewma_population(features, [c.lam for c in charts], order=self.order))
+        smoothed = ewma_time_major(features, [c.lam for c in charts], order=self.order)  # (K, P, R·2)
+        raw = self._combine(smoothed.reshape(smoothed.shape[:2] + features.shape[:-1]), axis=-1)  # (K, P, R)
+        raw = np.ascontiguousarray(np.moveaxis(raw, 0, -1))  # (P, R, K)
         if self.limit == "normalised":
             raw = np.stack([c.normalise(r) for c, r in zip(charts, raw)])
         return self.denoiser.denoise(raw)
 
-    def _combine(self, smoothed: np.ndarray) -> np.ndarray:
+    def _combine(self, smoothed: np.ndarray, axis: int = -2) -> np.ndarray:
+        """Mean and variance parts (index 0 and 1 along ``axis``) → one statistic."""
+        mean_part = np.take(smoothed, 0, axis=axis)
+        variance_part = np.take(smoothed, 1, axis=axis)
         if self.combine == "ss":
-            return smoothed[..., 0, :] ** 2 + smoothed[..., 1, :] ** 2
-        return np.maximum(np.abs(smoothed[..., 0, :]), np.abs(smoothed[..., 1, :]))
+            return mean_part**2 + variance_part**2
+        return np.maximum(np.abs(mean_part), np.abs(variance_part))
 
     def _scale(self, n_points: int) -> np.ndarray:
         var = self.smoothed_variance(n_points)

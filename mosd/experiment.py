@@ -173,7 +173,8 @@ class Experiment:
         )
         problem = ChartTuningProblem(evaluator, bounds=bounds, n_jobs=n_jobs)
         try:
-            res = minimize(problem, algorithm, termination, seed=self.seed, callback=callback, verbose=verbose)
+            extra = {} if callback is None else {"callback": callback}
+            res = minimize(problem, algorithm, termination, seed=self.seed, verbose=verbose, **extra)
         finally:
             problem.close()
         timings["optimise_s"] = time.perf_counter() - t0

@@ -48,16 +48,12 @@ class CandidateEvaluator:
         if X.shape[0] == 0:
             return np.empty((0, 2))
         stats = self.chart.population_statistics(self.features, X)  # (P, R1 + R, K)
-        names = list(self.chart.tunable)
-        n_points = stats.shape[-1]
-        F = np.empty((X.shape[0], 2))
-        for p, x in enumerate(X):
-            chart = self.chart.with_params(**dict(zip(names, x)))
-            chart.fit_statistic(stats[p, : self.n_phase1])
-            alarms = stats[p, self.n_phase1 :] > chart.control_limit(n_points)
-            F[p, 0] = false_alarm_rate(alarms, self.fault_mask).mean()
-            F[p, 1] = missed_detection_rate(alarms, self.fault_mask).mean()
-        return F
+        limits = self.chart.population_limits(stats[:, : self.n_phase1], X)  # (P, K)
+        alarms = stats[:, self.n_phase1 :] > limits[:, None, :]
+        return np.column_stack([
+            false_alarm_rate(alarms, self.fault_mask).mean(axis=-1),
+            missed_detection_rate(alarms, self.fault_mask).mean(axis=-1),
+        ])
 
 
 # -- the worker side of the persistent pool -------------------------------------------
