@@ -160,7 +160,7 @@ def test_tiny_statistic_without_rescaling_keeps_only_the_approximation():
     # 1e-3 are all below the threshold, so the output is the level-3 approximation.
     rng = np.random.default_rng(6)
     x = 1e-3 * rng.standard_normal((4, 300))
-    out = WaveletDenoiser(scaling="one").denoise(x)
+    out = WaveletDenoiser(scaling="one", global_source="all").denoise(x)
     coeffs = pywt.wavedec(x, "db3", mode="symmetric", level=3, axis=-1)
     approx_only = pywt.waverec([coeffs[0]] + [np.zeros_like(c) for c in coeffs[1:]], "db3",
                                mode="symmetric", axis=-1)[:, :300]
@@ -172,7 +172,7 @@ def test_matches_a_pywt_reference_pipeline():
     # sln, global threshold from the finest details, soft: rebuild it by hand with pywt.
     rng = np.random.default_rng(7)
     x = piecewise_smooth(500) + 0.5 * rng.standard_normal(500)
-    out = WaveletDenoiser(global_source="finest").denoise(x)
+    out = WaveletDenoiser(scaling="sln", global_source="finest").denoise(x)
     coeffs = pywt.wavedec(x, "db3", mode="symmetric", level=3)
     sigma = np.median(np.abs(coeffs[-1])) / 0.6745
     t = sigma * select_threshold(coeffs[-1] / sigma, "rigrsure")
