@@ -278,7 +278,10 @@ def monte_carlo_arl(chart, a: float = 0.0, b: float = 1.0, n: int = 5, reps: int
     """
     if not callable(getattr(chart, "alarms", None)):
         raise ConfigError(f"chart={chart!r} has no alarms(Z) method; allowed: a chart object")
-    if not getattr(getattr(chart, "denoiser", None), "is_causal", True):
+    causal = getattr(chart, "is_causal", None)
+    if causal is None:
+        causal = getattr(getattr(chart, "denoiser", None), "is_causal", True)
+    if not causal:
         raise ConfigError(f"chart={chart!r} is not causal (whole-series denoising); allowed: causal charts, "
                           "whose run length does not depend on the simulated horizon")
     a = check_in("a", a, Interval(-math.inf, math.inf))

@@ -147,6 +147,11 @@ class Chart:
         self.denoiser = NoDenoiser() if denoiser is None else denoiser
 
     # -- sklearn-style parameter handling -------------------------------------------
+    @property
+    def is_causal(self) -> bool:
+        """True when l_k depends on subgroups 1..k only (needed for run lengths)."""
+        return bool(getattr(self.denoiser, "is_causal", True))
+
     def get_params(self) -> dict:
         return {name: getattr(self, name) for name in self.tunable}
 
@@ -424,8 +429,12 @@ class MSOEWMA(EWMA):
         if prefilter is None:
             from .denoise import WaveletDenoiser
 
-            prefilter = WaveletDenoiser(scaling="sln")
+            prefilter = WaveletDenoiser(scaling="sln", global_source="all")
         self.prefilter = prefilter
+
+    @property
+    def is_causal(self) -> bool:
+        return bool(getattr(self.prefilter, "is_causal", True)) and super().is_causal
 
     def features(self, z: np.ndarray) -> np.ndarray:
         sequence = z.reshape(z.shape[:-2] + (-1,))

@@ -8,11 +8,14 @@ from .mopso import MOPSO, GridArchive
 from .selection import (RULES, Selection, SelectionWarning, choose, knee, max_accuracy,
                         min_mdr_far_le, select)
 
+from .grid import constrained_grid_search, grid_objectives
 from .problem import CandidateEvaluator, ChartTuningProblem
 
 __all__ = [
     "CandidateEvaluator",
     "ChartTuningProblem",
+    "constrained_grid_search",
+    "grid_objectives",
     "MOPSO",
     "GridArchive",
     "RULES",
