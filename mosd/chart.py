@@ -290,19 +290,23 @@ class _MeanVarianceChart(Chart):
     def population_statistics(self, features: np.ndarray, X: np.ndarray) -> np.ndarray:
         names = list(self.tunable)
         charts = [self.with_params(**dict(zip(names, x))) for x in np.atleast_2d(X)]
-        smoothed = ewma_time_major(features, [c.lam for c in charts], order=self.order)  # (K, P, R·2)
-        raw = self._combine(smoothed.reshape(smoothed.shape[:2] + features.shape[:-1]), axis=-1)  # (K, P, R)
-        raw = np.ascontiguousarray(np.moveaxis(raw, 0, -1))  # (P, R, K)
+        # statistic-major columns, so each part is a contiguous block of every time row
+        by_part = np.moveaxis(features, -2, 0)  # (2, ..., K)
+        smoothed = ewma_time_major(by_part, [c.lam for c in charts], order=self.order)  # (K, P, 2·M)
+        smoothed = smoothed.reshape(smoothed.shape[:2] + (2, -1))  # (K, P, 2, M)
+        raw = self._combine(smoothed, axis=2)  # (K, P, M)
+        raw = np.ascontiguousarray(np.moveaxis(raw, 0, -1)).reshape((len(charts),) + features.shape[:-2] + (-1,))
         if self.limit == "normalised":
             raw = np.stack([c.normalise(r) for c, r in zip(charts, raw)])
         return self.denoiser.denoise(raw)
 
     def _combine(self, smoothed: np.ndarray, axis: int = -2) -> np.ndarray:
         """Mean and variance parts (index 0 and 1 along ``axis``) → one statistic."""
-        mean_part = np.take(smoothed, 0, axis=axis)
-        variance_part = np.take(smoothed, 1, axis=axis)
+        mean_part, variance_part = np.moveaxis(smoothed, axis, 0)[:2]  # views, no copies
         if self.combine == "ss":
-            return mean_part**2 + variance_part**2
+            out = np.square(mean_part)
+            out += np.square(variance_part)
+            return out
         return np.maximum(np.abs(mean_part), np.abs(variance_part))
 
     def _scale(self, n_points: int) -> np.ndarray:
