@@ -1,0 +1,131 @@
+"""Optimisation progress: a one-line display on stderr and the per-generation history.
+
+:class:`Progress` is a pymoo ``Callback``. After every generation it records the
+archive's hypervolume in the (FAR, MDR) plane, the archive size and the best
+detection accuracy 1 − FAR − MDR (paper 000's criterion for the final choice), and
+redraws a single status line. :meth:`mosd.experiment.Experiment.run` copies
+``callback.records`` into ``ExperimentResult.history``; the app logs it to MLflow
+in one batch.
+"""
+from __future__ import annotations
+
+import math
+import sys
+import time
+from typing import TextIO
+
+import numpy as np
+from pymoo.core.callback import Callback
+
+from .validation import ConfigError, check_int
+
+#: Reference point of the hypervolume: just beyond the worst possible (FAR, MDR) = (1, 1),
+#: so that the extreme designs of a front still add area.
+REFERENCE_POINT = (1.1, 1.1)
+
+
+def hypervolume_2d(F: np.ndarray, reference: tuple[float, float] = REFERENCE_POINT) -> float:
+    """Area dominated by the points F (n, 2) and bounded by ``reference`` (both minimised).
+
+    Points that do not dominate the reference are ignored; dominated points add
+    nothing. Sorting by the first objective turns the union of rectangles into a
+    sum of disjoint strips.
+    """
+    F = np.asarray(F, dtype=float).reshape(-1, 2)
+    ref = np.asarray(reference, dtype=float)
+    F = F[np.all(F < ref, axis=1)]
+    if F.shape[0] == 0:
+        return 0.0
+    F = F[np.lexsort((F[:, 1], F[:, 0]))]
+    best_second = np.minimum.accumulate(F[:, 1])
+    front = F[np.r_[True, F[1:, 1] < best_second[:-1]]]
+    widths = np.diff(np.r_[front[:, 0], ref[0]])
+    return float(np.sum(widths * (ref[1] - front[:, 1])))
+
+
+class Progress(Callback):
+    """pymoo callback: per-generation records and a single updating status line.
+
+    Parameters
+    ----------
+    n_gen : int, optional
+        Planned generations (for the "time left" estimate and the final newline).
+    enabled : bool
+        False records the history but writes nothing (``progress=false``).
+    stream : file-like, optional
+        Where the line goes; default ``sys.stderr`` at the time of writing.
+    min_interval : float
+        Seconds between redraws (the last generation is always drawn).
+
+    Attributes
+    ----------
+    records : list of dict
+        One per generation: ``generation``, ``n_eval``, ``archive_size``,
+        ``hypervolume`` (reference (1.1, 1.1)), ``best_accuracy``, ``elapsed_s``.
+    """
+
+    def __init__(self, n_gen: int | None = None, enabled: bool = True, stream: TextIO | None = None,
+                 min_interval: float = 0.1):
+        super().__init__()
+        self.n_gen = None if n_gen is None else check_int("progress.n_gen", n_gen, 1)
+        if not isinstance(enabled, bool):
+            raise ConfigError(f"progress={enabled!r} is not allowed; allowed: true, false")
+        self.enabled = enabled
+        self.stream = stream
+        self.min_interval = float(min_interval)
+        self.records: list[dict[str, float]] = []
+        self._started: float | None = None
+        self._last_draw = -math.inf
+        self._line_open = False
+        self._width = 0
+
+    def notify(self, algorithm) -> None:
+        now = time.perf_counter()
+        if self._started is None:
+            self._started = now
+        F = np.atleast_2d(algorithm.opt.get("F")) if algorithm.opt is not None else np.empty((0, 2))
+        record = {
+            "generation": int(algorithm.n_gen),
+            "n_eval": int(algorithm.evaluator.n_eval),
+            "archive_size": int(F.shape[0]),
+            "hypervolume": hypervolume_2d(F),
+            "best_accuracy": float(np.max(1.0 - F[:, 0] - F[:, 1])) if F.shape[0] else float("nan"),
+            "elapsed_s": now - self._started,
+        }
+        self.records.append(record)
+        last = self.n_gen is not None and record["generation"] >= self.n_gen
+        if self.enabled and (last or now - self._last_draw >= self.min_interval):
+            self._draw(record)
+            self._last_draw = now
+        if last:
+            self.close()
+
+    def close(self) -> None:
+        """End the status line (idempotent)."""
+        if self._line_open:
+            self._out().write("\n")
+            self._out().flush()
+            self._line_open = False
+
+    def _out(self) -> TextIO:
+        return self.stream if self.stream is not None else sys.stderr
+
+    def _draw(self, record: dict) -> None:
+        generation = record["generation"]
+        total = f"/{self.n_gen}" if self.n_gen else ""
+        if self.n_gen and generation > 1:
+            # the first generation carries the set-up (worker start), so rate from the rest
+            first = self.records[0]["elapsed_s"]
+            per_generation = (record["elapsed_s"] - first) / (generation - 1)
+            left = f"  left {max(self.n_gen - generation, 0) * per_generation:5.1f} s"
+        else:
+            left = ""
+        line = (f"gen {generation}{total}  evals {record['n_eval']}  archive {record['archive_size']}"
+                f"  HV {record['hypervolume']:.4f}  best acc {record['best_accuracy']:.4f}"
+                f"  elapsed {record['elapsed_s']:5.1f} s{left}")
+        # pad with blanks so a shorter line fully covers the previous one
+        out = self._out()
+        out.write("\r" + line.ljust(self._width))
+        out.flush()
+        self._width = len(line)
+        self._line_open = True

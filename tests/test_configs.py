@@ -1,0 +1,276 @@
+"""Every config group option composes and builds; defaults match the paper; errors are one line.
+
+Uses Hydra's compose API in-process (no run directory, no MLflow).
+"""
+from __future__ import annotations
+
+import io
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hydra import compose, initialize_config_dir
+from omegaconf import OmegaConf
+
+from mosd import app
+from mosd.chart import EWMA, SSDEWMA
+from mosd.denoise import NoDenoiser, WaveletDenoiser
+from mosd.estimator import CESCKF, DedicatedObserverResidual, InnovationResidual
+from mosd.fault import FAULT_KINDS, SensorFault
+from mosd.monitor import Monitor
+from mosd.noise import GaussianNoise
+from mosd.optim.mopso import MOPSO
+from mosd.plant import MouldOscillator
+from mosd.progress import Progress, hypervolume_2d
+from mosd.tracking import TrackingSettings, default_tracking_uri, flatten
+from mosd.validation import ConfigError
+
+CONF = app.CONFIG_DIR
+GROUPS = sorted(p.name for p in CONF.iterdir() if p.is_dir())
+OPTIONS = [(g, o) for g in GROUPS for o in app.options(g)]
+README = Path(__file__).resolve().parents[1] / "README.md"
+
+
+@pytest.fixture(scope="module")
+def composer():
+    with initialize_config_dir(config_dir=str(CONF), version_base="1.3", job_name="test"):
+        yield lambda *overrides: compose("config", overrides=list(overrides))
+
+
+def _fault_override(group, option):
+    return [] if group == "fault" else ["+fault=offset_var"]
+
+
+def test_groups_are_the_documented_ones():
+    assert set(GROUPS) >= {"plant", "noise", "fault", "estimator", "chart", "denoise", "optimizer", "tracking"}
+    assert set(app.options("fault")) == set(FAULT_KINDS)
+    assert set(app.options("optimizer")) >= {"mopso", "nsga2"}
+
+
+@pytest.mark.parametrize("group,option", OPTIONS, ids=[f"{g}={o}" for g, o in OPTIONS])
+def test_every_option_composes_and_builds(composer, group, option):
+    choice = f"+fault={option}" if group == "fault" else f"{group}={option}"
+    cfg = composer(*_fault_override(group, option), choice)
+    setup = app.build(cfg)
+    exp = setup.experiment
+    built = {"plant": exp.plant, "noise": exp.noise, "fault": exp.fault, "estimator": exp.estimator,
+             "monitor": exp.monitor, "chart": exp.chart, "denoise": exp.chart.denoiser, "optimizer": setup.algorithm}
+    if group in built:
+        node = OmegaConf.to_container(cfg[group], resolve=True)
+        obj = built[group]
+        assert f"{type(obj).__module__}.{type(obj).__name__}" == node["_target_"]
+        # scalar YAML values land on the object unchanged; nested components have their type
+        for key, value in node.items():
+            if isinstance(value, dict) and "_target_" in value:
+                inner = getattr(obj, key)
+                assert f"{type(inner).__module__}.{type(inner).__name__}" == value["_target_"]
+                continue
+            if key in app.RUN_KEYS.get(group, ()) or key.startswith("_") or isinstance(value, (dict, list)):
+                continue
+            if hasattr(obj, key) and value is not None:
+                expected = pytest.approx(value) if isinstance(value, float) else value
+                assert getattr(obj, key) == expected, f"{group}.{key}"
+    if group == "tracking":
+        settings = TrackingSettings.from_config(dict(cfg.tracking), "outputs")
+        assert (settings is None) == (option == "none")
+
+
+def test_default_options_mirror_the_class_defaults(composer):
+    """The default option of a group is the component as its class builds it by default."""
+    import inspect
+
+    from hydra.utils import get_object
+
+    cfg = composer("+fault=offset_var")
+    for group in ("plant", "noise", "estimator", "monitor", "chart", "denoise", "optimizer"):
+        node = OmegaConf.to_container(cfg[group], resolve=True)
+        signature = inspect.signature(get_object(node["_target_"]))
+        for key, value in node.items():
+            parameter = signature.parameters.get(key)
+            if parameter is None or parameter.default is inspect.Parameter.empty or isinstance(value, dict):
+                continue
+            default = parameter.default
+            if isinstance(default, tuple):
+                default = list(default)
+            if isinstance(value, list) and isinstance(default, float):
+                # a covariance given as its diagonal vs. a scalar times the identity
+                assert np.allclose(value, default), f"{group}.{key}: config {value!r}, class default {default!r}"
+            else:
+                assert value == default, f"{group}.{key}: config {value!r}, class default {default!r}"
+
+
+def test_fault_is_not_in_defaults_and_null_in_body(composer):
+    raw = OmegaConf.load(CONF / "config.yaml")
+    groups_in_defaults = {k for entry in raw.defaults if not isinstance(entry, str) for k in entry}
+    assert "fault" not in groups_in_defaults and "optimizer" in groups_in_defaults
+    assert raw.fault is None
+    assert composer().fault is None
+    with pytest.raises(app.UsageError, match=r"\+fault=NAME .*drift, offset, offset_var, variance"):
+        app.build(composer())
+
+
+@pytest.mark.parametrize("kind,a,b", [("offset", 2.0, 1.0), ("variance", None, 2.0), ("offset_var", 2.0, 2.0),
+                                      ("drift", 2.0, 1.0)])
+def test_fault_options_match_the_issue(composer, kind, a, b):
+    fault = app.build(composer(f"+fault={kind}")).experiment.fault
+    assert isinstance(fault, SensorFault)
+    assert (fault.kind, fault.channel, fault.onset, fault.b) == (kind, 0, 2.7, b)
+    if a is not None:
+        assert fault.a == a
+
+
+def test_defaults_are_paper_scale(composer):
+    cfg = composer("+fault=offset_var")
+    setup = app.build(cfg)
+    assert isinstance(setup.algorithm, MOPSO) and setup.algorithm.pop_size == 100 and setup.n_gen == 100
+    budget = setup.experiment.budget
+    assert (budget.n_calibration, budget.n_train, budget.n_test) == (10, 10, 100)
+    assert setup.bounds == {"lam": (0.0, 1.0), "K": (0.0, 5.0)}
+    exp = setup.experiment
+    assert isinstance(exp.plant, MouldOscillator) and isinstance(exp.noise, GaussianNoise)
+    assert isinstance(exp.estimator, DedicatedObserverResidual) and isinstance(exp.estimator.filter, CESCKF)
+    assert exp.estimator.monitored == (0,)
+    assert isinstance(exp.monitor, Monitor) and (exp.monitor.subgroup, exp.monitor.n, exp.monitor.channels,
+                                                  exp.monitor.burn_in) == ("window", 5, (0,), 200)
+    assert isinstance(exp.chart, SSDEWMA) and exp.chart.limit == "phase1"
+    assert isinstance(exp.chart.denoiser, WaveletDenoiser) and (exp.chart.denoiser.wavelet,
+                                                                  exp.chart.denoiser.level) == ("db3", 3)
+    assert exp.duration == 5.2 and exp.seed == 0
+    assert exp.noise.process_cov.shape == (3, 3)  # n_x, n_y filled in from the plant
+    # run directories named down to the microsecond, under the outputs root
+    hydra = OmegaConf.to_container(OmegaConf.load(CONF / "config.yaml").hydra, resolve=False)
+    for where in (hydra["run"]["dir"], hydra["sweep"]["dir"]):
+        assert where.startswith("${outputs_root}/") and where.endswith("%H-%M-%S-%f}")
+
+
+def test_chart_and_denoise_alternatives(composer):
+    setup = app.build(composer("+fault=offset", "chart=ewma", "denoise=none", "estimator=innovation"))
+    assert isinstance(setup.experiment.chart, EWMA) and isinstance(setup.experiment.chart.denoiser, NoDenoiser)
+    assert isinstance(setup.experiment.estimator, InnovationResidual)
+    assert set(setup.bounds) == {"lam", "L"}
+
+
+def test_choose_uses_the_selection_section(composer):
+    setup = app.build(composer("+fault=offset", "selection.rule=min_mdr_far_le", "selection.alpha=0.01"))
+    F = np.array([[0.0, 0.5], [0.005, 0.2], [0.05, 0.0]])
+    assert setup.choose(np.zeros((3, 2)), F) == 1  # lowest MDR among FAR <= 0.01
+    setup = app.build(composer("+fault=offset"))
+    assert setup.choose(np.zeros((3, 2)), F) == 2  # max accuracy
+
+
+def _message(exc_info) -> str:
+    text = str(exc_info.value)
+    assert "\n" not in text
+    return text
+
+
+@pytest.mark.parametrize("overrides,pattern", [
+    (["+faults=offset_var"], r"'faults'.*did you mean \+fault=NAME.*offset_var"),
+    (["+fault=offset_var", "chart.lam=1.5"], r"chart\.lam=1\.5 is out of range; allowed: \(0, 1\)"),
+    (["+fault=offset_var", "optimizer.pop_size=0"], r"optimizer\.pop_size=0 .*allowed: integers in \[1"),
+    (["+fault=offset_var", "optimizer.n_gen=-2"], r"optimizer\.n_gen=-2 .*allowed"),
+    (["+fault=offset_var", "optimizer.velocity=fast"], r"optimizer\.velocity='fast'.*constriction, inertia"),
+    (["+fault=offset_var", "budget.n_test=0"], r"budget\.n_test=0"),
+    (["+fault=offset_var", "chart.bounds.K=[0,20]"], r"chart\.bounds\.K=.*allowed: low < high within \[0, 10\]"),
+    (["+fault=offset_var", "+chart.foo=1"], r"chart\.foo is not a parameter of SSDEWMA; allowed: lam, K, limit"),
+    (["+fault=offset_var", "selection.rule=best"], r"selection\.rule='best'.*max_accuracy"),
+    (["+fault=offset_var", "tracking.uri=ftp://x"], r"tracking\.uri='ftp://x'.*sqlite"),
+    (["+fault=offset_var", "progress=maybe"], r"progress='maybe'.*true, false"),
+    (["+fault=offset_var", "monitor.channels=[5]"], r"monitor\.channels=\[5\] is out of range; allowed: channels 0\.\.2"),
+])
+def test_build_errors_are_one_line_naming_key_and_allowed(composer, overrides, pattern):
+    with pytest.raises((app.UsageError, ConfigError)) as info:
+        app.build(composer(*overrides))
+    assert re.search(pattern, _message(info)), _message(info)
+
+
+@pytest.mark.parametrize("argv,pattern", [
+    ([], r"no fault chosen.*drift, offset, offset_var, variance"),
+    (["+fault=offset_var", "optimizer=foo"], r"optimizer=foo is not an option; allowed: mopso, nsga2"),
+    (["+fault=nope"], r"fault=nope is not an option; allowed: drift, offset, offset_var, variance"),
+    (["fault=offset"], r"\+fault=offset"),
+    (["+fault=offset", "+optimizer=nsga2"], r"optimizer=nsga2 without the \+"),
+    (["+fault=offset", "chart.lamm=0.3"], r"chart\.lamm is not a config key of chart; allowed: .*lam"),
+    (["+fault=offset", "optimizer=mopso,nsga2"], r"multirun"),
+    (["-m", "+fault=offset,variance", "chart.lam=0.5,1.5"], r"chart\.lam=1\.5 is out of range"),
+    (["--multirn"], r"unrecognized arguments: --multirn"),
+])
+def test_preflight_errors(argv, pattern):
+    with pytest.raises((app.UsageError, ConfigError)) as info:
+        app.preflight(argv)
+    assert re.search(pattern, _message(info)), _message(info)
+
+
+def test_preflight_accepts_the_main_command_and_a_sweep():
+    app.preflight(["+fault=offset_var", "optimizer=mopso"])
+    app.preflight(["-m", "+fault=offset,variance", "optimizer=mopso,nsga2", "hydra/launcher=joblib"])
+
+
+def test_pyproject_ships_conf_inside_the_package():
+    tomllib = pytest.importorskip("tomllib")
+    setuptools = tomllib.loads((README.parent / "pyproject.toml").read_text())["tool"]["setuptools"]
+    assert setuptools["package-dir"]["mosd.conf"] == "conf"
+    assert {"mosd.conf", *(f"mosd.conf.{g}" for g in GROUPS)} <= set(setuptools["packages"])
+
+
+def test_readme_documents_every_key():
+    text = README.read_text()
+    for group, option in OPTIONS:
+        assert f"`{option}`" in text, f"README misses option {group}={option}"
+        for key in (k for k in OmegaConf.load(CONF / group / f"{option}.yaml") if not k.startswith("_")):
+            assert f"`{key}`" in text, f"README misses key {group}.{key}"
+    for key in ("seed", "scenario.duration", "budget.n_train", "budget.n_test", "budget.n_calibration",
+                "selection.rule", "selection.alpha", "progress", "outputs_root"):
+        assert f"`{key}`" in text, f"README misses key {key}"
+
+
+# -- progress and tracking helpers -----------------------------------------------------
+def test_hypervolume_matches_pymoo():
+    from pymoo.indicators.hv import HV
+
+    rng = np.random.default_rng(3)
+    for _ in range(5):
+        F = rng.random((rng.integers(1, 30), 2))
+        assert hypervolume_2d(F) == pytest.approx(HV(ref_point=np.array([1.1, 1.1]))(F), rel=1e-12)
+    assert hypervolume_2d(np.array([[1.2, 0.0]])) == 0.0
+    assert hypervolume_2d(np.array([[0.0, 0.0]])) == pytest.approx(1.21)
+
+
+class _FakeAlgorithm:
+    def __init__(self, gen, F):
+        from pymoo.core.population import Population
+
+        self.n_gen = gen
+        self.opt = Population.new("F", np.asarray(F, float))
+        self.evaluator = type("E", (), {"n_eval": 10 * gen})()
+
+
+@pytest.mark.parametrize("enabled", [True, False])
+def test_progress_records_and_flag(enabled):
+    stream = io.StringIO()
+    progress = Progress(n_gen=3, enabled=enabled, stream=stream, min_interval=0.0)
+    fronts = [[[0.5, 0.5]], [[0.2, 0.6], [0.6, 0.1]], [[0.1, 0.1]]]
+    for gen, F in enumerate(fronts, start=1):
+        progress(_FakeAlgorithm(gen, F))
+    assert [r["generation"] for r in progress.records] == [1, 2, 3]
+    assert [r["archive_size"] for r in progress.records] == [1, 2, 1]
+    assert progress.records[2]["best_accuracy"] == pytest.approx(0.8)
+    assert progress.records[1]["hypervolume"] == pytest.approx(hypervolume_2d(np.array(fronts[1])))
+    assert progress.records[2]["n_eval"] == 30
+    out = stream.getvalue()
+    if enabled:
+        assert out.count("\n") == 1 and out.endswith("\n") and "\r" in out and "gen 3/3" in out
+    else:
+        assert out == ""
+
+
+def test_flatten_and_tracking_settings(tmp_path):
+    assert flatten({"a": {"b": 1, "c": {"d": None}}, "e": [1, 2]}) == {"a.b": "1", "a.c.d": "None", "e": "[1, 2]"}
+    s = TrackingSettings.from_config({"enabled": True, "uri": None, "artifact_root": None, "experiment": "x"},
+                                     str(tmp_path / "out"))
+    assert s.uri == f"sqlite:///{tmp_path / 'out' / 'mlflow.db'}" and s.uri.startswith("sqlite:////")
+    assert s.artifact_root == (tmp_path / "out" / "mlartifacts").as_uri()
+    assert default_tracking_uri(tmp_path) == f"sqlite:///{tmp_path / 'mlflow.db'}"
+    with pytest.raises(ConfigError, match="tracking.bogus"):
+        TrackingSettings.from_config({"enabled": True, "bogus": 1}, "out")
