@@ -127,18 +127,27 @@ class Experiment:
             train_residuals=train_res,
         )
 
-    def evaluate(self, chart: Chart, data: PreparedData, n_test: int | None = None) -> tuple[DetectionReport, dict]:
-        """Fit ``chart`` on Phase I and score it on fresh test replications."""
-        fitted = chart.with_params(**chart.get_params()).fit(data.phase1.z)
+    def test_data(self, data: PreparedData, n_test: int | None = None) -> tuple[Subgroups, Residuals]:
+        """Fresh faulty test replications (seed stream ``test``), as subgroups and residuals."""
         test_res = self.residuals(self.fault, n_test or self.budget.n_test, "test", fault_scale=data.sigma)
-        test = self.monitor.transform(test_res)
-        statistic = fitted.statistic(test.z)
+        return self.monitor.transform(test_res), test_res
+
+    def evaluate(
+        self, chart: Chart, data: PreparedData, n_test: int | None = None, test: tuple | None = None
+    ) -> tuple[DetectionReport, dict]:
+        """Fit ``chart`` on Phase I and score it on the test replications.
+
+        ``test`` is the output of :meth:`test_data` when it was already simulated.
+        """
+        fitted = chart.with_params(**chart.get_params()).fit(data.phase1.z)
+        subgroups, test_res = test if test is not None else self.test_data(data, n_test)
+        statistic = fitted.statistic(subgroups.z)
         ucl = fitted.control_limit(statistic.shape[-1])
-        report = DetectionReport.of(statistic > ucl, test.fault_mask)
+        report = DetectionReport.of(statistic > ucl, subgroups.fault_mask)
         example = {
             "statistic": statistic[0],
             "ucl": ucl,
-            "fault_mask": test.fault_mask[0],
+            "fault_mask": subgroups.fault_mask[0],
             "residual": test_res.r[0, :, self.fault.channel],
             "residual_fault_mask": test_res.fault_mask[0],
             "dt": self.plant.dt,
@@ -162,7 +171,13 @@ class Experiment:
         from .optim.problem import CandidateEvaluator, ChartTuningProblem
         from .optim.selection import choose as default_choose
 
+        from concurrent.futures import ThreadPoolExecutor
+
+        from .optim.problem import worker_pool
+
         timings: dict[str, float] = {}
+        if n_jobs > 1:
+            worker_pool(n_jobs, warm=True)  # workers start while the main process simulates
         t0 = time.perf_counter()
         data = self.prepare()
         timings["prepare_s"] = time.perf_counter() - t0
@@ -172,12 +187,18 @@ class Experiment:
             self.chart, self.chart.features(data.phase1.z), self.chart.features(data.train.z), data.train.fault_mask
         )
         problem = ChartTuningProblem(evaluator, bounds=bounds, n_jobs=n_jobs)
-        try:
-            extra = {} if callback is None else {"callback": callback}
-            res = minimize(problem, algorithm, termination, seed=self.seed, verbose=verbose, **extra)
-        finally:
-            problem.close()
-        timings["optimise_s"] = time.perf_counter() - t0
+        # The test runs do not depend on the design: simulate them while the workers optimise.
+        with ThreadPoolExecutor(max_workers=1) as background:
+            test_future = background.submit(self.test_data, data)
+            try:
+                extra = {} if callback is None else {"callback": callback}
+                res = minimize(problem, algorithm, termination, seed=self.seed, verbose=verbose, **extra)
+            finally:
+                problem.close()
+            timings["optimise_s"] = time.perf_counter() - t0
+            t0 = time.perf_counter()
+            test = test_future.result()
+        timings["test_wait_s"] = time.perf_counter() - t0
         X = np.atleast_2d(res.opt.get("X"))
         F = np.atleast_2d(res.opt.get("F"))
         index = int((choose or default_choose)(X, F))
@@ -185,7 +206,7 @@ class Experiment:
 
         t0 = time.perf_counter()
         chart = self.chart.with_params(**params)
-        report, example = self.evaluate(chart, data)
+        report, example = self.evaluate(chart, data, test=test)
         timings["test_s"] = time.perf_counter() - t0
         history = list(getattr(callback, "records", []) or [])
         return ExperimentResult(

@@ -7,13 +7,20 @@ once and cached; a candidate costs only its EWMA recursions, the (batched)
 denoising, its limit and the two rates.
 
 Parallelism: a population is split into one chunk per worker of a persistent
-loky process pool. The pool's workers receive the cached features once, through
-the pool initializer, and keep them between generations; each generation ships
-only the candidate vectors. ``n_jobs=1`` evaluates in-process. Results do not
+loky process pool. Each worker loads the cached features once (from a file the
+main process writes at the first pooled generation) and keeps them between
+generations; each generation ships only the candidate vectors. The pool can be
+started early (:func:`worker_pool` with ``warm=True``) so that process start-up
+overlaps with the simulation. ``n_jobs=1`` evaluates in-process. Results do not
 depend on ``n_jobs`` because each candidate's evaluation is independent of the
 others in its chunk.
 """
 from __future__ import annotations
+
+import os
+import pickle
+import tempfile
+import time
 
 import numpy as np
 from pymoo.core.problem import Problem
@@ -57,16 +64,39 @@ class CandidateEvaluator:
 
 
 # -- the worker side of the persistent pool -------------------------------------------
-_WORKER_EVALUATOR: CandidateEvaluator | None = None
+# Each worker loads the evaluator (cached features) once from a file the main process
+# writes, and keeps it between generations; a task then carries only its candidates.
+_WORKER_CACHE: dict = {"path": None, "evaluator": None}
 
 
-def _install_evaluator(evaluator: CandidateEvaluator) -> None:
-    global _WORKER_EVALUATOR
-    _WORKER_EVALUATOR = evaluator
+def _warm_up(delay: float) -> int:
+    """Import the evaluation stack in a worker before the first generation needs it."""
+    from .. import chart, denoise, metrics  # noqa: F401
+
+    time.sleep(delay)  # hold this worker so that the next warm-up task lands on another
+    return os.getpid()
 
 
-def _evaluate_chunk(X: np.ndarray) -> np.ndarray:
-    return _WORKER_EVALUATOR(X)
+def _evaluate_chunk(path: str, X: np.ndarray) -> np.ndarray:
+    if _WORKER_CACHE["path"] != path:
+        with open(path, "rb") as fh:
+            _WORKER_CACHE.update(path=path, evaluator=pickle.load(fh))
+    return _WORKER_CACHE["evaluator"](X)
+
+
+def worker_pool(n_jobs: int, warm: bool = False):
+    """The persistent loky pool of ``n_jobs`` workers (started on first use).
+
+    ``warm=True`` also sends every worker an import task, without waiting for it,
+    so that process start-up overlaps with the caller's own work (simulation).
+    """
+    from joblib.externals.loky import get_reusable_executor
+
+    executor = get_reusable_executor(max_workers=n_jobs, timeout=600)
+    if warm:
+        for _ in range(n_jobs):
+            executor.submit(_warm_up, 0.05)
+    return executor
 
 
 class ChartTuningProblem(Problem):
@@ -99,7 +129,7 @@ class ChartTuningProblem(Problem):
             xl.append(lo + (_OPEN_BOUND_MARGIN if interval.open_low and lo == interval.low else 0.0))
             xu.append(hi - (_OPEN_BOUND_MARGIN if interval.open_high and hi == interval.high else 0.0))
         super().__init__(n_var=len(self.names), n_obj=2, xl=np.array(xl), xu=np.array(xu))
-        self._executor = None
+        self._payload: str | None = None
 
     def _evaluate(self, X, out, *args, **kwargs):
         out["F"] = self.evaluate_population(X)
@@ -109,27 +139,25 @@ class ChartTuningProblem(Problem):
         X = np.atleast_2d(X)
         if self.n_jobs == 1 or X.shape[0] < 2:
             return self.evaluator(X)
-        executor = self._pool()
+        if self._payload is None:
+            fd, self._payload = tempfile.mkstemp(prefix="mosd-evaluator-", suffix=".pkl")
+            with os.fdopen(fd, "wb") as fh:
+                pickle.dump(self.evaluator, fh, protocol=pickle.HIGHEST_PROTOCOL)
+        executor = worker_pool(self.n_jobs)
         chunks = np.array_split(X, min(self.n_jobs, X.shape[0]))
-        futures = [executor.submit(_evaluate_chunk, chunk) for chunk in chunks]
+        futures = [executor.submit(_evaluate_chunk, self._payload, chunk) for chunk in chunks]
         return np.concatenate([f.result() for f in futures], axis=0)
 
-    def _pool(self):
-        if self._executor is None:
-            from joblib.externals.loky import get_reusable_executor
-
-            self._executor = get_reusable_executor(
-                max_workers=self.n_jobs, initializer=_install_evaluator, initargs=(self.evaluator,), reuse=True
-            )
-        return self._executor
-
     def close(self) -> None:
-        """Release the worker pool (it also ends with the process)."""
-        if self._executor is not None:
-            self._executor.shutdown(wait=True)
-            self._executor = None
+        """Delete the evaluator file the workers load; the pool itself stays up for reuse."""
+        if self._payload is not None:
+            try:
+                os.remove(self._payload)
+            except OSError:
+                pass
+            self._payload = None
 
     def __getstate__(self):
         state = self.__dict__.copy()
-        state["_executor"] = None  # pymoo deep-copies problems into res.history
+        state["_payload"] = None  # pymoo deep-copies problems into res.history
         return state
