@@ -188,12 +188,17 @@ def bench_tuning(quick: bool = False) -> list[tuple[str, float, str]]:
 def bench_zdt(quick: bool = False) -> list[tuple[str, float, str]]:
     from .optim.benchmarks import zdt_table
 
-    table = zdt_table(n_eval=2000 if quick else 10_000, seeds=(1, 2) if quick else (1, 2, 3, 4, 5))
+    # SMPSO's hypervolumes at this budget, the reference for "the best published MOPSO"
+    smpso = {"ZDT1": 0.87, "ZDT2": 0.54, "ZDT3": 1.25}
+    n_seeds = 2 if quick else 5
+    table = zdt_table(n_eval=2000 if quick else 10_000, seeds=tuple(range(1, n_seeds + 1)), n_jobs=2)
     rows = []
     for row in table:
-        label = f"{row.get('problem')} {row.get('algorithm')}"
-        rows.append((f"{label} hypervolume (median)", float(row.get("hv", float("nan"))), ""))
-        rows.append((f"{label} IGD (median)", float(row.get("igd", float("nan"))), ""))
+        label = f"{row['problem']} {row['algorithm']}"
+        reference = smpso.get(row["problem"])
+        note = f"median of {n_seeds} seeds; SMPSO ≈ {reference}" if reference else ""
+        rows.append((f"{label} hypervolume", row["hv_median"], note))
+        rows.append((f"{label} IGD", row["igd_median"], ""))
     return rows
 
 
