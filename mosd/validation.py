@@ -51,12 +51,13 @@ def check_in(name: str, value: Any, interval: Interval) -> float:
 
 def check_int(name: str, value: Any, low: int, high: float = math.inf) -> int:
     """Return ``int(value)`` or raise ConfigError when not an integer in [low, high]."""
+    upper = "inf" if high == math.inf else str(int(high))
     integral = not isinstance(value, bool) and _is_number(value) and float(value).is_integer()
     if not integral:
-        raise ConfigError(f"{name}={value!r} is not an integer; allowed: integers in [{low}, {high:g}]")
+        raise ConfigError(f"{name}={value!r} is not an integer; allowed: integers in [{low}, {upper}]")
     v = int(value)
     if not low <= v <= high:
-        raise ConfigError(f"{name}={value!r} is out of range; allowed: integers in [{low}, {high:g}]")
+        raise ConfigError(f"{name}={value!r} is out of range; allowed: integers in [{low}, {upper}]")
     return v
 
 
