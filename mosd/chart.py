@@ -107,15 +107,6 @@ def ewma_time_major(x: np.ndarray, lams: np.ndarray, order: int = 1) -> np.ndarr
     return out
 
 
-def ewma_population(x: np.ndarray, lams: np.ndarray, order: int = 1) -> np.ndarray:
-    """:func:`ewma` for many smoothing parameters at once: shape (P, *x.shape).
-
-    See :func:`ewma_time_major`, which this reshapes.
-    """
-    out = ewma_time_major(x, lams, order)
-    return np.moveaxis(out, 0, -1).reshape((out.shape[1],) + x.shape)
-
-
 def dewma_variance(lam: float, n_points: int) -> np.ndarray:
     """σ²_{W_k} = λ⁴ Σ_{j=1..k} j²(1−λ)^{2(j−1)} for k = 1..n_points (eq. 31)."""
     j = np.arange(1, n_points + 1)
@@ -167,6 +158,11 @@ class Chart:
             setattr(new, name, check_in(f"chart.{name}", value, self.tunable[name]))
         return new
 
+    def candidates(self, X: np.ndarray) -> list["Chart"]:
+        """One validated copy per row of X (P, d), columns in the order of ``tunable``."""
+        names = list(self.tunable)
+        return [self.with_params(**dict(zip(names, x))) for x in np.atleast_2d(X)]
+
     # -- the statistic ----------------------------------------------------------------
     def features(self, z: np.ndarray) -> np.ndarray:
         """Everything that does not depend on the tunable parameters, shape (..., F, K)."""
@@ -194,17 +190,15 @@ class Chart:
         The parameter-dependent recursion runs once per candidate; the denoiser
         runs once on the whole stack.
         """
-        names = list(self.tunable)
-        charts = [self.with_params(**dict(zip(names, x))) for x in np.atleast_2d(X)]
+        charts = self.candidates(X)
         return self.denoiser.denoise(np.stack([c.normalise(c.raw_statistic(features)) for c in charts]))
 
     def population_limits(self, phase1_statistics: np.ndarray, X: np.ndarray) -> np.ndarray:
         """Control limits (P, K) for parameter vectors X given each one's Phase-I statistic (P, ..., K)."""
-        names = list(self.tunable)
         n_points = phase1_statistics.shape[-1]
         return np.stack([
-            self.with_params(**dict(zip(names, x))).fit_statistic(l1).control_limit(n_points)
-            for x, l1 in zip(np.atleast_2d(X), phase1_statistics)
+            chart.fit_statistic(l1).control_limit(n_points)
+            for chart, l1 in zip(self.candidates(X), phase1_statistics)
         ])
 
     # -- the limit --------------------------------------------------------------------
@@ -288,8 +282,7 @@ class _MeanVarianceChart(Chart):
         return self._combine(ewma(features, self.lam, order=self.order))
 
     def population_statistics(self, features: np.ndarray, X: np.ndarray) -> np.ndarray:
-        names = list(self.tunable)
-        charts = [self.with_params(**dict(zip(names, x))) for x in np.atleast_2d(X)]
+        charts = self.candidates(X)
         # statistic-major columns, so each part is a contiguous block of every time row
         by_part = np.moveaxis(features, -2, 0)  # (2, ..., K)
         smoothed = ewma_time_major(by_part, [c.lam for c in charts], order=self.order)  # (K, P, 2·M)
