@@ -26,6 +26,17 @@ def _save(fig, path: str | Path) -> Path:
     return path
 
 
+def _finish_time_axes(ax, t: np.ndarray, fault_mask: np.ndarray, ylabel: str, title: str) -> None:
+    """Fault-onset marker, labels, grid and legend shared by the time-series plots."""
+    if fault_mask.any():
+        ax.axvline(t[np.argmax(fault_mask)], color="k", lw=1.0, ls=":", label="fault onset")
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
+    ax.grid(alpha=0.3)
+    ax.legend(loc="upper left", fontsize=8)
+
+
 def pareto_front(path: str | Path, F: np.ndarray, chosen: int | None = None, title: str = "") -> Path:
     """Scatter of the archive in the (FAR, MDR) plane, the chosen design highlighted.
 
@@ -75,13 +86,7 @@ def chart_trace(path: str | Path, t: np.ndarray, statistic: np.ndarray, ucl: np.
     ax.plot(t, ucl, lw=1.2, color="tab:red", ls="--", label="UCL")
     alarms = statistic > ucl
     ax.plot(t[alarms], statistic[alarms], ".", ms=3, color="tab:red", label="alarm")
-    if fault_mask.any():
-        ax.axvline(t[np.argmax(fault_mask)], color="k", lw=1.0, ls=":", label="fault onset")
-    ax.set_xlabel("time (s)")
-    ax.set_ylabel("$l_k$")
-    ax.set_title(title or "Chart on one test replication")
-    ax.grid(alpha=0.3)
-    ax.legend(loc="upper left", fontsize=8)
+    _finish_time_axes(ax, t, fault_mask, "$l_k$", title or "Chart on one test replication")
     return _save(fig, path)
 
 
@@ -96,13 +101,7 @@ def residual_trace(path: str | Path, residual: np.ndarray, fault_mask: np.ndarra
     ax.plot(t, residual, lw=0.5, color="tab:blue", label=f"residual {channel_name}".strip())
     if sigma is not None and np.isfinite(sigma):
         ax.axhspan(mean - sigma, mean + sigma, color="tab:green", alpha=0.15, label="Phase-I μ ± σ")
-    if fault_mask.any():
-        ax.axvline(t[np.argmax(fault_mask)], color="k", lw=1.0, ls=":", label="fault onset")
-    ax.set_xlabel("time (s)")
-    ax.set_ylabel("residual")
-    ax.set_title(title or "Residual on one test replication")
-    ax.grid(alpha=0.3)
-    ax.legend(loc="upper left", fontsize=8)
+    _finish_time_axes(ax, t, fault_mask, "residual", title or "Residual on one test replication")
     return _save(fig, path)
 
 
