@@ -9,7 +9,7 @@ Two tools:
 * :func:`monte_carlo_arl` — the zero-state ARL of *any* chart that exposes
   ``alarms(Z)``, by simulating in-control or shifted subgroups.
 
-DESIGN.md decision 7: run lengths are zero-state (every statistic starts at its
+docs/DECISIONS.md §7: run lengths are zero-state (every statistic starts at its
 in-control value), and ARL0 of EWMA-type charts is never derived from a false-alarm
 rate, because their alarms are autocorrelated.
 

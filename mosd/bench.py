@@ -29,6 +29,60 @@ import numpy as np
 SECTIONS = ("candidates", "filter", "parallel", "tuning", "zdt")
 
 
+def benchmark_filter(
+    n_reps: int = 100, n_steps: int = 5000, single_reps: int = 3, filter=None, seed: int = 0  # noqa: A002
+) -> dict:
+    """Replication-steps per second of a filter, batched vs one replication at a time.
+
+    Simulates ``n_reps`` fault-free replications of the default mould
+    oscillator (not timed), filters them in one batched call, then filters
+    ``single_reps`` of them one at a time (the loop over all ``n_reps`` would
+    take minutes; steps/s is what is compared).
+
+    Returns
+    -------
+    dict
+        filter, n_x, n_reps, n_steps, batched_seconds, batched_steps_per_s,
+        single_reps, single_seconds, single_steps_per_s, speedup.
+    """
+    from .estimators.residuals import _check_filter
+    from .noise import GaussianNoise
+    from .plants import MouldOscillator
+    from .scenario import Scenario
+    from .validation import check_int
+
+    n_reps = check_int("n_reps", n_reps, 1)
+    n_steps = check_int("n_steps", n_steps, 2)
+    single_reps = check_int("single_reps", single_reps, 1)
+    flt = _check_filter(filter)
+    plant = MouldOscillator()
+    noise = GaussianNoise()
+    trace = Scenario(plant, noise, fault=None, duration=n_steps * plant.dt).simulate(seed, n_reps, stream="calibration")
+    model = plant.model(noise)
+    t0 = time.perf_counter()
+    flt.filter(model, trace.y, trace.u)
+    batched = time.perf_counter() - t0
+    n_single = min(single_reps, n_reps)
+    t0 = time.perf_counter()
+    for r in range(n_single):
+        flt.filter(model, trace.y[r : r + 1], trace.u[r : r + 1])
+    single = time.perf_counter() - t0
+    batched_rate = n_reps * trace.n_samples / batched
+    single_rate = n_single * trace.n_samples / single
+    return {
+        "filter": repr(flt),
+        "n_x": model.n_x,
+        "n_reps": n_reps,
+        "n_steps": trace.n_samples,
+        "batched_seconds": batched,
+        "batched_steps_per_s": batched_rate,
+        "single_reps": n_single,
+        "single_seconds": single,
+        "single_steps_per_s": single_rate,
+        "speedup": batched_rate / single_rate,
+    }
+
+
 def paper_workload(n_phase1: int = 10, n_train: int = 10, n_subgroups: int = 1000, n: int = 5, seed: int = 0,
                    a: float = 2.0, b: float = 2.0):
     """Standardised subgroups as the paper's simulation produces them (offset+variance fault).
@@ -47,8 +101,8 @@ def paper_workload(n_phase1: int = 10, n_train: int = 10, n_subgroups: int = 100
 
 
 def _paper_chart():
-    from .chart import SSDEWMA
-    from .denoise import WaveletDenoiser
+    from .detectors import SSDEWMA
+    from .denoisers import WaveletDenoiser
 
     return SSDEWMA(lam=0.3, K=3.0, limit="phase1", denoiser=WaveletDenoiser(scaling="one"))
 
@@ -60,7 +114,7 @@ def _naive_objectives(chart, phase1, train, mask, x):
 
     def statistic(z):
         u = math.sqrt(z.shape[-1]) * z.mean(axis=-1)
-        from .chart import subgroup_variance_statistic
+        from .detectors import subgroup_variance_statistic
 
         v = subgroup_variance_statistic(z)
         y = zz = w = q = 0.0
@@ -114,7 +168,6 @@ def bench_candidates(quick: bool = False) -> list[tuple[str, float, str]]:
 
 
 def bench_filter(quick: bool = False) -> list[tuple[str, float, str]]:
-    from .estimator import benchmark_filter
 
     result = benchmark_filter(n_reps=20 if quick else 100, n_steps=1000 if quick else 5000)
     rows = []

@@ -1,42 +1,54 @@
 """One experiment, end to end, as plain Python (no Hydra, no MLflow).
 
-calibrate (Phase I) → simulate training runs → tune the chart (pymoo) → choose a
-design from the archive → evaluate it on fresh test runs (DESIGN.md decision 5:
-calibration, training and test replications come from disjoint seed streams).
+train the estimator if it needs it (own seed stream) → calibrate (fault-free
+runs) → simulate training runs → tune the detector (pymoo) → choose a design
+from the archive → evaluate it on fresh test runs. Estimator training,
+calibration, training and test replications come from disjoint seed streams
+(docs/DECISIONS.md §5; :data:`mosd.scenario.STREAMS`).
+
+The same four verbs serve the app (``python -m mosd``) and the paper reports
+(``python -m mosd.paper``): :meth:`Experiment.prepare`, :meth:`Experiment.test_data`,
+:meth:`Experiment.evaluate`, :meth:`Experiment.tune` / :meth:`Experiment.run`.
 """
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
-from typing import Any, Callable
+from dataclasses import dataclass, field, replace
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from .chart import Chart
-from .fault import SensorFault
-from .metrics import DetectionReport, Estimate
-from .monitor import Monitor
-from .scenario import Scenario
+from .metrics import DEFAULT_METRICS, DetectionReport, Estimate, check_objectives
+from .scenario import STREAMS, Scenario
 from .types import Residuals, Subgroups
 from .validation import ConfigError, check_int
 
 
 @dataclass(frozen=True)
 class Budget:
-    """Replication counts of each seed stream (paper scale by default)."""
+    """Replication counts of each seed stream (paper-000 scale by default).
+
+    ``n_estimator`` are the runs a trainable estimator learns from (its own
+    stream; unused when the estimator needs no training).
+    """
 
     n_calibration: int = 10
     n_train: int = 10
     n_test: int = 100
+    n_estimator: int = 10
 
     def __post_init__(self):
-        for name in ("n_calibration", "n_train", "n_test"):
+        for name in ("n_calibration", "n_train", "n_test", "n_estimator"):
             check_int(f"budget.{name}", getattr(self, name), 1)
 
 
 @dataclass
 class PreparedData:
-    """Everything before the chart: cached for the whole optimisation."""
+    """Everything before the detector: cached for the whole optimisation.
+
+    ``sigma`` is the unit of relative faults (σ of the faulty channel's
+    calibration residual; 1 for absolute faults).
+    """
 
     sigma: float
     phase1: Subgroups
@@ -46,131 +58,196 @@ class PreparedData:
 
 
 @dataclass
-class ExperimentResult:
-    """What one run produced (the app logs it, the report reads it back)."""
+class Tuned:
+    """An optimiser's archive on the training runs and the design chosen from it."""
 
     params: dict[str, float]
-    chart: Chart
+    X: np.ndarray
+    F: np.ndarray
+    index: int
+    objectives: tuple[str, ...]
+    history: list[dict[str, float]] = field(default_factory=list)
+    seconds: float = 0.0
+
+    @property
+    def train_objectives(self) -> dict[str, float]:
+        return {name: float(v) for name, v in zip(self.objectives, self.F[self.index])}
+
+
+@dataclass
+class ExperimentResult:
+    """What one run produced (the app logs it, the reports read it back)."""
+
+    params: dict[str, float]
+    detector: Any
     archive_X: np.ndarray
     archive_F: np.ndarray
     chosen_index: int
-    train_objectives: tuple[float, float]
+    objectives: tuple[str, ...]
+    train_objectives: dict[str, float]
     test: DetectionReport
     sigma: float
     history: list[dict[str, float]] = field(default_factory=list)
     timings: dict[str, float] = field(default_factory=dict)
     example: dict[str, Any] = field(default_factory=dict)
 
+    @property
+    def chart(self):  # the detector of a paper-000 run is a chart
+        return self.detector
+
     def summary(self) -> dict[str, Estimate]:
         return self.test.summary()
 
 
+def _truth(subgroups: Subgroups) -> Subgroups:
+    """The fault truth of some points without the points (what workers need to score)."""
+    return replace(subgroups, z=np.empty((0,)))
+
+
 class Experiment:
-    """Plant, noise, fault, residual generator, monitor and chart, with budgets and seed.
+    """Plant, noise, fault, estimator, monitor and detector, with budgets, seed and objectives.
 
     Parameters
     ----------
-    plant, noise : components of :mod:`mosd.plant` and :mod:`mosd.noise`
-    fault : SensorFault
-    estimator : residual generator with ``residuals(trace, model) -> Residuals``
-    monitor : Monitor
-    chart : Chart (its tunable parameters are the design variables)
+    plant, noise, fault, estimator, monitor, detector :
+        Components of :mod:`mosd.plants`, :mod:`mosd.noise`, :mod:`mosd.faults`,
+        :mod:`mosd.estimators`, :mod:`mosd.monitors`, :mod:`mosd.detectors`
+        (the detector's ``tunable`` parameters are the design variables).
     duration : float
         Simulated seconds per replication.
     budget : Budget
     seed : int
+    objectives : sequence of str
+        Metrics to minimise (:func:`mosd.metrics.objective_names`), default (FAR, MDR).
     """
 
-    def __init__(
-        self,
-        plant,
-        noise,
-        fault: SensorFault,
-        estimator,
-        monitor: Monitor,
-        chart: Chart,
-        duration: float = 5.2,
-        budget: Budget | None = None,
-        seed: int = 0,
-    ):
+    def __init__(self, plant, noise, fault, estimator, monitor, detector, duration: float = 5.2,
+                 budget: Budget | None = None, seed: int = 0, objectives: Sequence[str] = ("far", "mdr")):
         if fault is None:
-            raise ConfigError("fault is not set; allowed: offset, variance, offset_var, drift")
+            raise ConfigError("fault is not set; allowed: a fault of conf/fault (e.g. +fault=offset_var)")
         self.plant, self.noise, self.fault = plant, noise, fault
-        self.estimator, self.monitor, self.chart = estimator, monitor, chart
+        self.estimator, self.monitor, self.detector = estimator, monitor, detector
         self.duration = duration
         self.budget = budget or Budget()
         self.seed = check_int("seed", seed, 0, 2**63 - 1)
-        self.model = plant.model(noise.process_cov, noise.measurement_cov)
-        # Validates duration and fault channel now, before any work.
+        self.objectives = check_objectives(objectives)
+        self.model = plant.model(noise)
+        # validates duration, onset and the fault's channel now, before any work
         Scenario(plant, noise, fault, duration)
+        if getattr(estimator, "requires_fit", False) and getattr(estimator, "fit_on_faults", False) and fault.relative:
+            raise ConfigError("estimator needs faulty training runs but the fault is in units of the calibration σ; "
+                              "allowed: an absolute fault with this estimator")
+
+    @property
+    def chart(self):
+        return self.detector
 
     # -- stages -----------------------------------------------------------------------
-    def residuals(self, fault: SensorFault | None, n_reps: int, stream: str, fault_scale: float = 1.0) -> Residuals:
-        trace = Scenario(self.plant, self.noise, fault, self.duration).simulate(
-            self.seed, n_reps, stream=stream, fault_scale=fault_scale
-        )
-        return self.estimator.residuals(trace, self.model)
+    def simulate(self, fault, n_reps: int, stream: str, fault_scale: float = 1.0):
+        return Scenario(self.plant, self.noise, fault, self.duration).simulate(self.seed, n_reps, stream=stream,
+                                                                               fault_scale=fault_scale)
 
-    def prepare(self) -> PreparedData:
-        """Phase-I calibration and the training runs (everything the optimiser caches)."""
+    def residuals(self, fault, n_reps: int, stream: str, fault_scale: float = 1.0) -> Residuals:
+        """Simulate a seed stream and run the estimator on it."""
+        return self.estimator.estimate(self.simulate(fault, n_reps, stream, fault_scale), self.model)
+
+    def fit_estimator(self) -> None:
+        """Train the estimator on its own seed stream (no-op for estimators without ``fit``)."""
+        if not getattr(self.estimator, "requires_fit", False):
+            return
+        fault = self.fault if self.estimator.fit_on_faults else None
+        trace = self.simulate(fault, self.budget.n_estimator, "estimator")
+        # the training's own randomness (initial weights, shuffling) also comes from the estimator stream
+        rng = np.random.default_rng([self.seed, STREAMS["estimator"], 2**31])
+        self.estimator.fit(trace, self.model, rng)
+
+    def calibrate(self) -> Residuals:
+        """Train the estimator (if it needs it), then fit the monitor on fault-free calibration runs."""
+        self.fit_estimator()
         phase1_res = self.residuals(None, self.budget.n_calibration, "calibration")
         self.monitor.fit(phase1_res)
-        sigma = self.monitor.channel_std(self.fault.channel) if self.fault.channel in self.monitor.channels else float(
-            np.nanstd(phase1_res.r[:, self.monitor.burn_in :, self.fault.channel], ddof=1)
-        )
-        train_res = self.residuals(self.fault, self.budget.n_train, "training", fault_scale=sigma)
-        return PreparedData(
-            sigma=sigma,
-            phase1=self.monitor.transform(phase1_res),
-            train=self.monitor.transform(train_res),
-            phase1_residuals=phase1_res,
-            train_residuals=train_res,
-        )
+        return phase1_res
 
-    def test_data(self, data: PreparedData, n_test: int | None = None) -> tuple[Subgroups, Residuals]:
-        """Fresh faulty test replications (seed stream ``test``), as subgroups and residuals."""
-        test_res = self.residuals(self.fault, n_test or self.budget.n_test, "test", fault_scale=data.sigma)
+    def prepare(self, calibration: Residuals | None = None, fault=None) -> PreparedData:
+        """Calibration and the training runs of ``fault`` (default: the experiment's): what the optimiser caches.
+
+        ``calibration`` is the output of :meth:`calibrate` when several faults
+        share one calibration (the calibration stream is fault-free, so it is
+        the same for every fault).
+        """
+        fault = fault or self.fault
+        phase1_res = self.calibrate() if calibration is None else calibration
+        sigma = self.monitor.fault_scale(phase1_res, fault.channel) if fault.relative else 1.0
+        train_res = self.residuals(fault, self.budget.n_train, "training", fault_scale=sigma)
+        return PreparedData(sigma=sigma, phase1=self.monitor.transform(phase1_res),
+                            train=self.monitor.transform(train_res), phase1_residuals=phase1_res,
+                            train_residuals=train_res)
+
+    def test_data(self, data: PreparedData, n_test: int | None = None, fault=None) -> tuple[Subgroups, Residuals]:
+        """Fresh test replications (seed stream ``test``) of ``fault`` (default: the experiment's)."""
+        test_res = self.residuals(fault or self.fault, n_test or self.budget.n_test, "test", fault_scale=data.sigma)
         return self.monitor.transform(test_res), test_res
 
-    def evaluate(
-        self, chart: Chart, data: PreparedData, n_test: int | None = None, test: tuple | None = None
-    ) -> tuple[DetectionReport, dict]:
-        """Fit ``chart`` on Phase I and score it on the test replications.
+    def evaluator(self, data: PreparedData, detector=None):
+        """The objectives of a population of designs on the training runs (what the optimiser minimises)."""
+        from .optim.problem import CandidateEvaluator
+
+        detector = detector or self.detector
+        return CandidateEvaluator(detector, detector.features(data.phase1.z), detector.features(data.train.z),
+                                  _truth(data.train), self.objectives)
+
+    def evaluate(self, detector, data: PreparedData, n_test: int | None = None,
+                 test: tuple | None = None) -> tuple[DetectionReport, dict]:
+        """Calibrate ``detector`` on the calibration runs and score it on the test replications.
 
         ``test`` is the output of :meth:`test_data` when it was already simulated.
         """
-        fitted = chart.with_params(**chart.get_params()).fit(data.phase1.z)
         subgroups, test_res = test if test is not None else self.test_data(data, n_test)
-        statistic = fitted.statistic(subgroups.z)
-        ucl = fitted.control_limit(statistic.shape[-1])
-        report = DetectionReport.of(statistic > ucl, subgroups.fault_mask)
+        decided = detector.decide(data.phase1.z, subgroups.z)
+        names = tuple(dict.fromkeys((*DEFAULT_METRICS, *self.objectives)))
+        report = DetectionReport.of(decided.decision, subgroups, names)
+        channel = getattr(self.fault, "channel", 0)
+        residual = test_res.r[0, :, channel] if test_res.r.shape[-1] > channel else None
         example = {
-            "statistic": statistic[0],
-            "ucl": ucl,
+            "statistic": decided.statistic[0],
+            "ucl": np.broadcast_to(decided.threshold, decided.statistic.shape)[0],
             "fault_mask": subgroups.fault_mask[0],
-            "residual": test_res.r[0, :, self.fault.channel],
+            "t": subgroups.t,
+            "residual": residual,
+            "residual_t": test_res.t,
             "residual_fault_mask": test_res.fault_mask[0],
             "dt": self.plant.dt,
-            "subgroup_size": self.monitor.subgroup_size,
+            "seconds_per_point": float(np.median(np.diff(subgroups.t))) if subgroups.t is not None
+            and len(subgroups.t) > 1 else float(self.plant.dt),
         }
         return report, example
 
-    def run(
-        self,
-        algorithm,
-        termination,
-        n_jobs: int = 2,
-        bounds: dict | None = None,
-        choose: Callable[[np.ndarray, np.ndarray], int] | None = None,
-        callback=None,
-        verbose: bool = False,
-    ) -> ExperimentResult:
-        """Tune the chart with a pymoo ``algorithm`` and evaluate the chosen design."""
+    def tune(self, data: PreparedData, algorithm, termination, n_jobs: int = 2, bounds: dict | None = None,
+             choose: Callable | None = None, callback=None, verbose: bool = False, detector=None) -> Tuned:
+        """Minimise the objectives over the detector's parameters on the training runs."""
         from pymoo.optimize import minimize
 
-        from .optim.problem import CandidateEvaluator, ChartTuningProblem
+        from .optim.problem import TuningProblem
         from .optim.selection import choose as default_choose
 
+        t0 = time.perf_counter()
+        problem = TuningProblem(self.evaluator(data, detector), bounds=bounds, n_jobs=n_jobs)
+        try:
+            extra = {} if callback is None else {"callback": callback}
+            res = minimize(problem, algorithm, termination, seed=self.seed, verbose=verbose, **extra)
+        finally:
+            problem.close()
+        X = problem.round(np.atleast_2d(res.opt.get("X")))
+        F = np.atleast_2d(res.opt.get("F"))
+        index = int((choose or default_choose)(X, F, objectives=self.objectives))
+        params = {name: (int(v) if problem.is_integer[i] else float(v))
+                  for i, (name, v) in enumerate(zip(problem.names, X[index]))}
+        return Tuned(params, X, F, index, self.objectives, list(getattr(callback, "records", []) or []),
+                     time.perf_counter() - t0)
+
+    def run(self, algorithm, termination, n_jobs: int = 2, bounds: dict | None = None,
+            choose: Callable | None = None, callback=None, verbose: bool = False) -> ExperimentResult:
+        """Prepare, tune and evaluate the chosen design on fresh test runs."""
         from concurrent.futures import ThreadPoolExecutor
 
         from .optim.problem import worker_pool
@@ -181,44 +258,20 @@ class Experiment:
         t0 = time.perf_counter()
         data = self.prepare()
         timings["prepare_s"] = time.perf_counter() - t0
-
-        t0 = time.perf_counter()
-        evaluator = CandidateEvaluator(
-            self.chart, self.chart.features(data.phase1.z), self.chart.features(data.train.z), data.train.fault_mask
-        )
-        problem = ChartTuningProblem(evaluator, bounds=bounds, n_jobs=n_jobs)
-        # The test runs do not depend on the design: simulate them while the workers optimise.
+        # the test runs do not depend on the design: simulate them while the workers optimise
         with ThreadPoolExecutor(max_workers=1) as background:
             test_future = background.submit(self.test_data, data)
-            try:
-                extra = {} if callback is None else {"callback": callback}
-                res = minimize(problem, algorithm, termination, seed=self.seed, verbose=verbose, **extra)
-            finally:
-                problem.close()
-            timings["optimise_s"] = time.perf_counter() - t0
+            tuned = self.tune(data, algorithm, termination, n_jobs=n_jobs, bounds=bounds, choose=choose,
+                              callback=callback, verbose=verbose)
+            timings["optimise_s"] = tuned.seconds
             t0 = time.perf_counter()
             test = test_future.result()
         timings["test_wait_s"] = time.perf_counter() - t0
-        X = np.atleast_2d(res.opt.get("X"))
-        F = np.atleast_2d(res.opt.get("F"))
-        index = int((choose or default_choose)(X, F))
-        params = dict(zip(problem.names, map(float, X[index])))
-
         t0 = time.perf_counter()
-        chart = self.chart.with_params(**params)
-        report, example = self.evaluate(chart, data, test=test)
+        detector = self.detector.with_params(**tuned.params)
+        report, example = self.evaluate(detector, data, test=test)
         timings["test_s"] = time.perf_counter() - t0
-        history = list(getattr(callback, "records", []) or [])
-        return ExperimentResult(
-            params=params,
-            chart=chart,
-            archive_X=X,
-            archive_F=F,
-            chosen_index=index,
-            train_objectives=(float(F[index, 0]), float(F[index, 1])),
-            test=report,
-            sigma=data.sigma,
-            history=history,
-            timings=timings,
-            example=example,
-        )
+        return ExperimentResult(params=tuned.params, detector=detector, archive_X=tuned.X, archive_F=tuned.F,
+                                chosen_index=tuned.index, objectives=self.objectives,
+                                train_objectives=tuned.train_objectives, test=report, sigma=data.sigma,
+                                history=tuned.history, timings=timings, example=example)

@@ -11,10 +11,10 @@ Commands (plain Python, no Hydra, no MLflow)::
 Each prints a markdown table beside the paper's numbers and writes CSV/JSON/PNG
 files under ``outputs/paper/`` (``--out`` to change). Sensitivity options:
 ``--k-max`` (K_SD search box, Table 2: 5), ``--wavelet paper|sln|none`` (denoiser
-of the SS/M-DEWMA statistic), ``--subgroups window|channels`` (DESIGN.md decision 2),
+of the SS/M-DEWMA statistic), ``--subgroups window|channels`` (docs/DECISIONS.md §2),
 ``--n-jobs``. docs/RESULTS.md shows what these commands produce.
 
-The default set-up (DESIGN.md decisions 1–7; docs/DECISIONS.md):
+The default set-up (docs/DECISIONS.md §1–7; docs/DECISIONS.md):
 
 * plant :class:`~mosd.plant.MouldOscillator`, noise :class:`~mosd.noise.GaussianNoise`
   (defaults), 5.2 s per replication, sensor fault on x_p from t = 2.7 s;
@@ -32,6 +32,7 @@ The default set-up (DESIGN.md decisions 1–7; docs/DECISIONS.md):
 from __future__ import annotations
 
 import argparse
+import functools
 import csv
 import json
 import math
@@ -43,15 +44,15 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from .chart import MDEWMA, MSOEWMA, SSDEWMA, Chart
-from .denoise import NoDenoiser, WaveletDenoiser
-from .estimator import CESCKF, DedicatedObserverResidual
-from .experiment import Budget, Experiment, PreparedData
-from .fault import SensorFault
+from .detectors import MDEWMA, MSOEWMA, SSDEWMA, Chart
+from .denoisers import NoDenoiser, WaveletDenoiser
+from .estimators import CESCKF, DedicatedObserverResidual
+from .experiment import Budget, Experiment, PreparedData, Tuned
+from .faults import SensorFault
 from .metrics import DetectionReport, Estimate
-from .monitor import Monitor
+from .monitors import SubgroupMonitor as Monitor
 from .noise import GaussianNoise
-from .plant import MouldOscillator
+from .plants import MouldOscillator
 from .types import Subgroups
 from .validation import ConfigError, Interval, check_choice, check_in, check_int
 
@@ -111,6 +112,10 @@ PAPER_TABLE4: dict[str, tuple[float, float]] = {
 #: Fig. 1 / §2.3: after optimisation MDR and FAR were below 1 % for
 #: λ ∈ [0.25, 0.45], K_SD ∈ [3.5, 5] (offset fault).
 PAPER_GOOD_REGION = {"lam": (0.25, 0.45), "K": (3.5, 5.0), "below": 0.01}
+
+#: Table 2's MOPSO, literally: constriction (eqs. 38–39, w = 0.7298, c = 1.4962), velocity
+#: reversed at a bound, Coello's mutation, roulette leaders on the adaptive grid.
+PAPER_MOPSO: dict[str, Any] = {"velocity": "constriction", "boundary": "reflect", "mutation_rate": 0.5}
 
 #: MOPSO search box of Table 2 (K_SD ∈ (0, 5); λ keeps its open (0, 1)).
 PAPER_BOUNDS = {"K": (0.0, 5.0)}
@@ -212,7 +217,7 @@ class PaperSettings:
     k_max : float in (0, 10]
         Upper end of the K_SD search box (Table 2: 5; Fig. 1 scans up to 10).
     subgroups : {"window", "channels"}
-        ``"window"`` (default, DESIGN.md decision 2): n = 5 consecutive x_p residuals,
+        ``"window"`` (default, docs/DECISIONS.md §2): n = 5 consecutive x_p residuals,
         5.2 s runs, onset 2.7 s. ``"channels"``: the paper's literal reading — the three
         residual channels of one sample form a subgroup, 1.2 s runs (1,000 samples after
         the 200-sample burn-in), onset 0.7 s; the fault on x_p then moves U_k by a/√3 only.
@@ -277,36 +282,36 @@ def make_chart(method: str, params: dict[str, float], wavelet: str = "paper") ->
 # ------------------------------------------------------------------------------------
 @dataclass
 class FaultData:
-    """One fault's cached subgroups: Phase I, training (the optimiser's) and test (reported)."""
+    """One fault's cached data: Phase I and training (the optimiser's), test (reported)."""
 
     name: str
     fault: SensorFault
     prepared: PreparedData
-    test: Subgroups
+    test: tuple  # (Subgroups, Residuals) of Experiment.test_data
+
+    @property
+    def test_subgroups(self) -> Subgroups:
+        return self.test[0]
 
 
 @dataclass
 class Study:
-    """Components, settings and the per-fault data cache of one paper reproduction.
+    """The paper's experiment, its settings and the per-fault data cache of one reproduction.
 
     Build with :func:`build_study`; :func:`fault_data` fills ``faults`` on demand.
+    Every stage is a verb of :class:`~mosd.experiment.Experiment`: this module only
+    chooses the paper's set-ups and formats tables and figures.
     """
 
     settings: PaperSettings
     experiment: Experiment
-    sigma: float
-    phase1_residuals: Any
-    phase1: Subgroups
+    calibration: Any
     faults: dict[str, FaultData] = field(default_factory=dict)
     timings: dict[str, float] = field(default_factory=dict)
 
 
 def build_study(settings: PaperSettings | None = None) -> Study:
-    """Components of the default scenario and the Phase-I calibration (shared by all faults).
-
-    Calibration runs are fault-free and use their own seed stream, so they are the same
-    for every fault; :meth:`Experiment.prepare` would simulate them once per fault.
-    """
+    """The paper's experiment and its Phase-I calibration (shared by all faults: the stream is fault-free)."""
     settings = settings or PaperSettings()
     t0 = time.perf_counter()
     duration, onset = _SCENARIO_TIMES[settings.subgroups]
@@ -316,43 +321,31 @@ def build_study(settings: PaperSettings | None = None) -> Study:
         make_chart("MO-SS-DEWMA", {"lam": 0.3, "K": 3.0}, settings.wavelet),
         duration=duration, budget=settings.preset.replications, seed=settings.seed,
     )
-    phase1_res = experiment.residuals(None, experiment.budget.n_calibration, "calibration")
-    experiment.monitor.fit(phase1_res)
-    sigma = experiment.monitor.channel_std(0)
-    study = Study(settings, experiment, sigma, phase1_res, experiment.monitor.transform(phase1_res))
+    study = Study(settings, experiment, experiment.calibrate())
     study.timings["calibration_s"] = time.perf_counter() - t0
     return study
 
 
 def fault_data(study: Study, name: str) -> FaultData:
-    """Training and test subgroups of one fault (simulated once, then cached on ``study``).
-
-    Same arithmetic as :meth:`Experiment.prepare` (training) and
-    :meth:`Experiment.evaluate` (test): residuals of the ``"training"`` / ``"test"``
-    streams with the fault scaled by the Phase-I σ, standardised by the Phase-I monitor.
-    """
+    """Training and test data of one fault (simulated once, then cached on ``study``)."""
     if name in study.faults:
         return study.faults[name]
     t0 = time.perf_counter()
-    fault = make_fault(name, onset=study.experiment.fault.onset)
-    exp, budget = study.experiment, study.experiment.budget
-    train_res = exp.residuals(fault, budget.n_train, "training", fault_scale=study.sigma)
-    test_res = exp.residuals(fault, budget.n_test, "test", fault_scale=study.sigma)
-    prepared = PreparedData(sigma=study.sigma, phase1=study.phase1, train=exp.monitor.transform(train_res),
-                            phase1_residuals=study.phase1_residuals, train_residuals=train_res)
-    data = FaultData(name, fault, prepared, exp.monitor.transform(test_res))
+    exp = study.experiment
+    fault = make_fault(name, onset=exp.fault.onset)
+    prepared = exp.prepare(calibration=study.calibration, fault=fault)
+    data = FaultData(name, fault, prepared, exp.test_data(prepared, fault=fault))
     study.faults[name] = data
     study.timings[f"simulate_{name}_s"] = time.perf_counter() - t0
     return data
 
 
 # ------------------------------------------------------------------------------------
-# scoring and tuning
+# scoring and tuning: Experiment's verbs
 # ------------------------------------------------------------------------------------
-def evaluate_design(chart: Chart, data: FaultData) -> DetectionReport:
+def evaluate_design(chart: Chart, study: Study, data: FaultData) -> DetectionReport:
     """Fit ``chart``'s limit on Phase I and score it on the fault's test replications."""
-    fitted = chart.with_params(**chart.get_params()).fit(data.prepared.phase1.z)
-    return DetectionReport.of(fitted.alarms(data.test.z), data.test.fault_mask)
+    return study.experiment.evaluate(chart, data.prepared, test=data.test)[0]
 
 
 def self_referenced_report(chart: Chart, data: FaultData) -> DetectionReport:
@@ -365,9 +358,10 @@ def self_referenced_report(chart: Chart, data: FaultData) -> DetectionReport:
     itself); shown only to explain the paper-parameter rows.
     """
     width = chart.get_params()[list(chart.tunable)[1]]
-    statistic = chart.statistic(data.test.z)
+    test = data.test_subgroups
+    statistic = chart.statistic(test.z)
     ucl = statistic.mean(axis=-1, keepdims=True) + width * statistic.std(axis=-1, ddof=1, keepdims=True)
-    return DetectionReport.of(statistic > ucl, data.test.fault_mask)
+    return DetectionReport.of(statistic > ucl, test)
 
 
 def error_anatomy(chart: Chart, data: FaultData, near: int = 10) -> dict[str, float]:
@@ -379,8 +373,8 @@ def error_anatomy(chart: Chart, data: FaultData, near: int = 10) -> dict[str, fl
     ``false_elsewhere``: the other false alarms. One subgroup per run is 0.1 % of a
     1,000-subgroup run (0.2 % of either half).
     """
-    fitted = chart.with_params(**chart.get_params()).fit(data.prepared.phase1.z)
-    alarms, mask = fitted.alarms(data.test.z), data.test.fault_mask
+    test = data.test_subgroups
+    alarms, mask = chart.decide(data.prepared.phase1.z, test.z).decision != 0, test.fault_mask
     onset = np.argmax(mask, axis=1)
     position = np.arange(mask.shape[1]) - onset[:, None]
     missed, false = mask & ~alarms, ~mask & alarms
@@ -394,75 +388,42 @@ def error_anatomy(chart: Chart, data: FaultData, near: int = 10) -> dict[str, fl
     }
 
 
-def make_evaluator(chart: Chart, data: FaultData):
+def make_evaluator(chart: Chart, study: Study, data: FaultData):
     """The (FAR, MDR) map over the fault's training runs (eq. 36's objectives)."""
-    from .optim.problem import CandidateEvaluator
-
-    prepared = data.prepared
-    return CandidateEvaluator(chart, chart.features(prepared.phase1.z), chart.features(prepared.train.z),
-                              prepared.train.fault_mask)
+    return study.experiment.evaluator(data.prepared, chart)
 
 
-@dataclass
-class Optimised:
-    """An optimiser's archive on the training runs and the design chosen from it."""
-
-    params: dict[str, float]
-    X: np.ndarray
-    F: np.ndarray
-    index: int
-    seconds: float
-
-    @property
-    def train_objectives(self) -> tuple[float, float]:
-        return float(self.F[self.index, 0]), float(self.F[self.index, 1])
-
-
-def optimise(chart: Chart, data: FaultData, algorithm: str = "mopso", pop_size: int = 100, n_gen: int = 100,
-             bounds: dict | None = None, n_jobs: int = 2, seed: int = 0, rule: str = "max_accuracy") -> Optimised:
-    """Minimise (FAR, MDR) over the chart's parameters on the training runs (eq. 36).
-
-    Parameters
-    ----------
-    chart : Chart
-        Template; its ``tunable`` parameters are the design variables.
-    data : FaultData
-    algorithm : {"mopso", "nsga2"}
-        :class:`mosd.optim.mopso.MOPSO` (paper settings, Table 2) or pymoo's NSGA-II.
-    pop_size, n_gen : int
-        Particles / population and iterations (Table 2: 100 and 100).
-    bounds : dict, optional
-        Search box (Table 2: K_SD ∈ (0, 5), :data:`PAPER_BOUNDS`).
-    n_jobs : int
-        Worker processes for the population evaluation.
-    seed : int
-    rule : str
-        Choice from the archive (:func:`mosd.optim.selection.choose`; DESIGN.md decision 6).
-    """
-    from pymoo.optimize import minimize
-
-    from .optim.problem import ChartTuningProblem
-    from .optim.selection import choose
-
+def make_solver(algorithm: str, pop_size: int):
+    """The paper's MOPSO (Table 2, literal) or pymoo's NSGA-II."""
     check_choice("algorithm", algorithm, ("mopso", "nsga2"))
-    t0 = time.perf_counter()
     if algorithm == "mopso":
         from .optim.mopso import MOPSO
 
-        solver = MOPSO(pop_size=pop_size, archive_size=100)
-    else:
-        from pymoo.algorithms.moo.nsga2 import NSGA2
+        return MOPSO(pop_size=pop_size, archive_size=100, **PAPER_MOPSO)
+    from pymoo.algorithms.moo.nsga2 import NSGA2
 
-        solver = NSGA2(pop_size=pop_size)
-    problem = ChartTuningProblem(make_evaluator(chart, data), bounds=bounds, n_jobs=n_jobs)
-    try:
-        res = minimize(problem, solver, ("n_gen", n_gen), seed=seed, verbose=False)
-    finally:
-        problem.close()
-    X, F = np.atleast_2d(res.opt.get("X")), np.atleast_2d(res.opt.get("F"))
-    index = int(choose(X, F, rule=rule))
-    params = dict(zip(problem.names, map(float, X[index])))
-    return Optimised(params, X, F, index, time.perf_counter() - t0)
+    return NSGA2(pop_size=pop_size)
+
+
+def optimise(chart: Chart, study: Study, data: FaultData, algorithm: str = "mopso", pop_size: int = 100,
+             n_gen: int = 100, bounds: dict | None = None, n_jobs: int = 2, rule: str = "max_accuracy") -> Tuned:
+    """Minimise (FAR, MDR) over the chart's parameters on the fault's training runs (eq. 36).
+
+    :meth:`Experiment.tune` with the paper's optimiser (``algorithm``: Table 2's MOPSO
+    or NSGA-II), ``pop_size`` particles × ``n_gen`` iterations (Table 2: 100 × 100),
+    the search box ``bounds`` (Table 2: K_SD ∈ (0, 5)) and the choice rule
+    (docs/DECISIONS.md §6).
+    """
+    from .optim.selection import choose
+
+    return study.experiment.tune(data.prepared, make_solver(algorithm, pop_size), ("n_gen", n_gen), n_jobs=n_jobs,
+                                 bounds=bounds, choose=functools.partial(choose, rule=rule), detector=chart)
+
+
+def _pair(tuned: Tuned) -> tuple[float, float]:
+    """(FAR, MDR) of the chosen design on the training runs."""
+    objectives = tuned.train_objectives
+    return objectives["far"], objectives["mdr"]
 
 
 def ms_oewma_grid(preset: BudgetPreset) -> tuple[np.ndarray, np.ndarray]:
@@ -539,7 +500,7 @@ class Table3:
     settings: dict[str, Any]
     rows: list[Row]
     bars: list[BarCheck]
-    archives: dict[str, Optimised]
+    archives: dict[str, Tuned]
     timings: dict[str, float]
     #: the paper-parameter charts under the self-referenced limit (:func:`self_referenced_report`)
     self_referenced: list[Row] = field(default_factory=list)
@@ -557,7 +518,7 @@ def run_table3(study: Study, faults: Sequence[str] = tuple(FAULTS), include_tune
     """
     settings, preset = study.settings, study.settings.preset
     rows: list[Row] = []
-    archives: dict[str, Optimised] = {}
+    archives: dict[str, Tuned] = {}
     bars: list[BarCheck] = []
     self_referenced: list[Row] = []
     anatomy: dict[str, dict[str, float]] = {}
@@ -567,17 +528,17 @@ def run_table3(study: Study, faults: Sequence[str] = tuple(FAULTS), include_tune
             t0 = time.perf_counter()
             params = PAPER_PRESETS[method][name]
             chart = make_chart(method, params, settings.wavelet)
-            rows.append(Row(method, name, dict(params), evaluate_design(chart, data),
+            rows.append(Row(method, name, dict(params), evaluate_design(chart, study, data),
                             seconds=time.perf_counter() - t0))
             self_referenced.append(Row(method, name, dict(params), self_referenced_report(chart, data)))
         if include_tuned:
             rows.append(tune_ms_oewma(study, data))
-        opt = optimise(make_chart("MO-SS-DEWMA", {"lam": 0.3, "K": 3.0}, settings.wavelet), data, "mopso",
-                       preset.pop_size, preset.n_gen, settings.bounds, settings.n_jobs, settings.seed)
+        opt = optimise(make_chart("MO-SS-DEWMA", {"lam": 0.3, "K": 3.0}, settings.wavelet), study, data, "mopso",
+                       preset.pop_size, preset.n_gen, settings.bounds, settings.n_jobs)
         archives[name] = opt
         t0 = time.perf_counter()
-        report = evaluate_design(make_chart("MO-SS-DEWMA", opt.params, settings.wavelet), data)
-        ours = Row("MO-SS-DEWMA", name, opt.params, report, opt.train_objectives,
+        report = evaluate_design(make_chart("MO-SS-DEWMA", opt.params, settings.wavelet), study, data)
+        ours = Row("MO-SS-DEWMA", name, opt.params, report, _pair(opt),
                    opt.seconds + time.perf_counter() - t0)
         rows.append(ours)
         anatomy[name] = error_anatomy(make_chart("MO-SS-DEWMA", opt.params, settings.wavelet), data)
@@ -597,8 +558,8 @@ def tune_ms_oewma(study: Study, data: FaultData) -> Row:
     lam, width = ms_oewma_grid(study.settings.preset)
     chart = make_chart(TUNED_MS_OEWMA, PAPER_PRESETS["MS-OEWMA"][data.name])
     # an infeasible budget warns (SelectionWarning) and falls back to the lowest-FAR point
-    params, objectives = constrained_grid_search(make_evaluator(chart, data), lam, width, study.settings.alpha)
-    report = evaluate_design(chart.with_params(**params), data)
+    params, objectives = constrained_grid_search(make_evaluator(chart, study, data), lam, width, study.settings.alpha)
+    report = evaluate_design(chart.with_params(**params), study, data)
     return Row(TUNED_MS_OEWMA, data.name, params, report, objectives, time.perf_counter() - t0)
 
 
@@ -613,17 +574,17 @@ class Table4:
     rows: list[Row]
 
 
-def run_table4(study: Study, optimised: Optimised | None = None) -> Table4:
+def run_table4(study: Study, optimised: Tuned | None = None) -> Table4:
     """Table 4: optimise on offset+variance training runs, score that design on every fault."""
     settings, preset = study.settings, study.settings.preset
     if optimised is None:
-        optimised = optimise(make_chart("MO-SS-DEWMA", {"lam": 0.3, "K": 3.0}, settings.wavelet),
+        optimised = optimise(make_chart("MO-SS-DEWMA", {"lam": 0.3, "K": 3.0}, settings.wavelet), study,
                              fault_data(study, "offset_var"), "mopso", preset.pop_size, preset.n_gen,
-                             settings.bounds, settings.n_jobs, settings.seed)
+                             settings.bounds, settings.n_jobs)
     chart = make_chart("MO-SS-DEWMA", optimised.params, settings.wavelet)
-    rows = [Row("MO-SS-DEWMA", name, optimised.params, evaluate_design(chart, fault_data(study, name)))
+    rows = [Row("MO-SS-DEWMA", name, optimised.params, evaluate_design(chart, study, fault_data(study, name)))
             for name in FAULTS]
-    return Table4(settings.describe(), optimised.params, optimised.train_objectives, rows)
+    return Table4(settings.describe(), optimised.params, _pair(optimised), rows)
 
 
 # ------------------------------------------------------------------------------------
@@ -661,14 +622,14 @@ def run_fig1(study: Study, fault: str = "offset", n: int = 20) -> GridScan:
     t0 = time.perf_counter()
     lam, K = fig1_axes(n)
     chart = make_chart("SS-DEWMA", {"lam": 0.3, "K": 3.0}, study.settings.wavelet)
-    far, mdr = grid_objectives(make_evaluator(chart, fault_data(study, fault)), lam, K)
+    far, mdr = grid_objectives(make_evaluator(chart, study, fault_data(study, fault)), lam, K)
     return GridScan(fault, lam, K, far, mdr, time.perf_counter() - t0)
 
 
 @dataclass
 class ParetoComparison:
     fault: str
-    fronts: dict[str, Optimised]
+    fronts: dict[str, Tuned]
     hypervolume: dict[str, float]
     grid: GridScan | None
 
@@ -683,8 +644,8 @@ def run_pareto(study: Study, fault: str = "offset_var", grid: GridScan | None = 
     settings, preset = study.settings, study.settings.preset
     data = fault_data(study, fault)
     fronts = {
-        algo: optimise(make_chart("MO-SS-DEWMA", {"lam": 0.3, "K": 3.0}, settings.wavelet), data, algo,
-                       preset.pop_size, preset.n_gen, settings.bounds, settings.n_jobs, settings.seed)
+        algo: optimise(make_chart("MO-SS-DEWMA", {"lam": 0.3, "K": 3.0}, settings.wavelet), study, data, algo,
+                       preset.pop_size, preset.n_gen, settings.bounds, settings.n_jobs)
         for algo in ("mopso", "nsga2")
     }
     indicator = HV(ref_point=np.array([1.0, 1.0]))

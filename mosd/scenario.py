@@ -1,18 +1,16 @@
-"""Scenario = plant + noise + fault: simulates a batch of closed-loop replications."""
+"""Scenario = plant + noise + fault(s): simulates a batch of seeded replications."""
 from __future__ import annotations
 
-import math
-from typing import Sequence
+
+from dataclasses import replace
 
 import numpy as np
 
-from .fault import SensorFault
-from .noise import GaussianNoise
-from .types import Trace
+from .types import SensorSamples, Trace
 from .validation import ConfigError, Interval, check_in, check_int
 
 #: Seed streams: the replications of one role never share draws with another's.
-STREAMS = {"calibration": 0, "training": 1, "test": 2}
+STREAMS = {"calibration": 0, "training": 1, "test": 2, "estimator": 3}
 
 
 def replication_rngs(seed: int, stream: str | int, n_reps: int, first: int = 0) -> list[np.random.Generator]:
@@ -26,30 +24,32 @@ def replication_rngs(seed: int, stream: str | int, n_reps: int, first: int = 0) 
 
 
 class Scenario:
-    """A plant in closed loop with its noise and (optionally) one sensor fault.
+    """A plant with its noise and (optionally) a fault or a set of faults.
 
     Parameters
     ----------
-    plant : MouldOscillator or compatible
-        Provides ``f``, ``h``, ``initial_state``, ``controller`` and ``dt``.
-    noise : GaussianNoise or compatible
-        Provides ``draw(rng, n_samples) -> (w, v)``.
-    fault : SensorFault, optional
-        None simulates the fault-free plant.
+    plant : mosd.plants.base.Plant
+    noise : noise model of :mod:`mosd.noise` accepted by the plant
+    fault : mosd.faults.base.Fault, optional
+        None simulates the fault-free plant. A :class:`~mosd.faults.base.FaultSet`
+        gives replication r its member ``r mod n`` (labels 1..n in the trace).
     duration : float
         Simulated time in s (the trace has round(duration/dt) samples).
     """
 
-    def __init__(self, plant, noise: GaussianNoise, fault: SensorFault | None = None, duration: float = 5.2):
+    def __init__(self, plant, noise, fault=None, duration: float = 5.2):
         self.plant, self.noise, self.fault = plant, noise, fault
         self.duration = check_in("scenario.duration", duration, Interval(0.0, 1e6, open_low=True))
         self.n_samples = int(round(self.duration / plant.dt))
         if self.n_samples < 2:
-            raise ConfigError(f"scenario.duration={duration} gives fewer than 2 samples; allowed: >= 2*dt")
-        if fault is not None and fault.channel >= len(plant.output_names):
-            raise ConfigError(
-                f"fault.channel={fault.channel} is out of range; allowed: 0..{len(plant.output_names) - 1}"
-            )
+            raise ConfigError(f"scenario.duration={duration} gives fewer than 2 samples; allowed: >= {2 * plant.dt:g} "
+                              f"(2 samples of dt={plant.dt:g})")
+        if fault is not None:
+            for member in fault.members:
+                plant.check_fault(member)
+                if member.onset >= self.duration:
+                    raise ConfigError(f"fault.onset={member.onset:g} is past the end of the run "
+                                      f"(scenario.duration={self.duration:g}); allowed: 0 <= onset < duration")
 
     @property
     def time(self) -> np.ndarray:
@@ -58,47 +58,51 @@ class Scenario:
     def simulate(
         self, seed: int, n_reps: int, stream: str | int = "training", fault_scale: float = 1.0, first: int = 0
     ) -> Trace:
-        """Simulate ``n_reps`` independent replications in one vectorised loop.
+        """Simulate replications ``first .. first+n_reps-1`` of a seed stream.
 
-        Order within sample k: y_k = h(x_k) + v_k (+ g_k); the controller maps
-        y_k to u_k; x_{k+1} = f(x_k, u_k) + w_k. ``fault_scale`` is σ of the
-        faulty channel's residual (see :mod:`mosd.fault`).
+        ``fault_scale`` is the unit of relative faults (σ of the faulty
+        channel's residual, see :mod:`mosd.faults.sensor`).
         """
         n_reps = check_int("n_reps", n_reps, 1)
-        t = self.time
-        N = self.n_samples
-        plant = self.plant
         rngs = replication_rngs(seed, stream, n_reps, first)
-        draws = [self.noise.draw(rng, N) for rng in rngs]
-        w = np.stack([d[0] for d in draws])  # (R, N, n_x)
-        v = np.stack([d[1] for d in draws])  # (R, N, n_y)
-        n_y = v.shape[-1]
-        g = np.zeros((n_reps, N, n_y))
-        mask = np.zeros((n_reps, N), dtype=bool)
-        if self.fault is not None:
-            for r, rng in enumerate(rngs):
-                g[r, :, self.fault.channel] = self.fault.signal(t, fault_scale, rng)
-            mask[:] = self.fault.active(t)
-        controller = plant.controller()
-        controller.reset(n_reps)
-        x = np.empty((n_reps, N, len(plant.state_names)))
-        y = np.empty((n_reps, N, n_y))
-        u = np.empty((n_reps, N, len(plant.input_names)))
-        xk = np.broadcast_to(plant.initial_state(), (n_reps, x.shape[-1])).copy()
-        for k in range(N):
-            x[:, k] = xk
-            yk = plant.h(xk) + v[:, k] + g[:, k]
-            y[:, k] = yk
-            uk = controller(yk)
-            u[:, k] = uk
-            xk = plant.f(xk, uk) + w[:, k]
-        meta = {
-            "seed": int(seed),
-            "stream": stream,
-            "first_replication": int(first),
-            "fault": repr(self.fault),
-            "fault_scale": float(fault_scale),
-            "output_names": tuple(plant.output_names),
-            "dt": plant.dt,
-        }
-        return Trace(t=t, u=u, x=x, y=y, fault_mask=mask, meta=meta)
+        meta = {"seed": int(seed), "stream": stream, "first_replication": int(first)}
+        if self.fault is None:
+            trace = self.plant.simulate(self.n_samples, self.noise, None, rngs, fault_scale)
+            return replace(trace, fault_mask=np.zeros_like(trace.fault_mask), fault_label=None, fault_roles=(),
+                           meta={**trace.meta, **meta})
+        members = self.fault.members
+        roles = tuple(m.role for m in members)
+        groups = [[i for i in range(n_reps) if (first + i) % len(members) == j] for j in range(len(members))]
+        parts = []
+        for j, (member, idx) in enumerate(zip(members, groups)):
+            if not idx:
+                continue
+            trace = self.plant.simulate(self.n_samples, self.noise, member, [rngs[i] for i in idx], fault_scale)
+            label = np.where(trace.fault_mask, j + 1, 0).astype(np.int8)
+            parts.append((idx, replace(trace, fault_label=label, fault_mask=trace.fault_mask & (member.role == "target"))))
+        trace = parts[0][1] if len(parts) == 1 else _merge(parts, n_reps)
+        return replace(trace, fault_roles=roles, meta={**trace.meta, **meta, "fault": repr(self.fault)})
+
+
+def _merge(parts: list[tuple[list[int], Trace]], n_reps: int) -> Trace:
+    """One trace from groups of replications simulated separately (replication order restored)."""
+    first = parts[0][1]
+
+    def gather(get, pad=np.nan):
+        arrays = [np.asarray(get(t)) for _, t in parts]
+        width = max(a.shape[1] for a in arrays) if arrays[0].ndim > 1 else None
+        out = None
+        for (idx, _), a in zip(parts, arrays):
+            if out is None:
+                out = np.full((n_reps,) + ((width,) + a.shape[2:] if width is not None else a.shape[1:]), pad,
+                              dtype=a.dtype if a.dtype != bool and not np.issubdtype(a.dtype, np.integer) else a.dtype)
+            out[idx, : a.shape[1]] = a
+        return out
+
+    sensors = {name: SensorSamples(t=gather(lambda t, n=name: t.sensors[n].t),
+                                   y=gather(lambda t, n=name: t.sensors[n].y),
+                                   arrived=gather(lambda t, n=name: t.sensors[n].arrived, pad=False))
+               for name in first.sensors}
+    return Trace(t=first.t, u=gather(lambda t: t.u), x=gather(lambda t: t.x), y=gather(lambda t: t.y),
+                 fault_mask=gather(lambda t: t.fault_mask, pad=False), meta=dict(first.meta),
+                 fault_label=gather(lambda t: t.fault_label, pad=0), sensors=sensors)

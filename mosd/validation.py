@@ -19,12 +19,17 @@ class ConfigError(ValueError):
 
 @dataclass(frozen=True)
 class Interval:
-    """A real interval; ``open_low``/``open_high`` exclude the bound."""
+    """A real interval; ``open_low``/``open_high`` exclude the bound.
+
+    ``integer=True`` declares an integer parameter (e.g. the L of a persistence
+    rule): optimisers round it, :func:`check_in` refuses non-integral values.
+    """
 
     low: float
     high: float
     open_low: bool = False
     open_high: bool = False
+    integer: bool = False
 
     def __contains__(self, value: float) -> bool:
         v = float(value)
@@ -35,7 +40,8 @@ class Interval:
         return lo_ok and hi_ok
 
     def __str__(self) -> str:
-        return f"{'(' if self.open_low else '['}{self.low:g}, {self.high:g}{')' if self.open_high else ']'}"
+        text = f"{'(' if self.open_low else '['}{self.low:g}, {self.high:g}{')' if self.open_high else ']'}"
+        return f"integers in {text}" if self.integer else text
 
 
 def check_in(name: str, value: Any, interval: Interval) -> float:
@@ -46,6 +52,10 @@ def check_in(name: str, value: Any, interval: Interval) -> float:
         raise ConfigError(f"{name}={value!r} is not a number; allowed: {interval}") from None
     if v not in interval:
         raise ConfigError(f"{name}={value!r} is out of range; allowed: {interval}")
+    if interval.integer:
+        if not v.is_integer():
+            raise ConfigError(f"{name}={value!r} is not an integer; allowed: {interval}")
+        return int(v)
     return v
 
 

@@ -20,7 +20,7 @@ import pytest
 
 import mosd as mosd_package
 from mosd.app import CONFIG_DIR
-from mosd.estimator import CESCKF
+from mosd.estimators import CESCKF
 
 # subprocesses import the same mosd as this test process (a checkout or an install)
 PACKAGE_PARENT = str(Path(mosd_package.__file__).resolve().parents[1])
@@ -62,7 +62,7 @@ def runs_of(outputs: Path, experiment: str = "mosd"):
     (["+faults=offset_var", "optimizer=mopso"], r"'faults'.*\+fault=NAME.*offset_var"),
     (["+fault=offset_var", "optimizer=foo"], r"optimizer=foo is not an option; allowed: mopso, nsga2"),
     (["+fault=nope"], r"fault=nope is not an option; allowed: drift, offset, offset_var, variance"),
-    (["+fault=offset_var", "chart.lam=1.5"], r"chart\.lam=1\.5 is out of range; allowed: \(0, 1\)"),
+    (["+fault=offset_var", "detector.lam=1.5"], r"detector\.lam=1\.5 is out of range; allowed: \(0, 1\)"),
     (["+fault=offset_var", "optimizer.pop_size=0"], r"optimizer\.pop_size=0 is out of range; allowed: integers"),
 ])
 def test_errors_are_one_line_exit_2_and_leave_nothing(tmp_path, args, expected):
@@ -101,9 +101,9 @@ def test_wheel_layout_finds_conf_inside_the_package(tmp_path):
     probe = subprocess.run([sys.executable, "-c", "import mosd.app as a; print(a.CONFIG_DIR)"], cwd=work, env=env,
                            capture_output=True, text=True, timeout=120)
     assert probe.stdout.strip() == str(site / "mosd" / "conf"), probe.stderr
-    result = subprocess.run([sys.executable, "-m", "mosd", "+fault=offset", "chart.lam=2"], cwd=work, env=env,
+    result = subprocess.run([sys.executable, "-m", "mosd", "+fault=offset", "detector.lam=2"], cwd=work, env=env,
                             capture_output=True, text=True, timeout=120)
-    assert result.returncode == 2 and "chart.lam=2 is out of range" in result.stderr
+    assert result.returncode == 2 and "detector.lam=2 is out of range" in result.stderr
 
 
 def test_report_without_a_store_is_one_line(tmp_path):
@@ -140,7 +140,7 @@ def test_main_command_writes_the_run_directory(main_run):
     run_dirs = list((cwd / "outputs" / "runs").iterdir())
     assert len(run_dirs) == 1 and RUN_DIR_NAME.match(run_dirs[0].name)
     run_dir = run_dirs[0]
-    for name in ("resolved_config.yaml", "pareto.csv", "pareto.png", "chart.png", "residual.png", "history.csv",
+    for name in ("resolved_config.yaml", "pareto.csv", "pareto.png", "detector.png", "residual.png", "history.csv",
                  "summary.json", ".hydra/overrides.yaml"):
         assert (run_dir / name).is_file(), name
     for png in run_dir.glob("*.png"):
@@ -172,11 +172,11 @@ def test_main_command_logs_to_mlflow(main_run):
     assert sorted(steps) == [1, 2, 3]
     assert len(client.get_metric_history(run.info.run_id, "archive_size")) == 3
     assert params["optimizer.pop_size"] == "10" and params["fault.kind"] == "offset_var"
-    assert params["chart._target_"] == "mosd.chart.SSDEWMA"
+    assert params["detector._target_"] == "mosd.chart.SSDEWMA"
     assert "+fault=offset_var optimizer=mopso" in tags["mosd.overrides"]
     assert tags["mosd.fault"] == "offset_var" and tags["mosd.optimizer"] == "mopso"
     artifacts = {a.path for a in client.list_artifacts(run.info.run_id)}
-    assert {"pareto.csv", "pareto.png", "chart.png", "residual.png", "resolved_config.yaml"} <= artifacts
+    assert {"pareto.csv", "pareto.png", "detector.png", "residual.png", "resolved_config.yaml"} <= artifacts
     # the artifacts live under the outputs root, as does the store
     assert run.info.artifact_uri.startswith((cwd / "outputs").resolve().as_uri())
     # the chosen design in the CSV is the one logged
@@ -253,7 +253,7 @@ class ExplodingFilter(CESCKF):
 @pytest.mark.slow
 def test_a_failing_job_is_failed_and_the_parent_still_closes(tmp_path):
     # job 1 uses ExplodingFilter (importable as test_app.ExplodingFilter in the subprocess)
-    result = mosd(["-m", "+fault=offset", "estimator.filter._target_=mosd.estimator.CESCKF,test_app.ExplodingFilter",
+    result = mosd(["-m", "+fault=offset", "estimator.filter._target_=mosd.estimators.CESCKF,test_app.ExplodingFilter",
                    "progress=false", *REDUCED], cwd=tmp_path, extra_path=str(Path(__file__).parent))
     assert result.returncode == 1, result.stderr[-3000:]
     _, runs = runs_of(tmp_path / "outputs")

@@ -265,8 +265,8 @@ def test_chart_with_wrong_alarm_shape_is_reported():
 
 
 def test_non_causal_chart_is_rejected():
-    from mosd.chart import SSDEWMA
-    from mosd.denoise import WaveletDenoiser
+    from mosd.detectors import SSDEWMA
+    from mosd.denoisers import WaveletDenoiser
 
     with pytest.raises(ConfigError, match="^chart=.*not causal"):
         monte_carlo_arl(SSDEWMA(limit="theoretical", denoiser=WaveletDenoiser()), reps=5)

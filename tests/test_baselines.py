@@ -22,8 +22,8 @@ import pytest
 from scipy import special, stats
 
 from mosd.arl import ewma_arl, monte_carlo_arl
-from mosd.chart import EWMA, MDEWMA, MSOEWMA, SSDEWMA, SSEWMA, MaxEWMA
-from mosd.denoise import NoDenoiser
+from mosd.detectors import EWMA, MDEWMA, MSOEWMA, SSDEWMA, SSEWMA, MaxEWMA
+from mosd.denoisers import NoDenoiser
 
 ALMOST_ONE = 1.0 - 1e-12  # SS/M charts take λ in the open (0, 1)
 MAX_MEAN = 2.0 / math.sqrt(math.pi)

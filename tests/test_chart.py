@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from mosd.chart import (EWMA, MDEWMA, SSDEWMA, SSEWMA, MaxEWMA, dewma_variance, ewma, ewma_variance,
+from mosd.detectors import (EWMA, MDEWMA, SSDEWMA, SSEWMA, MaxEWMA, dewma_variance, ewma, ewma_variance,
                         subgroup_mean_statistic, subgroup_variance_statistic)
 from mosd.validation import ConfigError
 

@@ -13,22 +13,22 @@ import pytest
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
-from mosd import app
-from mosd.chart import EWMA, SSDEWMA
-from mosd.denoise import NoDenoiser, WaveletDenoiser
-from mosd.estimator import CESCKF, DedicatedObserverResidual, InnovationResidual
-from mosd.fault import FAULT_KINDS, SensorFault
-from mosd.monitor import Monitor
+from mosd.app import build as _build_module, config as _config_module, preflight as _preflight_module
+from mosd.detectors import EWMA, SSDEWMA
+from mosd.denoisers import NoDenoiser, WaveletDenoiser
+from mosd.estimators import CESCKF, DedicatedObserverResidual, InnovationResidual
+from mosd.faults import FAULT_KINDS, SensorFault
+from mosd.monitors import SubgroupMonitor as Monitor
 from mosd.noise import GaussianNoise
 from mosd.optim.mopso import MOPSO
-from mosd.plant import MouldOscillator
-from mosd.progress import Progress, hypervolume_2d
-from mosd.tracking import TrackingSettings, default_tracking_uri, flatten
+from mosd.plants import MouldOscillator
+from mosd.app.progress import Progress, hypervolume_2d
+from mosd.app.tracking import TrackingSettings, default_tracking_uri, flatten
 from mosd.validation import ConfigError
 
-CONF = app.CONFIG_DIR
+CONF = _config_module.CONFIG_DIR
 GROUPS = sorted(p.name for p in CONF.iterdir() if p.is_dir())
-OPTIONS = [(g, o) for g in GROUPS for o in app.options(g)]
+OPTIONS = [(g, o) for g in GROUPS for o in _config_module.options(g)]
 README = Path(__file__).resolve().parents[1] / "README.md"
 
 
@@ -43,19 +43,19 @@ def _fault_override(group, option):
 
 
 def test_groups_are_the_documented_ones():
-    assert set(GROUPS) >= {"plant", "noise", "fault", "estimator", "chart", "denoise", "optimizer", "tracking"}
-    assert set(app.options("fault")) == set(FAULT_KINDS)
-    assert set(app.options("optimizer")) >= {"mopso", "nsga2"}
+    assert set(GROUPS) >= {"plant", "noise", "fault", "estimator", "detector", "denoise", "optimizer", "tracking"}
+    assert set(_config_module.options("fault")) == set(FAULT_KINDS)
+    assert set(_config_module.options("optimizer")) >= {"mopso", "nsga2"}
 
 
 @pytest.mark.parametrize("group,option", OPTIONS, ids=[f"{g}={o}" for g, o in OPTIONS])
 def test_every_option_composes_and_builds(composer, group, option):
     choice = f"+fault={option}" if group == "fault" else f"{group}={option}"
     cfg = composer(*_fault_override(group, option), choice)
-    setup = app.build(cfg)
+    setup = _build_module.build(cfg)
     exp = setup.experiment
     built = {"plant": exp.plant, "noise": exp.noise, "fault": exp.fault, "estimator": exp.estimator,
-             "monitor": exp.monitor, "chart": exp.chart, "denoise": exp.chart.denoiser, "optimizer": setup.algorithm}
+             "monitor": exp.monitor, "detector": exp.chart, "denoise": exp.chart.denoiser, "optimizer": setup.algorithm}
     if group in built:
         node = OmegaConf.to_container(cfg[group], resolve=True)
         obj = built[group]
@@ -66,7 +66,7 @@ def test_every_option_composes_and_builds(composer, group, option):
                 inner = getattr(obj, key)
                 assert f"{type(inner).__module__}.{type(inner).__name__}" == value["_target_"]
                 continue
-            if key in app.RUN_KEYS.get(group, ()) or key.startswith("_") or isinstance(value, (dict, list)):
+            if key in _config_module.RUN_KEYS.get(group, ()) or key.startswith("_") or isinstance(value, (dict, list)):
                 continue
             if hasattr(obj, key) and value is not None:
                 expected = pytest.approx(value) if isinstance(value, float) else value
@@ -83,7 +83,7 @@ def test_default_options_mirror_the_class_defaults(composer):
     from hydra.utils import get_object
 
     cfg = composer("+fault=offset_var")
-    for group in ("plant", "noise", "estimator", "monitor", "chart", "denoise", "optimizer"):
+    for group in ("plant", "noise", "estimator", "monitor", "detector", "denoise", "optimizer"):
         node = OmegaConf.to_container(cfg[group], resolve=True)
         signature = inspect.signature(get_object(node["_target_"]))
         for key, value in node.items():
@@ -106,14 +106,14 @@ def test_fault_is_not_in_defaults_and_null_in_body(composer):
     assert "fault" not in groups_in_defaults and "optimizer" in groups_in_defaults
     assert raw.fault is None
     assert composer().fault is None
-    with pytest.raises(app.UsageError, match=r"\+fault=NAME .*drift, offset, offset_var, variance"):
-        app.build(composer())
+    with pytest.raises(_config_module.UsageError, match=r"\+fault=NAME .*drift, offset, offset_var, variance"):
+        _build_module.build(composer())
 
 
 @pytest.mark.parametrize("kind,a,b", [("offset", 2.0, 1.0), ("variance", None, 2.0), ("offset_var", 2.0, 2.0),
                                       ("drift", 2.0, 1.0)])
 def test_fault_options_match_the_issue(composer, kind, a, b):
-    fault = app.build(composer(f"+fault={kind}")).experiment.fault
+    fault = _build_module.build(composer(f"+fault={kind}")).experiment.fault
     assert isinstance(fault, SensorFault)
     assert (fault.kind, fault.channel, fault.onset, fault.b) == (kind, 0, 2.7, b)
     if a is not None:
@@ -122,7 +122,7 @@ def test_fault_options_match_the_issue(composer, kind, a, b):
 
 def test_defaults_are_paper_scale(composer):
     cfg = composer("+fault=offset_var")
-    setup = app.build(cfg)
+    setup = _build_module.build(cfg)
     assert isinstance(setup.algorithm, MOPSO) and setup.algorithm.pop_size == 100 and setup.n_gen == 100
     budget = setup.experiment.budget
     assert (budget.n_calibration, budget.n_train, budget.n_test) == (10, 10, 100)
@@ -145,17 +145,17 @@ def test_defaults_are_paper_scale(composer):
 
 
 def test_chart_and_denoise_alternatives(composer):
-    setup = app.build(composer("+fault=offset", "chart=ewma", "denoise=none", "estimator=innovation"))
+    setup = _build_module.build(composer("+fault=offset", "detector=ewma", "denoise=none", "estimator=innovation"))
     assert isinstance(setup.experiment.chart, EWMA) and isinstance(setup.experiment.chart.denoiser, NoDenoiser)
     assert isinstance(setup.experiment.estimator, InnovationResidual)
     assert set(setup.bounds) == {"lam", "L"}
 
 
 def test_choose_uses_the_selection_section(composer):
-    setup = app.build(composer("+fault=offset", "selection.rule=min_mdr_far_le", "selection.alpha=0.01"))
+    setup = _build_module.build(composer("+fault=offset", "selection.rule=min_mdr_far_le", "selection.alpha=0.01"))
     F = np.array([[0.0, 0.5], [0.005, 0.2], [0.05, 0.0]])
     assert setup.choose(np.zeros((3, 2)), F) == 1  # lowest MDR among FAR <= 0.01
-    setup = app.build(composer("+fault=offset"))
+    setup = _build_module.build(composer("+fault=offset"))
     assert setup.choose(np.zeros((3, 2)), F) == 2  # max accuracy
 
 
@@ -167,21 +167,21 @@ def _message(exc_info) -> str:
 
 @pytest.mark.parametrize("overrides,pattern", [
     (["+faults=offset_var"], r"'faults'.*did you mean \+fault=NAME.*offset_var"),
-    (["+fault=offset_var", "chart.lam=1.5"], r"chart\.lam=1\.5 is out of range; allowed: \(0, 1\)"),
+    (["+fault=offset_var", "detector.lam=1.5"], r"detector\.lam=1\.5 is out of range; allowed: \(0, 1\)"),
     (["+fault=offset_var", "optimizer.pop_size=0"], r"optimizer\.pop_size=0 .*allowed: integers in \[1"),
     (["+fault=offset_var", "optimizer.n_gen=-2"], r"optimizer\.n_gen=-2 .*allowed"),
     (["+fault=offset_var", "optimizer.velocity=fast"], r"optimizer\.velocity='fast'.*constriction, inertia"),
     (["+fault=offset_var", "budget.n_test=0"], r"budget\.n_test=0"),
-    (["+fault=offset_var", "chart.bounds.K=[0,20]"], r"chart\.bounds\.K=.*allowed: low < high within \[0, 10\]"),
-    (["+fault=offset_var", "+chart.foo=1"], r"chart\.foo is not a parameter of SSDEWMA; allowed: lam, K, limit"),
+    (["+fault=offset_var", "detector.bounds.K=[0,20]"], r"detector\.bounds\.K=.*allowed: low < high within \[0, 10\]"),
+    (["+fault=offset_var", "+detector.foo=1"], r"detector\.foo is not a parameter of SSDEWMA; allowed: lam, K, limit"),
     (["+fault=offset_var", "selection.rule=best"], r"selection\.rule='best'.*max_accuracy"),
     (["+fault=offset_var", "tracking.uri=ftp://x"], r"tracking\.uri='ftp://x'.*sqlite"),
     (["+fault=offset_var", "progress=maybe"], r"progress='maybe'.*true, false"),
     (["+fault=offset_var", "monitor.channels=[5]"], r"monitor\.channels=\[5\] is out of range; allowed: channels 0\.\.2"),
 ])
 def test_build_errors_are_one_line_naming_key_and_allowed(composer, overrides, pattern):
-    with pytest.raises((app.UsageError, ConfigError)) as info:
-        app.build(composer(*overrides))
+    with pytest.raises((_config_module.UsageError, ConfigError)) as info:
+        _build_module.build(composer(*overrides))
     assert re.search(pattern, _message(info)), _message(info)
 
 
@@ -191,20 +191,20 @@ def test_build_errors_are_one_line_naming_key_and_allowed(composer, overrides, p
     (["+fault=nope"], r"fault=nope is not an option; allowed: drift, offset, offset_var, variance"),
     (["fault=offset"], r"\+fault=offset"),
     (["+fault=offset", "+optimizer=nsga2"], r"optimizer=nsga2 without the \+"),
-    (["+fault=offset", "chart.lamm=0.3"], r"chart\.lamm is not a config key of chart; allowed: .*lam"),
+    (["+fault=offset", "detector.lamm=0.3"], r"detector\.lamm is not a config key of detector; allowed: .*lam"),
     (["+fault=offset", "optimizer=mopso,nsga2"], r"multirun"),
-    (["-m", "+fault=offset,variance", "chart.lam=0.5,1.5"], r"chart\.lam=1\.5 is out of range"),
+    (["-m", "+fault=offset,variance", "detector.lam=0.5,1.5"], r"detector\.lam=1\.5 is out of range"),
     (["--multirn"], r"unrecognized arguments: --multirn"),
 ])
 def test_preflight_errors(argv, pattern):
-    with pytest.raises((app.UsageError, ConfigError)) as info:
-        app.preflight(argv)
+    with pytest.raises((_config_module.UsageError, ConfigError)) as info:
+        _preflight_module.preflight(argv)
     assert re.search(pattern, _message(info)), _message(info)
 
 
 def test_preflight_accepts_the_main_command_and_a_sweep():
-    app.preflight(["+fault=offset_var", "optimizer=mopso"])
-    app.preflight(["-m", "+fault=offset,variance", "optimizer=mopso,nsga2", "hydra/launcher=joblib"])
+    _preflight_module.preflight(["+fault=offset_var", "optimizer=mopso"])
+    _preflight_module.preflight(["-m", "+fault=offset,variance", "optimizer=mopso,nsga2", "hydra/launcher=joblib"])
 
 
 def test_pyproject_ships_conf_inside_the_package():

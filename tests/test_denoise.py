@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 import pywt
 
-import mosd.denoise as denoise_module
-from mosd.denoise import (
+import mosd.denoisers.wavelet as denoise_module
+from mosd.denoisers import (
     NoDenoiser,
     WaveletDenoiser,
     select_threshold,

@@ -9,18 +9,18 @@ import numpy as np
 import pytest
 from filterpy.kalman import KalmanFilter, UnscentedKalmanFilter
 
-from mosd.estimator import (
+from mosd.estimators import (
     CESCKF,
     CubatureKalmanFilter,
     DedicatedObserverResidual,
     EmbeddedCubatureRule,
     InnovationResidual,
     SphericalRadialRule,
-    benchmark_filter,
 )
+from mosd.bench import benchmark_filter
 from mosd.model import StateSpaceModel
 from mosd.noise import GaussianNoise
-from mosd.plant import MouldOscillator
+from mosd.plants import MouldOscillator
 from mosd.scenario import Scenario
 from mosd.types import Trace
 from mosd.validation import ConfigError
@@ -165,7 +165,7 @@ def mould():
     plant = MouldOscillator()
     noise = GaussianNoise([0.0, 1e-8, 1e-2], [1e-2] * 3)
     trace = Scenario(plant, noise, fault=None, duration=0.4).simulate(seed=3, n_reps=4, stream="calibration")
-    return plant.model(noise.process_cov, noise.measurement_cov), trace
+    return plant.model(noise), trace
 
 
 # ----------------------------------------------------------------------------------
@@ -440,7 +440,7 @@ def test_bad_shapes_are_rejected(mould):
 # ----------------------------------------------------------------------------------
 def test_innovation_residual_is_the_filter_innovation(mould):
     model, trace = mould
-    res = InnovationResidual().residuals(trace, model)
+    res = InnovationResidual().estimate(trace, model)
     ref = CESCKF().filter(model, trace.y, trace.u)
     np.testing.assert_array_equal(res.r, ref.innovation)
     np.testing.assert_array_equal(res.cov, ref.innovation_cov)
@@ -451,9 +451,9 @@ def test_innovation_residual_is_the_filter_innovation(mould):
 def test_dedicated_observer_never_uses_the_monitored_sensor(mould):
     model, trace = mould
     gen = DedicatedObserverResidual(monitored=(0,))
-    res = gen.residuals(trace, model)
+    res = gen.estimate(trace, model)
     shifted = dataclasses.replace(trace, y=trace.y + np.array([5.0, 0.0, 0.0]))
-    res_shifted = gen.residuals(shifted, model)
+    res_shifted = gen.estimate(shifted, model)
     # the state estimate ignores y_0, so a bias on it passes 1:1 into its residual
     np.testing.assert_array_equal(res_shifted.extra["x_filt"], res.extra["x_filt"])
     np.testing.assert_allclose(res_shifted.r[..., 0] - res.r[..., 0], 5.0, rtol=1e-12)
@@ -462,7 +462,7 @@ def test_dedicated_observer_never_uses_the_monitored_sensor(mould):
 
 def test_dedicated_observer_residual_and_covariance(mould):
     model, trace = mould
-    res = DedicatedObserverResidual(monitored=(0,)).residuals(trace, model)
+    res = DedicatedObserverResidual(monitored=(0,)).estimate(trace, model)
     sub = CESCKF().filter(model.restrict_outputs([1, 2]), trace.y[..., 1:], trace.u)
     # h is the identity: the monitored residual is y_0 − x̂_{0,k|k−1}, cov = P_pred + R
     np.testing.assert_allclose(res.r[..., 0], trace.y[..., 0] - sub.x_pred[..., 0], rtol=1e-12, atol=1e-12)
@@ -476,7 +476,7 @@ def test_dedicated_observer_with_nonlinear_output_uses_the_cubature_prediction()
     model = _pendulum_model()
     x, y, u = _simulate(model, n_reps=2, n_steps=200, seed=8)
     trace = Trace(t=np.arange(200) * model.dt, u=u, x=x, y=y, fault_mask=np.zeros((2, 200), bool))
-    res = DedicatedObserverResidual(monitored=(1,)).residuals(trace, model)
+    res = DedicatedObserverResidual(monitored=(1,)).estimate(trace, model)
     sub = CESCKF().filter(model.restrict_outputs([0, 2]), y[..., [0, 2]], u)
     eps, w = _paper_embedded_points(2, 1.0)
     pts = sub.x_pred[..., None, :] + np.einsum("rkij,pj->rkpi", sub.sqrt_cov_pred, eps)
@@ -490,7 +490,7 @@ def test_dedicated_observer_with_nonlinear_output_uses_the_cubature_prediction()
 def test_dedicated_observer_rejects_bad_channels(mould, monitored):
     model, trace = mould
     with pytest.raises(ConfigError, match="monitored"):
-        DedicatedObserverResidual(monitored=monitored).residuals(trace, model)
+        DedicatedObserverResidual(monitored=monitored).estimate(trace, model)
 
 
 def test_residual_generators_reject_an_object_without_filter():

@@ -1,4 +1,4 @@
-"""A 2σ offset on the x_p sensor stays visible in the default residual (DESIGN.md decision 1).
+"""A 2σ offset on the x_p sensor stays visible in the default residual (docs/DECISIONS.md §1).
 
 Default scenario: MouldOscillator(), GaussianNoise() defaults, 5.2 s, offset a = 2
 on channel 0 from 2.7 s. μ, σ of the residual come from independent fault-free
@@ -10,10 +10,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mosd.estimator import DedicatedObserverResidual, InnovationResidual
-from mosd.fault import SensorFault
+from mosd.estimators import DedicatedObserverResidual, InnovationResidual
+from mosd.faults import SensorFault
 from mosd.noise import GaussianNoise
-from mosd.plant import MouldOscillator
+from mosd.plants import MouldOscillator
 from mosd.scenario import Scenario
 
 N_REPS = 10
@@ -24,14 +24,14 @@ BURN_IN_S = 0.2  # the filter starts from P_0 = I; its first samples are not in 
 def _fifth_shifts(generator):
     """Mean residual shift of channel 0, in calibration σ, over each fifth of the faulty window."""
     plant, noise = MouldOscillator(), GaussianNoise()
-    model = plant.model(noise.process_cov, noise.measurement_cov)
+    model = plant.model(noise)
     calibration = Scenario(plant, noise, fault=None, duration=5.2).simulate(SEED, N_REPS, stream="calibration")
-    r_cal = generator.residuals(calibration, model).channel(0)[:, int(BURN_IN_S / plant.dt) :]
+    r_cal = generator.estimate(calibration, model).channel(0)[:, int(BURN_IN_S / plant.dt) :]
     mu, sigma = r_cal.mean(), r_cal.std(ddof=1)
 
     fault = SensorFault("offset", channel=0, onset=2.7, a=2.0)
     faulty = Scenario(plant, noise, fault=fault, duration=5.2).simulate(SEED, N_REPS, stream="test", fault_scale=sigma)
-    r = generator.residuals(faulty, model).channel(0)
+    r = generator.estimate(faulty, model).channel(0)
     on = np.flatnonzero(faulty.fault_mask[0])
     assert on.size == 2500 and faulty.fault_mask[:, on].all()
     before = (r[:, int(BURN_IN_S / plant.dt) : on[0]].mean() - mu) / sigma

@@ -3,7 +3,7 @@ import pytest
 
 from mosd.metrics import (DetectionReport, Estimate, detection_accuracy, detection_delay, false_alarm_rate,
                           missed_detection_rate)
-from mosd.monitor import Monitor
+from mosd.monitors import SubgroupMonitor as Monitor
 from mosd.types import Residuals
 from mosd.validation import ConfigError
 

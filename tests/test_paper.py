@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from mosd import paper
-from mosd.chart import EWMA, MSOEWMA, SSDEWMA
-from mosd.denoise import NoDenoiser
+from mosd.detectors import EWMA, MSOEWMA, SSDEWMA
+from mosd.denoisers import NoDenoiser
 from mosd.experiment import Experiment
 from mosd.metrics import DetectionReport, false_alarm_rate, missed_detection_rate
 from mosd.optim.grid import constrained_grid_search, grid_objectives

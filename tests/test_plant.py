@@ -1,9 +1,9 @@
 import numpy as np
 import pytest
 
-from mosd.fault import SensorFault
+from mosd.faults import SensorFault
 from mosd.noise import GaussianNoise
-from mosd.plant import MouldOscillator
+from mosd.plants import MouldOscillator
 from mosd.scenario import Scenario
 from mosd.validation import ConfigError
 

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from mosd.chart import SSDEWMA
+from mosd.detectors import SSDEWMA
 from mosd.metrics import false_alarm_rate, missed_detection_rate
 from mosd.optim.problem import CandidateEvaluator, ChartTuningProblem
 from mosd.validation import ConfigError

@@ -1,14 +1,21 @@
-"""The chart-tuning problem (paper 000, eq. 36) as a pymoo ``Problem``.
+"""The detector-tuning problem (paper 000, eq. 36, generalised) as a pymoo ``Problem``.
 
-min over the chart's tunable parameters of (FAR, MDR), each the mean over the
-training replications. Everything before the chart — simulation, residuals,
-standardisation, the parameter-free subgroup statistics U_k, V_k — is computed
-once and cached; a candidate costs only its EWMA recursions, the (batched)
-denoising, its limit and the two rates.
+min over the detector's tunable parameters of the named objectives (default FAR
+and MDR), each the mean over the training replications. Everything before the
+detector — simulation, estimation, the monitor's points, the detector's
+parameter-free features — is computed once and cached; a candidate costs only
+the detector's parameter-dependent part (for a chart: its EWMA recursions, the
+batched denoising, its limit) and the metrics.
+
+Integer parameters (``Interval(integer=True)``, e.g. the L of a persistence
+rule) are declared by the detector; the problem exposes them as
+``is_integer`` and rounds them before every evaluation, so any pymoo algorithm
+sees a piecewise-constant objective in those coordinates and the reported
+designs are integral.
 
 Parallelism: a population is split into one chunk per worker of a persistent
-loky process pool. Each worker loads the cached features once (from a file the
-main process writes at the first pooled generation) and keeps them between
+loky process pool. Each worker loads the cached evaluator once (from a file the
+main process writes at the first pooled generation) and keeps it between
 generations; each generation ships only the candidate vectors. The pool can be
 started early (:func:`worker_pool` with ``warm=True``) so that process start-up
 overlaps with the simulation. ``n_jobs=1`` evaluates in-process. Results do not
@@ -25,42 +32,45 @@ import time
 import numpy as np
 from pymoo.core.problem import Problem
 
-from ..metrics import false_alarm_rate, missed_detection_rate
+from ..metrics.registry import objective_values
 from ..validation import ConfigError, check_int
 
 _OPEN_BOUND_MARGIN = 1e-6
 
 
 class CandidateEvaluator:
-    """Maps a population of chart parameters X (P, d) to objectives (P, 2) = (FAR, MDR).
+    """Maps a population of detector parameters X (P, d) to objectives (P, n_obj).
 
     Parameters
     ----------
-    chart : mosd.chart.Chart
-        Template chart; its tunable parameters are set from each row of X in the
-        order of ``chart.tunable``.
-    phase1_features, train_features : ndarray
-        ``chart.features`` of the Phase-I (fault-free) and training subgroups.
-    train_fault_mask : ndarray of bool, shape (R, K)
+    detector : mosd.detectors.base.Detector
+        Template; its tunable parameters are set from each row of X in the order
+        of ``detector.tunable``.
+    calibration_features, train_features : ndarray
+        ``detector.features`` of the fault-free calibration and of the training points.
+    truth : mosd.types.Subgroups
+        Fault truth of the training points (``z`` may be empty).
+    objectives : sequence of str
+        Metric names (:mod:`mosd.metrics.registry`), all minimised.
     """
 
-    def __init__(self, chart, phase1_features, train_features, train_fault_mask):
-        self.chart = chart
-        self.n_phase1 = phase1_features.shape[0]
-        self.features = np.concatenate([phase1_features, train_features], axis=0)
-        self.fault_mask = np.asarray(train_fault_mask, bool)
+    def __init__(self, detector, calibration_features, train_features, truth, objectives=("far", "mdr")):
+        self.detector = detector
+        self.calibration_features = calibration_features
+        self.features = train_features
+        self.truth = truth
+        self.objectives = tuple(objectives)
+
+    @property
+    def chart(self):
+        return self.detector
 
     def __call__(self, X: np.ndarray) -> np.ndarray:
         X = np.atleast_2d(np.asarray(X, float))
         if X.shape[0] == 0:
-            return np.empty((0, 2))
-        stats = self.chart.population_statistics(self.features, X)  # (P, R1 + R, K)
-        limits = self.chart.population_limits(stats[:, : self.n_phase1], X)  # (P, K)
-        alarms = stats[:, self.n_phase1 :] > limits[:, None, :]
-        return np.column_stack([
-            false_alarm_rate(alarms, self.fault_mask).mean(axis=-1),
-            missed_detection_rate(alarms, self.fault_mask).mean(axis=-1),
-        ])
+            return np.empty((0, len(self.objectives)))
+        decided = self.detector.population(self.calibration_features, self.features, X)
+        return objective_values(self.objectives, decided.decision, self.truth)
 
 
 # -- the worker side of the persistent pool -------------------------------------------
@@ -71,7 +81,7 @@ _WORKER_CACHE: dict = {"path": None, "evaluator": None}
 
 def _warm_up(delay: float) -> int:
     """Import the evaluation stack in a worker before the first generation needs it."""
-    from .. import chart, denoise, metrics  # noqa: F401
+    from .. import denoisers, detectors, metrics  # noqa: F401
 
     time.sleep(delay)  # hold this worker so that the next warm-up task lands on another
     return os.getpid()
@@ -99,14 +109,14 @@ def worker_pool(n_jobs: int, warm: bool = False):
     return executor
 
 
-class ChartTuningProblem(Problem):
-    """Eq. 36: minimise (FAR, MDR) of a chart over its tunable parameters.
+class TuningProblem(Problem):
+    """Minimise the evaluator's objectives over the detector's tunable parameters (eq. 36).
 
     Parameters
     ----------
     evaluator : CandidateEvaluator
     bounds : dict name -> (low, high), optional
-        Overrides the chart's declared bounds (e.g. K_SD in (0, 5) as in Table 2).
+        Overrides the detector's declared bounds (e.g. K_SD in (0, 5) as in Table 2).
         Open bounds are moved inside by 1e-6.
     n_jobs : int
         Worker processes (1 = in-process).
@@ -115,27 +125,43 @@ class ChartTuningProblem(Problem):
     def __init__(self, evaluator: CandidateEvaluator, bounds: dict | None = None, n_jobs: int = 2):
         self.evaluator = evaluator
         self.n_jobs = check_int("optimizer.n_jobs", n_jobs, 1, 64)
-        self.names = list(evaluator.chart.tunable)
+        tunable = evaluator.detector.tunable
+        self.names = list(tunable)
         xl, xu = [], []
         bounds = dict(bounds or {})
         unknown = set(bounds) - set(self.names)
         if unknown:
             raise ConfigError(f"bounds key {sorted(unknown)[0]!r} is unknown; allowed: {', '.join(self.names)}")
         for name in self.names:
-            interval = evaluator.chart.tunable[name]
+            interval = tunable[name]
             lo, hi = bounds.get(name, (interval.low, interval.high))
             if not interval.low <= lo < hi <= interval.high:
                 raise ConfigError(f"bounds.{name}=[{lo}, {hi}] is not allowed; allowed: low < high within {interval}")
             xl.append(lo + (_OPEN_BOUND_MARGIN if interval.open_low and lo == interval.low else 0.0))
             xu.append(hi - (_OPEN_BOUND_MARGIN if interval.open_high and hi == interval.high else 0.0))
-        super().__init__(n_var=len(self.names), n_obj=2, xl=np.array(xl), xu=np.array(xu))
+        #: True for the integer parameters (rounded before every evaluation)
+        self.is_integer = np.array([tunable[name].integer for name in self.names], bool)
+        super().__init__(n_var=len(self.names), n_obj=len(evaluator.objectives), xl=np.array(xl), xu=np.array(xu),
+                         exclude_from_serialization=["evaluator", "_payload"])
         self._payload: str | None = None
 
+    @property
+    def objectives(self) -> tuple[str, ...]:
+        return self.evaluator.objectives
+
+    def round(self, X: np.ndarray) -> np.ndarray:
+        """X with its integer columns rounded (and kept inside the box)."""
+        X = np.array(X, float, copy=True)
+        if self.is_integer.any():
+            cols = self.is_integer
+            X[..., cols] = np.clip(np.round(X[..., cols]), np.ceil(self.xl[cols]), np.floor(self.xu[cols]))
+        return X
+
     def _evaluate(self, X, out, *args, **kwargs):
-        out["F"] = self.evaluate_population(X)
+        out["F"] = self.evaluate_population(self.round(X))
 
     def evaluate_population(self, X: np.ndarray) -> np.ndarray:
-        """(FAR, MDR) for every row of X, over the pool when ``n_jobs > 1``."""
+        """Objectives for every row of X, over the pool when ``n_jobs > 1``."""
         X = np.atleast_2d(X)
         if self.n_jobs == 1 or X.shape[0] < 2:
             return self.evaluator(X)
@@ -157,7 +183,6 @@ class ChartTuningProblem(Problem):
                 pass
             self._payload = None
 
-    def __getstate__(self):
-        state = self.__dict__.copy()
-        state["_payload"] = None  # pymoo deep-copies problems into res.history
-        return state
+
+#: The name of paper 000's problem (a chart's (λ, K) against FAR and MDR).
+ChartTuningProblem = TuningProblem

@@ -1,10 +1,13 @@
-"""Choosing one chart design from the optimiser's archive.
+"""Choosing one detector design from the optimiser's archive.
 
 Paper 000, step 7 (after eq. 39) picks "the member that makes MDR and FAR smallest
-together" without saying how; DESIGN.md decision 6 makes that the maximum detection
-accuracy 1 − FAR − MDR and offers two alternatives. Every rule takes the archive's
-objective matrix F with F[:, 0] = FAR and F[:, 1] = MDR (both minimised, eq. 36) and
-returns a row index.
+together" without saying how; docs/DECISIONS.md §6 makes that the maximum detection
+accuracy 1 − FAR − MDR and offers two alternatives. The rules below take the
+archive's objective matrix F with F[:, 0] = FAR and F[:, 1] = MDR (both minimised,
+eq. 36) and return a row index; :func:`choose` maps any objective set onto them
+(``objectives`` names the columns of F): the FAR/MDR rules use the ``far`` and
+``mdr`` columns, and ``knee`` on three or more objectives is the design closest to
+the ideal point after scaling every objective to [0, 1] over the archive.
 """
 from __future__ import annotations
 
@@ -123,28 +126,63 @@ def select(F, rule: str = "max_accuracy", alpha: float = 0.05) -> Selection:
     raise ConfigError(f"selection.rule={rule!r} is not allowed; allowed: {', '.join(RULES)}")
 
 
-def choose(X, F, rule: str = "max_accuracy", alpha: float = 0.05) -> int:
+def ideal_distance(F) -> int:
+    """Index of the design closest to the ideal point, every objective scaled to [0, 1] over F.
+
+    The knee rule for three or more objectives; ties go to the first row.
+    """
+    F = np.asarray(F, dtype=float)
+    spread = F.max(axis=0) - F.min(axis=0)
+    scaled = (F - F.min(axis=0)) / np.where(spread > 0, spread, 1.0)
+    distance = np.sqrt((scaled**2).sum(axis=1))
+    return int(np.argmax(distance <= distance.min() + TIE_TOLERANCE))
+
+
+def choose(X, F, rule: str = "max_accuracy", alpha: float = 0.05, objectives=("far", "mdr")) -> int:
     """Row index of the chosen design in the archive (X, F).
 
     Parameters
     ----------
     X : array_like, shape (n, n_var)
         Archive designs (only checked to match F).
-    F : array_like, shape (n, 2)
-        F[:, 0] = FAR, F[:, 1] = MDR.
+    F : array_like, shape (n, d)
+        Objective values, columns named by ``objectives``.
     rule : {"max_accuracy", "knee", "min_mdr_far_le"}
-        See the functions of the same names.
+        See the functions of the same names; the first and last need ``far`` and
+        ``mdr`` among the objectives.
     alpha : float
         FAR budget of ``min_mdr_far_le``.
+    objectives : sequence of str
+        Names of F's columns (default: FAR, MDR).
 
     Returns
     -------
     int
     """
-    X, F = np.asarray(X), _check_front(F)
+    objectives = tuple(objectives)
+    F = np.asarray(F, dtype=float)
+    if F.ndim != 2 or F.shape[1] != len(objectives) or len(F) == 0:
+        raise ValueError(f"F must have shape (n >= 1, {len(objectives)}) with columns {', '.join(objectives)}; "
+                         f"got {F.shape}")
+    X = np.asarray(X)
     if len(X) != len(F):
         raise ValueError(f"X has {len(X)} rows but F has {len(F)}; they must match")
-    return select(F, rule, alpha).index
+    if np.isnan(F).any():
+        raise ValueError("F has NaN entries")
+    # a design with an undefined (infinite) objective only wins when every design has one
+    finite = np.flatnonzero(np.isfinite(F).all(axis=1))
+    rows = finite if finite.size else np.arange(len(F))
+    sub = np.where(np.isfinite(F[rows]), F[rows], np.finfo(float).max / 4)
+    if rule == "knee" and objectives != ("far", "mdr"):
+        if len(objectives) == 2:
+            return int(rows[knee(sub)])
+        return int(rows[ideal_distance(sub)])
+    if rule in ("max_accuracy", "min_mdr_far_le") and not {"far", "mdr"} <= set(objectives):
+        raise ConfigError(f"selection.rule={rule} needs far and mdr among optimizer.objectives "
+                          f"({', '.join(objectives)}); allowed: knee")
+    if objectives != ("far", "mdr"):
+        sub = sub[:, [objectives.index("far"), objectives.index("mdr")]]
+    return int(rows[select(sub, rule, alpha).index])
 
 
 def _check_front(F) -> np.ndarray:

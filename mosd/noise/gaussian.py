@@ -7,10 +7,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from .validation import check_matrix
+from ..validation import check_matrix
+from .base import NoiseModel
 
 
-class GaussianNoise:
+class GaussianNoise(NoiseModel):
     """Additive white Gaussian process and measurement noise.
 
     Parameters
@@ -21,7 +22,7 @@ class GaussianNoise:
         diag(0, 1e-8, 1e-2) keeps x_p tied to θ by the eccentric (x_p = A sin θ,
         no process noise of its own), allows θ a little model mismatch and keeps
         the paper's value on the speed n: with 0.01 on x_p and θ the
-        dedicated-observer residual of x_p wanders by several σ (DESIGN.md
+        dedicated-observer residual of x_p wanders by several σ (docs/DECISIONS.md
         decision 1; the table is in docs/DECISIONS.md).
     measurement_cov : float, sequence or matrix
         Covariance Ξ_ν of v_k.

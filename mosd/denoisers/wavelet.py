@@ -1,4 +1,4 @@
-"""Wavelet denoising of a chart statistic (paper 000, §3.2; DESIGN.md decision 4).
+"""Wavelet denoising of a chart statistic (paper 000, §3.2; docs/DECISIONS.md §4).
 
 Paper 000 smooths the SS-DEWMA statistic {L_k} (eqs. 19–25) before comparing it
 with the limit of eq. 27: MATLAB ``wavedec(L, 3, 'db3')``, a threshold from
@@ -32,7 +32,7 @@ import numpy as np
 import pywt
 from numpy.lib.stride_tricks import sliding_window_view
 
-from .validation import check_choice, check_int
+from ..validation import check_choice, check_int
 
 #: Threshold selection rules of MATLAB's ``thselect``.
 THRESHOLD_RULES = ("rigrsure", "heursure", "sqtwolog", "minimaxi")
@@ -212,7 +212,7 @@ class WaveletDenoiser:
         ``'sln'`` keeps ~64 % of the details (corr(l, L) = 0.995) because the
         finest details of a twice-smoothed statistic are tiny — so it is the
         unscaled rule, not ``'sln'``, that "keeps only the approximation"
-        (correcting DESIGN.md decision 4). Under a fault L is large and details
+        (correcting docs/DECISIONS.md §4). Under a fault L is large and details
         survive the unscaled rule too.
     window : int or None
         ``None``: whole-series denoising — non-causal, l_k depends on future
@@ -366,34 +366,8 @@ class WaveletDenoiser:
         return out
 
 
-class NoDenoiser:
-    """Identity "denoiser": lets a chart run on the raw statistic {L_k}."""
-
-    window = None
-
-    @property
-    def is_causal(self) -> bool:
-        """Always True: l_k = L_k uses nothing from the future."""
-        return True
-
-    def describe(self) -> dict:
-        """Flat description for logs and results."""
-        return {"denoiser": "none", "causal": True, "causality": "identity (causal)"}
-
-    def __repr__(self) -> str:
-        return "NoDenoiser()  # identity (causal)"
-
-    def denoise(self, x) -> np.ndarray:
-        """Return ``x`` as a float array (a copy, so callers may modify it)."""
-        values = np.array(x, dtype=float)
-        if values.ndim == 0:
-            raise ValueError("denoise needs sequences along the last axis, got a scalar")
-        return values
-
-
 __all__ = [
     "GLOBAL_SOURCES",
-    "NoDenoiser",
     "SCALINGS",
     "SCOPES",
     "THRESHOLD_MODES",

@@ -17,7 +17,7 @@ from typing import TextIO
 import numpy as np
 from pymoo.core.callback import Callback
 
-from .validation import ConfigError, check_int
+from ..validation import ConfigError, check_int
 
 #: Reference point of the hypervolume: just beyond the worst possible (FAR, MDR) = (1, 1),
 #: so that the extreme designs of a front still add area.
@@ -88,8 +88,10 @@ class Progress(Callback):
             "generation": int(algorithm.n_gen),
             "n_eval": int(algorithm.evaluator.n_eval),
             "archive_size": int(F.shape[0]),
-            "hypervolume": hypervolume_2d(F),
-            "best_accuracy": float(np.max(1.0 - F[:, 0] - F[:, 1])) if F.shape[0] else float("nan"),
+            # the (FAR, MDR) hypervolume and accuracy are defined for two rate objectives only
+            "hypervolume": hypervolume_2d(F) if F.shape[1] == 2 and np.all(F <= 1.0) else float("nan"),
+            "best_accuracy": float(np.max(1.0 - F[:, 0] - F[:, 1])) if F.shape[0] and F.shape[1] == 2
+            else float("nan"),
             "elapsed_s": now - self._started,
         }
         self.records.append(record)

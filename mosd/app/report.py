@@ -1,7 +1,7 @@
 """``mosd report`` / ``python -m mosd.report``: the comparison table of finished runs.
 
 Reads the runs of the app (tag ``mosd.role = job``) from an MLflow tracking store
-and prints one row per (fault, chart, optimizer) — the latest finished run of each,
+and prints one row per (preset, fault, detector, optimizer) — the latest finished run of each,
 or every run with ``--all`` — with the test MDR, FAR and accuracy (mean ± 95 % CI
 half-width, in %), the chosen λ and control width, as a markdown table (paper 000,
 Table 3 layout) or as CSV.
@@ -15,10 +15,8 @@ import math
 import sys
 from typing import Sequence
 
-COLUMNS = ("fault", "chart", "optimizer", "mdr", "mdr_ci", "far", "far_ci", "accuracy", "accuracy_ci",
-           "lam", "K", "n_test", "run_id", "experiment")
-#: Chart parameter shown in the K column: SS-DEWMA's K, EWMA's L.
-WIDTH_NAMES = ("K", "L")
+COLUMNS = ("preset", "fault", "detector", "optimizer", "mdr", "mdr_ci", "far", "far_ci", "accuracy", "accuracy_ci",
+           "detection_rate", "params", "online", "n_test", "run_id", "experiment")
 
 
 class ReportError(Exception):
@@ -26,7 +24,7 @@ class ReportError(Exception):
 
 
 def collect(tracking_uri: str, experiment: str | None = None, latest_only: bool = True) -> list[dict]:
-    """Rows (dicts with :data:`COLUMNS`) of finished app runs, sorted by fault, chart, optimizer."""
+    """Rows (dicts with :data:`COLUMNS`) of finished app runs, sorted by preset, fault, detector, optimizer."""
     from mlflow.tracking import MlflowClient
 
     client = MlflowClient(tracking_uri=tracking_uri)
@@ -51,18 +49,21 @@ def collect(tracking_uri: str, experiment: str | None = None, latest_only: bool 
     rows, seen = [], set()
     for run in runs:  # newest first
         tags, metrics = run.data.tags, run.data.metrics
-        key = (tags.get("mosd.fault", "?"), tags.get("mosd.chart", "?"), tags.get("mosd.optimizer", "?"))
+        key = (tags.get("mosd.experiment", ""), tags.get("mosd.fault", "?"), tags.get("mosd.detector", "?"),
+               tags.get("mosd.optimizer", "?"))
         if latest_only and key in seen:
             continue
         seen.add(key)
-        width = next((metrics[n] for n in WIDTH_NAMES if n in metrics), math.nan)
+        names = [n for n in tags.get("mosd.params", "").split(",") if n]
+        params = " ".join(f"{n}={metrics[n]:.4g}" for n in names if n in metrics)
         rows.append({
-            "fault": key[0], "chart": key[1], "optimizer": key[2],
-            **{m: metrics.get(m, math.nan) for m in ("mdr", "mdr_ci", "far", "far_ci", "accuracy", "accuracy_ci")},
-            "lam": metrics.get("lam", math.nan), "K": width, "n_test": metrics.get("n_test", math.nan),
+            "preset": key[0], "fault": key[1], "detector": key[2], "optimizer": key[3],
+            **{m: metrics.get(m, math.nan) for m in ("mdr", "mdr_ci", "far", "far_ci", "accuracy", "accuracy_ci",
+                                                      "detection_rate")},
+            "params": params, "online": tags.get("mosd.online", "?"), "n_test": metrics.get("n_test", math.nan),
             "run_id": run.info.run_id, "experiment": ids.get(run.info.experiment_id, ""),
         })
-    rows.sort(key=lambda r: (r["fault"], r["chart"], r["optimizer"]))
+    rows.sort(key=lambda r: (r["preset"], r["fault"], r["detector"], r["optimizer"]))
     return rows
 
 
@@ -76,12 +77,13 @@ def _percent(mean: float, half_width: float) -> str:
 
 def to_markdown(rows: list[dict]) -> str:
     """Markdown table: rates in % as mean ± 95 % CI half-width over the test replications."""
-    header = ["fault", "chart", "optimizer", "MDR %", "FAR %", "accuracy %", "λ", "K", "n_test", "run"]
+    header = ["preset", "fault", "detector", "optimizer", "MDR %", "FAR %", "accuracy %", "detected %", "design",
+              "online", "n_test", "run"]
     lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
     for r in rows:
-        cells = [r["fault"], r["chart"], r["optimizer"], _percent(r["mdr"], r["mdr_ci"]),
+        cells = [r["preset"] or "–", r["fault"], r["detector"], r["optimizer"], _percent(r["mdr"], r["mdr_ci"]),
                  _percent(r["far"], r["far_ci"]), _percent(r["accuracy"], r["accuracy_ci"]),
-                 f"{r['lam']:.4f}", f"{r['K']:.4f}",
+                 _percent(r["detection_rate"], math.nan), r["params"] or "–", r["online"],
                  f"{r['n_test']:.0f}" if math.isfinite(r["n_test"]) else "–", r["run_id"][:8]]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
@@ -99,7 +101,7 @@ def to_csv(rows: list[dict]) -> str:
 
 def _parser(default_uri: str) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
-        prog="mosd report", description="Comparison table (fault × chart × optimizer) of finished mosd runs.")
+        prog="mosd report", description="Comparison table (preset × fault × detector × optimizer) of finished mosd runs.")
     parser.add_argument("--tracking-uri", default=default_uri,
                         help=f"MLflow tracking URI (default: {default_uri})")
     parser.add_argument("--experiment", default=None, help="only runs of this MLflow experiment (default: all)")

@@ -37,16 +37,19 @@ def _finish_time_axes(ax, t: np.ndarray, fault_mask: np.ndarray, ylabel: str, ti
     ax.legend(loc="upper left", fontsize=8)
 
 
-def pareto_front(path: str | Path, F: np.ndarray, chosen: int | None = None, title: str = "") -> Path:
-    """Scatter of the archive in the (FAR, MDR) plane, the chosen design highlighted.
+def pareto_front(path: str | Path, F: np.ndarray, chosen: int | None = None, title: str = "",
+                 labels: tuple[str, str] = ("far", "mdr")) -> Path:
+    """Scatter of the archive in the plane of two objectives, the chosen design highlighted.
 
     Parameters
     ----------
     path : output PNG
     F : ndarray (n, 2)
-        FAR and MDR on the training replications (eq. 36).
+        The objectives on the training replications (eq. 36: FAR and MDR).
     chosen : int, optional
         Row of the chosen design.
+    labels : pair of str
+        The objectives' names.
     """
     F = np.atleast_2d(np.asarray(F, float))
     fig = _figure()
@@ -55,9 +58,10 @@ def pareto_front(path: str | Path, F: np.ndarray, chosen: int | None = None, tit
     ax.plot(F[order, 0], F[order, 1], "o-", ms=4, lw=0.8, color="tab:blue", label="archive (training)")
     if chosen is not None:
         ax.plot(F[chosen, 0], F[chosen, 1], "*", ms=14, color="tab:red",
-                label=f"chosen: FAR {F[chosen, 0]:.4f}, MDR {F[chosen, 1]:.4f}")
-    ax.set_xlabel("false-alarm rate FAR")
-    ax.set_ylabel("missed-detection rate MDR")
+                label=f"chosen: {labels[0]} {F[chosen, 0]:.4g}, {labels[1]} {F[chosen, 1]:.4g}")
+    names = {"far": "false-alarm rate FAR", "mdr": "missed-detection rate MDR"}
+    ax.set_xlabel(names.get(labels[0], labels[0]))
+    ax.set_ylabel(names.get(labels[1], labels[1]))
     ax.set_title(title or "Pareto front")
     ax.grid(alpha=0.3)
     ax.legend(loc="upper right", fontsize=8)

@@ -13,12 +13,13 @@ import math
 
 import numpy as np
 
-from .validation import ConfigError, Interval, check_choice, check_in, check_int
+from ..validation import ConfigError, Interval, check_choice, check_in, check_int
+from .base import Fault
 
 FAULT_KINDS = ("offset", "variance", "offset_var", "drift")
 
 
-class SensorFault:
+class SensorFault(Fault):
     """An additive sensor fault on one output channel.
 
     Parameters
@@ -34,12 +35,16 @@ class SensorFault:
         Offset in σ (drift: σ per second).
     b : float
         Standard-deviation factor, b >= 1.
+    role : {"target", "nuisance"}
     """
 
-    def __init__(self, kind: str = "offset", channel: int = 0, onset: float = 2.7, a: float = 2.0, b: float = 1.0):
+    relative = True  # magnitudes in units of the channel's in-control residual σ
+
+    def __init__(self, kind: str = "offset", channel: int = 0, onset: float = 2.7, a: float = 2.0, b: float = 1.0,
+                 role: str = "target"):
+        super().__init__(onset=onset, role=role)
         self.kind = check_choice("fault.kind", kind, FAULT_KINDS)
         self.channel = check_int("fault.channel", channel, 0)
-        self.onset = check_in("fault.onset", onset, Interval(0.0, math.inf))
         self.a = check_in("fault.a", a, Interval(-1e6, 1e6))
         self.b = check_in("fault.b", b, Interval(1.0, 1e6))
         if self.kind in ("offset", "offset_var", "drift") and self.a == 0.0:
@@ -49,10 +54,6 @@ class SensorFault:
 
     def __repr__(self) -> str:
         return f"SensorFault(kind={self.kind!r}, channel={self.channel}, onset={self.onset}, a={self.a}, b={self.b})"
-
-    def active(self, t: np.ndarray) -> np.ndarray:
-        """Boolean mask of the samples at which the fault is present."""
-        return np.asarray(t) >= self.onset - 1e-12
 
     def signal(self, t: np.ndarray, scale: float, rng: np.random.Generator) -> np.ndarray:
         """g_k for one replication, shape (N,), in the channel's units.

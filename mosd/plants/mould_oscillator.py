@@ -1,8 +1,7 @@
-"""Plants: the physical systems being monitored, with their closed-loop controllers.
+"""Paper 000's plant: the servo-driven mould oscillator in closed loop with a PI speed controller.
 
-A plant provides its discrete-time model (:meth:`model`) for the estimators and a
-controller for closed-loop simulation (:meth:`controller`); the scenario
-(:mod:`mosd.scenario`) runs the loop and injects noise and faults.
+It provides f, h and a controller; :class:`~mosd.plants.base.ClosedLoopPlant`
+runs the loop and injects noise and the sensor fault.
 """
 from __future__ import annotations
 
@@ -10,8 +9,9 @@ import math
 
 import numpy as np
 
-from .model import StateSpaceModel
-from .validation import Interval, check_in
+from ..model import StateSpaceModel
+from ..validation import Interval, check_in
+from .base import ClosedLoopPlant
 
 _RPM_PER_RAD_S = 60.0 / (2.0 * math.pi)
 _POSITIVE = Interval(0.0, math.inf, open_low=True)
@@ -42,7 +42,7 @@ class SpeedPI:
         return i_q[:, None]
 
 
-class MouldOscillator:
+class MouldOscillator(ClosedLoopPlant):
     """Servo-motor-driven continuous-casting mould oscillator (paper 000, eqs. 40–41, Table 1).
 
     States x = [x_p (mm), θ (rad), n (r/min)], input u = i_q (A), outputs y = x.
@@ -161,13 +161,17 @@ class MouldOscillator:
         """
         return np.array([0.0, 0.0, self.n_ref])
 
-    def model(self, process_cov: np.ndarray, measurement_cov: np.ndarray) -> StateSpaceModel:
-        """The discrete model the estimators use (x̂_0 = x_0, P_0 = I as in the paper)."""
+    def model(self, noise) -> StateSpaceModel:
+        """The discrete model the estimators use (x̂_0 = x_0, P_0 = I as in the paper).
+
+        Q and R are the Gaussian noise model's covariances (``noise.process_cov``,
+        ``noise.measurement_cov``).
+        """
         return StateSpaceModel(
             f=self.f,
             h=self.h,
-            Q=np.asarray(process_cov, float),
-            R=np.asarray(measurement_cov, float),
+            Q=np.asarray(noise.process_cov, float),
+            R=np.asarray(noise.measurement_cov, float),
             x0=self.initial_state(),
             P0=np.eye(3),
             dt=self.dt,

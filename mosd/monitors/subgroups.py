@@ -1,4 +1,4 @@
-"""Monitor: turn residuals into standardised subgroups (DESIGN.md decision 2).
+"""Paper 000's monitor: residuals into standardised subgroups (docs/DECISIONS.md §2).
 
 Two subgrouping modes feed the n-sample statistics of eqs. 19–20:
 
@@ -15,11 +15,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from .types import Residuals, Subgroups
-from .validation import ConfigError, check_choice, check_int
+from ..types import Residuals, Subgroups
+from ..validation import ConfigError, check_choice, check_int
+from .base import Monitor, _grid
 
 
-class Monitor:
+class SubgroupMonitor(Monitor):
     """Standardise residuals with Phase-I statistics and cut them into subgroups.
 
     Parameters
@@ -62,22 +63,34 @@ class Monitor:
         return self
 
     def channel_std(self, channel: int) -> float:
-        """σ of one monitored channel (the fault scale of :mod:`mosd.fault`)."""
+        """σ of one monitored channel (the fault scale of :mod:`mosd.faults.sensor`)."""
         self._check_fitted()
         return float(self.std_[self.channels.index(channel)])
+
+    def fault_scale(self, calibration: Residuals, channel: int) -> float:
+        """The Phase-I σ of ``channel``: the fitted one when monitored, else computed alike."""
+        if channel in self.channels and hasattr(self, "std_"):
+            return self.channel_std(channel)
+        return super().fault_scale(calibration, channel)
 
     def transform(self, residuals: Residuals) -> Subgroups:
         """Standardised subgroups z of shape (R, K, n) and their fault mask (R, K)."""
         self._check_fitted()
         z = (self._monitored(residuals) - self.mean_) / self.std_
         mask = residuals.fault_mask[:, self.burn_in :]
+        label = residuals.fault_label[:, self.burn_in :]
+        t = _grid(residuals)[self.burn_in :]
         if self.subgroup == "channels":
-            return Subgroups(z=z, fault_mask=mask)
+            return Subgroups(z=z, fault_mask=mask, fault_label=label, fault_roles=residuals.fault_roles, t=t)
         n = self.n
         n_sub = z.shape[1] // n
+        if n_sub == 0:
+            raise ConfigError(f"monitor.burn_in={self.burn_in} leaves fewer than n={n} samples of a "
+                              f"{residuals.r.shape[1]}-sample run; allowed: burn_in <= {residuals.r.shape[1] - n}")
         z = z[:, : n_sub * n, 0].reshape(z.shape[0], n_sub, n)
-        mask = mask[:, n - 1 : n_sub * n : n]
-        return Subgroups(z=z, fault_mask=mask)
+        last = slice(n - 1, n_sub * n, n)  # a subgroup's fault state is that of its last sample
+        return Subgroups(z=z, fault_mask=mask[:, last], fault_label=label[:, last],
+                         fault_roles=residuals.fault_roles, t=t[last])
 
     def _monitored(self, residuals: Residuals) -> np.ndarray:
         m = residuals.r.shape[-1]

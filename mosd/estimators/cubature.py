@@ -31,7 +31,7 @@ is one batched update).
 Residual generators
 -------------------
 :class:`InnovationResidual` is the paper's eq. 7 innovation with every sensor
-in the update. :class:`DedicatedObserverResidual` (the default, DESIGN.md
+in the update. :class:`DedicatedObserverResidual` (the default, docs/DECISIONS.md
 decision 1) updates the filter with the *other* sensors only and compares the
 monitored sensor with its prediction. Why: a filter that updates with the
 faulty sensor treats a constant sensor bias as information about the state and
@@ -51,13 +51,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 import math
-import time
 
 import numpy as np
 
-from .model import StateSpaceModel
-from .types import Residuals, Trace
-from .validation import ConfigError, Interval, check_in, check_int
+from ..model import StateSpaceModel
+from ..validation import ConfigError, Interval, check_in, check_int
 
 __all__ = [
     "EmbeddedCubatureRule",
@@ -586,191 +584,3 @@ def _lower_sqrt(cov: np.ndarray) -> np.ndarray:
 # ----------------------------------------------------------------------------------
 # residual generators
 # ----------------------------------------------------------------------------------
-def _check_filter(flt):
-    if flt is None:
-        return CESCKF()
-    if not isinstance(flt, _CubatureFilterBase):
-        raise ConfigError(f"estimator.filter={flt!r} is not a filter; allowed: CESCKF, CubatureKalmanFilter")
-    return flt
-
-
-def _check_trace(trace: Trace, model: StateSpaceModel) -> None:
-    if trace.y.shape[-1] != model.n_y:
-        raise ValueError(f"trace has {trace.y.shape[-1]} output channels but the model {model.n_y}")
-
-
-class InnovationResidual:
-    """The paper's residual: the innovation r_k = y_k − ŷ_{k|k−1} of a filter using every sensor (eq. 7).
-
-    Parameters
-    ----------
-    filter : CESCKF or CubatureKalmanFilter, optional
-        Default: ``CESCKF()``.
-    """
-
-    def __init__(self, filter=None):  # noqa: A002 - the config key is "filter"
-        self.filter = _check_filter(filter)
-
-    def residuals(self, trace: Trace, model: StateSpaceModel) -> Residuals:
-        """Filter the trace and return the innovations of all channels with their predicted covariance."""
-        _check_trace(trace, model)
-        res = self.filter.filter(model, trace.y, trace.u)
-        return Residuals(
-            r=res.innovation,
-            fault_mask=trace.fault_mask,
-            channels=tuple(model.output_names),
-            cov=res.innovation_cov,
-            extra={"x_pred": res.x_pred, "x_filt": res.x_filt, "y_pred": res.y_pred, "generator": "innovation"},
-        )
-
-
-class DedicatedObserverResidual:
-    """Residual of a filter that never sees the monitored sensors (DESIGN.md decision 1).
-
-    The filter updates with the other channels only (``model.restrict_outputs``);
-    the monitored channels' residual is y_m − ŷ_{m,k|k−1}, where ŷ_m is the
-    cubature mean of h_m over the predicted density N(x̂_{k|k−1}, P_{k|k−1}) —
-    the eq. 6 prediction, equal to h_m(x̂_{k|k−1}) for a linear h_m as on the
-    mould oscillator. Because y_m is never used in an update, a sensor bias is
-    not absorbed by the state estimate.
-
-    Parameters
-    ----------
-    filter : CESCKF or CubatureKalmanFilter, optional
-        Default: ``CESCKF()``.
-    monitored : sequence of int
-        Output channels left out of the update (paper 000: the x_p sensor, 0).
-
-    Notes
-    -----
-    The output has all n_y channels in the model's order: monitored channels
-    carry this residual, the others the filter's innovations. ``cov`` is the
-    joint predicted covariance of the whole output vector at N(x̂_{k|k−1},
-    P_{k|k−1}) plus R (eq. 15 over all channels); both kinds of residual are
-    y − ŷ_{k|k−1} at that one prediction, so cov is exact for the cross terms too.
-    """
-
-    def __init__(self, filter=None, monitored=(0,)):  # noqa: A002
-        self.filter = _check_filter(filter)
-        if isinstance(monitored, (int, np.integer)):
-            monitored = (monitored,)
-        try:
-            monitored = tuple(monitored)
-        except TypeError:
-            raise ConfigError(
-                f"estimator.monitored={monitored!r} is not a list of channels; allowed: e.g. [0]"
-            ) from None
-        if not monitored:
-            raise ConfigError("estimator.monitored=() is empty; allowed: at least one output channel")
-        self.monitored = tuple(check_int("estimator.monitored", m, 0) for m in monitored)
-        if len(set(self.monitored)) != len(self.monitored):
-            raise ConfigError(f"estimator.monitored={monitored!r} repeats a channel; allowed: distinct channels")
-
-    def residuals(self, trace: Trace, model: StateSpaceModel) -> Residuals:
-        """Filter with the unmonitored sensors and return the residuals of all channels."""
-        _check_trace(trace, model)
-        n_y = model.n_y
-        if max(self.monitored) >= n_y or len(self.monitored) >= n_y:
-            raise ConfigError(
-                f"estimator.monitored={self.monitored} is not allowed for {n_y} outputs; "
-                f"allowed: distinct channels in 0..{n_y - 1}, leaving at least one for the update"
-            )
-        others = [c for c in range(n_y) if c not in self.monitored]
-        res = self.filter.filter(model.restrict_outputs(others), trace.y[..., others], trace.u)
-        y_pred, cov = _output_prediction(self.filter, model, res)
-        r = np.empty_like(trace.y)
-        mon = list(self.monitored)
-        r[..., mon] = trace.y[..., mon] - y_pred[..., mon]
-        r[..., others] = res.innovation
-        return Residuals(
-            r=r,
-            fault_mask=trace.fault_mask,
-            channels=tuple(model.output_names),
-            cov=cov,
-            extra={
-                "x_pred": res.x_pred,
-                "x_filt": res.x_filt,
-                "y_pred": y_pred,
-                "monitored": self.monitored,
-                "generator": "dedicated_observer",
-            },
-        )
-
-
-def _output_prediction(flt, model: StateSpaceModel, res: FilterResult, time_chunk: int = 1000):
-    """ŷ_{k|k−1} and its covariance for every output of ``model`` from stored predictions (eqs. 6, 8, 15).
-
-    Vectorised over replications and a chunk of samples at once; the stored
-    S_{k|k−1} give the filter's own points (up to rounding).
-    """
-    eps, w = flt._rule.points(model.n_x)
-    sqrt_w = np.sqrt(w)[:, None]
-    n_reps, n_steps, _ = res.x_pred.shape
-    n_y = model.n_y
-    y_pred = np.empty((n_reps, n_steps, n_y))
-    cov = np.empty((n_reps, n_steps, n_y, n_y))
-    R = np.asarray(model.R, float)
-    for start in range(0, n_steps, time_chunk):
-        sl = slice(start, min(start + time_chunk, n_steps))
-        pts = res.x_pred[:, sl, None, :] + np.swapaxes(res.sqrt_cov_pred[:, sl] @ eps.T, -1, -2)
-        out = model.h(pts)
-        yp = w @ out
-        centred = sqrt_w * (out - yp[..., None, :])
-        y_pred[:, sl] = yp
-        cov[:, sl] = np.swapaxes(centred, -1, -2) @ centred + R
-    return y_pred, cov
-
-
-# ----------------------------------------------------------------------------------
-# benchmark
-# ----------------------------------------------------------------------------------
-def benchmark_filter(
-    n_reps: int = 100, n_steps: int = 5000, single_reps: int = 3, filter=None, seed: int = 0  # noqa: A002
-) -> dict:
-    """Replication-steps per second of a filter, batched vs one replication at a time.
-
-    Simulates ``n_reps`` fault-free replications of the default mould
-    oscillator (not timed), filters them in one batched call, then filters
-    ``single_reps`` of them one at a time (the loop over all ``n_reps`` would
-    take minutes; steps/s is what is compared).
-
-    Returns
-    -------
-    dict
-        filter, n_x, n_reps, n_steps, batched_seconds, batched_steps_per_s,
-        single_reps, single_seconds, single_steps_per_s, speedup.
-    """
-    from .noise import GaussianNoise
-    from .plant import MouldOscillator
-    from .scenario import Scenario
-
-    n_reps = check_int("n_reps", n_reps, 1)
-    n_steps = check_int("n_steps", n_steps, 2)
-    single_reps = check_int("single_reps", single_reps, 1)
-    flt = _check_filter(filter)
-    plant = MouldOscillator()
-    noise = GaussianNoise()
-    trace = Scenario(plant, noise, fault=None, duration=n_steps * plant.dt).simulate(seed, n_reps, stream="calibration")
-    model = plant.model(noise.process_cov, noise.measurement_cov)
-    t0 = time.perf_counter()
-    flt.filter(model, trace.y, trace.u)
-    batched = time.perf_counter() - t0
-    n_single = min(single_reps, n_reps)
-    t0 = time.perf_counter()
-    for r in range(n_single):
-        flt.filter(model, trace.y[r : r + 1], trace.u[r : r + 1])
-    single = time.perf_counter() - t0
-    batched_rate = n_reps * trace.n_samples / batched
-    single_rate = n_single * trace.n_samples / single
-    return {
-        "filter": repr(flt),
-        "n_x": model.n_x,
-        "n_reps": n_reps,
-        "n_steps": trace.n_samples,
-        "batched_seconds": batched,
-        "batched_steps_per_s": batched_rate,
-        "single_reps": n_single,
-        "single_seconds": single,
-        "single_steps_per_s": single_rate,
-        "speedup": batched_rate / single_rate,
-    }

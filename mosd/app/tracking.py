@@ -1,6 +1,6 @@
 """MLflow tracking of runs and sweeps (app layer: the science core never imports this).
 
-Design, from measurements on this machine (DESIGN.md, "Facts"):
+Design, from measurements on this machine (docs/DECISIONS.md, "Facts"):
 
 * ``import mlflow`` costs 1.5–3.5 s of pure-Python work. A background *thread*
   does not hide it (it competes for the GIL with the simulation), so a run talks
@@ -35,7 +35,7 @@ from urllib.parse import urlparse
 
 from hydra.experimental.callback import Callback
 
-from .validation import ConfigError
+from ..validation import ConfigError
 
 #: Store schemes accepted for ``tracking.uri`` (MLflow 3.17 refuses the plain file store).
 STORE_SCHEMES = ("sqlite", "postgresql", "mysql", "mssql", "http", "https", "databricks")

@@ -1,0 +1,56 @@
+"""The experiment app: Hydra config → components → :class:`mosd.experiment.Experiment` → files + MLflow.
+
+``python -m mosd +fault=offset_var optimizer=mopso`` (or the ``mosd`` console
+script) runs one experiment; ``python -m mosd +experiment=NAME`` a paper's preset;
+``-m`` sweeps, one MLflow child run per job under one parent run
+(:class:`mosd.app.tracking.SweepCallback`); ``mosd report`` prints the
+comparison table (:mod:`mosd.app.report`).
+
+Layers: :mod:`.config` (where the configs are, which keys exist), :mod:`.build`
+(config → validated components), :mod:`.preflight` (the whole command line
+checked before Hydra creates anything), :mod:`.run` (one job: experiment, run
+directory, MLflow), :mod:`.tracking`, :mod:`.report`, :mod:`.progress`,
+:mod:`.plots`. Hydra and MLflow live here only, imported when needed, so
+``import mosd.app`` is cheap.
+"""
+from __future__ import annotations
+
+import sys
+import time
+from typing import Sequence
+
+from ..validation import ConfigError
+from .config import CONFIG_DIR, CONFIG_NAME, UsageError
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m mosd`` / ``mosd``: run, sweep (``-m``) or ``report``."""
+    started = time.perf_counter()
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv[:1] == ["report"]:
+        from .report import main as report_main
+
+        return report_main(argv[1:])
+    try:
+        from .preflight import preflight
+
+        preflight(argv)
+    except (UsageError, ConfigError) as exc:
+        print(f"mosd: error: {exc}", file=sys.stderr)
+        return 2
+
+    import hydra
+
+    @hydra.main(version_base="1.3", config_path=str(CONFIG_DIR), config_name=CONFIG_NAME)
+    def task(cfg):
+        from .run import run
+
+        run(cfg, started=started)
+
+    saved = sys.argv
+    sys.argv = [saved[0] if saved else "mosd", *argv]
+    try:
+        task()
+    finally:
+        sys.argv = saved
+    return 0

@@ -1,0 +1,244 @@
+"""One run (the Hydra task): build, run the experiment, write the run directory, log to MLflow."""
+from __future__ import annotations
+
+import json
+import logging
+import sys
+import time
+import traceback
+from pathlib import Path
+from typing import Mapping
+
+import numpy as np
+
+from .build import Setup, build
+from .config import COMPONENTS, one_line
+
+log = logging.getLogger("mosd.app")
+
+
+def write_run_files(run_dir: Path, cfg, result, setup: Setup, labels: Mapping[str, str]) -> list[Path]:
+    """Resolved config, Pareto set and history as CSV, summary JSON and the PNG plots."""
+    from omegaconf import OmegaConf
+
+    from . import plots
+
+    run_dir.mkdir(parents=True, exist_ok=True)
+    written = []
+    path = run_dir / "resolved_config.yaml"
+    path.write_text(OmegaConf.to_yaml(cfg, resolve=True))
+    written.append(path)
+
+    names = list(result.params)
+    F = result.archive_F
+    objectives = list(result.objectives)
+    order = np.argsort(F[:, 0], kind="stable")
+    columns = [result.archive_X[order], F[order]]
+    header = [*names, *objectives]
+    if objectives == ["far", "mdr"]:
+        columns.append(1.0 - F[order].sum(axis=1))
+        header.append("accuracy")
+    table = np.column_stack([*columns, (order == result.chosen_index).astype(float)])
+    path = run_dir / "pareto.csv"
+    np.savetxt(path, table, delimiter=",", header=",".join([*header, "chosen"]),
+               comments="", fmt=["%.10g"] * (table.shape[1] - 1) + ["%d"])
+    written.append(path)
+
+    if result.history:
+        keys = list(result.history[0])
+        path = run_dir / "history.csv"
+        np.savetxt(path, np.array([[r[k] for k in keys] for r in result.history], float), delimiter=",",
+                   header=",".join(keys), comments="", fmt="%.10g")
+        written.append(path)
+
+    summary = result.summary()
+    path = run_dir / "summary.json"
+    path.write_text(json.dumps({
+        "labels": dict(labels),
+        "params": result.params,
+        "online": bool(setup.experiment.detector.is_causal),
+        "objectives": list(result.objectives),
+        "train": dict(result.train_objectives),
+        "test": {k: {"mean": v.mean, "ci95_half_width": v.half_width, "n": v.n} for k, v in summary.items()},
+        "sigma": result.sigma,
+        "timings": result.timings,
+    }, indent=2, allow_nan=True))
+    written.append(path)
+
+    ex = result.example
+    monitor = setup.experiment.monitor
+    title = f"{labels.get('detector', '')} on {labels.get('fault', '')} fault: " + ", ".join(
+        f"{k} = {v:.4g}" for k, v in result.params.items())
+    if F.shape[1] == 2:
+        written.append(plots.pareto_front(run_dir / "pareto.png", F, result.chosen_index,
+                                          title=f"Archive of {labels.get('optimizer', '')} (training replications)",
+                                          labels=tuple(objectives)))
+    t = ex["t"] if ex.get("t") is not None else np.arange(len(ex["statistic"])) * ex["seconds_per_point"]
+    written.append(plots.chart_trace(run_dir / "chart.png", t, ex["statistic"], ex["ucl"], ex["fault_mask"],
+                                     title=title))
+    channel = getattr(setup.experiment.fault, "channel", 0)
+    if ex.get("residual") is not None:
+        channels = getattr(monitor, "channels", ())
+        mean = float(monitor.mean_[channels.index(channel)]) if channel in channels and hasattr(monitor, "mean_") \
+            else 0.0
+        names = tuple(getattr(setup.experiment.plant, "output_names", ()))
+        written.append(plots.residual_trace(run_dir / "residual.png", ex["residual"], ex["residual_fault_mask"],
+                                            ex["dt"], mean=mean, sigma=result.sigma,
+                                            channel_name=names[channel] if channel < len(names) else ""))
+    if result.history:
+        written.append(plots.optimisation_history(run_dir / "history.png", result.history))
+    return written
+
+
+def final_metrics(result, seconds_per_point: float) -> dict[str, float]:
+    """The run's scalar metrics: test means and CI half-widths, chosen parameters, training objectives."""
+    metrics: dict[str, float] = {}
+    for key, estimate in result.summary().items():
+        metrics[key] = estimate.mean
+        metrics[f"{key}_ci"] = estimate.half_width
+    for key in ("delay", "delay_censored"):
+        if key in metrics:
+            metrics[f"{key}_s"] = metrics[key] * seconds_per_point
+            metrics[f"{key}_s_ci"] = metrics[f"{key}_ci"] * seconds_per_point
+    metrics["delay_censored_median_s"] = result.test.median_censored_delay() * seconds_per_point
+    metrics["n_test"] = float(result.test.n_runs)
+    metrics.update({name: float(value) for name, value in result.params.items()})
+    metrics.update({f"train_{name}": float(value) for name, value in result.train_objectives.items()})
+    metrics["sigma"] = float(result.sigma)
+    return metrics
+
+
+def _format_summary(labels, result, setup: Setup, metrics, timings, run_dir, tracking_line) -> str:
+    n_test = int(metrics["n_test"])
+    opt = labels.get("optimizer", "")
+    pop = getattr(setup.algorithm, "pop_size", "?")
+    params = "  ".join(f"{k} = {v:.4f}" for k, v in result.params.items())
+
+    def pm(key, digits=4):
+        return f"{metrics[key]:.{digits}f} ± {metrics[key + '_ci']:.{digits}f}"
+
+    train = ", ".join(f"{k} {v:.4g}" for k, v in result.train_objectives.items())
+    online = "online (causal detector)" if setup.experiment.detector.is_causal else \
+        "NOT online: the detector uses future points (non-causal)"
+    preset = f"experiment={labels['experiment']}  " if labels.get("experiment") else ""
+    lines = [
+        f"mosd  {preset}fault={labels.get('fault')}  detector={labels.get('detector')}  optimizer={opt} "
+        f"({pop} × {setup.n_gen})  estimator={labels.get('estimator')}  denoise={labels.get('denoise')}",
+        f"chosen    {params}   (training: {train}; archive of {len(result.archive_F)})",
+        f"test      {n_test} fresh replications, mean ± 95 % CI half-width; {online}",
+        f"  FAR       {pm('far')}",
+        f"  MDR       {pm('mdr')}",
+        f"  accuracy  {pm('accuracy')}",
+        f"  detected  {pm('detection_rate')} of the runs",
+        f"  delay     {pm('delay_s', 4)} s over detected runs; censored median "
+        f"{metrics['delay_censored_median_s']:.4g} s (undetected runs beyond the horizon)",
+        "wall time " + f"{timings['wall_s']:.1f} s  (" + ", ".join(
+            f"{k.removesuffix('_s')} {v:.1f}" for k, v in timings.items() if k != "wall_s") + ")",
+        f"run dir   {run_dir}",
+    ]
+    if tracking_line:
+        lines.append(tracking_line)
+    return "\n".join(lines)
+
+
+def _under_joblib_launcher(hydra_cfg) -> bool:
+    target = str(hydra_cfg.launcher.get("_target_", ""))
+    return "joblib" in target.lower()
+
+
+def _start_tracking(cfg, hc, labels: Mapping[str, str], n_jobs: int, run_dir: Path, params=()):
+    """Create the job's MLflow run (a child of the sweep's parent in a multirun); None if disabled."""
+    from hydra.types import RunMode
+
+    from .tracking import RunTracker, TrackingSettings, git_commit, parent_run_id
+
+    settings = TrackingSettings.from_config(dict(cfg.tracking), str(cfg.outputs_root))
+    if settings is None:
+        return None
+    multirun = hc.mode == RunMode.MULTIRUN
+    tags = {"mosd.role": "job", "mosd.mode": "multirun" if multirun else "run",
+            "mosd.overrides": " ".join(hc.overrides.task), "mosd.run_dir": str(run_dir.resolve()),
+            "mosd.n_jobs": str(n_jobs), **{f"mosd.{k}": v for k, v in labels.items()}}
+    if params:
+        tags["mosd.params"] = ",".join(params)
+    commit = git_commit()
+    if commit:
+        tags["mlflow.source.git.commit"] = commit
+    name = f"{labels['fault']}-{labels['detector']}-{labels['optimizer']}" + (f"-{hc.job.num}" if multirun else "")
+    return RunTracker(settings, name, tags, parent_run_id(hc.sweep.dir if multirun else None)).start()
+
+
+def run(cfg, started: float | None = None):
+    """The Hydra task: one experiment, its files and its MLflow run.
+
+    Parameters
+    ----------
+    cfg : DictConfig
+        The job's composed config (validated by :func:`preflight` beforehand).
+    started : float, optional
+        ``time.perf_counter()`` at process start (single runs), for the wall time.
+    """
+    from hydra.core.hydra_config import HydraConfig
+    from hydra.types import RunMode
+    from omegaconf import OmegaConf
+
+    from .progress import Progress
+    from .tracking import flatten
+
+    task_start = time.perf_counter()
+    hc = HydraConfig.get()
+    multirun = hc.mode == RunMode.MULTIRUN
+    started = task_start if (started is None or multirun) else started
+    run_dir = Path(hc.runtime.output_dir)
+    choices = {k: v for k, v in hc.runtime.choices.items() if not k.startswith("hydra/") and v is not None}
+    labels = {group: str(choices.get(group, "")) for group in (*COMPONENTS, "tracking", "experiment")}
+    setup = build(cfg)
+    labels["online"] = "true" if setup.experiment.detector.is_causal else "false"
+    n_jobs = setup.n_jobs
+    if n_jobs > 1 and _under_joblib_launcher(hc):
+        # nested joblib under the joblib launcher silently becomes threads: evaluate in-process
+        log.info("joblib launcher: fitness evaluation runs in-process (optimizer.n_jobs=%d -> 1)", n_jobs)
+        n_jobs = 1
+
+    tracker = _start_tracking(cfg, hc, labels, n_jobs, run_dir, tuple(setup.experiment.detector.tunable))
+    progress = Progress(setup.n_gen, enabled=cfg.progress)
+    timings = {"startup_s": task_start - started}
+    try:
+        result = setup.experiment.run(setup.algorithm, setup.termination, n_jobs=n_jobs, bounds=setup.bounds,
+                                      choose=setup.choose, callback=progress)
+        progress.close()
+        timings.update(result.timings)
+        t0 = time.perf_counter()
+        files = write_run_files(run_dir, cfg, result, setup, labels)
+        timings["files_s"] = time.perf_counter() - t0
+        metrics = final_metrics(result, result.example["seconds_per_point"])
+        tracking_line = ""
+        if tracker is not None:
+            t0 = time.perf_counter()
+            history = [(key, record[key], record["generation"]) for record in result.history
+                       for key in ("hypervolume", "archive_size", "best_accuracy", "n_eval")
+                       if np.isfinite(record[key])]
+            finals = {**metrics, **timings, "wall_time_s": time.perf_counter() - started}
+            tracker.log(params=flatten(OmegaConf.to_container(cfg, resolve=True)),
+                        metrics=[*history, *((k, v, 0) for k, v in finals.items())], artifacts=files)
+            run_id = tracker.finish("FINISHED")
+            timings["mlflow_s"] = time.perf_counter() - t0
+            where = "in-process" if tracker.in_process else "side process, overlapping the run"
+            startup = ", ".join(f"{k.removeprefix('mlflow_').removesuffix('_s')} {v:.1f} s"
+                                for k, v in tracker.startup_timings.items())
+            tracking_line = (f"mlflow    run {run_id}  experiment {tracker.settings.experiment!r}"
+                             f"  store {tracker.settings.uri}\n          ({where}: {startup})")
+        timings["wall_s"] = time.perf_counter() - started
+        print(_format_summary(labels, result, setup, metrics, timings, run_dir, tracking_line), flush=True)
+        return result
+    except BaseException as exc:
+        progress.close()
+        if tracker is not None and tracker.open:
+            status = "KILLED" if isinstance(exc, KeyboardInterrupt) else "FAILED"
+            try:
+                tracker.abort(status, f"{type(exc).__name__}: {one_line(exc)}", traceback.format_exc())
+            except Exception as tracking_exc:
+                print(f"mosd: could not mark the MLflow run {status}: {one_line(tracking_exc)}", file=sys.stderr)
+        raise
+
+

@@ -1,0 +1,134 @@
+"""The detector contract: the whole decision for a population of candidate designs.
+
+A detector turns the monitor's points (:class:`mosd.types.Subgroups`) into
+decisions, one per point: 0 = no alarm, i >= 1 = "fault i" declared (binary
+detectors use 1). It owns every step of that decision — its statistic, a
+threshold that may depend on calibration data or on the data themselves, and
+persistence rules — so that an optimiser, the final evaluation and the reports
+all score exactly the same thing.
+
+The parameters an optimiser may tune are declared once, in ``tunable`` (name ->
+:class:`mosd.validation.Interval`, ``integer=True`` for integer parameters). A
+population of designs is a matrix X (P, d) with columns in the order of
+``tunable``. :meth:`Detector.features` computes what does not depend on the
+tunable parameters once per data set; :meth:`Detector.population` does the rest
+for all P designs at once, given the features of fault-free calibration data
+(for thresholds fitted on them) and of the data to decide on.
+"""
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numpy as np
+
+from ..validation import ConfigError, Interval, check_in
+
+
+@dataclass(frozen=True)
+class Decisions:
+    """What a population of designs decided on a batch of runs.
+
+    Attributes
+    ----------
+    statistic : ndarray, shape (P, R, K)
+        The plotted decision statistic of each design.
+    threshold : ndarray, broadcastable to (P, R, K)
+        Its threshold (control limit), e.g. (P, 1, K) for a limit fitted on calibration data.
+    decision : ndarray of int, shape (P, R, K)
+        0 = no alarm, i >= 1 = fault i declared.
+    """
+
+    statistic: np.ndarray
+    threshold: np.ndarray
+    decision: np.ndarray
+
+    def __getitem__(self, index) -> "Decisions":
+        """The decisions of one design (``index`` into P) or a subset of designs."""
+        threshold = np.broadcast_to(self.threshold, self.statistic.shape[:1] + np.shape(self.threshold)[1:])
+        return Decisions(self.statistic[index], threshold[index], self.decision[index])
+
+
+class Detector:
+    """Base class of every detector (module docstring).
+
+    Subclasses set ``tunable``, store each tunable parameter as an attribute of
+    the same name in ``__init__`` (validated) and implement :meth:`population`;
+    :meth:`features` defaults to the points themselves.
+    """
+
+    tunable: ClassVar[dict[str, Interval]] = {}
+
+    # -- parameters (scikit-learn style) --------------------------------------------
+    @property
+    def is_causal(self) -> bool:
+        """True when the decision at point k uses points 1..k only (an online detector)."""
+        return True
+
+    def get_params(self) -> dict:
+        return {name: getattr(self, name) for name in self.tunable}
+
+    def with_params(self, **params) -> "Detector":
+        """A copy with some tunable parameters replaced (validated); fitted state dropped."""
+        unknown = set(params) - set(self.tunable)
+        if unknown:
+            raise ConfigError(f"detector parameter {sorted(unknown)[0]!r} is unknown; "
+                              f"allowed: {', '.join(self.tunable)}")
+        new = copy.copy(self)
+        for key in [k for k in new.__dict__ if k.endswith("_") and not k.startswith("_")]:
+            del new.__dict__[key]
+        for name, value in params.items():
+            interval = self.tunable[name]
+            if interval.integer:
+                value = round(float(value))
+            setattr(new, name, check_in(f"detector.{name}", value, interval))
+        return new
+
+    def candidates(self, X: np.ndarray) -> list["Detector"]:
+        """One validated copy per row of X (P, d), columns in the order of ``tunable``."""
+        names = list(self.tunable)
+        return [self.with_params(**dict(zip(names, x))) for x in np.atleast_2d(X)]
+
+    def design(self) -> np.ndarray:
+        """This detector's own parameters as a population of one, shape (1, d)."""
+        return np.array([[float(v) for v in self.get_params().values()]]).reshape(1, len(self.tunable))
+
+    # -- the decision -------------------------------------------------------------------
+    def features(self, z: np.ndarray) -> np.ndarray:
+        """Everything that does not depend on the tunable parameters (default: the points z)."""
+        return z
+
+    def population(self, calibration_features: np.ndarray, features: np.ndarray, X: np.ndarray) -> Decisions:
+        """Statistic, threshold and decisions of every design in X (P, d) on ``features``.
+
+        ``calibration_features`` are the features of fault-free calibration runs
+        (never the data being decided on) for thresholds fitted on them.
+        """
+        raise NotImplementedError
+
+    def decide(self, calibration_z: np.ndarray, z: np.ndarray) -> Decisions:
+        """Decisions of this one design on points z (R, K, ...), calibrated on ``calibration_z``."""
+        return self.population(self.features(calibration_z), self.features(z), self.design())[0]
+
+    def __repr__(self) -> str:
+        params = ", ".join(f"{k}={getattr(self, k):.6g}" for k in self.tunable)
+        return f"{type(self).__name__}({params})"
+
+
+def persistent(condition: np.ndarray, length: np.ndarray | int) -> np.ndarray:
+    """True at k where ``condition`` held at k, k−1, ..., k−L+1 (L consecutive points).
+
+    Parameters
+    ----------
+    condition : ndarray of bool, shape (P, ..., K)
+    length : int or ndarray of int, shape (P,)
+        L >= 1 per design (a persistence rule against isolated false alarms).
+    """
+    condition = np.asarray(condition, bool)
+    lengths = np.broadcast_to(np.asarray(length, int), condition.shape[:1])
+    # run length of consecutive True ending at k, by cumulative counting
+    counts = np.cumsum(condition, axis=-1)
+    reset = np.where(~condition, counts, 0)
+    run = counts - np.maximum.accumulate(reset, axis=-1)
+    return run >= lengths.reshape((-1,) + (1,) * (condition.ndim - 1))

@@ -1,0 +1,135 @@
+"""Control charts: a decision statistic over standardised subgroups and its limit (paper 000).
+
+Every chart follows the same lifecycle::
+
+    chart = SSDEWMA(lam=0.3, K=3.0)          # parameters only in __init__
+    chart.fit(phase1_subgroups.z)            # limit from fault-free Phase-I data (eq. 27)
+    alarms = chart.alarms(subgroups.z)       # bool (R, K)
+
+and declares the parameters an optimiser may tune in ``tunable`` (name ->
+bounds). The statistic is split so that tuning is cheap: :meth:`Chart.features`
+computes what does not depend on the tunable parameters once (U_k, V_k of
+eqs. 19–20), :meth:`Chart.raw_statistic` the part that does (the EWMA
+recursions), and the denoiser runs on a whole population of candidates at once
+(:meth:`Chart.population_statistics`). :meth:`Chart.population` is the
+:class:`~mosd.detectors.base.Detector` contract: statistic > limit.
+
+Limits (docs/DECISIONS.md §3):
+
+* ``"phase1"`` — eq. 27: UCL = E{l} + K·sd{l}, E and sd pooled over independent
+  fault-free Phase-I replications, never over the data being scored.
+* ``"theoretical"`` — eq. 35: UCL_k = 2σ²_{W_k}(1 + K), from L_k/σ²_{W_k} ~ χ²₂ in
+  control; time-varying through σ²_{W_k} (eq. 31).
+* ``"normalised"`` — the statistic is divided by σ²_{W_k} (so it is χ²₂ at every
+  k in control) and compared with a constant from Phase-I: E{·} + K·sd{·}.
+"""
+from __future__ import annotations
+
+from typing import ClassVar
+
+import numpy as np
+
+from ..denoisers.base import NoDenoiser
+from ..validation import Interval, check_choice
+from .base import Decisions, Detector
+
+
+class Chart(Detector):
+    """Base class: subclasses define ``tunable``, ``features`` and ``raw_statistic``.
+
+    Parameters common to every chart
+    --------------------------------
+    limit : str
+        One of the chart's ``limits``.
+    denoiser : object with ``denoise(x)``, optional
+        Applied along the time axis to the raw statistic (paper 000 §3.2).
+    """
+
+    tunable: ClassVar[dict[str, Interval]] = {}
+    limits: ClassVar[tuple[str, ...]] = ("phase1",)
+
+    def __init__(self, limit: str = "phase1", denoiser=None):
+        self.limit = check_choice("detector.limit", limit, self.limits)
+        self.denoiser = NoDenoiser() if denoiser is None else denoiser
+
+    # -- sklearn-style parameter handling -------------------------------------------
+    @property
+    def is_causal(self) -> bool:
+        """True when l_k depends on subgroups 1..k only (needed for run lengths)."""
+        return bool(getattr(self.denoiser, "is_causal", True))
+
+    # -- the statistic ----------------------------------------------------------------
+    def features(self, z: np.ndarray) -> np.ndarray:
+        """Everything that does not depend on the tunable parameters, shape (..., F, K)."""
+        raise NotImplementedError
+
+    def raw_statistic(self, features: np.ndarray) -> np.ndarray:
+        """The chart statistic before denoising, shape (..., K)."""
+        raise NotImplementedError
+
+    def normalise(self, raw: np.ndarray) -> np.ndarray:
+        """Parameter-dependent rescaling applied before denoising (identity by default)."""
+        return raw
+
+    def plotted(self, raw: np.ndarray) -> np.ndarray:
+        """Map a raw statistic to the plotted one: normalise, then denoise."""
+        return self.denoiser.denoise(self.normalise(raw))
+
+    def statistic(self, z: np.ndarray) -> np.ndarray:
+        """The plotted statistic l_k for standardised subgroups z (..., K, n)."""
+        return self.plotted(self.raw_statistic(self.features(z)))
+
+    def population_statistics(self, features: np.ndarray, X: np.ndarray) -> np.ndarray:
+        """Plotted statistics for a population of parameter vectors X (P, d): (P, ..., K).
+
+        The parameter-dependent recursion runs once per candidate; the denoiser
+        runs once on the whole stack.
+        """
+        charts = self.candidates(X)
+        return self.denoiser.denoise(np.stack([c.normalise(c.raw_statistic(features)) for c in charts]))
+
+    def population_limits(self, phase1_statistics: np.ndarray, X: np.ndarray) -> np.ndarray:
+        """Control limits (P, K) for parameter vectors X given each one's Phase-I statistic (P, ..., K)."""
+        n_points = phase1_statistics.shape[-1]
+        return np.stack([
+            chart.fit_statistic(l1).control_limit(n_points)
+            for chart, l1 in zip(self.candidates(X), phase1_statistics)
+        ])
+
+    def population(self, calibration_features: np.ndarray, features: np.ndarray, X: np.ndarray) -> Decisions:
+        """Plotted statistics, limits fitted on the calibration (Phase-I) statistics, alarms = statistic > limit."""
+        X = np.atleast_2d(np.asarray(X, float))
+        n_calibration = calibration_features.shape[0]
+        stats = self.population_statistics(np.concatenate([calibration_features, features], axis=0), X)
+        limits = self.population_limits(stats[:, :n_calibration], X)[:, None, :]  # (P, 1, K)
+        statistic = stats[:, n_calibration:]
+        return Decisions(statistic, limits, (statistic > limits).astype(np.int8))
+
+    # -- the limit --------------------------------------------------------------------
+    def fit(self, z_phase1: np.ndarray) -> "Chart":
+        """Set the control limit from fault-free Phase-I subgroups (R, K, n)."""
+        return self.fit_statistic(self.statistic(z_phase1))
+
+    def fit_statistic(self, l_phase1: np.ndarray) -> "Chart":
+        """Set the limit from an already computed Phase-I plotted statistic (..., K)."""
+        self.center_ = float(np.mean(l_phase1))
+        self.scale_ = float(np.std(l_phase1, ddof=1))
+        return self
+
+    def control_limit(self, n_points: int) -> np.ndarray:
+        """UCL_k for k = 1..n_points."""
+        raise NotImplementedError
+
+    def alarms(self, z: np.ndarray) -> np.ndarray:
+        """Boolean alarms (..., K): plotted statistic above the control limit."""
+        l = self.statistic(z)
+        return l > self.control_limit(l.shape[-1])
+
+    def _phase1_limit(self, width: float, n_points: int) -> np.ndarray:
+        if not hasattr(self, "center_"):
+            raise RuntimeError(f"{type(self).__name__} with limit={self.limit!r} is not fitted: call fit(phase1_z) first")
+        return np.full(n_points, self.center_ + width * self.scale_)
+
+    def __repr__(self) -> str:
+        params = ", ".join(f"{k}={getattr(self, k):.6g}" for k in self.tunable)
+        return f"{type(self).__name__}({params}, limit={self.limit!r}, denoiser={self.denoiser!r})"

@@ -1,0 +1,5 @@
+"""Faults (the contract in :mod:`.base`); one module per fault family."""
+from .base import Fault, FaultSet
+from .sensor import FAULT_KINDS, SensorFault
+
+__all__ = ["FAULT_KINDS", "Fault", "FaultSet", "SensorFault"]

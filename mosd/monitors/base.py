@@ -1,0 +1,41 @@
+"""The monitor contract: from an estimator's outputs to the points a detector decides on.
+
+``fit(calibration)`` learns what it needs from fault-free calibration outputs
+(e.g. the residual mean and σ of Phase I); ``transform(outputs)`` returns
+:class:`~mosd.types.Subgroups` — points z (R, K, n) with the fault truth and the
+time of every point. ``fault_scale(channel)`` is the in-control σ of a residual
+channel, the unit of relative faults (:mod:`mosd.faults.base`).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..types import Residuals, Subgroups
+from ..validation import ConfigError
+
+
+class Monitor:
+    """Base class of every monitor (module docstring)."""
+
+    burn_in: int = 0
+
+    def fit(self, calibration: Residuals) -> "Monitor":
+        return self
+
+    def transform(self, outputs: Residuals) -> Subgroups:
+        raise NotImplementedError
+
+    def fault_scale(self, calibration: Residuals, channel: int) -> float:
+        """σ of residual ``channel`` over fault-free calibration outputs (after the burn-in)."""
+        r = calibration.r[:, self.burn_in:, channel]
+        sigma = float(np.nanstd(r, ddof=1))
+        if not np.isfinite(sigma) or sigma <= 0:
+            raise ConfigError(f"fault.channel={channel}: the residual has no in-control spread to scale the fault by")
+        return sigma
+
+
+def _grid(outputs: Residuals, dt: float | None = None) -> np.ndarray:
+    """The outputs' time grid (their own, or k·dt)."""
+    if outputs.t is not None:
+        return np.asarray(outputs.t, float)
+    return np.arange(outputs.fault_mask.shape[-1]) * (dt or 1.0)
