@@ -1,0 +1,134 @@
+"""Additive state faults of random amplitude with a known bounded density (paper 002, reconstruction).
+
+Paper 002's target fault δ_k and nuisance fault η_k are bounded random inputs
+of the state equation with known densities (its assumption 2); the densities
+were lost with the equations. The reconstruction (docs/systems/paper002.md):
+
+* target δ: γ_δ(τ) = (π/2) sin(π(τ − 0.5)) on [0.5, 1.5] (:class:`SineLaw`,
+  sampled as 0.5 + arccos(1 − 2u)/π);
+* nuisance η: γ_η(τ) = τ/0.18 on [0, 0.6] (:class:`RampLaw`, sampled as 0.6 √u).
+
+How the amplitude varies in time is not recoverable from the paper. The default
+``draw="per_run"`` is a constant fault of random size (one draw per run, held
+from the onset on: a step of unknown height, the natural reading of "the fault
+occurs at step 50" in the paper's figures); ``draw="per_step"`` redraws it at
+every step (an i.i.d. random input, the reading of the paper's framework, Guo
+et al. 2009). The plant (:class:`mosd.plants.scalar_nonlinear.ScalarNonlinearPlant`)
+adds the signal to the state equation.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..noise.bounded import BoundedLaw
+from ..validation import Interval, check_choice, check_in
+from .base import Fault
+
+LAWS = ("sine", "ramp")
+DRAWS = ("per_run", "per_step")
+
+
+class SineLaw(BoundedLaw):
+    """γ(τ) = π/(2w) sin(π(τ − a)/w) on [a, a + w] (paper: a = 0.5, w = 1; reconstruction).
+
+    Parameters
+    ----------
+    low, width : float
+        a (any real) and w (> 0).
+    """
+
+    def __init__(self, low: float = 0.5, width: float = 1.0):
+        self.low = check_in("fault.low", low, Interval(-1e6, 1e6))
+        self.width = check_in("fault.width", width, Interval(0.0, 1e6, open_low=True))
+        self.high = self.low + self.width
+
+    def sample(self, rng: np.random.Generator, size) -> np.ndarray:
+        # inverse of the CDF F(τ) = (1 − cos(π(τ − a)/w))/2
+        return self.low + self.width * np.arccos(1.0 - 2.0 * rng.random(size)) / math.pi
+
+    def pdf(self, tau) -> np.ndarray:
+        s = (np.asarray(tau, float) - self.low) / self.width
+        inside = (s >= 0.0) & (s <= 1.0)
+        return np.where(inside, math.pi / (2.0 * self.width) * np.sin(math.pi * np.clip(s, 0.0, 1.0)), 0.0)
+
+    def __repr__(self) -> str:
+        return f"SineLaw(low={self.low:g}, width={self.width:g})"
+
+
+class RampLaw(BoundedLaw):
+    """γ(τ) = 2(τ − a)/w² on [a, a + w] (paper: a = 0, w = 0.6, i.e. τ/0.18; reconstruction).
+
+    Parameters
+    ----------
+    low, width : float
+        a (any real) and w (> 0).
+    """
+
+    def __init__(self, low: float = 0.0, width: float = 0.6):
+        self.low = check_in("fault.low", low, Interval(-1e6, 1e6))
+        self.width = check_in("fault.width", width, Interval(0.0, 1e6, open_low=True))
+        self.high = self.low + self.width
+
+    def sample(self, rng: np.random.Generator, size) -> np.ndarray:
+        # inverse of the CDF F(τ) = ((τ − a)/w)²
+        return self.low + self.width * np.sqrt(rng.random(size))
+
+    def pdf(self, tau) -> np.ndarray:
+        s = (np.asarray(tau, float) - self.low) / self.width
+        inside = (s >= 0.0) & (s <= 1.0)
+        return np.where(inside, 2.0 * s / self.width, 0.0)
+
+    def __repr__(self) -> str:
+        return f"RampLaw(low={self.low:g}, width={self.width:g})"
+
+
+class RandomAmplitudeFault(Fault):
+    """An additive state fault whose amplitude has a known bounded density (module docstring).
+
+    Parameters
+    ----------
+    law : {"sine", "ramp"}
+        Shape of the density: :class:`SineLaw` (paper 002's target fault) or
+        :class:`RampLaw` (its nuisance fault).
+    low : float, optional
+        Lower end a of the support (default: 0.5 for sine, 0 for ramp).
+    width : float, optional
+        Width w of the support, > 0 (default: 1 for sine, 0.6 for ramp).
+    draw : {"per_run", "per_step"}
+        One amplitude per run held from the onset, or a new one at every step.
+    onset : float
+        Time (s) from which the fault is active, >= 0 (paper: step 50 of 0.1 s = 5 s).
+    role : {"target", "nuisance"}
+    """
+
+    relative = False  # amplitudes are in the state's own units
+
+    def __init__(self, law: str = "sine", low: float | None = None, width: float | None = None,
+                 draw: str = "per_run", onset: float = 5.0, role: str = "target"):
+        super().__init__(onset=onset, role=role)
+        self.law_name = check_choice("fault.law", law, LAWS)
+        if self.law_name == "sine":
+            self.law = SineLaw(0.5 if low is None else low, 1.0 if width is None else width)
+        else:
+            self.law = RampLaw(0.0 if low is None else low, 0.6 if width is None else width)
+        self.draw = check_choice("fault.draw", draw, DRAWS)
+
+    def amplitudes(self, rng: np.random.Generator, n_runs: int, n_samples: int) -> np.ndarray:
+        """Amplitudes (n_runs, n_samples) ignoring the onset: one per run, or one per run and step."""
+        if self.draw == "per_run":
+            return np.repeat(self.law.sample(rng, (n_runs, 1)), n_samples, axis=1)
+        return self.law.sample(rng, (n_runs, n_samples))
+
+    def signal(self, t: np.ndarray, scale: float, rng: np.random.Generator) -> np.ndarray:
+        """The fault input (N,) of one run: the amplitude where active, 0 before the onset.
+
+        ``scale`` is ignored (an absolute fault).
+        """
+        t = np.asarray(t, float)
+        return np.where(self.active(t), self.amplitudes(rng, 1, t.shape[0])[0], 0.0)
+
+    def __repr__(self) -> str:
+        return (f"RandomAmplitudeFault(law={self.law!r}, draw={self.draw!r}, onset={self.onset:g}, "
+                f"role={self.role!r})")
