@@ -1,0 +1,368 @@
+"""Paper 003's multi-step neural network observer of the GPS altitude (PyTorch, imported lazily).
+
+Wang et al. 2020 (paper 003, §1.1 and §2.1). A classic neural observer
+predicts ĥ_{k+1} from h_k and the other logged channels C_k = (down velocity,
+pitch, throttle, tail deflection); a slowly growing sensor fault then enters
+every prediction through h_k and the residual h_k − ĥ_k stays small. The
+multi-step observer starts N steps back and feeds its own predictions back
+(**reconstruction** of the lost equations, N >= 1)::
+
+    ĥ_{k−N} = h_{k−N}                                  (measured)
+    ĥ_{k−N+j} = ĥ_{k−N+j−1} + g_j(ĥ_{k−N+j−1}, C_{k−N+j−1}),   j = 1 … N
+    E_k = |h_k − ĥ_k|
+
+so a fault that starts at k₀ reaches ĥ_k only through h_{k−N}, i.e. not
+before k₀ + N, while h_k carries it from k₀: E_k grows like N × the fault's
+increment per step. N = 1 is the classic observer.
+
+Network (§2.1, Fig. 3): one network per step j, each "input + fusion +
+hidden + output": here fusion = Linear(5 → ``fusion``) + ReLU, hidden =
+Linear → ``hidden`` (10) + ReLU, output = Linear → 1. Choices where the
+paper is silent (docs/systems/paper003.md): g_j predicts the *increment*
+ĥ_{j} − ĥ_{j−1} (a skip connection around the network; predicting an
+altitude of tens of metres to centimetres with 10 ReLUs is otherwise hopeless);
+inputs and the increment are standardised on the training data; the loss
+weights of the N steps are w_j ∝ N + 1 − j (early steps weigh more, as the
+paper asks; its weights are lost); each run is split in time, the first 70 %
+for training and the last 30 % for validation and early stopping.
+
+Training: Adam, lr 1e-3 divided by 10 every 100 epochs, stop after 10
+epochs without improvement of the validation loss (best weights kept).
+Trained weights are cached on disk by a content hash of the configuration,
+the training seed and the training data, so that the optimiser and repeated
+runs do not retrain. Prediction runs in NumPy from the stored weights, so
+:meth:`estimate` needs no torch.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+import sys
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..types import Residuals, Trace
+from ..validation import ConfigError, Interval, check_choice, check_in, check_int
+from .base import Estimator
+from .ekf import AltitudeKalmanFilter
+
+WEIGHTINGS = ("linear", "uniform")
+_LAYERS = ("w1", "b1", "w2", "b2", "w3", "b3")
+DEFAULT_CACHE = "~/.cache/mosd/observers"
+
+
+class MultiStepNeuralObserver(Estimator):
+    """N-step neural observer of the GPS altitude plus the χ² Kalman filter (module docstring; reconstruction).
+
+    ``estimate`` returns the filter's innovation as r (R, N, 1) with its
+    variance as cov, and in ``extra``: ``chi2`` (the filter's λ_k, χ²(1)),
+    ``observer_residual`` (E_k, m), ``observer_chi2`` (E_k standardised by
+    the observer's validation error: ((h_k − ĥ_k − μ)/σ)²), ``h_hat`` (ĥ_k)
+    and ``h_filtered``. The first N points have no prediction (NaN).
+
+    Parameters
+    ----------
+    window : int
+        N, steps of the rollout, 1..100 (paper: 1 … 15, best 12; 1 = classic observer).
+    hidden, fusion : int
+        Widths of the hidden (paper: 10) and fusion layers, 1..1000.
+    epochs : int
+        Most training epochs, 1..100000 (the paper stopped at epoch 294).
+    learning_rate : float
+        Adam's initial rate, (0, 1] (paper: 1e-3).
+    lr_step : int
+        Epochs between divisions of the rate, >= 1 (paper: 100).
+    lr_decay : float
+        Factor applied every ``lr_step`` epochs, (0, 1] (paper: 0.1).
+    patience : int
+        Epochs without improvement of the validation loss before stopping, >= 1 (paper: 10).
+    validation_fraction : float
+        Trailing share of every training run held out, (0, 0.9] (paper: 0.3).
+    batch_size : int
+        Windows per gradient step, >= 1.
+    weighting : {"linear", "uniform"}
+        Loss weights of the N steps: linear w_j ∝ N + 1 − j, or equal.
+    altitude_channel : int
+        Output channel of the monitored altitude, >= 0; every other channel is an input C_k.
+    ekf : AltitudeKalmanFilter, optional
+        The χ² filter (default: ``AltitudeKalmanFilter()``).
+    cache_dir : str or None
+        Where trained weights are kept (default ``~/.cache/mosd/observers``);
+        None or "" disables the cache.
+    progress : bool
+        Show a progress bar while training (only when stderr is a terminal).
+    """
+
+    requires_fit = True
+    fit_on_faults = False
+
+    def __init__(self, window: int = 12, hidden: int = 10, fusion: int = 10, epochs: int = 300,
+                 learning_rate: float = 1e-3, lr_step: int = 100, lr_decay: float = 0.1, patience: int = 10,
+                 validation_fraction: float = 0.3, batch_size: int = 256, weighting: str = "linear",
+                 altitude_channel: int = 0, ekf: AltitudeKalmanFilter | None = None,
+                 cache_dir: str | None = DEFAULT_CACHE, progress: bool = True):
+        self.window = check_int("estimator.window", window, 1, 100)
+        self.hidden = check_int("estimator.hidden", hidden, 1, 1000)
+        self.fusion = check_int("estimator.fusion", fusion, 1, 1000)
+        self.epochs = check_int("estimator.epochs", epochs, 1, 100000)
+        self.learning_rate = check_in("estimator.learning_rate", learning_rate, Interval(0.0, 1.0, open_low=True))
+        self.lr_step = check_int("estimator.lr_step", lr_step, 1)
+        self.lr_decay = check_in("estimator.lr_decay", lr_decay, Interval(0.0, 1.0, open_low=True))
+        self.patience = check_int("estimator.patience", patience, 1)
+        self.validation_fraction = check_in("estimator.validation_fraction", validation_fraction,
+                                            Interval(0.0, 0.9, open_low=True))
+        self.batch_size = check_int("estimator.batch_size", batch_size, 1)
+        self.weighting = check_choice("estimator.weighting", weighting, WEIGHTINGS)
+        self.altitude_channel = check_int("estimator.altitude_channel", altitude_channel, 0)
+        if ekf is not None and not isinstance(ekf, AltitudeKalmanFilter):
+            raise ConfigError(f"estimator.ekf={ekf!r} is not allowed; allowed: an AltitudeKalmanFilter or null")
+        self.ekf = ekf if ekf is not None else AltitudeKalmanFilter(altitude_channel=self.altitude_channel)
+        self.cache_dir = str(cache_dir) if cache_dir else None
+        self.progress = bool(progress)
+
+    # -- configuration -----------------------------------------------------------------
+    def config(self) -> dict:
+        """Everything that determines the trained weights besides the data and the seed."""
+        return {"class": type(self).__name__, "window": self.window, "hidden": self.hidden, "fusion": self.fusion,
+                "epochs": self.epochs, "learning_rate": self.learning_rate, "lr_step": self.lr_step,
+                "lr_decay": self.lr_decay, "patience": self.patience,
+                "validation_fraction": self.validation_fraction, "batch_size": self.batch_size,
+                "weighting": self.weighting, "altitude_channel": self.altitude_channel, "format": 1}
+
+    def step_weights(self) -> np.ndarray:
+        """Loss weights w_1 … w_N (sum 1)."""
+        w = np.arange(self.window, 0, -1, dtype=float) if self.weighting == "linear" else np.ones(self.window)
+        return w / w.sum()
+
+    def _split(self, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(altitude (R, K), other channels (R, K, c)) of logs y (R, K, n_y)."""
+        if self.altitude_channel >= y.shape[-1]:
+            raise ConfigError(f"estimator.altitude_channel={self.altitude_channel} is out of range; "
+                              f"allowed: 0..{y.shape[-1] - 1}")
+        others = [c for c in range(y.shape[-1]) if c != self.altitude_channel]
+        return y[..., self.altitude_channel], y[..., others]
+
+    def _windows(self, h: np.ndarray, C: np.ndarray, first: int, last: int):
+        """Start altitudes (B,), inputs (B, N, c) and targets (B, N) of every complete window in [first, last)."""
+        N = self.window
+        starts = np.arange(first, last - N)
+        if starts.size == 0:
+            return None
+        idx = starts[:, None] + np.arange(N + 1)  # (S, N+1)
+        h_w = h[:, idx]                            # (R, S, N+1)
+        C_w = C[:, idx[:, :-1]]                    # (R, S, N, c)
+        h0, targets = h_w[..., 0].reshape(-1), h_w[..., 1:].reshape(-1, N)
+        inputs = C_w.reshape(-1, N, C.shape[-1])
+        ok = np.isfinite(h0) & np.isfinite(targets).all(-1) & np.isfinite(inputs).all((-1, -2))
+        return h0[ok], inputs[ok], targets[ok]
+
+    # -- training ------------------------------------------------------------------------
+    def fit(self, trace: Trace, model: Any, rng: np.random.Generator) -> "MultiStepNeuralObserver":
+        """Train on the fault-free runs of ``trace`` (or load the cached weights of the same training).
+
+        The torch seed is drawn from ``rng`` whether or not the cache hits, so
+        that the caller's generator advances the same way.
+        """
+        seed = int(rng.integers(0, 2**62))
+        h, C = self._split(np.asarray(trace.y, float))
+        K = h.shape[1]
+        cut = int(round(K * (1.0 - self.validation_fraction)))
+        train = self._windows(h, C, 0, cut)
+        valid = self._windows(h, C, cut, K)
+        if train is None or valid is None or len(train[0]) == 0 or len(valid[0]) == 0:
+            raise ConfigError(f"estimator.window={self.window} leaves no complete training or validation window in "
+                              f"runs of {K} samples; allowed: window < {int(K * min(self.validation_fraction, 1 - self.validation_fraction))}")
+        key = self._cache_key(seed, trace.y)
+        cached = self._load(key)
+        if cached is None:
+            cached = self._train(train, valid, seed)
+            self._store(key, cached)
+            self.loaded_from_cache_ = False
+        else:
+            self.loaded_from_cache_ = True
+        self.params_ = {name: cached[name] for name in _LAYERS}
+        self.scaling_ = {name: cached[name] for name in ("input_mean", "input_std", "step_mean", "step_std")}
+        self.history_ = {"train_loss": cached["train_loss"], "validation_loss": cached["validation_loss"]}
+        # the N-step prediction error on held-out data standardises E_k into observer_chi2
+        h_hat = self._rollout(valid[0], valid[1])[:, -1]
+        error = valid[2][:, -1] - h_hat
+        self.residual_mean_, self.residual_std_ = float(np.mean(error)), float(np.std(error, ddof=1))
+        self.cache_key_ = key
+        return self
+
+    def _train(self, train, valid, seed: int) -> dict[str, np.ndarray]:
+        import torch  # lazily: the rest of mosd runs without torch
+
+        threads = torch.get_num_threads()
+        torch.set_num_threads(1)  # deterministic sums, and no fight with the joblib workers
+        try:
+            return self._train_torch(torch, train, valid, seed)
+        finally:
+            torch.set_num_threads(threads)
+
+    def _train_torch(self, torch, train, valid, seed: int) -> dict[str, np.ndarray]:
+        generator = torch.Generator().manual_seed(seed)
+        h_tr, C_tr, target_tr = train
+        step = np.diff(np.concatenate([h_tr[:, None], target_tr], axis=1), axis=1).reshape(-1)
+        inputs_all = np.concatenate([np.concatenate([h_tr[:, None], target_tr[:, :-1]], 1)[..., None], C_tr], -1)
+        scaling = {"input_mean": inputs_all.reshape(-1, inputs_all.shape[-1]).mean(0),
+                   "input_std": inputs_all.reshape(-1, inputs_all.shape[-1]).std(0) + 1e-9,
+                   "step_mean": np.array(step.mean()), "step_std": np.array(step.std() + 1e-9)}
+        n_in, N = inputs_all.shape[-1], self.window
+
+        def uniform(shape, fan_in):
+            bound = 1.0 / math.sqrt(fan_in)
+            return ((torch.rand(shape, generator=generator, dtype=torch.float64) * 2 - 1) * bound).requires_grad_()
+
+        params = {"w1": uniform((N, n_in, self.fusion), n_in), "b1": uniform((N, self.fusion), n_in),
+                  "w2": uniform((N, self.fusion, self.hidden), self.fusion), "b2": uniform((N, self.hidden), self.fusion),
+                  "w3": uniform((N, self.hidden, 1), self.hidden), "b3": uniform((N, 1), self.hidden)}
+        as_t = {k: torch.as_tensor(v, dtype=torch.float64) for k, v in scaling.items()}
+        weights = torch.as_tensor(self.step_weights())
+
+        def rollout(h0, C):
+            h_prev, outputs = h0, []
+            for j in range(N):
+                x = torch.cat([h_prev[:, None], C[:, j]], dim=-1)
+                x = (x - as_t["input_mean"]) / as_t["input_std"]
+                a = torch.relu(x @ params["w1"][j] + params["b1"][j])
+                a = torch.relu(a @ params["w2"][j] + params["b2"][j])
+                increment = (a @ params["w3"][j] + params["b3"][j])[:, 0]
+                h_prev = h_prev + as_t["step_mean"] + as_t["step_std"] * increment
+                outputs.append(h_prev)
+            return torch.stack(outputs, dim=1)
+
+        def loss_of(h0, C, target):
+            error = (rollout(h0, C) - target) / as_t["step_std"]
+            return (error.pow(2).mean(0) * weights).sum()
+
+        tr = [torch.as_tensor(a, dtype=torch.float64) for a in train]
+        va = [torch.as_tensor(a, dtype=torch.float64) for a in valid]
+        optimiser = torch.optim.Adam(list(params.values()), lr=self.learning_rate)
+        schedule = torch.optim.lr_scheduler.StepLR(optimiser, step_size=self.lr_step, gamma=self.lr_decay)
+        best, best_params, stale = math.inf, None, 0
+        train_curve, valid_curve = [], []
+        bar = _progress(self.epochs, f"observer N={N}", enabled=self.progress)
+        n_train = tr[0].shape[0]
+        for _epoch in range(self.epochs):
+            order = torch.randperm(n_train, generator=generator)
+            total = 0.0
+            for start in range(0, n_train, self.batch_size):
+                batch = order[start:start + self.batch_size]
+                optimiser.zero_grad()
+                loss = loss_of(tr[0][batch], tr[1][batch], tr[2][batch])
+                loss.backward()
+                optimiser.step()
+                total += float(loss.detach()) * len(batch)
+            schedule.step()
+            with torch.no_grad():
+                val = float(loss_of(*va))
+            train_curve.append(total / n_train)
+            valid_curve.append(val)
+            if bar is not None:
+                bar.update(1)
+                bar.set_postfix(validation=f"{val:.4g}")
+            if val < best - 1e-12:
+                best, stale = val, 0
+                best_params = {k: v.detach().clone() for k, v in params.items()}
+            else:
+                stale += 1
+                if stale >= self.patience:
+                    break
+        if bar is not None:
+            bar.close()
+        result = {k: v.numpy() for k, v in best_params.items()}
+        result.update({k: np.asarray(v, float) for k, v in scaling.items()})
+        result["train_loss"] = np.array(train_curve)
+        result["validation_loss"] = np.array(valid_curve)
+        return result
+
+    # -- cache -----------------------------------------------------------------------------
+    def _cache_key(self, seed: int, y: np.ndarray) -> str:
+        digest = hashlib.sha256(json.dumps({**self.config(), "seed": seed}, sort_keys=True).encode())
+        data = np.ascontiguousarray(np.asarray(y, np.float64))
+        digest.update(str(data.shape).encode())
+        digest.update(data.tobytes())
+        return digest.hexdigest()[:32]
+
+    def _cache_path(self, key: str) -> Path | None:
+        return None if self.cache_dir is None else Path(os.path.expanduser(self.cache_dir)) / f"{key}.npz"
+
+    def _load(self, key: str) -> dict[str, np.ndarray] | None:
+        path = self._cache_path(key)
+        if path is None or not path.exists():
+            return None
+        try:
+            with np.load(path, allow_pickle=False) as stored:
+                return {name: stored[name] for name in stored.files}
+        except (OSError, ValueError):
+            return None  # a damaged entry is retrained and overwritten
+
+    def _store(self, key: str, arrays: dict[str, np.ndarray]) -> None:
+        path = self._cache_path(key)
+        if path is None:
+            return
+        path.parent.mkdir(parents=True, exist_ok=True)
+        # write then rename, so that parallel workers never read half a file
+        fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
+        with os.fdopen(fd, "wb") as handle:
+            np.savez(handle, **arrays)
+        os.replace(tmp, path)
+
+    # -- prediction -------------------------------------------------------------------------
+    def _check_fitted(self) -> None:
+        if not hasattr(self, "params_"):
+            raise RuntimeError("MultiStepNeuralObserver.estimate before fit: train it on fault-free runs first")
+
+    def _rollout(self, h0: np.ndarray, C: np.ndarray) -> np.ndarray:
+        """Predictions (B, N) of the N-step rollout from h0 (B,) with inputs C (B, N, c) (NumPy)."""
+        p, s = self.params_, self.scaling_
+        h_prev, outputs = h0, []
+        for j in range(self.window):
+            x = (np.concatenate([h_prev[..., None], C[..., j, :]], -1) - s["input_mean"]) / s["input_std"]
+            a = np.maximum(x @ p["w1"][j] + p["b1"][j], 0.0)
+            a = np.maximum(a @ p["w2"][j] + p["b2"][j], 0.0)
+            h_prev = h_prev + s["step_mean"] + s["step_std"] * (a @ p["w3"][j] + p["b3"][j])[..., 0]
+            outputs.append(h_prev)
+        return np.stack(outputs, axis=-1)
+
+    def predict(self, y: np.ndarray) -> np.ndarray:
+        """ĥ_k (R, K) of logs y (R, K, n_y): the N-step rollout from the measured h_{k−N}; NaN for k < N."""
+        self._check_fitted()
+        h, C = self._split(np.asarray(y, float))
+        N, K = self.window, h.shape[1]
+        h_hat = np.full(h.shape, np.nan)
+        if K <= N:
+            return h_hat
+        starts = np.arange(K - N)
+        C_w = C[:, starts[:, None] + np.arange(N)]  # (R, K−N, N, c)
+        h_hat[:, N:] = self._rollout(h[:, starts], C_w)[..., -1]
+        return h_hat
+
+    def estimate(self, trace: Trace, model: Any) -> Residuals:
+        """The filter's residuals and the observer's outputs (class docstring)."""
+        h_hat = self.predict(trace.y)
+        h = trace.y[..., self.altitude_channel]
+        error = h - h_hat
+        kf = self.ekf.filter(trace, model)
+        extra = {"chi2": kf["chi2"], "observer_residual": np.abs(error),
+                 "observer_chi2": ((error - self.residual_mean_) / self.residual_std_) ** 2,
+                 "h_hat": h_hat, "h_filtered": kf["z_filtered"]}
+        return Residuals.of(trace, r=kf["r"][..., None], channels=(model.output_names[self.altitude_channel],),
+                            cov=kf["S"][..., None, None], extra=extra)
+
+
+def _progress(total: int, description: str, enabled: bool):
+    """A tqdm bar on a terminal, None otherwise (logs and workers stay quiet)."""
+    if not enabled or not sys.stderr.isatty():
+        return None
+    try:
+        from tqdm.auto import tqdm
+    except ImportError:
+        return None
+    return tqdm(total=total, desc=description, leave=False)

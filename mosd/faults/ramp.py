@@ -1,0 +1,47 @@
+"""A ramp (slowly varying, "drift") sensor fault in absolute units (paper 003).
+
+Paper 003 (Wang et al. 2020, §2.2, Table 1) injects into the GPS altitude log
+ramps of 0.1 … 1.0 m/s from step 500 (100 s at 5 Hz): g(t) = rate · (t − onset)
+for t >= onset, 0 before. Unlike :class:`~mosd.faults.sensor.SensorFault`
+(magnitudes in units of the residual's σ) the rate is in the channel's own
+units per second, so the fault does not depend on any calibration.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..validation import ConfigError, Interval, check_in, check_int
+from .base import Fault
+
+
+class RampFault(Fault):
+    """g(t) = rate · (t − onset) on one output channel from ``onset`` on.
+
+    Parameters
+    ----------
+    rate : float
+        Slope in the channel's units per second (m/s for the GPS altitude),
+        non-zero in [-100, 100]; paper 003: 0.1 … 1.0.
+    channel : int
+        Index of the faulty output channel, >= 0 (flapping-wing plant: 0, the GPS altitude).
+    onset : float
+        Time (s) from which the ramp grows, >= 0 (paper 003: 100 s = step 500).
+    role : {"target", "nuisance"}
+    """
+
+    relative = False  # the rate is in absolute units
+
+    def __init__(self, rate: float = 0.5, channel: int = 0, onset: float = 100.0, role: str = "target"):
+        super().__init__(onset=onset, role=role)
+        self.rate = check_in("fault.rate", rate, Interval(-100.0, 100.0))
+        if self.rate == 0.0:
+            raise ConfigError("fault.rate=0 makes the ramp empty; allowed: a non-zero slope in [-100, 100]")
+        self.channel = check_int("fault.channel", channel, 0)
+
+    def __repr__(self) -> str:
+        return f"RampFault(rate={self.rate}, channel={self.channel}, onset={self.onset}, role={self.role!r})"
+
+    def signal(self, t: np.ndarray, scale: float, rng: np.random.Generator) -> np.ndarray:
+        """g_k for one replication, shape (N,); ``scale`` and ``rng`` are unused (absolute, deterministic)."""
+        t = np.asarray(t, float)
+        return np.where(self.active(t), self.rate * (t - self.onset), 0.0)
