@@ -49,7 +49,8 @@ def test_paper_densities_at_known_points():
     assert EpanechnikovLaw(0.1).pdf(0.0) == pytest.approx(7.5)           # 3/(4c)
     assert SineLaw().pdf(1.0) == pytest.approx(math.pi / 2)               # (π/2) sin(π/2)
     assert RampLaw().pdf(0.3) == pytest.approx(0.3 / 0.18)                # τ/0.18
-    assert EpanechnikovLaw(0.1).std == pytest.approx(np.std(EpanechnikovLaw(0.1).sample(np.random.default_rng(0), 200000)), rel=0.01)
+    draws = EpanechnikovLaw(0.1).sample(np.random.default_rng(0), 200000)
+    assert EpanechnikovLaw(0.1).std == pytest.approx(np.std(draws), rel=0.01)
 
 
 def test_noise_draw_shapes_bounds_and_seed():
@@ -70,7 +71,8 @@ def test_fault_signal_per_run_is_a_constant_step_and_per_step_varies():
     g = RandomAmplitudeFault("sine", onset=5.0).signal(t, 1.0, np.random.default_rng(2))
     np.testing.assert_array_equal(g[:50], 0.0)
     assert np.ptp(g[50:]) == 0.0 and 0.5 <= g[50] <= 1.5
-    g = RandomAmplitudeFault("ramp", draw="per_step", onset=5.0, role="nuisance").signal(t, 1.0, np.random.default_rng(2))
+    per_step = RandomAmplitudeFault("ramp", draw="per_step", onset=5.0, role="nuisance")
+    g = per_step.signal(t, 1.0, np.random.default_rng(2))
     np.testing.assert_array_equal(g[:50], 0.0)
     assert np.ptp(g[50:]) > 0.1 and g.max() <= 0.6
     with pytest.raises(ConfigError, match="fault.draw"):
@@ -104,7 +106,8 @@ def test_plant_recursion_with_negligible_noise_recovers_the_fault():
 
 def test_plant_missing_rate_seed_and_nesting():
     noise, fault = BoundedNoise(), RandomAmplitudeFault("sine")
-    traces = {rate: ScalarNonlinearPlant(missing_rate=rate).simulate(100, noise, fault, replication_rngs(1, "test", 200))
+    traces = {rate: ScalarNonlinearPlant(missing_rate=rate).simulate(100, noise, fault,
+                                                                     replication_rngs(1, "test", 200))
               for rate in (0.0, 0.1, 0.2)}
     missing = {rate: np.isnan(tr.y[..., 0]) for rate, tr in traces.items()}
     assert not missing[0.0].any()

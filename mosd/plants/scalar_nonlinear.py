@@ -87,7 +87,8 @@ class ScalarNonlinearPlant(Plant):
         self.a = check_in("plant.a", a, Interval(0.0, 1.0, open_low=True, open_high=True))
         self.b = check_in("plant.b", b, Interval(-1.0, 1.0))
         if abs(self.b) >= self.a:
-            raise ConfigError(f"plant.b={b!r} makes ∂f/∂x = a + b cos x vanish somewhere; allowed: |b| < plant.a={a!r}")
+            raise ConfigError(f"plant.b={b!r} makes ∂f/∂x = a + b cos x vanish somewhere; "
+                              f"allowed: |b| < plant.a={a!r}")
         self.dt = check_in("plant.dt", dt, Interval(0.0, 1e3, open_low=True))
         self.missing_rate = check_in("plant.missing_rate", missing_rate, Interval(0.0, 0.9))
         self.x0_low = check_in("plant.x0_low", x0_low, Interval(-1e6, 1e6))
@@ -136,7 +137,8 @@ class ScalarNonlinearPlant(Plant):
         for k in range(N - 1):
             x[:, k + 1] = model.f(x[:, k]) + g[:, k] + w[:, k]
         y = np.where(missing, np.nan, model.h(x) + v)
-        mask = np.zeros((n_reps, N), dtype=bool) if fault is None else np.broadcast_to(fault.active(t), (n_reps, N)).copy()
+        active = np.zeros(N, dtype=bool) if fault is None else fault.active(t)
+        mask = np.broadcast_to(active, (n_reps, N)).copy()
         meta = {"fault": repr(fault), "missing_rate": self.missing_rate, "output_names": self.output_names,
                 "dt": self.dt}
         return Trace(t=t, u=np.zeros((n_reps, N, 0)), x=x[..., None], y=y[..., None], fault_mask=mask, meta=meta)
