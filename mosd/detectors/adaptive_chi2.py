@@ -63,7 +63,8 @@ class AdaptiveChi2Detector(Detector):
     def population(self, calibration_features: np.ndarray, features: np.ndarray, X: np.ndarray) -> Decisions:
         """Decisions of every design (α, a, b) in X (P, 3) on z (R, K, 2) = [λ_k, E_k].
 
-        NaN points (no prediction yet, a missing sample) never alarm.
+        NaN points (no prediction yet, a missing sample) never alarm; with b = 0
+        a NaN E_k is ignored.
         """
         X = np.atleast_2d(np.asarray(X, float))
         z = np.asarray(features, float)
@@ -72,7 +73,10 @@ class AdaptiveChi2Detector(Detector):
                               f"got {z.shape}; allowed: monitor.outputs with two outputs")
         alpha, a, b = X[:, 0], X[:, 1], X[:, 2]
         statistic = np.broadcast_to(z[..., 0], (X.shape[0],) + z.shape[:2])
-        threshold = (a * self.chi2_threshold(alpha))[:, None, None] + b[:, None, None] * z[None, ..., 1]
+        weight = b[:, None, None]
+        # a design that ignores E_k (b = 0) must not inherit its NaNs (no prediction yet)
+        observer_term = np.where(weight > 0, weight * z[None, ..., 1], 0.0)
+        threshold = (a * self.chi2_threshold(alpha))[:, None, None] + observer_term
         exceed = statistic > threshold  # False wherever a NaN is involved
         decision = persistent(exceed, self.persistence).astype(np.int8)
         return Decisions(statistic=statistic, threshold=threshold, decision=decision)
