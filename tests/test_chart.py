@@ -111,8 +111,8 @@ def test_ewma_chart_limits():
     assert tv[0] == pytest.approx(3 * 0.2) and tv[-1] == pytest.approx(3 * math.sqrt(0.2 / 1.8))
 
 
-@pytest.mark.parametrize("kwargs, key", [({"lam": 0.0}, "chart.lam"), ({"lam": 1.5}, "chart.lam"),
-                                         ({"K": -1}, "chart.K"), ({"limit": "x"}, "chart.limit")])
+@pytest.mark.parametrize("kwargs, key", [({"lam": 0.0}, "detector.lam"), ({"lam": 1.5}, "detector.lam"),
+                                         ({"K": -1}, "detector.K"), ({"limit": "x"}, "detector.limit")])
 def test_chart_validation(kwargs, key):
     with pytest.raises(ConfigError, match=key):
         SSDEWMA(**kwargs)

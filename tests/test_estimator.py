@@ -397,7 +397,9 @@ def test_missing_channel_is_left_out_of_the_update(mould):
     for flt in (CESCKF(), CubatureKalmanFilter()):
         res = flt.filter(model, y, trace.u)
         full = flt.filter(model, trace.y, trace.u)
-        np.testing.assert_allclose(res.x_filt[3], full.x_filt[3], rtol=1e-12)  # complete replication untouched
+        # complete replication untouched; batched LAPACK rounds differently with a different batch
+        # composition (a few 1e-14 absolute on values ~1e-2, seen with numpy 2.4), hence the atol
+        np.testing.assert_allclose(res.x_filt[3], full.x_filt[3], rtol=1e-12, atol=1e-13)
         np.testing.assert_allclose(res.x_pred[:, : k + 1], full.x_pred[:, : k + 1], rtol=1e-12)
         for r, keep in ((0, [1, 2]), (1, [0])):
             step_model = dataclasses.replace(model, x0=res.x_pred[r, k], P0=res.cov_pred[r, k])

@@ -39,7 +39,7 @@ def test_paper_noise_holds_mean_speed():
 
 def test_same_seed_same_trace_and_batching_does_not_matter():
     plant = MouldOscillator()
-    sc = Scenario(plant, GaussianNoise(), SensorFault("offset_var", a=2, b=2), duration=0.5)
+    sc = Scenario(plant, GaussianNoise(), SensorFault("offset_var", onset=0.25, a=2, b=2), duration=0.5)
     a = sc.simulate(seed=7, n_reps=3, fault_scale=0.1)
     b = sc.simulate(seed=7, n_reps=3, fault_scale=0.1)
     c = sc.simulate(seed=7, n_reps=1, fault_scale=0.1, first=2)

@@ -30,6 +30,9 @@ def check_group_overrides(parsed) -> None:
     """Unknown options (``optimizer=foo``) and the ``+`` rules of Hydra, as one-line errors."""
     known = set(groups())
     in_defaults = default_groups()
+    # an experiment preset adds the fault group itself: then fault=NAME replaces the preset's choice
+    if any(o.key_or_group == "experiment" for o in parsed):
+        in_defaults = in_defaults | {"fault"}
     for override in parsed:
         group = override.key_or_group
         if group not in known or override.package or override.is_delete():

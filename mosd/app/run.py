@@ -112,7 +112,7 @@ def _format_summary(labels, result, setup: Setup, metrics, timings, run_dir, tra
     n_test = int(metrics["n_test"])
     opt = labels.get("optimizer", "")
     pop = getattr(setup.algorithm, "pop_size", "?")
-    params = "  ".join(f"{k} = {v:.4f}" for k, v in result.params.items())
+    params = "  ".join(f"{k} = {v}" if isinstance(v, int) else f"{k} = {v:.4f}" for k, v in result.params.items())
 
     def pm(key, digits=4):
         return f"{metrics[key]:.{digits}f} ± {metrics[key + '_ci']:.{digits}f}"

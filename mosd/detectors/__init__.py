@@ -5,7 +5,7 @@ module per detector family.
 """
 from .base import Decisions, Detector, persistent
 from .chart import Chart
-from .ewma import EWMA, MSOEWMA
+from .ewma_chart import EWMA, MSOEWMA
 from .mean_variance import MDEWMA, SSDEWMA, SSEWMA, MaxEWMA, max_abs_normal_moments
 from .statistics import (dewma_variance, ewma, ewma_time_major, ewma_variance, subgroup_mean_statistic,
                          subgroup_variance_statistic)

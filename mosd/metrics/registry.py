@@ -79,14 +79,25 @@ def check_objectives(names) -> tuple[str, ...]:
     return names
 
 
+def as_truth(truth):
+    """``truth`` as something with ``fault_mask`` and ``fault_label``: a Subgroups, or a plain target mask."""
+    if hasattr(truth, "fault_mask"):
+        return truth
+    from ..types import Subgroups
+
+    mask = np.asarray(truth, bool)
+    return Subgroups(z=np.empty((0,)), fault_mask=mask)
+
+
 def per_run(name: str, decisions: np.ndarray, truth) -> np.ndarray:
-    """Per-run values of metric ``name``."""
-    return METRICS[name].compute(decisions, truth)
+    """Per-run values of metric ``name`` (``truth``: a Subgroups or the target-fault mask)."""
+    return METRICS[name].compute(decisions, as_truth(truth))
 
 
 def objective_values(names, decisions: np.ndarray, truth) -> np.ndarray:
     """Mean over runs of each named metric: (..., len(names)) for decisions (..., R, K)."""
     columns = []
+    truth = as_truth(truth)
     for name in names:
         values = per_run(name, decisions, truth)
         with np.errstate(invalid="ignore"), _quiet():

@@ -32,7 +32,7 @@ import time
 import numpy as np
 from pymoo.core.problem import Problem
 
-from ..metrics.registry import objective_values
+from ..metrics.registry import as_truth, objective_values
 from ..validation import ConfigError, check_int
 
 _OPEN_BOUND_MARGIN = 1e-6
@@ -48,8 +48,8 @@ class CandidateEvaluator:
         of ``detector.tunable``.
     calibration_features, train_features : ndarray
         ``detector.features`` of the fault-free calibration and of the training points.
-    truth : mosd.types.Subgroups
-        Fault truth of the training points (``z`` may be empty).
+    truth : mosd.types.Subgroups or ndarray of bool
+        Fault truth of the training points (``z`` may be empty), or just the target-fault mask (R, K).
     objectives : sequence of str
         Metric names (:mod:`mosd.metrics.registry`), all minimised.
     """
@@ -58,7 +58,7 @@ class CandidateEvaluator:
         self.detector = detector
         self.calibration_features = calibration_features
         self.features = train_features
-        self.truth = truth
+        self.truth = as_truth(truth)
         self.objectives = tuple(objectives)
 
     @property
