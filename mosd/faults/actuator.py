@@ -1,0 +1,46 @@
+"""Constant additive actuator faults (paper 001, §2).
+
+Paper 001 writes a fault on actuator m as the extra input e_m f: e_m the m-th
+column of the identity (the fault's direction), f a scalar amplitude that is
+constant (or slowly varying) from the onset. The plant adds B e_m f to its
+input; the estimator does not know f and estimates it as an augmented state.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..validation import ConfigError, Interval, check_in, check_int
+from .base import Fault
+
+
+class ActuatorFault(Fault):
+    """A constant additive fault of amplitude f on one actuator from ``onset`` on.
+
+    Parameters
+    ----------
+    actuator : int
+        Which actuator fails, numbered from 1 as in the paper (its example:
+        actuator 2). A detector that isolates declares fault i for actuator i.
+    amplitude : float
+        f, in the units of the input (paper: 2), non-zero.
+    onset : float
+        Time (s) from which the fault acts (paper: 16.5).
+    role : {"target", "nuisance"}
+    """
+
+    relative = False  # amplitudes are in input units, not in residual σ
+
+    def __init__(self, actuator: int = 2, amplitude: float = 2.0, onset: float = 16.5, role: str = "target"):
+        super().__init__(onset=onset, role=role)
+        self.actuator = check_int("fault.actuator", actuator, 1)
+        self.amplitude = check_in("fault.amplitude", amplitude, Interval(-1e6, 1e6))
+        if self.amplitude == 0.0:
+            raise ConfigError("fault.amplitude=0 makes the fault empty; allowed: a non-zero number in [-1e6, 1e6]")
+
+    def __repr__(self) -> str:
+        return f"ActuatorFault(actuator={self.actuator}, amplitude={self.amplitude}, onset={self.onset})"
+
+    def signal(self, t: np.ndarray) -> np.ndarray:
+        """f(t): the amplitude where the fault is active, 0 before; shape of ``t``."""
+        return np.where(self.active(t), self.amplitude, 0.0)
+
