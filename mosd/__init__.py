@@ -2,7 +2,7 @@
 
 The science core (plants, noise, faults, estimators, monitor, charts, denoising,
 metrics, ARL, optimisers) imports neither Hydra nor MLflow; those live in
-:mod:`mosd.app` and :mod:`mosd.tracking` only.
+:mod:`mosd.app` only (docs/ARCHITECTURE.md).
 """
 
 __version__ = "0.1.0"

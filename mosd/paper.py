@@ -16,15 +16,15 @@ of the SS/M-DEWMA statistic), ``--subgroups window|channels`` (docs/DECISIONS.md
 
 The default set-up (docs/DECISIONS.md §1–7; docs/DECISIONS.md):
 
-* plant :class:`~mosd.plant.MouldOscillator`, noise :class:`~mosd.noise.GaussianNoise`
+* plant :class:`~mosd.plants.MouldOscillator`, noise :class:`~mosd.noise.GaussianNoise`
   (defaults), 5.2 s per replication, sensor fault on x_p from t = 2.7 s;
-* residual: :class:`~mosd.estimator.DedicatedObserverResidual` around a CESCKF
+* residual: :class:`~mosd.estimators.DedicatedObserverResidual` around a CESCKF
   (decision 1), windows of n = 5 consecutive residuals of x_p after a 200-sample
   burn-in (decision 2): 1,000 subgroups per replication, faulty from 501 on;
 * every SS/M-DEWMA chart (the paper-parameter baselines and the optimised one) uses
   the same Phase-I limit of eq. 27 and the same wavelet denoiser (§3.2; paper-literal
   setting by default), so within that family only the parameters differ;
-* MS-OEWMA is :class:`mosd.chart.MSOEWMA` (this project's documented interpretation);
+* MS-OEWMA is :class:`mosd.detectors.MSOEWMA` (this project's documented interpretation);
 * calibration, training and test replications come from disjoint seed streams
   (decision 5); every chart of one fault is scored on the *same* test replications,
   so differences between charts are paired.
@@ -194,7 +194,7 @@ def make_denoiser(wavelet: str):
 
 def make_prefilter():
     """MS-OEWMA's residual prefilter, pinned: db3, level 3, rigrsure on all details rescaled by σ̂
-    (``sln``) — noise removal at every scale, as :class:`mosd.chart.MSOEWMA` documents it."""
+    (``sln``) — noise removal at every scale, as :class:`mosd.detectors.MSOEWMA` documents it."""
     return WaveletDenoiser(scaling="sln", scope="global", global_source="all")
 
 

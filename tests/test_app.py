@@ -58,10 +58,10 @@ def runs_of(outputs: Path, experiment: str = "mosd"):
 # errors: one line, exit 2, nothing written (fast)
 # ---------------------------------------------------------------------------------------
 @pytest.mark.parametrize("args,expected", [
-    ([], r"no fault chosen.*drift, offset, offset_var, variance"),
+    ([], r"no fault chosen.*actuator, drift, offset, offset_var, ramp, target_nuisance, variance"),
     (["+faults=offset_var", "optimizer=mopso"], r"'faults'.*\+fault=NAME.*offset_var"),
     (["+fault=offset_var", "optimizer=foo"], r"optimizer=foo is not an option; allowed: mopso, nsga2"),
-    (["+fault=nope"], r"fault=nope is not an option; allowed: drift, offset, offset_var, variance"),
+    (["+fault=nope"], r"fault=nope is not an option; allowed: actuator, drift, offset, offset_var, ramp, target_nuisance, variance"),
     (["+fault=offset_var", "detector.lam=1.5"], r"detector\.lam=1\.5 is out of range; allowed: \(0, 1\)"),
     (["+fault=offset_var", "optimizer.pop_size=0"], r"optimizer\.pop_size=0 is out of range; allowed: integers"),
 ])
@@ -140,7 +140,7 @@ def test_main_command_writes_the_run_directory(main_run):
     run_dirs = list((cwd / "outputs" / "runs").iterdir())
     assert len(run_dirs) == 1 and RUN_DIR_NAME.match(run_dirs[0].name)
     run_dir = run_dirs[0]
-    for name in ("resolved_config.yaml", "pareto.csv", "pareto.png", "detector.png", "residual.png", "history.csv",
+    for name in ("resolved_config.yaml", "pareto.csv", "pareto.png", "chart.png", "residual.png", "history.csv",
                  "summary.json", ".hydra/overrides.yaml"):
         assert (run_dir / name).is_file(), name
     for png in run_dir.glob("*.png"):
@@ -172,11 +172,11 @@ def test_main_command_logs_to_mlflow(main_run):
     assert sorted(steps) == [1, 2, 3]
     assert len(client.get_metric_history(run.info.run_id, "archive_size")) == 3
     assert params["optimizer.pop_size"] == "10" and params["fault.kind"] == "offset_var"
-    assert params["detector._target_"] == "mosd.chart.SSDEWMA"
+    assert params["detector._target_"] == "mosd.detectors.mean_variance.SSDEWMA"
     assert "+fault=offset_var optimizer=mopso" in tags["mosd.overrides"]
     assert tags["mosd.fault"] == "offset_var" and tags["mosd.optimizer"] == "mopso"
     artifacts = {a.path for a in client.list_artifacts(run.info.run_id)}
-    assert {"pareto.csv", "pareto.png", "detector.png", "residual.png", "resolved_config.yaml"} <= artifacts
+    assert {"pareto.csv", "pareto.png", "chart.png", "residual.png", "resolved_config.yaml"} <= artifacts
     # the artifacts live under the outputs root, as does the store
     assert run.info.artifact_uri.startswith((cwd / "outputs").resolve().as_uri())
     # the chosen design in the CSV is the one logged
@@ -193,8 +193,8 @@ def test_report_reads_the_store(main_run):
     md = mosd(["report"], cwd=cwd)
     assert md.returncode == 0, md.stderr
     lines = md.stdout.strip().splitlines()
-    assert lines[0].startswith("| fault | chart | optimizer | MDR %") and len(lines) == 3
-    assert lines[2].startswith("| offset_var | ss_dewma | mopso |")
+    assert lines[0].startswith("| preset | fault | detector | optimizer | MDR %") and len(lines) == 3
+    assert lines[2].startswith("| – | offset_var | ss_dewma | mopso |")
     as_csv = mosd(["report", "--format", "csv", "--experiment", "mosd"], cwd=cwd)
     rows = list(csv.DictReader(as_csv.stdout.splitlines()))
     _, runs = runs_of(cwd / "outputs")

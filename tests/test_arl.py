@@ -18,7 +18,7 @@ from mosd.validation import ConfigError
 
 
 # --------------------------------------------------------------------------------------
-# charts defined here, independent of mosd.chart
+# charts defined here, independent of mosd.detectors
 # --------------------------------------------------------------------------------------
 class ShewhartMeanChart:
     """Alarms when |√n·mean| > L; its ARL is 1/p, p = P(|N(√n a, b²)| > L)."""
@@ -212,10 +212,9 @@ def test_monte_carlo_ewma_matches_ewma_arl(lam, L, a, n):
 
 
 def test_monte_carlo_with_package_ewma_chart():
-    chart_module = pytest.importorskip("mosd.chart")
-    if not hasattr(chart_module, "EWMA"):
-        pytest.skip("mosd.chart has no EWMA chart")
-    chart = chart_module.EWMA(lam=0.2, L=2.8, limit="asymptotic")
+    from mosd.detectors import EWMA
+
+    chart = EWMA(lam=0.2, L=2.8, limit="asymptotic")
     estimate = monte_carlo_arl(chart, a=0.2, n=5, reps=2000, seed=3)
     assert_within_three_se(estimate, ewma_arl(0.2, 2.8, math.sqrt(5) * 0.2))
 

@@ -1,4 +1,4 @@
-"""Tests for mosd.denoise: MATLAB-style wavelet denoising of chart statistics."""
+"""Tests for mosd.denoisers: MATLAB-style wavelet denoising of chart statistics."""
 from __future__ import annotations
 
 import math

@@ -1,4 +1,4 @@
-"""Cubature rules, the batched CKF/CESCKF and the residual generators (mosd.estimator)."""
+"""Cubature rules, the batched CKF/CESCKF and the residual generators (mosd.estimators)."""
 from __future__ import annotations
 
 import dataclasses

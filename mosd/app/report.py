@@ -1,4 +1,4 @@
-"""``mosd report`` / ``python -m mosd.report``: the comparison table of finished runs.
+"""``mosd report`` / ``python -m mosd.app.report``: the comparison table of finished runs.
 
 Reads the runs of the app (tag ``mosd.role = job``) from an MLflow tracking store
 and prints one row per (preset, fault, detector, optimizer) — the latest finished run of each,

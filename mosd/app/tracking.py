@@ -261,14 +261,14 @@ def _serve() -> None:
 
 
 class _SideProcess:
-    """Requests go to ``python -c 'mosd.tracking._serve()'``; replies are read lazily."""
+    """Requests go to ``python -c 'mosd.app.tracking._serve()'``; replies are read lazily."""
 
     def __init__(self):
         package_parent = str(Path(__file__).resolve().parent.parent)
         self._stderr = tempfile.TemporaryFile(mode="w+")
         self._proc = subprocess.Popen(
             [sys.executable, "-c", "import sys; sys.path.insert(0, sys.argv[1]); "
-             "from mosd.tracking import _serve; _serve()", package_parent],
+             "from mosd.app.tracking import _serve; _serve()", package_parent],
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self._stderr, text=True, bufsize=1,
         )
         self._pending = 0

@@ -121,7 +121,7 @@ class SSDEWMA(_MeanVarianceChart):
         Control width K_SD.
     limit : {"phase1", "theoretical", "normalised"}
     denoiser : optional
-        E.g. :class:`mosd.denoise.WaveletDenoiser`.
+        E.g. :class:`mosd.denoisers.WaveletDenoiser`.
     """
 
     order, combine = 2, "ss"

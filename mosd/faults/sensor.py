@@ -5,7 +5,7 @@ faulty channel from Phase-I calibration, so that the residual follows
 N(μ + aσ, b²σ²) after the onset as in paper 000 (§2.1). The variance fault adds
 independent noise of standard deviation σ√(b² − 1) to the sensor: for a residual
 that does not feed the faulty sensor back into its own prediction (the dedicated
-observer of :mod:`mosd.estimator`) the residual's standard deviation becomes bσ.
+observer of :mod:`mosd.estimators.residuals`) the residual's standard deviation becomes bσ.
 """
 from __future__ import annotations
 

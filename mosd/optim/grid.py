@@ -4,7 +4,7 @@ Two uses in paper 000:
 
 * Fig. 1 — the FAR and MDR surfaces of the SS-DEWMA chart over a 20×20 grid of
   (λ, K_SD), which motivates the multi-objective search (§2.2.1);
-* the tuning rule of the MS-OEWMA comparison chart (:class:`mosd.chart.MSOEWMA`):
+* the tuning rule of the MS-OEWMA comparison chart (:class:`mosd.detectors.MSOEWMA`):
   for each λ the smallest width that keeps FAR <= α on the training data, then the λ
   whose design has the lowest MDR (:func:`constrained_grid_search`).
 
