@@ -16,7 +16,8 @@ from mosd.optim.mopso import MOPSO
 
 def test_main_command_setup_gives_the_pinned_design_and_metrics():
     with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
-        cfg = compose("config", overrides=["+fault=offset_var", "budget.n_test=10", "tracking=none"])
+        cfg = compose("config", overrides=["+fault=offset_var", "denoise=wavelet", "budget.n_test=10",
+                                              "tracking=none"])
     setup = build(cfg)
     algorithm = MOPSO(pop_size=20, archive_size=100, n_divisions=30, **paper.PAPER_MOPSO)
     result = setup.experiment.run(algorithm, ("n_gen", 10), n_jobs=1, bounds=setup.bounds, choose=setup.choose)

@@ -30,7 +30,19 @@ LAWS = ("sine", "ramp")
 DRAWS = ("per_run", "per_step")
 
 
-class SineLaw(BoundedLaw):
+class _IntervalLaw(BoundedLaw):
+    """A law on [low, low + width]: the fault laws share their support's parametrisation."""
+
+    def __init__(self, low: float, width: float):
+        self.low = check_in("fault.low", low, Interval(-1e6, 1e6))
+        self.width = check_in("fault.width", width, Interval(0.0, 1e6, open_low=True))
+        self.high = self.low + self.width
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}(low={self.low:g}, width={self.width:g})"
+
+
+class SineLaw(_IntervalLaw):
     """γ(τ) = π/(2w) sin(π(τ − a)/w) on [a, a + w] (paper: a = 0.5, w = 1; reconstruction).
 
     Parameters
@@ -40,9 +52,7 @@ class SineLaw(BoundedLaw):
     """
 
     def __init__(self, low: float = 0.5, width: float = 1.0):
-        self.low = check_in("fault.low", low, Interval(-1e6, 1e6))
-        self.width = check_in("fault.width", width, Interval(0.0, 1e6, open_low=True))
-        self.high = self.low + self.width
+        super().__init__(low, width)
 
     def sample(self, rng: np.random.Generator, size) -> np.ndarray:
         # inverse of the CDF F(τ) = (1 − cos(π(τ − a)/w))/2
@@ -53,11 +63,9 @@ class SineLaw(BoundedLaw):
         inside = (s >= 0.0) & (s <= 1.0)
         return np.where(inside, math.pi / (2.0 * self.width) * np.sin(math.pi * np.clip(s, 0.0, 1.0)), 0.0)
 
-    def __repr__(self) -> str:
-        return f"SineLaw(low={self.low:g}, width={self.width:g})"
 
 
-class RampLaw(BoundedLaw):
+class RampLaw(_IntervalLaw):
     """γ(τ) = 2(τ − a)/w² on [a, a + w] (paper: a = 0, w = 0.6, i.e. τ/0.18; reconstruction).
 
     Parameters
@@ -67,9 +75,7 @@ class RampLaw(BoundedLaw):
     """
 
     def __init__(self, low: float = 0.0, width: float = 0.6):
-        self.low = check_in("fault.low", low, Interval(-1e6, 1e6))
-        self.width = check_in("fault.width", width, Interval(0.0, 1e6, open_low=True))
-        self.high = self.low + self.width
+        super().__init__(low, width)
 
     def sample(self, rng: np.random.Generator, size) -> np.ndarray:
         # inverse of the CDF F(τ) = ((τ − a)/w)²
@@ -80,8 +86,6 @@ class RampLaw(BoundedLaw):
         inside = (s >= 0.0) & (s <= 1.0)
         return np.where(inside, 2.0 * s / self.width, 0.0)
 
-    def __repr__(self) -> str:
-        return f"RampLaw(low={self.low:g}, width={self.width:g})"
 
 
 class RandomAmplitudeFault(Fault):
