@@ -30,6 +30,8 @@ class Setup:
     n_jobs: int
     bounds: dict[str, tuple[float, float]]
     choose: Callable[[np.ndarray, np.ndarray], int]
+    #: a paper's study run after the experiment (``study`` key; :mod:`mosd.systems`), or None
+    study: Any = None
 
 
 def _accepted_parameters(target: Any) -> tuple[list[str], bool]:
@@ -219,7 +221,9 @@ def build(cfg) -> Setup:
                           f"({', '.join(objectives)}); allowed: knee")
     experiment = Experiment(plant, noise, fault, estimator, monitor, detector, duration=cfg.scenario.duration,
                             budget=budget, seed=cfg.seed, objectives=objectives)
+    study = instantiate_section("study", cfg.study) if cfg.get("study") is not None else None
     return Setup(experiment=experiment, algorithm=algorithm, termination=MaximumGenerationTermination(n_gen),
-                 n_gen=n_gen, n_jobs=n_jobs, bounds=bounds, choose=functools.partial(choose, rule=rule, alpha=alpha))
+                 n_gen=n_gen, n_jobs=n_jobs, bounds=bounds, choose=functools.partial(choose, rule=rule, alpha=alpha),
+                 study=study)
 
 

@@ -17,7 +17,8 @@ from .config import COMPONENTS, one_line
 log = logging.getLogger("mosd.app")
 
 
-def write_run_files(run_dir: Path, cfg, result, setup: Setup, labels: Mapping[str, str]) -> list[Path]:
+def write_run_files(run_dir: Path, cfg, result, setup: Setup, labels: Mapping[str, str],
+                    study: Mapping[str, float] | None = None) -> list[Path]:
     """Resolved config, Pareto set and history as CSV, summary JSON and the PNG plots."""
     from omegaconf import OmegaConf
 
@@ -61,6 +62,7 @@ def write_run_files(run_dir: Path, cfg, result, setup: Setup, labels: Mapping[st
         "train": dict(result.train_objectives),
         "test": {k: {"mean": v.mean, "ci95_half_width": v.half_width, "n": v.n} for k, v in summary.items()},
         "sigma": result.sigma,
+        **({"study": dict(study)} if study else {}),
         "timings": result.timings,
     }, indent=2, allow_nan=True))
     written.append(path)
@@ -108,7 +110,7 @@ def final_metrics(result, seconds_per_point: float) -> dict[str, float]:
     return metrics
 
 
-def _format_summary(labels, result, setup: Setup, metrics, timings, run_dir, tracking_line) -> str:
+def _format_summary(labels, result, setup: Setup, metrics, timings, run_dir, tracking_line, study=None) -> str:
     n_test = int(metrics["n_test"])
     opt = labels.get("optimizer", "")
     pop = getattr(setup.algorithm, "pop_size", "?")
@@ -134,6 +136,8 @@ def _format_summary(labels, result, setup: Setup, metrics, timings, run_dir, tra
         f"{metrics['delay_censored_median_s']:.4g} s (undetected runs beyond the horizon)",
         "wall time " + f"{timings['wall_s']:.1f} s  (" + ", ".join(
             f"{k.removesuffix('_s')} {v:.1f}" for k, v in timings.items() if k != "wall_s") + ")",
+        *([f"study     {type(setup.study).__name__}: " + ", ".join(f"{k} {v:.4g}" for k, v in study.items())]
+          if study else []),
         f"run dir   {run_dir}",
     ]
     if tracking_line:
@@ -208,10 +212,17 @@ def run(cfg, started: float | None = None):
                                       choose=setup.choose, callback=progress)
         progress.close()
         timings.update(result.timings)
+        study_metrics, study_files = {}, []
+        if setup.study is not None:
+            t0 = time.perf_counter()
+            run_dir.mkdir(parents=True, exist_ok=True)
+            study_metrics, study_files = setup.study.run(setup.experiment, result, run_dir)
+            result.timings["study_s"] = timings["study_s"] = time.perf_counter() - t0
         t0 = time.perf_counter()
-        files = write_run_files(run_dir, cfg, result, setup, labels)
+        files = write_run_files(run_dir, cfg, result, setup, labels, study_metrics) + list(study_files)
         timings["files_s"] = time.perf_counter() - t0
-        metrics = final_metrics(result, result.example["seconds_per_point"])
+        metrics = {**final_metrics(result, result.example["seconds_per_point"]),
+                   **{k: float(v) for k, v in study_metrics.items()}}
         tracking_line = ""
         if tracker is not None:
             t0 = time.perf_counter()
@@ -229,7 +240,8 @@ def run(cfg, started: float | None = None):
             tracking_line = (f"mlflow    run {run_id}  experiment {tracker.settings.experiment!r}"
                              f"  store {tracker.settings.uri}\n          ({where}: {startup})")
         timings["wall_s"] = time.perf_counter() - started
-        print(_format_summary(labels, result, setup, metrics, timings, run_dir, tracking_line), flush=True)
+        print(_format_summary(labels, result, setup, metrics, timings, run_dir, tracking_line, study_metrics),
+              flush=True)
         return result
     except BaseException as exc:
         progress.close()
