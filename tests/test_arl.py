@@ -268,7 +268,7 @@ def test_non_causal_chart_is_rejected():
     from mosd.denoisers import WaveletDenoiser
 
     with pytest.raises(ConfigError, match="^chart=.*not causal"):
-        monte_carlo_arl(SSDEWMA(limit="theoretical", denoiser=WaveletDenoiser()), reps=5)
+        monte_carlo_arl(SSDEWMA(limit="phase1", denoiser=WaveletDenoiser()), reps=5)
 
     class WholeSeries:
         class denoiser:

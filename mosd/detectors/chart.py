@@ -22,6 +22,20 @@ Limits (docs/DECISIONS.md §3):
   control; time-varying through σ²_{W_k} (eq. 31).
 * ``"normalised"`` — the statistic is divided by σ²_{W_k} (so it is χ²₂ at every
   k in control) and compared with a constant from Phase-I: E{·} + K·sd{·}.
+
+What each limit claims in control (docs/DECISIONS.md §10; tests/test_limits.py checks
+every one within Monte Carlo error):
+
+* model limits (``model_limits``: SS/M charts' ``"theoretical"``, the EWMA's
+  ``"asymptotic"`` and ``"time_varying"``) state the exact law of the *raw*
+  statistic of i.i.d. N(0, 1) subgroups — a point alarm rate (e^{−(1+K)} for SS
+  charts) or an ARL0 (Crowder's integral equation). A denoiser changes that law
+  (measured: 0.026 instead of 0.050 for SS-DEWMA, λ = 0.3, K = 2, paper wavelet),
+  so a model limit on a denoised statistic is refused at construction;
+* Phase-I limits (``"phase1"``, ``"normalised"``) claim only what they estimate:
+  the alarm rate on fresh in-control data equals the statistic's in-control
+  probability of exceeding E{l} + K·sd{l}, up to the estimation error of E and sd
+  from the Phase-I runs — with or without a denoiser.
 """
 from __future__ import annotations
 
@@ -30,7 +44,7 @@ from typing import ClassVar
 import numpy as np
 
 from ..denoisers.base import NoDenoiser
-from ..validation import Interval, check_choice
+from ..validation import ConfigError, Interval, check_choice
 from .base import Decisions, Detector
 
 
@@ -47,10 +61,26 @@ class Chart(Detector):
 
     tunable: ClassVar[dict[str, Interval]] = {}
     limits: ClassVar[tuple[str, ...]] = ("phase1",)
+    #: limits derived from the in-control law of the raw statistic: valid without denoising only
+    model_limits: ClassVar[tuple[str, ...]] = ()
 
     def __init__(self, limit: str = "phase1", denoiser=None):
         self.limit = check_choice("detector.limit", limit, self.limits)
         self.denoiser = NoDenoiser() if denoiser is None else denoiser
+        self._check_model_limit("denoise", self.denoiser)
+
+    def _check_model_limit(self, key: str, filter_) -> None:
+        """Refuse a model limit when ``filter_`` (the denoiser or a prefilter, config key ``key``) is not the identity.
+
+        The law behind a model limit is that of the raw statistic; after any
+        filtering it no longer holds, and there is no stated law to replace it.
+        """
+        if self.limit in self.model_limits and not isinstance(filter_, NoDenoiser):
+            allowed = "|".join(lim for lim in self.limits if lim not in self.model_limits)
+            identity = "none" if key == "denoise" else "NoDenoiser()"
+            raise ConfigError(
+                f"detector.limit={self.limit} is the in-control law of the raw statistic and does not hold with "
+                f"{key}={type(filter_).__name__}; allowed: detector.limit={allowed} with {key}, or {key}={identity}")
 
     # -- sklearn-style parameter handling -------------------------------------------
     @property

@@ -29,6 +29,7 @@ class EWMA(Chart):
 
     tunable = {"lam": _HALF_OPEN_UNIT, "L": Interval(0.0, 10.0, open_low=True)}
     limits = ("asymptotic", "time_varying", "phase1")
+    model_limits = ("asymptotic", "time_varying")
 
     def __init__(self, lam: float = 0.2, L: float = 3.0, limit: str = "asymptotic", denoiser=None):
         super().__init__(limit=limit, denoiser=denoiser)
@@ -66,7 +67,9 @@ class MSOEWMA(EWMA):
 
     The limit defaults to ``"phase1"`` because filtering changes the variance and
     autocorrelation the asymptotic EWMA limit assumes: UCL = E{|E|} + L·sd{|E|}
-    over fault-free Phase-I data.
+    over fault-free Phase-I data. For the same reason ``"asymptotic"`` and
+    ``"time_varying"`` are refused unless the prefilter is the identity
+    (``NoDenoiser``), where MS-OEWMA is the EWMA chart.
     """
 
     limits = ("phase1", "asymptotic", "time_varying")
@@ -77,6 +80,7 @@ class MSOEWMA(EWMA):
             from ..denoisers.wavelet import WaveletDenoiser
 
             prefilter = WaveletDenoiser(scaling="sln", global_source="all")
+        self._check_model_limit("detector.prefilter", prefilter)
         self.prefilter = prefilter
 
     @property

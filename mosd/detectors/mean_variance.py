@@ -39,13 +39,15 @@ class _MeanVarianceChart(Chart):
     Limits: ``"phase1"`` (eq. 27), ``"theoretical"`` and ``"normalised"`` (module
     docstring). The theoretical limit uses the exact in-control law at each k:
     SS/σ²_k ~ χ²₂ gives UCL_k = 2σ²_k(1 + K) (eq. 35); max/σ_k ~ max(|X₁|, |X₂|)
-    gives UCL_k = σ_k(E M + K sd M).
+    gives UCL_k = σ_k(E M + K sd M). That law is the raw statistic's, so
+    ``"theoretical"`` with a denoiser is refused (:class:`~mosd.detectors.chart.Chart`).
     """
 
     order: ClassVar[int] = 2
     combine: ClassVar[str] = "ss"
     tunable = {"lam": _OPEN_UNIT, "K": Interval(0.0, 10.0)}
     limits = ("phase1", "theoretical", "normalised")
+    model_limits = ("theoretical",)
 
     def __init__(self, lam: float = 0.3, K: float = 3.0, limit: str = "phase1", denoiser=None):
         super().__init__(limit=limit, denoiser=denoiser)
