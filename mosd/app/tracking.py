@@ -264,7 +264,7 @@ class _SideProcess:
     """Requests go to ``python -c 'mosd.app.tracking._serve()'``; replies are read lazily."""
 
     def __init__(self):
-        package_parent = str(Path(__file__).resolve().parent.parent)
+        package_parent = str(Path(__file__).resolve().parents[2])  # the directory holding mosd/
         self._stderr = tempfile.TemporaryFile(mode="w+")
         self._proc = subprocess.Popen(
             [sys.executable, "-c", "import sys; sys.path.insert(0, sys.argv[1]); "
