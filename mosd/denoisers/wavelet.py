@@ -114,6 +114,10 @@ def select_threshold(coefficients, rule: str = "rigrsure") -> np.ndarray:
     return np.where(too_little_signal, universal, np.minimum(sure, universal))
 
 
+#: the threshold rules the compiled kernel reproduces (mosd.kernels.wavelet)
+_KERNEL_RULES = select_threshold
+
+
 def _sure_threshold(x: np.ndarray) -> np.ndarray:
     """rigrsure along the last axis (see :func:`select_threshold`, Notes)."""
     n = x.shape[-1]
@@ -302,7 +306,30 @@ class WaveletDenoiser:
         return out.reshape(values.shape)
 
     def _denoise_rows(self, rows: np.ndarray) -> np.ndarray:
-        """Whole-series denoising of every row of a 2-D array."""
+        """Whole-series denoising of every row of a 2-D array.
+
+        Runs the compiled kernel (:mod:`mosd.kernels.wavelet`, bit-identical) when
+        the kernels are enabled and support this setting, else :meth:`_denoise_rows_numpy`.
+        """
+        from .. import kernels
+
+        # the kernel implements this module's own rules; a replaced select_threshold (a test's) is honoured
+        if kernels.enabled() and select_threshold is _KERNEL_RULES:
+            plan = self._kernel_plan()
+            if plan is not None and plan.fits(rows.shape[-1]):
+                return plan(rows)
+        return self._denoise_rows_numpy(rows)
+
+    def _kernel_plan(self):
+        """The compiled kernel's plan for this denoiser (None where it does not apply), made once."""
+        if "_plan" not in self.__dict__:
+            from ..kernels.wavelet import plan
+
+            self.__dict__["_plan"] = plan(self)
+        return self.__dict__["_plan"]
+
+    def _denoise_rows_numpy(self, rows: np.ndarray) -> np.ndarray:
+        """The reference: PyWavelets' wavedec, the threshold rule, wthresh, waverec."""
         n = rows.shape[-1]
         coeffs = pywt.wavedec(rows, self._wavelet, mode="symmetric", level=self.level, axis=-1)
         details = coeffs[1:]  # coarsest first: cD_level, ..., cD_1

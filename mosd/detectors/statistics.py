@@ -47,29 +47,53 @@ def ewma(x: np.ndarray, lam: float, order: int = 1) -> np.ndarray:
     return signal.lfilter([lam**order], a, x, axis=-1)
 
 
+def ewma_coefficients(lams, order: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Gain λ^order (P,) and feedback −a_1..−a_order (P, order) of the ``order``-fold EWMA filter per λ.
+
+    The denominator 1 + a_1 z⁻¹ + ... + a_order z⁻order is ``np.poly`` of the
+    repeated pole 1 − λ; the compiled kernels take these very numbers, so both
+    paths run the same arithmetic.
+    """
+    lams = np.asarray(lams, float).ravel()
+    denominator = np.array([np.poly(np.full(order, 1.0 - lam)) for lam in lams]).reshape(lams.size, order + 1)
+    return lams**order, -denominator[:, 1:]
+
+
 def ewma_time_major(x: np.ndarray, lams: np.ndarray, order: int = 1) -> np.ndarray:
     """:func:`ewma` of x (..., K) for many smoothing parameters, time-major: (K, P, M).
 
     M indexes the flattened leading axes of x. The ``order``-fold EWMA is the IIR filter λ^order / (1 − (1−λ)z⁻¹)^order; its
-    difference equation runs in one Python loop over time on all (candidate,
-    sequence) columns together, which for a population of candidates beats one
-    filter call per candidate (see ``python -m mosd.bench``). Columns never mix, so
-    a candidate's result does not depend on which other candidates share the call.
+    difference equation runs over time on all (candidate, sequence) columns
+    together: compiled (:func:`mosd.kernels.ewma.ewma_population`, bit-identical)
+    when the kernels are enabled, otherwise one NumPy step per time point — which
+    for a population of candidates still beats one filter call per candidate (see
+    ``python -m mosd.bench``). Columns never mix, so a candidate's result does not
+    depend on which other candidates share the call.
     """
-    lams = np.asarray(lams, float).ravel()
     n_points = x.shape[-1]
-    columns = np.ascontiguousarray(x.reshape(-1, n_points).T)  # time-major (K, M)
-    shape = (lams.size, columns.shape[1])
-    # denominator 1 + a_1 z⁻¹ + ... + a_order z⁻order, per candidate
-    denominator = np.array([np.poly(np.full(order, 1.0 - lam)) for lam in lams])
-    feedback = [np.ascontiguousarray(np.broadcast_to(-denominator[:, i, None], shape)) for i in range(1, order + 1)]
-    gain = np.ascontiguousarray(np.broadcast_to((lams**order)[:, None], shape))
+    columns = np.ascontiguousarray(np.asarray(x, float).reshape(-1, n_points).T)  # time-major (K, M)
+    gain, feedback = ewma_coefficients(lams, order)
+    from .. import kernels
+
+    if kernels.enabled():
+        from ..kernels.ewma import ewma_population
+
+        return ewma_population(columns, gain, np.ascontiguousarray(feedback))
+    return _ewma_time_major_numpy(columns, gain, feedback)
+
+
+def _ewma_time_major_numpy(columns: np.ndarray, gain: np.ndarray, feedback: np.ndarray) -> np.ndarray:
+    """The reference recursion: y_k = g·x_k + Σ_lag y_{k−lag}·f_lag, one NumPy step per time point."""
+    n_points = columns.shape[0]
+    shape = (gain.size, columns.shape[1])
+    coefficients = [np.ascontiguousarray(np.broadcast_to(feedback[:, i, None], shape)) for i in range(feedback.shape[1])]
+    gains = np.ascontiguousarray(np.broadcast_to(gain[:, None], shape))
     out = np.zeros((n_points,) + shape)
     scratch = np.empty(shape)
     for k in range(n_points):
         current = out[k]
-        np.multiply(gain, columns[k], out=current)
-        for lag, coefficient in enumerate(feedback, start=1):
+        np.multiply(gains, columns[k], out=current)
+        for lag, coefficient in enumerate(coefficients, start=1):
             if k >= lag:
                 np.multiply(out[k - lag], coefficient, out=scratch)
                 current += scratch

@@ -69,8 +69,35 @@ class CandidateEvaluator:
         X = np.atleast_2d(np.asarray(X, float))
         if X.shape[0] == 0:
             return np.empty((0, len(self.objectives)))
+        fused = self.fused()
+        if fused is not None:
+            return fused(X)
+        return self.reference(X)
+
+    def reference(self, X: np.ndarray) -> np.ndarray:
+        """The NumPy path: ``Detector.population`` then ``objective_values`` (what the fused kernel reproduces)."""
+        X = np.atleast_2d(np.asarray(X, float))
         decided = self.detector.population(self.calibration_features, self.features, X)
         return objective_values(self.objectives, decided.decision, self.truth)
+
+    def fused(self):
+        """The compiled fused evaluation (:mod:`mosd.kernels.chart`) when it applies and kernels are on, else None."""
+        from .. import kernels
+
+        if not kernels.enabled():
+            return None
+        if "_fused" not in self.__dict__:
+            from ..kernels.chart import fused_evaluation
+
+            self.__dict__["_fused"] = fused_evaluation(self.detector, self.calibration_features, self.features,
+                                                       self.truth, self.objectives)
+        return self.__dict__["_fused"]
+
+    def __getstate__(self):
+        # the fused plan is rebuilt where it is used (a worker), not shipped
+        state = dict(self.__dict__)
+        state.pop("_fused", None)
+        return state
 
 
 # -- the worker side of the persistent pool -------------------------------------------

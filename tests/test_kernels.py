@@ -1,0 +1,135 @@
+"""The compiled kernels (mosd.kernels) give the NumPy reference's numbers bit for bit."""
+import pickle
+
+import numpy as np
+import pytest
+
+from mosd import kernels
+from mosd.denoisers import NoDenoiser, WaveletDenoiser
+from mosd.detectors import MDEWMA, SSDEWMA, SSEWMA, MaxEWMA, ewma_time_major
+from mosd.kernels.chart import fused_evaluation, mean_std, pairwise_sum
+from mosd.optim.problem import CandidateEvaluator
+
+pytestmark = pytest.mark.skipif(not kernels.available(), reason="numba is not installed")
+
+
+def _reference(fn, *args, **kwargs):
+    with kernels.disabled():
+        return fn(*args, **kwargs)
+
+
+def test_switch_selects_the_path():
+    assert kernels.enabled()
+    with kernels.disabled():
+        assert not kernels.enabled()
+    assert kernels.enabled()
+
+
+@pytest.mark.parametrize("order", [1, 2])
+def test_population_recursion_is_bit_identical(order):
+    x = np.random.default_rng(order).standard_normal((3, 2, 257))
+    lams = [1e-6, 0.05, 0.3, 0.999999]
+    got = ewma_time_major(x, lams, order=order)
+    ref = _reference(ewma_time_major, x, lams, order=order)
+    assert got.shape == ref.shape == (257, 4, 6)
+    assert np.array_equal(got, ref)
+
+
+@pytest.mark.parametrize("settings", [
+    {},  # the paper's literal call: db3, level 3, rigrsure, soft, unscaled, coarsest details
+    {"global_source": "all"}, {"global_source": "finest", "mode": "hard"}, {"scope": "level"},
+    {"threshold": "sqtwolog"}, {"threshold": "minimaxi", "scope": "level"}, {"wavelet": "haar", "level": 5},
+    {"wavelet": "sym4", "level": 2},
+])
+@pytest.mark.parametrize("n", [1000, 999, 64])
+def test_wavelet_is_bit_identical(settings, n):
+    denoiser = WaveletDenoiser(**settings)
+    rng = np.random.default_rng(n)
+    # a small in-control statistic (every detail removed), a large one (details survive, SURE sorts), a mix
+    x = np.concatenate([0.05 * rng.standard_normal((3, n)) ** 2, 20.0 * rng.standard_normal((3, n)) ** 2,
+                        np.linspace(0.0, 40.0, n)[None, :] * rng.random((2, n))])
+    got = denoiser.denoise(x)
+    assert denoiser._kernel_plan() is not None and denoiser._kernel_plan().fits(n)
+    assert np.array_equal(got, _reference(denoiser.denoise, x))
+
+
+def test_wavelet_settings_outside_the_kernel_use_the_reference():
+    assert WaveletDenoiser(scaling="sln")._kernel_plan() is None
+    assert WaveletDenoiser(threshold="heursure")._kernel_plan() is None
+    causal = WaveletDenoiser(window=48)  # its windows run through the kernel
+    x = np.random.default_rng(0).standard_normal((2, 120)) ** 2
+    assert np.array_equal(causal.denoise(x), _reference(causal.denoise, x))
+
+
+@pytest.mark.parametrize("n", [1, 7, 8, 9, 127, 128, 129, 1000, 8192, 8193, 10000, 123457])
+def test_pairwise_summation_matches_numpy(n):
+    x = np.random.default_rng(n).standard_normal(n) * 10.0 ** np.random.default_rng(n + 1).uniform(-3, 3, n)
+    assert pairwise_sum(x, 0, n) == np.sum(x)
+    if n > 1:
+        assert mean_std(x) == (np.mean(x), np.std(x, ddof=1))
+
+
+def _workload(n_cal=4, n_train=5, n_subgroups=300, seed=0):
+    rng = np.random.default_rng(seed)
+    phase1 = rng.standard_normal((n_cal, n_subgroups, 5))
+    train = rng.standard_normal((n_train, n_subgroups, 5))
+    onset = n_subgroups // 2
+    train[:, onset:] = 0.6 + 1.3 * train[:, onset:]  # a moderate fault: FAR and MDR both away from 0
+    mask = np.zeros((n_train, n_subgroups), bool)
+    mask[:, onset:] = True
+    return phase1, train, mask
+
+
+def _population(size=40, seed=3):
+    rng = np.random.default_rng(seed)
+    return np.column_stack([rng.uniform(1e-3, 0.999, size), rng.uniform(0.0, 5.0, size)])
+
+
+@pytest.mark.parametrize("chart_type", [SSDEWMA, SSEWMA, MDEWMA, MaxEWMA])
+@pytest.mark.parametrize("denoiser", [WaveletDenoiser(), NoDenoiser()], ids=["wavelet", "none"])
+def test_fused_evaluation_gives_the_reference_objectives_exactly(chart_type, denoiser):
+    chart = chart_type(limit="phase1", denoiser=denoiser)
+    phase1, train, mask = _workload()
+    evaluator = CandidateEvaluator(chart, chart.features(phase1), chart.features(train), mask)
+    X = _population()
+    assert evaluator.fused() is not None
+    got = evaluator(X)
+    ref = evaluator.reference(X)
+    assert np.array_equal(got, ref)
+    assert 0 < got[:, 0].max() and 0 < got[:, 1].max()  # the workload separates candidates on both objectives
+    # a candidate's objectives do not depend on its neighbours, nor on the process (pickled, as a worker gets it)
+    assert np.array_equal(evaluator(X[7:8]), got[7:8])
+    assert np.array_equal(pickle.loads(pickle.dumps(evaluator))(X[:5]), got[:5])
+
+
+def test_fused_evaluation_declines_what_it_does_not_reproduce():
+    phase1, train, mask = _workload(n_subgroups=120)
+    theoretical = SSDEWMA(limit="theoretical")
+    assert fused_evaluation(theoretical, theoretical.features(phase1), theoretical.features(train),
+                            CandidateEvaluator(theoretical, None, None, mask).truth, ("far", "mdr")) is None
+    chart = SSDEWMA(denoiser=WaveletDenoiser(scaling="sln"))
+    evaluator = CandidateEvaluator(chart, chart.features(phase1), chart.features(train), mask)
+    assert evaluator.fused() is None
+    delay = CandidateEvaluator(SSDEWMA(), chart.features(phase1), chart.features(train), mask,
+                               objectives=("far", "delay_censored"))
+    assert delay.fused() is None
+    assert np.isfinite(delay(_population(4))).all()
+
+    class Tighter(SSDEWMA):  # a subclass with its own limit rule keeps the reference path
+        def fit_statistic(self, l_phase1):
+            super().fit_statistic(l_phase1)
+            self.scale_ *= 0.5
+            return self
+
+    tighter = Tighter()
+    assert CandidateEvaluator(tighter, chart.features(phase1), chart.features(train), mask).fused() is None
+
+
+def test_fused_evaluation_rejects_bad_designs_like_the_reference():
+    chart = SSDEWMA(denoiser=WaveletDenoiser())
+    phase1, train, mask = _workload(n_subgroups=120)
+    evaluator = CandidateEvaluator(chart, chart.features(phase1), chart.features(train), mask)
+    from mosd.validation import ConfigError
+
+    with pytest.raises(ConfigError, match="detector.lam"):
+        evaluator(np.array([[1.5, 1.0]]))
