@@ -79,3 +79,53 @@ def test_a_small_main_command_run_records_online(tmp_path):
     summaries = list((tmp_path / "runs").glob("*/summary.json"))
     assert len(summaries) == 1
     assert json.loads(summaries[0].read_text())["online"] is True
+
+
+# ------------------------------------------------------------------------------------------
+# paper 000's tables: the literal (non-causal) design labelled, its causal counterpart beside it,
+# and delays that count missed runs
+# ------------------------------------------------------------------------------------------
+def _paper_row(method, fault, causal, detected, delay):
+    from mosd import paper
+    from mosd.metrics import DetectionReport
+
+    detected = np.asarray(detected, float)
+    delay = np.asarray(delay, float)
+    values = {"far": np.zeros(detected.size), "mdr": 1.0 - detected, "accuracy": detected,
+              "delay": np.where(detected == 1.0, delay, np.nan), "detection_rate": detected,
+              "delay_censored": np.where(detected == 1.0, delay, 500.0)}
+    return paper.Row(method, fault, {"lam": 0.3, "K": 3.0}, DetectionReport(values), causal=causal)
+
+
+def test_paper_tables_label_online_and_count_missed_runs():
+    from mosd import paper
+
+    literal = _paper_row("MO-SS-DEWMA", "offset", False, [1, 1, 1, 1], [0, 1, 1, 2])
+    # the causal design misses 3 runs of 4: its mean delay over detected runs (0) looks better, the
+    # detection rate and the censored median say otherwise
+    online = _paper_row(paper.CAUSAL_OURS, "offset", True, [1, 0, 0, 0], [0, 0, 0, 0])
+    table = paper.Table3({}, [literal], [], {}, {}, causal=[online],
+                         causal_bars=[paper.compare_accuracy(online, literal)])
+    main = paper.format_table3(table).splitlines()
+    assert "| online |" in main[0] and "detected %" in main[0] and "missed = ∞" in main[0]
+    assert "| MO-SS-DEWMA | **no** |" in main[2] and main[2].rstrip().endswith("| 100 | 1.00 ± 1.30 | 1 |")
+    causal = paper.format_causal(table).splitlines()
+    assert causal[2].startswith("| offset | MO-SS-DEWMA | **no** |")
+    assert causal[3].startswith(f"| offset | {paper.CAUSAL_OURS} | yes |")
+    assert "| 25 | 0.00 | beyond horizon |" in causal[3]
+    assert paper.make_chart(paper.CAUSAL_OURS, {"lam": 0.3, "K": 3.0}).is_causal
+    assert not paper.make_chart("MO-SS-DEWMA", {"lam": 0.3, "K": 3.0}).is_causal  # the literal wavelet
+
+
+@pytest.mark.slow
+def test_paper_table3_command_writes_the_causal_result_beside_the_literal(tmp_path):
+    done = subprocess.run([sys.executable, "-m", "mosd.paper", "table3", "--budget", "tiny", "--n-jobs", "1",
+                           "--out", str(tmp_path)], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    result = json.loads((tmp_path / "table3.json").read_text())
+    assert all(r["online"] is False for r in result["rows"] if r["method"] == "MO-SS-DEWMA")
+    assert [r["fault"] for r in result["causal"]] == ["offset", "variance", "offset_var"]
+    for r in result["causal"]:
+        assert r["online"] is True and 0.0 <= r["detection_rate"]["mean"] <= 1.0
+        assert 0.0 < r["params"]["lam"] < 1.0 and 0.0 <= r["params"]["K"] <= 5.0
+    assert (tmp_path / "table3_causal.md").read_text().count("| yes |") == 3
