@@ -393,16 +393,17 @@ def write_plot(result: KindResult, settings: OCSettings, out: Path) -> Path:
     FigureCanvasAgg(fig)
     axes = fig.subplots(2, 2)
     sizes = SIZES[result.kind]
-    for spec in result.specs:
+    for index, spec in enumerate(result.specs):
         plant = result.plant[spec.name]["sizes"]
-        style = "-" if spec.causal else ":"
-        label = spec.name + ("" if spec.causal else " [non-causal]")
-        axes[0, 0].plot(sizes, [100 * plant[s]["mdr"].mean for s in sizes], style, marker="o", ms=3, label=label)
-        axes[0, 1].plot(sizes, [plant[s]["delay"].mean for s in sizes], style, marker="o", ms=3, label=label)
-        axes[1, 0].plot(sizes, [100 * plant[s]["far"].mean for s in sizes], style, marker="o", ms=3, label=label)
+        # one colour per chart in every panel (the ARL panel skips some charts)
+        style = {"linestyle": "-" if spec.causal else ":", "marker": "o", "ms": 3, "color": f"C{index}",
+                 "label": spec.name + ("" if spec.causal else " [non-causal]")}
+        axes[0, 0].plot(sizes, [100 * plant[s]["mdr"].mean for s in sizes], **style)
+        axes[0, 1].plot(sizes, [plant[s]["delay"].mean for s in sizes], **style)
+        axes[1, 0].plot(sizes, [100 * plant[s]["far"].mean for s in sizes], **style)
         if spec.name in result.arl:
             arl1 = result.arl[spec.name]["arl1"]
-            axes[1, 1].plot(sizes, [arl1[s]["mean"] for s in sizes], style, marker="o", ms=3, label=label)
+            axes[1, 1].plot(sizes, [arl1[s]["mean"] for s in sizes], **style)
     titles = [("MDR % (plant, matched FAR)", None), ("delay, subgroups (detected runs)", None),
               (f"FAR % (plant; target {100 * settings.far:g} %)", None),
               (f"ARL1, subgroups (i.i.d., ARL0 = {settings.arl0:g})", "log")]
