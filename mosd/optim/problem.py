@@ -13,12 +13,14 @@ rule) are declared by the detector; the problem exposes them as
 sees a piecewise-constant objective in those coordinates and the reported
 designs are integral.
 
-Parallelism: a population is split into one chunk per worker of a persistent
-loky process pool. Each worker loads the cached evaluator once (from a file the
-main process writes at the first pooled generation) and keeps it between
-generations; each generation ships only the candidate vectors. The pool can be
-started early (:func:`worker_pool` with ``warm=True``) so that process start-up
-overlaps with the simulation. ``n_jobs=1`` evaluates in-process. Results do not
+Parallelism: a population is split into ``n_jobs`` chunks; the main process
+evaluates the first and ``n_jobs − 1`` workers of a persistent loky process
+pool the others. Each worker pins BLAS/OpenMP to one thread, loads the cached
+evaluator once (from a file the main process writes at the first pooled
+generation) and keeps it between generations; each generation ships only the
+candidate vectors. The pool can be started early (:func:`worker_pool` with
+``warm=True``) so that process start-up and loading the compiled kernels
+overlap with the simulation. ``n_jobs=1`` evaluates in-process. Results do not
 depend on ``n_jobs`` because each candidate's evaluation is independent of the
 others in its chunk.
 """
@@ -106,32 +108,50 @@ class CandidateEvaluator:
 _WORKER_CACHE: dict = {"path": None, "evaluator": None}
 
 
-def _warm_up(delay: float) -> int:
-    """Import the evaluation stack in a worker before the first generation needs it."""
-    from .. import denoisers, detectors, metrics  # noqa: F401
+def _pin_threads() -> None:
+    """One BLAS/OpenMP thread per worker: n_jobs workers on n_jobs cores must not each start a core's worth of threads."""
+    if not _WORKER_CACHE.get("pinned"):
+        try:
+            from threadpoolctl import threadpool_limits
 
+            threadpool_limits(limits=1)
+        except ImportError:  # pragma: no cover - threadpoolctl comes with joblib's dependencies (scikit-learn) or not
+            pass
+        _WORKER_CACHE["pinned"] = True
+
+
+def _warm_up(delay: float) -> int:
+    """Prepare a worker before the first generation needs it: imports, compiled kernels, thread pinning."""
+    from .. import denoisers, detectors, kernels, metrics  # noqa: F401
+
+    _pin_threads()
+    kernels.warm_up()
     time.sleep(delay)  # hold this worker so that the next warm-up task lands on another
     return os.getpid()
 
 
 def _evaluate_chunk(path: str, X: np.ndarray) -> np.ndarray:
     if _WORKER_CACHE["path"] != path:
+        _pin_threads()
         with open(path, "rb") as fh:
             _WORKER_CACHE.update(path=path, evaluator=pickle.load(fh))
     return _WORKER_CACHE["evaluator"](X)
 
 
 def worker_pool(n_jobs: int, warm: bool = False):
-    """The persistent loky pool of ``n_jobs`` workers (started on first use).
+    """The persistent loky pool that serves an evaluation on ``n_jobs`` processes: n_jobs − 1 workers.
 
-    ``warm=True`` also sends every worker an import task, without waiting for it,
+    (The main process is the n_jobs-th: it evaluates a chunk itself.) Started on
+    first use. ``warm=True`` also sends every worker a warm-up task (imports,
+    loading the compiled kernels from the on-disk cache), without waiting for it,
     so that process start-up overlaps with the caller's own work (simulation).
     """
     from joblib.externals.loky import get_reusable_executor
 
-    executor = get_reusable_executor(max_workers=n_jobs, timeout=600)
+    n_workers = max(1, n_jobs - 1)
+    executor = get_reusable_executor(max_workers=n_workers, timeout=600)
     if warm:
-        for _ in range(n_jobs):
+        for _ in range(n_workers):
             executor.submit(_warm_up, 0.05)
     return executor
 
@@ -188,7 +208,14 @@ class TuningProblem(Problem):
         out["F"] = self.evaluate_population(self.round(X))
 
     def evaluate_population(self, X: np.ndarray) -> np.ndarray:
-        """Objectives for every row of X, over the pool when ``n_jobs > 1``."""
+        """Objectives for every row of X; with ``n_jobs > 1`` split into n_jobs chunks.
+
+        The main process evaluates the first chunk itself while ``n_jobs − 1``
+        pool workers evaluate the others (it would otherwise sit idle waiting),
+        so n_jobs processes compute and only n_jobs − 1 chunks cross a pipe.
+        Each candidate's objectives do not depend on the chunk it lands in, so
+        the result is bit-identical for every n_jobs.
+        """
         X = np.atleast_2d(X)
         if self.n_jobs == 1 or X.shape[0] < 2:
             return self.evaluator(X)
@@ -196,10 +223,11 @@ class TuningProblem(Problem):
             fd, self._payload = tempfile.mkstemp(prefix="mosd-evaluator-", suffix=".pkl")
             with os.fdopen(fd, "wb") as fh:
                 pickle.dump(self.evaluator, fh, protocol=pickle.HIGHEST_PROTOCOL)
-        executor = worker_pool(self.n_jobs)
         chunks = np.array_split(X, min(self.n_jobs, X.shape[0]))
-        futures = [executor.submit(_evaluate_chunk, self._payload, chunk) for chunk in chunks]
-        return np.concatenate([f.result() for f in futures], axis=0)
+        executor = worker_pool(self.n_jobs)
+        futures = [executor.submit(_evaluate_chunk, self._payload, chunk) for chunk in chunks[1:]]
+        first = self.evaluator(chunks[0])
+        return np.concatenate([first] + [f.result() for f in futures], axis=0)
 
     def close(self) -> None:
         """Delete the evaluator file the workers load; the pool itself stays up for reuse."""
