@@ -174,3 +174,39 @@ def test_paper003_with_window_keeps_every_other_setting():
     other = paper003.with_window(base, 4)
     assert other.window == 4 and {**base.config(), "window": 4} == other.config()
     assert other.ekf is base.ekf and other.cache_dir is None
+
+
+# -- the report commands run the presets' experiments -----------------------------------------
+def _same(a, b, path=""):
+    """Recursive comparison of two components' parameters (arrays exactly, nested components by their vars)."""
+    if hasattr(a, "__dict__") and not isinstance(a, type):
+        assert type(a) is type(b), path
+        keys = {k for k in vars(a) if not k.endswith("_")}
+        assert keys == {k for k in vars(b) if not k.endswith("_")}, path
+        for k in keys:
+            _same(vars(a)[k], vars(b)[k], f"{path}.{k}")
+    elif isinstance(a, (list, tuple)) and a and hasattr(a[0], "__dict__"):
+        assert len(a) == len(b), path
+        for i, (x, y) in enumerate(zip(a, b)):
+            _same(x, y, f"{path}[{i}]")
+    else:
+        np.testing.assert_array_equal(np.asarray(a, dtype=object), np.asarray(b, dtype=object), err_msg=path)
+
+
+@pytest.mark.parametrize("module", [paper001, paper002, paper003])
+def test_report_command_experiment_is_the_preset(module):
+    from pathlib import Path
+
+    from hydra import compose, initialize_config_dir
+
+    from mosd.app.build import build
+
+    name = module.__name__.rsplit(".", 1)[-1]
+    conf = Path(__file__).resolve().parents[1] / "conf"
+    with initialize_config_dir(config_dir=str(conf), version_base="1.3", job_name="test"):
+        setup = build(compose("config", overrides=[f"+experiment={name}"]))
+    preset, ours = setup.experiment, module.preset_experiment()
+    for part in ("plant", "noise", "fault", "estimator", "monitor", "detector"):
+        _same(getattr(preset, part), getattr(ours, part), part)
+    assert (preset.duration, preset.budget, preset.seed) == (ours.duration, ours.budget, ours.seed)
+    assert type(setup.study) is module.Study

@@ -442,6 +442,7 @@ class Study:
         tuned = data["results"][("entropy", rates[0])]
         ax.axvline(tuned["false_alarm_nuisance"], color="r", ls="--", lw=0.8, label="tuned design's nuisance FA")
         ax.set_xscale("symlog", linthresh=1e-3)
+        ax.set_xlim(0.0, 1.0)
         ax.set_xlabel("nuisance points alarmed")
         ax.set_ylabel("target points detected")
         ax.set_title(f"Separation, complete data, L = {int(data['params'].get('L', 1))}", fontsize=10)
@@ -466,7 +467,7 @@ def preset_experiment(seed: int = 0):
     faults = FaultSet([RandomAmplitudeFault("sine", onset=ONSET, role="target"),
                        RandomAmplitudeFault("ramp", onset=ONSET, role="nuisance")])
     return Experiment(ScalarNonlinearPlant(), BoundedNoise(), faults, EntropyIsolationFilter(),
-                      OutputMonitor(outputs=["error"], burn_in=10), ThresholdDetector(threshold_max=3.0),
+                      OutputMonitor(outputs=["error"], burn_in=10), ThresholdDetector(threshold=0.8, L=3, threshold_max=3.0),
                       duration=DURATION, budget=Budget(n_calibration=40, n_train=100, n_test=200, n_estimator=1),
                       seed=seed)
 
