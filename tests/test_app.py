@@ -131,7 +131,9 @@ def test_main_command_prints_the_summary(main_run):
         assert needle in out, needle
     assert re.search(r"FAR\s+\d\.\d+ ± \d\.\d+", out)
     assert "Traceback" not in result.stderr
-    assert "gen 3/3" in result.stderr  # the progress line
+    assert "\r" not in result.stderr and "gen 3/3" not in result.stderr  # no progress bar into a pipe
+    assert json.loads(next((main_run[0] / "outputs" / "runs").iterdir()).joinpath("summary.json").read_text())[
+        "status"] == "finished"
 
 
 @pytest.mark.slow

@@ -162,8 +162,10 @@ def test_defaults_are_paper_scale(composer):
     assert isinstance(exp.monitor, Monitor) and (exp.monitor.subgroup, exp.monitor.n, exp.monitor.channels,
                                                   exp.monitor.burn_in) == ("window", 5, (0,), 200)
     assert isinstance(exp.chart, SSDEWMA) and exp.chart.limit == "phase1"
-    assert isinstance(exp.chart.denoiser, WaveletDenoiser) and (exp.chart.denoiser.wavelet,
-                                                                  exp.chart.denoiser.level) == ("db3", 3)
+    # the default is causal (no whole-series denoising); paper 000's wavelet is one option away
+    assert not isinstance(exp.chart.denoiser, WaveletDenoiser) and exp.chart.is_causal
+    paper = _build_module.build(composer("+fault=offset_var", "denoise=wavelet")).experiment.chart.denoiser
+    assert isinstance(paper, WaveletDenoiser) and (paper.wavelet, paper.level) == ("db3", 3)
     assert exp.duration == 5.2 and exp.seed == 0
     assert exp.noise.process_cov.shape == (3, 3)  # n_x, n_y filled in from the plant
     # run directories named down to the microsecond, under the outputs root
@@ -276,9 +278,14 @@ class _FakeAlgorithm:
         self.evaluator = type("E", (), {"n_eval": 10 * gen})()
 
 
+class _Terminal(io.StringIO):
+    def isatty(self):
+        return True
+
+
 @pytest.mark.parametrize("enabled", [True, False])
 def test_progress_records_and_flag(enabled):
-    stream = io.StringIO()
+    stream = _Terminal()
     progress = Progress(n_gen=3, enabled=enabled, stream=stream, min_interval=0.0)
     fronts = [[[0.5, 0.5]], [[0.2, 0.6], [0.6, 0.1]], [[0.1, 0.1]]]
     for gen, F in enumerate(fronts, start=1):
@@ -290,9 +297,30 @@ def test_progress_records_and_flag(enabled):
     assert progress.records[2]["n_eval"] == 30
     out = stream.getvalue()
     if enabled:
-        assert out.count("\n") == 1 and out.endswith("\n") and "\r" in out and "gen 3/3" in out
+        assert out.endswith("\n") and "\r" in out and "gen 3/3" in out and "best acc 0.8000" in out
     else:
         assert out == ""
+
+
+def test_progress_is_quiet_when_not_a_terminal():
+    # a log file or a pipe must not collect carriage-return updates
+    stream = io.StringIO()
+    progress = Progress(n_gen=2, enabled=True, stream=stream, min_interval=0.0)
+    for gen in (1, 2):
+        progress(_FakeAlgorithm(gen, [[0.1, 0.2]]))
+    assert stream.getvalue() == "" and len(progress.records) == 2
+
+
+def test_progress_bars_of_concurrent_jobs_take_their_own_line():
+    streams = [_Terminal(), _Terminal()]
+    bars = [Progress(n_gen=2, stream=s, min_interval=0.0, position=i, description=f"job {i}")
+            for i, s in enumerate(streams)]
+    for gen in (1, 2):
+        for bar in bars:
+            bar(_FakeAlgorithm(gen, [[0.1, 0.2]]))
+    assert "job 0 gen 2/2" in streams[0].getvalue() and "job 1 gen 2/2" in streams[1].getvalue()
+    # tqdm moves the cursor down to line `position` before drawing the second job's bar
+    assert "\n" in streams[1].getvalue().split("job 1")[0]
 
 
 def test_flatten_and_tracking_settings(tmp_path):

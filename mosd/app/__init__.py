@@ -4,7 +4,8 @@
 script) runs one experiment; ``python -m mosd +experiment=NAME`` a paper's preset;
 ``-m`` sweeps, one MLflow child run per job under one parent run
 (:class:`mosd.app.tracking.SweepCallback`); ``mosd report`` prints the
-comparison table (:mod:`mosd.app.report`).
+comparison table (:mod:`mosd.app.report`); ``mosd log RUN_DIR`` logs a run
+whose MLflow logging failed (:func:`mosd.app.tracking.log_main`).
 
 Layers: :mod:`.config` (where the configs are, which keys exist), :mod:`.build`
 (config → validated components), :mod:`.preflight` (the whole command line
@@ -24,13 +25,39 @@ from .config import CONFIG_DIR, CONFIG_NAME, UsageError
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m mosd`` / ``mosd``: run, sweep (``-m``) or ``report``."""
+    """``python -m mosd`` / ``mosd``: run, sweep (``-m``), ``report`` or ``log RUN_DIR``.
+
+    Exit codes: 0 done; 1 an error during the run (traceback); 2 a mistake found
+    before anything ran (one line); 3 the work finished but MLflow did not take
+    it (one line says how to log it later); 128 + N stopped by signal N (130
+    Ctrl-C, 143 SIGTERM).
+    """
     started = time.perf_counter()
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv[:1] == ["report"]:
         from .report import main as report_main
 
         return report_main(argv[1:])
+    if argv[:1] == ["log"]:
+        from .tracking import log_main
+
+        return log_main(argv[1:])
+    from .run import NOT_LOGGED, EXIT_NOT_LOGGED, install_signal_handlers
+
+    install_signal_handlers()
+    try:
+        return _main(argv, started) or (EXIT_NOT_LOGGED if NOT_LOGGED else 0)
+    except KeyboardInterrupt as exc:  # Interrupted (a signal) or a Ctrl-C before the handlers were set
+        import signal
+
+        signum = getattr(exc, "signum", signal.SIGINT)
+        if not getattr(exc, "reported", False):
+            print(f"mosd: stopped by {signal.Signals(signum).name} before the run started; nothing was run",
+                  file=sys.stderr)
+        return 128 + signum
+
+
+def _main(argv: list[str], started: float) -> int:
     try:
         from .preflight import preflight
 

@@ -4,14 +4,30 @@
 job with Hydra's compose API and builds every component, so that a missing
 fault, a typo, an unknown option or an out-of-range value ends with one line on
 stderr and exit code 2 — no run directory, no MLflow run.
+
+Two more checks catch what used to fail only after the optimisation:
+
+* :func:`dry_run` — the pipeline on one replication per seed stream (shapes:
+  burn-in against the run's length, the wavelet level against the chart's
+  length, the fault onset against the duration), refused with the derived bound;
+* the outputs directory and the tracking store (:func:`mosd.app.tracking.check_tracking`):
+  writable, healthy, reachable within a few seconds.
 """
 from __future__ import annotations
 
+import json
+import math
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
-from .build import build
-from .config import CONFIG_DIR, CONFIG_NAME, UsageError, default_groups, groups, one_line, options
+import numpy as np
+
+from .build import Setup, build
+from .config import CONFIG_DIR, CONFIG_NAME, ConfigError, UsageError, default_groups, groups, one_line, options
+
+#: Sections that do not change the shapes a run goes through (a sweep over them shares one dry run).
+_SHAPELESS = ("hydra", "optimizer", "selection", "budget", "tracking", "progress", "outputs_root", "seed", "study")
 
 
 def _args_parser():
@@ -94,6 +110,120 @@ def _composition_message(exc: BaseException, compose_group_only: Callable[[], An
     return one_line(exc)
 
 
+def _run_length(setup: Setup) -> str:
+    """``scenario.duration=5.2 s at plant.dt=0.001 s`` — the derivation behind a bound."""
+    exp = setup.experiment
+    return f"scenario.duration={exp.duration:g} s at plant.dt={exp.plant.dt:g} s"
+
+
+def _check_burn_in(setup: Setup, n_points: int) -> None:
+    """The monitor's burn-in against the estimator's output length (``n_points`` per run)."""
+    monitor = setup.experiment.monitor
+    burn_in = getattr(monitor, "burn_in", None)
+    if burn_in is None:
+        return
+    # a window subgroup needs n samples after the burn-in, every other monitor one point
+    need = int(getattr(monitor, "n", 1)) if getattr(monitor, "subgroup", "") == "window" else 1
+    if burn_in > n_points - need:
+        raise ConfigError(f"monitor.burn_in={burn_in} leaves no {'subgroup' if need > 1 else 'point'} of a "
+                          f"{n_points}-point run ({_run_length(setup)}); "
+                          f"allowed: 0 <= monitor.burn_in <= {max(n_points - need, 0)}, or a longer run")
+
+
+def _check_denoiser(setup: Setup, n_chart_points: int) -> None:
+    """A whole-series wavelet's level against the chart's length (PyWavelets' ``dwt_max_level``)."""
+    denoiser = getattr(setup.experiment.detector, "denoiser", None)
+    min_length = getattr(denoiser, "min_length", None)
+    if not min_length or getattr(denoiser, "window", None) is not None or n_chart_points >= min_length:
+        return
+    level = int(denoiser.level)
+    filter_span = min_length // 2 ** level  # dec_len - 1
+    max_level = int(math.floor(math.log2(n_chart_points / filter_span))) if n_chart_points >= filter_span else 0
+    allowed = f"denoise.level <= {max_level}" if max_level >= 1 else "a longer run, or denoise=none"
+    monitor = setup.experiment.monitor
+    source = ", ".join(f"monitor.{k}={getattr(monitor, k)}" for k in ("burn_in", "n") if hasattr(monitor, k))
+    raise ConfigError(f"denoise.level={level} needs at least {min_length} chart points per run for "
+                      f"{denoiser.wavelet}; the run has {n_chart_points} ({_run_length(setup)}"
+                      f"{', ' + source if source else ''}); allowed: {allowed}")
+
+
+def _default_design(setup: Setup) -> np.ndarray:
+    """One design inside the search box: the detector's own values where they fit, else the box middle."""
+    detector = setup.experiment.detector
+    row = []
+    for name, interval in detector.tunable.items():
+        low, high = setup.bounds.get(name, (interval.low, interval.high))
+        value = getattr(detector, name, None)
+        value = float(value) if isinstance(value, (int, float)) and low <= float(value) <= high else 0.5 * (low + high)
+        row.append(float(round(value)) if interval.integer else value)
+    return np.array([row], float)
+
+
+def dry_run(setup: Setup) -> None:
+    """Run the pipeline's shapes once, on one replication per seed stream; raise ConfigError on a misfit.
+
+    Catches, before any work, the values that are valid one by one but not
+    together (a burn-in longer than the run, a wavelet level deeper than the
+    chart, a fault that never starts). Estimators that must be trained first
+    (a neural observer) are not simulated: their output length is taken as the
+    trace's.
+    """
+    from ..experiment import Budget, Experiment
+
+    exp = setup.experiment
+    if getattr(exp.estimator, "requires_fit", False):
+        _check_burn_in(setup, int(round(exp.duration / exp.plant.dt)))
+        return
+    mini = Experiment(exp.plant, exp.noise, exp.fault, exp.estimator, exp.monitor, exp.detector,
+                      duration=exp.duration, budget=Budget(1, 1, 1, 1), seed=exp.seed, objectives=exp.objectives)
+    calibration = mini.residuals(None, 1, "calibration")
+    _check_burn_in(setup, int(calibration.r.shape[1]))
+    mini.monitor.fit(calibration)
+    data = mini.prepare(calibration=calibration)
+    _check_denoiser(setup, int(data.train.z.shape[1]))
+    if not np.asarray(data.train.fault_mask).any():
+        raise ConfigError(f"the fault never acts within the run (fault.onset against {_run_length(setup)}); "
+                          f"allowed: 0 <= fault.onset < scenario.duration")
+    mini.evaluator(data)(_default_design(setup))
+    mini.evaluate(exp.detector, data, test=(data.train, data.train_residuals))
+
+
+def _shape_key(cfg) -> str:
+    from omegaconf import OmegaConf
+
+    # section by section: the hydra section has values (hydra.job.num) only inside a job
+    tree = {k: OmegaConf.to_container(v, resolve=True) if OmegaConf.is_config(v) else v
+            for k, v in cfg.items() if k not in _SHAPELESS}
+    return json.dumps(tree, sort_keys=True, default=str)
+
+
+def check_job(cfg, setup: Setup, done: dict, multirun: bool = False) -> None:
+    """Dry run, outputs directory and tracking store of one job (each distinct check once per command)."""
+    from omegaconf import OmegaConf
+
+    from .tracking import TrackingSettings, check_outputs, check_tracking
+
+    key = _shape_key(cfg)
+    if key not in done:
+        try:
+            dry_run(setup)
+        except ConfigError:
+            raise
+        except Exception as exc:  # a misfit the components did not name: still one line, before any work
+            raise ConfigError(f"the configuration fails on a one-replication dry run "
+                              f"({_run_length(setup)}): {type(exc).__name__}: {one_line(exc)}") from None
+        done[key] = True
+    job_dir = OmegaConf.select(cfg, "hydra.sweep.dir" if multirun else "hydra.run.dir", default=None)
+    places = (str(cfg.outputs_root), *((str(job_dir),) if job_dir else ()))
+    if ("outputs",) + places not in done:
+        check_outputs(*places)
+        done[("outputs",) + places] = True
+    settings = TrackingSettings.from_config(dict(cfg.tracking), str(cfg.outputs_root))
+    if settings is not None and ("tracking", settings) not in done:
+        check_tracking(settings)
+        done[("tracking", settings)] = True
+
+
 def preflight(argv: Sequence[str]) -> None:
     """Compose and build every job of a command line; raise UsageError/ConfigError on a mistake."""
     args = _args_parser().parse_args(list(argv))
@@ -115,6 +245,7 @@ def preflight(argv: Sequence[str]) -> None:
     config_name = args.config_name or CONFIG_NAME
     group_only = [o.input_line for o in parsed if o.key_or_group in set(groups()) and not o.is_sweep_override()]
     GlobalHydra.instance().clear()
+    done: dict = {}
     with initialize_config_dir(config_dir=str(config_dir), version_base="1.3", job_name="mosd"):
         for job in _jobs(parsed, args.multirun):
             try:
@@ -123,8 +254,9 @@ def preflight(argv: Sequence[str]) -> None:
                 raise UsageError(_composition_message(
                     exc, lambda: compose(config_name, overrides=[*extra, *group_only]))) from None
             try:
-                build(cfg)
+                setup = build(cfg)
             except OmegaConfBaseException as exc:
                 raise UsageError(one_line(exc)) from None
+            check_job(cfg, setup, done, multirun=bool(args.multirun))
 
 

@@ -1,15 +1,14 @@
-"""Optimisation progress: a one-line display on stderr and the per-generation history.
+"""Optimisation progress: a tqdm bar on a terminal and the per-generation history.
 
 :class:`Progress` is a pymoo ``Callback``. After every generation it records the
 archive's hypervolume in the (FAR, MDR) plane, the archive size and the best
 detection accuracy 1 − FAR − MDR (paper 000's criterion for the final choice), and
-redraws a single status line. :meth:`mosd.experiment.Experiment.run` copies
+advances a progress bar when stderr is a terminal (nothing in a log file). :meth:`mosd.experiment.Experiment.run` copies
 ``callback.records`` into ``ExperimentResult.history``; the app logs it to MLflow
 in one batch.
 """
 from __future__ import annotations
 
-import math
 import sys
 import time
 from typing import TextIO
@@ -44,18 +43,24 @@ def hypervolume_2d(F: np.ndarray, reference: tuple[float, float] = REFERENCE_POI
 
 
 class Progress(Callback):
-    """pymoo callback: per-generation records and a single updating status line.
+    """pymoo callback: per-generation records and a progress bar (tqdm) on a terminal.
 
     Parameters
     ----------
     n_gen : int, optional
-        Planned generations (for the "time left" estimate and the final newline).
+        Planned generations (the bar's total and its "time left").
     enabled : bool
         False records the history but writes nothing (``progress=false``).
     stream : file-like, optional
-        Where the line goes; default ``sys.stderr`` at the time of writing.
+        Where the bar goes; default ``sys.stderr``. Nothing is written unless the
+        stream is a terminal (a log file or a pipe gets no carriage-return updates).
     min_interval : float
-        Seconds between redraws (the last generation is always drawn).
+        Seconds between redraws.
+    position : int
+        Line of this bar among concurrent ones (a job's number under the joblib
+        launcher, so that two jobs do not overwrite each other).
+    description : str
+        Prefix of the bar (e.g. ``job 3``).
 
     Attributes
     ----------
@@ -65,7 +70,7 @@ class Progress(Callback):
     """
 
     def __init__(self, n_gen: int | None = None, enabled: bool = True, stream: TextIO | None = None,
-                 min_interval: float = 0.1):
+                 min_interval: float = 0.1, position: int = 0, description: str = ""):
         super().__init__()
         self.n_gen = None if n_gen is None else check_int("progress.n_gen", n_gen, 1)
         if not isinstance(enabled, bool):
@@ -73,11 +78,11 @@ class Progress(Callback):
         self.enabled = enabled
         self.stream = stream
         self.min_interval = float(min_interval)
+        self.position = check_int("progress.position", position, 0)
+        self.description = str(description)
         self.records: list[dict[str, float]] = []
         self._started: float | None = None
-        self._last_draw = -math.inf
-        self._line_open = False
-        self._width = 0
+        self._bar = None
 
     def notify(self, algorithm) -> None:
         now = time.perf_counter()
@@ -95,39 +100,28 @@ class Progress(Callback):
             "elapsed_s": now - self._started,
         }
         self.records.append(record)
-        last = self.n_gen is not None and record["generation"] >= self.n_gen
-        if self.enabled and (last or now - self._last_draw >= self.min_interval):
+        if self.enabled:
             self._draw(record)
-            self._last_draw = now
-        if last:
+        if self.n_gen is not None and record["generation"] >= self.n_gen:
             self.close()
 
     def close(self) -> None:
-        """End the status line (idempotent)."""
-        if self._line_open:
-            self._out().write("\n")
-            self._out().flush()
-            self._line_open = False
-
-    def _out(self) -> TextIO:
-        return self.stream if self.stream is not None else sys.stderr
+        """End the bar (idempotent)."""
+        if self._bar is not None:
+            self._bar.close()
+            self._bar = None
 
     def _draw(self, record: dict) -> None:
-        generation = record["generation"]
-        total = f"/{self.n_gen}" if self.n_gen else ""
-        if self.n_gen and generation > 1:
-            # the first generation carries the set-up (worker start), so rate from the rest
-            first = self.records[0]["elapsed_s"]
-            per_generation = (record["elapsed_s"] - first) / (generation - 1)
-            left = f"  left {max(self.n_gen - generation, 0) * per_generation:5.1f} s"
-        else:
-            left = ""
-        line = (f"gen {generation}{total}  evals {record['n_eval']}  archive {record['archive_size']}"
-                f"  HV {record['hypervolume']:.4f}  best acc {record['best_accuracy']:.4f}"
-                f"  elapsed {record['elapsed_s']:5.1f} s{left}")
-        # pad with blanks so a shorter line fully covers the previous one
-        out = self._out()
-        out.write("\r" + line.ljust(self._width))
-        out.flush()
-        self._width = len(line)
-        self._line_open = True
+        if self._bar is None:
+            from tqdm import tqdm
+
+            out = self.stream if self.stream is not None else sys.stderr
+            # disable=None: tqdm stays silent unless the stream is a terminal
+            self._bar = tqdm(total=self.n_gen, file=out, disable=None, position=self.position, leave=True,
+                             mininterval=self.min_interval, dynamic_ncols=True, unit="gen",
+                             desc=f"{self.description} gen".strip(),
+                             bar_format="{desc} {n_fmt}/{total_fmt} |{bar:12}| {elapsed}<{remaining} {postfix}")
+        self._bar.set_postfix_str(f"evals {record['n_eval']}  archive {record['archive_size']}  "
+                                  f"HV {record['hypervolume']:.4f}  best acc {record['best_accuracy']:.4f}",
+                                  refresh=False)
+        self._bar.update(record["generation"] - self._bar.n)

@@ -1,13 +1,29 @@
-"""One run (the Hydra task): build, run the experiment, write the run directory, log to MLflow."""
+"""One run (the Hydra task): build, run the experiment, write the run directory, log to MLflow.
+
+What a run leaves when it does not end normally:
+
+* a signal (SIGINT, SIGTERM, SIGHUP): :func:`install_signal_handlers` turns it into
+  :class:`Interrupted` at once, after killing the evaluation workers; the MLflow run
+  is marked KILLED, ``summary.json`` says ``"status": "killed"``, one line is
+  printed and the process exits with 128 + the signal number;
+* an error: the run is marked FAILED and ``summary.json`` says ``"status": "failed"``;
+* MLflow fails after the work: the summary is printed, the run directory is
+  complete, ``mlflow_pending.json`` holds what was to be logged, one line says how
+  to log it later (``python -m mosd log RUN_DIR``) and the exit code is
+  :data:`EXIT_NOT_LOGGED`.
+"""
 from __future__ import annotations
 
 import json
 import logging
+import os
+import signal
 import sys
+import threading
 import time
 import traceback
 from pathlib import Path
-from typing import Mapping
+from typing import Any, Mapping
 
 import numpy as np
 
@@ -15,6 +31,74 @@ from .build import Setup, build
 from .config import COMPONENTS, one_line
 
 log = logging.getLogger("mosd.app")
+
+#: Exit code of a run whose work finished but whose MLflow logging failed.
+EXIT_NOT_LOGGED = 3
+#: File in a run directory with the MLflow requests of a run that was not logged.
+PENDING_FILE = "mlflow_pending.json"
+#: Signals that stop a run (each gives exit code 128 + its number).
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+#: Seconds a stopped run waits for MLflow to mark it KILLED before leaving that to the tracking process.
+ABORT_WAIT_S = 3.0
+#: Run directories of this process whose MLflow logging failed (:func:`mosd.app.main` exits non-zero).
+NOT_LOGGED: list[Path] = []
+
+
+class Interrupted(KeyboardInterrupt):
+    """A stop signal, raised in the main thread by the handler of :func:`install_signal_handlers`."""
+
+    def __init__(self, signum: int):
+        super().__init__(signal.Signals(signum).name)
+        self.signum = int(signum)
+        #: set once a one-line message has been printed for it
+        self.reported = False
+
+
+def kill_workers() -> int:
+    """SIGKILL the evaluation pool's worker processes (loky), without taking any lock.
+
+    Called from a signal handler: the executor's own ``shutdown`` takes locks the
+    interrupted main thread may hold. The workers' pids are read from the pool;
+    loky's resource tracker exits by itself once its clients are gone.
+    """
+    module = sys.modules.get("joblib.externals.loky.reusable_executor")
+    executor = getattr(module, "_executor", None) if module is not None else None
+    killed = 0
+    for pid in list(getattr(executor, "_processes", {}) or {}):
+        try:
+            os.kill(pid, signal.SIGKILL)
+            killed += 1
+        except (ProcessLookupError, PermissionError):
+            pass
+    return killed
+
+
+def shutdown_workers() -> None:
+    """Shut the evaluation pool down and reap its workers (after :func:`kill_workers`)."""
+    module = sys.modules.get("joblib.externals.loky.reusable_executor")
+    executor = getattr(module, "_executor", None) if module is not None else None
+    if executor is not None:
+        try:
+            executor.shutdown(wait=True, kill_workers=True)
+        except Exception:  # a broken pool is what we expect here
+            pass
+
+
+def _on_signal(signum, frame):
+    # cleanup (marking the run KILLED, writing the status) must not be cut short by a second signal
+    for sig in STOP_SIGNALS:
+        signal.signal(sig, signal.SIG_IGN)
+    kill_workers()
+    raise Interrupted(signum)
+
+
+def install_signal_handlers() -> None:
+    """SIGINT/SIGTERM/SIGHUP raise :class:`Interrupted` in the main thread (no-op elsewhere)."""
+    if threading.current_thread() is not threading.main_thread():
+        return
+    for sig in STOP_SIGNALS:
+        if signal.getsignal(sig) is not signal.SIG_IGN or sig == signal.SIGINT:
+            signal.signal(sig, _on_signal)
 
 
 def write_run_files(run_dir: Path, cfg, result, setup: Setup, labels: Mapping[str, str],
@@ -55,6 +139,7 @@ def write_run_files(run_dir: Path, cfg, result, setup: Setup, labels: Mapping[st
     summary = result.summary()
     path = run_dir / "summary.json"
     path.write_text(json.dumps({
+        "status": "finished",
         "labels": dict(labels),
         "params": result.params,
         "online": bool(setup.experiment.detector.is_causal),
@@ -145,6 +230,30 @@ def _format_summary(labels, result, setup: Setup, metrics, timings, run_dir, tra
     return "\n".join(lines)
 
 
+def write_status(run_dir: Path, status: str, labels: Mapping[str, str], error: str | None = None,
+                 **extra: Any) -> Path:
+    """``summary.json`` of a run that did not finish (``killed``, ``failed``): never a silent stub."""
+    run_dir.mkdir(parents=True, exist_ok=True)
+    path = run_dir / "summary.json"
+    path.write_text(json.dumps({"status": status, "labels": dict(labels), **({"error": error} if error else {}),
+                                **extra}, indent=2, allow_nan=True))
+    return path
+
+
+def mark_not_logged(run_dir: Path, error: str, pending: Mapping[str, Any]) -> Path:
+    """Keep what was to be logged in ``mlflow_pending.json`` and say so in ``summary.json``."""
+    path = run_dir / PENDING_FILE
+    path.write_text(json.dumps(pending, indent=1, allow_nan=True))
+    summary_path = run_dir / "summary.json"
+    try:
+        summary = json.loads(summary_path.read_text())
+    except (OSError, ValueError):
+        summary = {"status": "finished"}
+    summary["tracking"] = {"logged": False, "error": error, "pending": PENDING_FILE}
+    summary_path.write_text(json.dumps(summary, indent=2, allow_nan=True))
+    return path
+
+
 def _under_joblib_launcher(hydra_cfg) -> bool:
     target = str(hydra_cfg.launcher.get("_target_", ""))
     return "joblib" in target.lower()
@@ -172,6 +281,15 @@ def _start_tracking(cfg, hc, labels: Mapping[str, str], n_jobs: int, run_dir: Pa
     return RunTracker(settings, name, tags, parent_run_id(hc.sweep.dir if multirun else None)).start()
 
 
+def _pending(tracker, params, metrics, files) -> dict:
+    """What :func:`mosd.app.tracking.log_pending` needs to log this run later."""
+    from dataclasses import asdict
+
+    return {"settings": asdict(tracker.settings), "run_name": tracker.run_name, "tags": tracker.tags,
+            "parent_run_id": tracker.parent_run_id, "params": params,
+            "metrics": [(k, float(v), int(step)) for k, v, step in metrics], "artifacts": [str(f) for f in files]}
+
+
 def run(cfg, started: float | None = None):
     """The Hydra task: one experiment, its files and its MLflow run.
 
@@ -187,8 +305,9 @@ def run(cfg, started: float | None = None):
     from omegaconf import OmegaConf
 
     from .progress import Progress
-    from .tracking import flatten
+    from .tracking import TrackingError, flatten
 
+    install_signal_handlers()
     task_start = time.perf_counter()
     hc = HydraConfig.get()
     multirun = hc.mode == RunMode.MULTIRUN
@@ -205,7 +324,9 @@ def run(cfg, started: float | None = None):
         n_jobs = 1
 
     tracker = _start_tracking(cfg, hc, labels, n_jobs, run_dir, tuple(setup.experiment.detector.tunable))
-    progress = Progress(setup.n_gen, enabled=cfg.progress)
+    position = int(hc.job.num) if multirun and _under_joblib_launcher(hc) else 0
+    progress = Progress(setup.n_gen, enabled=cfg.progress, position=position,
+                        description=f"job {hc.job.num}" if multirun else "")
     timings = {"startup_s": task_start - started}
     try:
         result = setup.experiment.run(setup.algorithm, setup.termination, n_jobs=n_jobs, bounds=setup.bounds,
@@ -223,34 +344,68 @@ def run(cfg, started: float | None = None):
         timings["files_s"] = time.perf_counter() - t0
         metrics = {**final_metrics(result, result.example["seconds_per_point"]),
                    **{k: float(v) for k, v in study_metrics.items()}}
-        tracking_line = ""
+        tracking_line, not_logged = "", None
         if tracker is not None:
             t0 = time.perf_counter()
             history = [(key, record[key], record["generation"]) for record in result.history
                        for key in ("hypervolume", "archive_size", "best_accuracy", "n_eval")
                        if np.isfinite(record[key])]
             finals = {**metrics, **timings, "wall_time_s": time.perf_counter() - started}
-            tracker.log(params=flatten(OmegaConf.to_container(cfg, resolve=True)),
-                        metrics=[*history, *((k, v, 0) for k, v in finals.items())], artifacts=files)
-            run_id = tracker.finish("FINISHED")
-            timings["mlflow_s"] = time.perf_counter() - t0
-            where = "in-process" if tracker.in_process else "side process, overlapping the run"
-            startup = ", ".join(f"{k.removeprefix('mlflow_').removesuffix('_s')} {v:.1f} s"
-                                for k, v in tracker.startup_timings.items())
-            tracking_line = (f"mlflow    run {run_id}  experiment {tracker.settings.experiment!r}"
-                             f"  store {tracker.settings.uri}\n          ({where}: {startup})")
+            params = flatten(OmegaConf.to_container(cfg, resolve=True))
+            logged = [*history, *((k, v, 0) for k, v in finals.items())]
+            tracker.log(params=params, metrics=logged, artifacts=files)
+            try:
+                run_id = tracker.finish("FINISHED")
+            except TrackingError as exc:
+                # the work is done and on disk: keep it, say how to log it later
+                not_logged = one_line(exc)
+                mark_not_logged(run_dir, not_logged, _pending(tracker, params, logged, files))
+                tracking_line = f"mlflow    NOT LOGGED ({tracker.settings.uri}): {not_logged}"
+            else:
+                timings["mlflow_s"] = time.perf_counter() - t0
+                where = "in-process" if tracker.in_process else "side process, overlapping the run"
+                startup = ", ".join(f"{k.removeprefix('mlflow_').removesuffix('_s')} {v:.1f} s"
+                                    for k, v in tracker.startup_timings.items())
+                tracking_line = (f"mlflow    run {run_id}  experiment {tracker.settings.experiment!r}"
+                                 f"  store {tracker.settings.uri}\n          ({where}: {startup})")
+                if tracker.note:
+                    tracking_line += f"\n          store: {tracker.note}"
         timings["wall_s"] = time.perf_counter() - started
         print(_format_summary(labels, result, setup, metrics, timings, run_dir, tracking_line, study_metrics),
               flush=True)
+        if not_logged is not None:
+            NOT_LOGGED.append(run_dir)
+            print(f"mosd: error: the run was not logged to MLflow ({not_logged}); its files are complete in "
+                  f"{run_dir}; log it later with: python -m mosd log {run_dir}", file=sys.stderr, flush=True)
         return result
     except BaseException as exc:
         progress.close()
+        killed = isinstance(exc, KeyboardInterrupt)
+        if killed:
+            shutdown_workers()
+        status = "KILLED" if killed else "FAILED"
+        error = f"{type(exc).__name__}: {one_line(exc)}" if not isinstance(exc, Interrupted) else \
+            f"stopped by {signal.Signals(exc.signum).name}"
+        run_id, marked = None, ""
         if tracker is not None and tracker.open:
-            status = "KILLED" if isinstance(exc, KeyboardInterrupt) else "FAILED"
             try:
-                tracker.abort(status, f"{type(exc).__name__}: {one_line(exc)}", traceback.format_exc())
+                # on a signal, do not wait for a side process still importing MLflow: it ends the run alone
+                run_id = tracker.abort(status, error, traceback.format_exc(), timeout=ABORT_WAIT_S if killed else None)
+                marked = f"MLflow run {run_id} marked {status}; " if run_id else \
+                    f"the MLflow run will be marked {status} by the tracking process; "
             except Exception as tracking_exc:
                 print(f"mosd: could not mark the MLflow run {status}: {one_line(tracking_exc)}", file=sys.stderr)
+        try:
+            write_status(run_dir, status.lower(), labels, error, mlflow_run_id=run_id,
+                         elapsed_s=time.perf_counter() - started)
+        except OSError:
+            pass
+        if killed:
+            signum = getattr(exc, "signum", signal.SIGINT)
+            print(f"mosd: stopped by {signal.Signals(signum).name} after {time.perf_counter() - started:.1f} s: "
+                  f"{marked}{run_dir} is incomplete (summary.json status 'killed')", file=sys.stderr, flush=True)
+            if isinstance(exc, Interrupted):
+                exc.reported = True
         raise
 
 

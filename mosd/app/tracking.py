@@ -13,17 +13,31 @@ Design, from measurements on this machine (docs/DECISIONS.md, "Facts"):
   ``log_batch`` (MLflow splits it into its own 1000-entry chunks).
 * The tracking URI is always explicit; the default is a sqlite file under the
   outputs root (an absolute path), artifacts next to it.
-* Two processes creating a fresh sqlite DB at once crash in alembic, so a sweep
-  creates the DB and the parent run in the launching process
-  (:class:`SweepCallback`) before any job starts; jobs find the parent run id in a
-  file in the sweep directory (or an environment variable) and attach as children.
+* Two processes creating a fresh sqlite DB at once crash in alembic (duplicate
+  columns, ``_alembic_tmp_*`` tables) and leave it broken, so every process
+  creates or opens a sqlite store under an exclusive lock on ``<db>.lock``
+  (:func:`store_lock`): the first creates and migrates it, the others find it
+  at the head revision. A store that a killed migration left half-built and
+  that holds no run is moved aside and recreated; one that holds runs is
+  refused with one line naming the file (:func:`sqlite_store_state`).
+* Preflight checks the store and the outputs directory before any work
+  (:func:`check_tracking`, a few seconds at most): an unreachable server or a
+  corrupt DB is one line and exit 2, not a failure after the optimisation.
+* A sweep creates the parent run in the launching process
+  (:class:`SweepCallback`) before any job starts; jobs find the parent run id in
+  a file in the sweep directory (or an environment variable) and attach as children.
 """
 from __future__ import annotations
 
 import atexit
+import contextlib
+import errno
+import fcntl
 import json
 import logging
 import os
+import socket
+import sqlite3
 import subprocess
 import sys
 import tempfile
@@ -51,8 +65,211 @@ _MAX_PARAM_LENGTH = 6000
 _MAX_TAG_LENGTH = 8000
 
 
+#: Seconds preflight waits for a tracking server or database to answer.
+CHECK_TIMEOUT_S = 3.0
+#: MLflow's HTTP retries for a run (its defaults, 7 retries with backoff 2, block ~250 s on a dead server).
+HTTP_ENV_DEFAULTS = {"MLFLOW_HTTP_REQUEST_MAX_RETRIES": "2", "MLFLOW_HTTP_REQUEST_BACKOFF_FACTOR": "1",
+                     "MLFLOW_HTTP_REQUEST_TIMEOUT": "30"}
+#: Default ports of the database back ends (checked with a TCP connection in preflight).
+DB_PORTS = {"postgresql": 5432, "mysql": 3306, "mssql": 1433}
+#: Seconds a process waits for another one creating or migrating the sqlite store.
+LOCK_TIMEOUT_S = 300.0
+#: Tables every MLflow tracking store has (MLflow creates them first, then migrates).
+_CORE_TABLES = ("experiments", "runs", "alembic_version")
+
+
 class TrackingError(RuntimeError):
     """MLflow refused a request (the message is MLflow's, on one line)."""
+
+
+# ------------------------------------------------------------------------------------
+# the store: lock, health, preflight checks (no MLflow import)
+# ------------------------------------------------------------------------------------
+def sqlite_path(uri: str) -> Path | None:
+    """The DB file of a ``sqlite:///`` URI (None for other schemes and in-memory DBs)."""
+    parsed = urlparse(uri)
+    if parsed.scheme != "sqlite" or parsed.path in ("", "/", "/:memory:"):
+        return None
+    return Path("/" + parsed.path.lstrip("/"))  # sqlite:////abs/path parses to //abs/path
+
+
+@contextlib.contextmanager
+def store_lock(uri: str, shared: bool = False, timeout: float = LOCK_TIMEOUT_S):
+    """Inter-process lock on ``<db>.lock`` for a sqlite store (a no-op for other stores).
+
+    ``flock`` locks die with their process, so a killed holder never leaves the
+    store locked. Yields True when the lock is held, False when ``timeout`` ran
+    out (the caller decides whether that matters).
+    """
+    path = sqlite_path(uri)
+    if path is None or (shared and not Path(f"{path}.lock").exists()):
+        # a reader writes nothing: without a lock file nobody has been creating the store
+        yield True
+        return
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd = os.open(f"{path}.lock", os.O_RDWR | os.O_CREAT, 0o666)
+    try:
+        deadline = time.monotonic() + timeout
+        held = False
+        while True:
+            try:
+                fcntl.flock(fd, (fcntl.LOCK_SH if shared else fcntl.LOCK_EX) | fcntl.LOCK_NB)
+                held = True
+                break
+            except BlockingIOError:
+                if time.monotonic() >= deadline:
+                    break
+                time.sleep(0.05)
+        yield held
+    finally:
+        os.close(fd)  # releases the lock
+
+
+@dataclass(frozen=True)
+class StoreState:
+    """What :func:`sqlite_store_state` found: ``missing``, ``empty``, ``ok``, ``incomplete`` or ``corrupt``."""
+
+    state: str
+    detail: str = ""
+    n_runs: int = 0
+
+
+def sqlite_store_state(path: str | os.PathLike) -> StoreState:
+    """Health of a sqlite MLflow store, read with the standard library only (fast, read-only).
+
+    ``incomplete``: some MLflow tables exist but the creation or a migration did
+    not finish (a killed process; ``_alembic_tmp_*`` tables, no version row).
+    """
+    path = Path(path)
+    if not path.exists():
+        return StoreState("missing")
+    if not path.is_file():
+        return StoreState("corrupt", "it is not a file")
+    if path.stat().st_size == 0:
+        return StoreState("empty")
+    try:
+        con = sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro", uri=True, timeout=CHECK_TIMEOUT_S)
+    except sqlite3.Error as exc:
+        return StoreState("corrupt", _one_line(exc))
+    try:
+        check = con.execute("PRAGMA quick_check").fetchone()
+        if not check or check[0] != "ok":
+            return StoreState("corrupt", f"sqlite integrity check: {check[0] if check else 'no answer'}")
+        tables = {row[0] for row in con.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
+        if not tables:
+            return StoreState("empty")
+        n_runs = con.execute("SELECT count(*) FROM runs").fetchone()[0] if "runs" in tables else 0
+        leftovers = sorted(t for t in tables if t.startswith("_alembic_tmp_"))
+        missing = [t for t in _CORE_TABLES if t not in tables]
+        if leftovers or missing:
+            what = f"left-over {leftovers[0]}" if leftovers else f"no table {missing[0]}"
+            return StoreState("incomplete", f"an interrupted creation or migration ({what})", n_runs)
+        if con.execute("SELECT count(*) FROM alembic_version").fetchone()[0] != 1:
+            return StoreState("incomplete", "an interrupted creation or migration (no schema version)", n_runs)
+        return StoreState("ok", n_runs=n_runs)
+    except sqlite3.Error as exc:
+        return StoreState("corrupt", _one_line(exc))
+    finally:
+        con.close()
+
+
+def _refusal(path: Path, state: StoreState) -> str:
+    return (f"tracking store {path} is damaged ({state.detail}); allowed: a healthy MLflow store: move the file "
+            f"aside (mosd then creates a new one), point tracking.uri elsewhere, or tracking=none")
+
+
+def _writable_dir_problem(path: Path) -> str | None:
+    """Why ``path`` cannot be (created as) a writable directory, or None; leaves nothing behind."""
+    path = path.expanduser().resolve()
+    probe = path
+    while not probe.exists():
+        probe = probe.parent
+    if not probe.is_dir():
+        return f"{probe} is not a directory"
+    try:  # a real write: os.access says yes to root on a read-only mount's mode bits
+        fd, name = tempfile.mkstemp(prefix=".mosd-write-check-", dir=probe)
+        os.close(fd)
+        os.unlink(name)
+    except OSError as exc:
+        return f"{probe} is not writable ({exc.strerror or exc})"
+    return None
+
+
+def check_outputs(outputs_root: str | os.PathLike, *dirs: str | os.PathLike) -> None:
+    """Raise ConfigError unless the outputs root (and the run/sweep directories) can be written."""
+    for key, where in (("outputs_root", outputs_root), *(("hydra run directory", d) for d in dirs)):
+        problem = _writable_dir_problem(Path(str(where)))
+        if problem:
+            raise ConfigError(f"{key}={where} cannot be written: {problem}; allowed: a writable directory")
+
+
+def check_tracking(settings: "TrackingSettings", timeout: float = CHECK_TIMEOUT_S) -> None:
+    """Raise ConfigError (one line) if the store cannot take a run; bounded by ``timeout`` per check.
+
+    sqlite: the DB file is read-only checked (a store a killed migration left
+    without runs passes: the run recreates it); its directory must be writable.
+    http(s): the server answers ``/health``. Databases: the port accepts a TCP
+    connection. A ``file:`` artifact root must be writable.
+    """
+    uri = settings.uri
+    parsed = urlparse(uri)
+    scheme = parsed.scheme.split("+")[0]
+    db = sqlite_path(uri)
+    if db is not None:
+        problem = _writable_dir_problem(db.parent)
+        if problem:
+            raise ConfigError(f"tracking.uri={uri} cannot be written: {problem}; allowed: a writable location")
+        if db.exists():
+            if db.is_file() and not os.access(db, os.W_OK):
+                raise ConfigError(f"tracking store {db} is read-only; allowed: a writable file, or tracking=none")
+            with store_lock(uri, shared=True, timeout=timeout) as held:
+                # not held: another process is creating the store right now; it will be checked under the lock
+                state = sqlite_store_state(db) if held else StoreState("ok")
+            if state.state == "corrupt" or (state.state == "incomplete" and state.n_runs):
+                raise ConfigError(_refusal(db, state))
+    elif scheme in ("http", "https"):
+        import urllib.error
+        import urllib.request
+
+        try:
+            with urllib.request.urlopen(f"{uri.rstrip('/')}/health", timeout=timeout):
+                pass
+        except urllib.error.HTTPError:
+            pass  # it answered: an auth or routing question for MLflow itself, not reachability
+        except (OSError, ValueError) as exc:
+            reason = getattr(exc, "reason", exc)
+            reason = _one_line(reason) if isinstance(reason, BaseException) else str(reason)
+            raise ConfigError(f"tracking.uri={uri} is not reachable ({reason}, checked for {timeout:g} s); "
+                              f"allowed: a running MLflow server "
+                              f"(mlflow server --host 127.0.0.1 ...), another tracking.uri, or tracking=none") from None
+    elif scheme in DB_PORTS:
+        host, port = parsed.hostname or "localhost", parsed.port or DB_PORTS[scheme]
+        try:
+            socket.create_connection((host, port), timeout=timeout).close()
+        except OSError as exc:
+            raise ConfigError(f"tracking.uri: the {scheme} server {host}:{port} is not reachable ({exc.strerror or exc}, "
+                              f"checked for {timeout:g} s); allowed: a running database, or tracking=none") from None
+    artifacts = urlparse(settings.artifact_root)
+    if artifacts.scheme == "file":
+        problem = _writable_dir_problem(Path(artifacts.path))
+        if problem:
+            raise ConfigError(f"tracking.artifact_root={settings.artifact_root} cannot be written: {problem}; "
+                              f"allowed: a writable directory")
+
+
+def _prepare_sqlite_store(path: Path) -> str | None:
+    """Under the store lock: move aside a store a killed creation left without runs; refuse a damaged one.
+
+    Returns a note for the user when a store was moved aside.
+    """
+    state = sqlite_store_state(path)
+    if state.state in ("missing", "empty", "ok"):
+        return None
+    if state.state == "incomplete" and not state.n_runs:
+        aside = path.with_name(f"{path.name}.incomplete-{time.strftime('%Y%m%d-%H%M%S')}-{os.getpid()}")
+        path.rename(aside)
+        return f"moved an unfinished store aside ({state.detail}) to {aside} and created a new one"
+    raise TrackingError(_refusal(path, state))
 
 
 def default_outputs_root() -> Path:
@@ -135,18 +352,34 @@ class MlflowStore:
     """
 
     def __init__(self, settings: TrackingSettings):
+        for key, value in HTTP_ENV_DEFAULTS.items():
+            os.environ.setdefault(key, value)
         from mlflow.tracking import MlflowClient
 
         # alembic prints its migration steps at INFO when a fresh sqlite DB is created
         logging.getLogger("alembic").setLevel(logging.WARNING)
         self.settings = settings
-        parsed = urlparse(settings.uri)
-        if parsed.scheme == "sqlite" and parsed.path not in ("", "/", "/:memory:"):
-            Path(parsed.path).parent.mkdir(parents=True, exist_ok=True)
-        self.client = MlflowClient(tracking_uri=settings.uri)
+        #: what happened to the store on the way in (e.g. an unfinished one moved aside), or None
+        self.note: str | None = None
+        self._experiment_id: str | None = None
+        db = sqlite_path(settings.uri)
+        if db is None:
+            self.client = MlflowClient(tracking_uri=settings.uri)
+            return
+        # create/migrate exactly once across processes (the client opens the store when it is
+        # constructed), and the experiment with it
+        with store_lock(settings.uri) as held:
+            if not held:
+                raise TrackingError(f"the tracking store {db} stayed locked for {LOCK_TIMEOUT_S:g} s "
+                                    f"(another process creating it?)")
+            self.note = _prepare_sqlite_store(db)
+            self.client = MlflowClient(tracking_uri=settings.uri)
+            self._experiment_id = self.experiment_id()
 
     def experiment_id(self) -> str:
         """Id of the settings' experiment, created (with its artifact location) if new."""
+        if self._experiment_id is not None:
+            return self._experiment_id
         name = self.settings.experiment
         found = self.client.get_experiment_by_name(name)
         if found is not None:
@@ -210,7 +443,7 @@ class _Handler:
             t1 = time.perf_counter()
             self.run_id = self.store.create_run(request["run_name"], request["tags"], request.get("parent_run_id"))
             self.timings = {"mlflow_import_s": t1 - t0, "mlflow_create_run_s": time.perf_counter() - t1}
-            return {"run_id": self.run_id, "timings": self.timings}
+            return {"run_id": self.run_id, "timings": self.timings, "note": self.store.note}
         if self.store is None or self.run_id is None:
             raise TrackingError("the MLflow run was not created")
         if op == "log":
@@ -236,8 +469,10 @@ def _serve() -> None:
     """Side-process main loop: JSON requests on stdin, one JSON reply per line on stdout."""
     import signal
 
-    # Ctrl-C reaches the whole process group; the app decides how the run ends
+    # the app decides how the run ends (KILLED on a signal) and closes stdin; a signal
+    # meant for the app must not end this process first and leave the run RUNNING
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
     replies = os.fdopen(os.dup(1), "w", buffering=1)
     os.dup2(2, 1)  # anything MLflow prints must not corrupt the reply channel
     handler = _Handler()
@@ -249,9 +484,13 @@ def _serve() -> None:
             reply = {"ok": True, **handler(request)}
         except Exception as exc:  # reported to the app, which decides
             reply = {"ok": False, "error": _one_line(exc)}
-        replies.write(json.dumps(reply) + "\n")
+        try:
+            replies.write(json.dumps(reply) + "\n")
+            if request.get("op") == "end":
+                replies.flush()
+        except OSError:
+            pass  # the app stopped waiting (a signal): finish its requests all the same
         if request.get("op") == "end":
-            replies.flush()
             # every call above has committed; skip the interpreter teardown with MLflow
             # loaded (~1 s), which the app would otherwise wait for
             os._exit(0)
@@ -270,6 +509,8 @@ class _SideProcess:
             [sys.executable, "-c", "import sys; sys.path.insert(0, sys.argv[1]); "
              "from mosd.app.tracking import _serve; _serve()", package_parent],
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self._stderr, text=True, bufsize=1,
+            # its own session: Ctrl-C or SIGTERM to the app's process group does not reach it
+            start_new_session=True, env={**HTTP_ENV_DEFAULTS, **os.environ},
         )
         self._pending = 0
 
@@ -281,10 +522,17 @@ class _SideProcess:
             raise TrackingError(f"the tracking process ended: {self._stderr_tail()}") from None
         self._pending += 1
 
-    def replies(self) -> list[dict]:
-        """Wait for the replies to every request sent so far."""
+    def replies(self, timeout: float | None = None) -> list[dict]:
+        """Wait for the replies to every request sent so far (at most ``timeout`` s, else TimeoutError)."""
+        import select
+
+        deadline = None if timeout is None else time.monotonic() + timeout
         out = []
         while self._pending:
+            if deadline is not None:
+                ready, _, _ = select.select([self._proc.stdout], [], [], max(deadline - time.monotonic(), 0.0))
+                if not ready:
+                    raise TimeoutError(f"no answer from the tracking process within {timeout:g} s")
             line = self._proc.stdout.readline()
             if not line:
                 raise TrackingError(f"the tracking process ended: {self._stderr_tail()}")
@@ -292,9 +540,16 @@ class _SideProcess:
             self._pending -= 1
         return out
 
-    def close(self) -> None:
+    def close(self, wait: bool = True) -> None:
+        """Close the request channel; ``wait=False`` leaves the process to finish its requests alone."""
         if self._proc.stdin and not self._proc.stdin.closed:
-            self._proc.stdin.close()
+            try:
+                self._proc.stdin.close()
+            except OSError:
+                pass
+        if not wait:
+            self._proc.returncode = 0  # detached on purpose: no "still running" warning at exit
+            return
         try:
             self._proc.wait(timeout=60)
         except subprocess.TimeoutExpired:
@@ -320,11 +575,11 @@ class _InProcess:
         except Exception as exc:
             self._replies.append({"ok": False, "error": _one_line(exc)})
 
-    def replies(self) -> list[dict]:
+    def replies(self, timeout: float | None = None) -> list[dict]:
         out, self._replies = self._replies, []
         return out
 
-    def close(self) -> None:
+    def close(self, wait: bool = True) -> None:
         pass
 
 
@@ -353,6 +608,8 @@ class RunTracker:
         self.run_id: str | None = None
         #: MLflow import and run-creation seconds, measured where MLflow ran (after finish)
         self.startup_timings: dict[str, float] = {}
+        #: what happened to the store on the way in (an unfinished store moved aside), after finish
+        self.note: str | None = None
         self._channel = None
         self._queued: list[dict] = []
 
@@ -371,11 +628,13 @@ class RunTracker:
                              "tags": {k: str(v) for k, v in (tags or {}).items()},
                              "artifacts": [str(Path(a).resolve()) for a in artifacts]})
 
-    def finish(self, status: str = "FINISHED", error: str | None = None) -> str:
+    def finish(self, status: str = "FINISHED", error: str | None = None, timeout: float | None = None) -> str | None:
         """Send the queued batches, end the run with ``status`` and return its id.
 
         Raises :class:`TrackingError` with MLflow's message if any request failed
-        (the run is still ended when it exists).
+        (the run is still ended when it exists). With ``timeout``, a side process
+        that has not answered by then (still importing MLflow) is left to carry
+        out the requests alone, and None is returned.
         """
         if self._channel is None:
             raise TrackingError("RunTracker.finish called before start")
@@ -383,14 +642,19 @@ class RunTracker:
             self._channel.send(request)
         self._queued = []
         self._channel.send({"op": "end", "status": status, "error": error})
+        detached = False
         try:
-            replies = self._channel.replies()
+            replies = self._channel.replies(timeout)
+        except TimeoutError:
+            detached = True
+            return None
         finally:
-            self._channel.close()
+            self._channel.close(wait=not detached)
             self._channel = None
         if replies and replies[0].get("ok"):
             self.run_id = replies[0]["run_id"]
             self.startup_timings = replies[0].get("timings", {})
+            self.note = replies[0].get("note")
         failed = [r["error"] for r in replies if not r.get("ok")]
         if failed:
             raise TrackingError(failed[0])
@@ -402,12 +666,82 @@ class RunTracker:
         """True between :meth:`start` and :meth:`finish`."""
         return self._channel is not None
 
-    def abort(self, status: str, error: str, details: str | None = None) -> str:
-        """End the run as FAILED/KILLED with the error text; queued batches are dropped."""
+    def abort(self, status: str, error: str, details: str | None = None, timeout: float | None = None) -> str | None:
+        """End the run as FAILED/KILLED with the error text; queued batches are dropped.
+
+        ``timeout``: see :meth:`finish` (None returned: the side process ends the run by itself).
+        """
         self._queued = []
         if details:
             self.log(tags={"error.traceback": details[-(_MAX_TAG_LENGTH - 100):]})
-        return self.finish(status, error=error)
+        return self.finish(status, error=error, timeout=timeout)
+
+
+def log_pending(run_dir: str | os.PathLike, uri: str | None = None) -> str:
+    """Log a run directory's ``mlflow_pending.json`` (a run whose logging failed) as a new run.
+
+    Returns the new run id; the pending file is renamed ``*.logged`` and
+    ``summary.json`` records the id.
+    """
+    from .run import PENDING_FILE
+
+    run_dir = Path(run_dir)
+    path = run_dir / PENDING_FILE
+    if not path.is_file():
+        raise ConfigError(f"{run_dir} has no {PENDING_FILE}; allowed: a run directory whose run was not logged")
+    pending = json.loads(path.read_text())
+    settings = TrackingSettings(**{**pending["settings"], **({"uri": uri} if uri else {})})
+    check_tracking(settings)
+    store = MlflowStore(settings)
+    parent = pending.get("parent_run_id")
+    try:
+        if parent:
+            store.client.get_run(parent)
+    except Exception:  # the sweep's parent is in another store, or gone
+        parent = None
+    run_id = store.create_run(pending["run_name"], {**pending["tags"], "mosd.logged_later": "true"}, parent)
+    try:
+        store.log(run_id, pending["params"], [tuple(m) for m in pending["metrics"]],
+                  artifacts=[a for a in pending["artifacts"] if Path(a).exists()])
+    except BaseException:
+        store.end(run_id, "FAILED", "mosd log: logging the run directory failed")
+        raise
+    store.end(run_id, "FINISHED")
+    path.rename(path.with_name(path.name + ".logged"))
+    summary_path = run_dir / "summary.json"
+    try:
+        summary = json.loads(summary_path.read_text())
+        summary["tracking"] = {"logged": True, "run_id": run_id, "uri": settings.uri}
+        summary_path.write_text(json.dumps(summary, indent=2, allow_nan=True))
+    except (OSError, ValueError):
+        pass
+    return run_id
+
+
+def log_main(argv) -> int:
+    """``mosd log RUN_DIR [--tracking-uri URI]``: log runs that MLflow did not take at the time."""
+    import argparse
+
+    parser = argparse.ArgumentParser(prog="mosd log", description="Log run directories whose MLflow logging failed.")
+    parser.add_argument("run_dirs", nargs="+", metavar="RUN_DIR")
+    parser.add_argument("--tracking-uri", default=None, help="another store than the one the run was meant for")
+
+    def error(message: str):
+        raise ConfigError(message)
+
+    parser.error = error
+    try:
+        args = parser.parse_args(list(argv))
+        for run_dir in args.run_dirs:
+            run_id = log_pending(run_dir, args.tracking_uri)
+            print(f"mosd log: {run_dir} -> MLflow run {run_id}")
+    except (ConfigError, TrackingError) as exc:
+        print(f"mosd log: error: {_one_line(exc) if isinstance(exc, TrackingError) else exc}", file=sys.stderr)
+        return 2
+    except Exception as exc:  # MLflow's own errors: one line, the pending file is kept
+        print(f"mosd log: error: {_one_line(exc)}", file=sys.stderr)
+        return 1
+    return 0
 
 
 def parent_run_id(sweep_dir: str | os.PathLike | None) -> str | None:

@@ -1,0 +1,409 @@
+"""Nothing a user runs is lost (issue 8): store creation under a lock, preflight checks of the store and
+the outputs directory, values valid alone but not together, signals, late tracking failures.
+
+Fast tests call the app's functions in-process or run ``python -m mosd`` only up to preflight; the
+multi-process ones (concurrent first runs, signals, a real ``mlflow server``) are marked slow. Every
+subprocess runs in a tmp directory; servers bind 127.0.0.1 only.
+"""
+from __future__ import annotations
+
+import json
+import os
+import re
+import signal
+import socket
+import sqlite3
+import subprocess
+import sys
+import threading
+import time
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mosd.app import preflight as preflight_module
+from mosd.app import tracking
+from mosd.app.config import UsageError
+from mosd.validation import ConfigError
+
+from test_app import FINAL_METRICS, mosd
+
+SMALL = ["optimizer.pop_size=10", "optimizer.n_gen=3", "budget.n_test=3", "budget.n_train=3",
+         "budget.n_calibration=3", "optimizer.n_jobs=1", "progress=false"]
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def one_line_exit_2(result) -> str:
+    assert result.returncode == 2, result.stderr[-3000:]
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in result.stderr, result.stderr[-3000:]
+    return lines[0]
+
+
+def make_store(path: Path, *, tables=("experiments", "runs", "alembic_version"), version=True, n_runs=0,
+               leftover=False) -> Path:
+    """A sqlite file shaped like an MLflow store (or a damaged one) without importing MLflow."""
+    con = sqlite3.connect(path)
+    for table in tables:
+        con.execute(f"CREATE TABLE {table} (id TEXT)")
+    if version and "alembic_version" in tables:
+        con.execute("INSERT INTO alembic_version VALUES ('head')")
+    for i in range(n_runs):
+        con.execute("INSERT INTO runs VALUES (?)", (str(i),))
+    if leftover:
+        con.execute("CREATE TABLE _alembic_tmp_runs (id TEXT)")
+    con.commit()
+    con.close()
+    return path
+
+
+# ---------------------------------------------------------------------------------------
+# 1. the store: health, recovery of a killed creation, the lock
+# ---------------------------------------------------------------------------------------
+def test_store_state_tells_healthy_incomplete_and_corrupt_apart(tmp_path):
+    assert tracking.sqlite_store_state(tmp_path / "none.db").state == "missing"
+    (tmp_path / "empty.db").touch()
+    assert tracking.sqlite_store_state(tmp_path / "empty.db").state == "empty"
+    assert tracking.sqlite_store_state(make_store(tmp_path / "ok.db", n_runs=2)) == tracking.StoreState("ok", "", 2)
+    half = tracking.sqlite_store_state(make_store(tmp_path / "half.db", leftover=True))
+    assert half.state == "incomplete" and "_alembic_tmp_runs" in half.detail and half.n_runs == 0
+    no_version = tracking.sqlite_store_state(make_store(tmp_path / "nv.db", version=False, n_runs=1))
+    assert no_version.state == "incomplete" and no_version.n_runs == 1
+    (tmp_path / "junk.db").write_bytes(np.random.default_rng(0).bytes(8192))
+    assert tracking.sqlite_store_state(tmp_path / "junk.db").state == "corrupt"
+
+
+def test_a_killed_creation_is_moved_aside_and_a_damaged_store_with_runs_refused(tmp_path):
+    half = make_store(tmp_path / "mlflow.db", tables=("experiments",), leftover=True)
+    note = tracking._prepare_sqlite_store(half)
+    assert "moved an unfinished store aside" in note and not half.exists()
+    assert len(list(tmp_path.glob("mlflow.db.incomplete-*"))) == 1
+    damaged = make_store(tmp_path / "mlflow.db", leftover=True, n_runs=3)
+    with pytest.raises(tracking.TrackingError, match=r"mlflow\.db is damaged .*_alembic_tmp_runs.*move the file aside"):
+        tracking._prepare_sqlite_store(damaged)
+    assert damaged.exists()  # runs are never moved or deleted
+
+
+def test_store_lock_excludes_other_processes(tmp_path):
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    holder = subprocess.Popen([sys.executable, "-c", (
+        "import sys, time; from mosd.app.tracking import store_lock\n"
+        "with store_lock(sys.argv[1]) as held:\n    print(held, flush=True); time.sleep(3)"), uri],
+        stdout=subprocess.PIPE, text=True, env={**os.environ, "PYTHONPATH": str(Path(tracking.__file__).parents[2])})
+    try:
+        assert holder.stdout.readline().strip() == "True"
+        t0 = time.monotonic()
+        with tracking.store_lock(uri, timeout=0.3) as held:
+            assert not held and time.monotonic() - t0 < 2
+        with tracking.store_lock(uri, timeout=10) as held:  # released when the holder ends
+            assert held
+    finally:
+        holder.kill()
+        holder.wait()
+
+
+def test_mlflow_store_recovers_a_store_a_killed_migration_left(tmp_path):
+    pytest.importorskip("mlflow")
+    db = make_store(tmp_path / "mlflow.db", tables=("experiments", "metrics"), leftover=True)
+    settings = tracking.TrackingSettings(f"sqlite:///{db}", (tmp_path / "art").as_uri(), "mosd")
+    store = tracking.MlflowStore(settings)
+    assert store.note and "moved an unfinished store aside" in store.note
+    run_id = store.create_run("r", {"mosd.role": "job"})
+    store.end(run_id)
+    assert tracking.sqlite_store_state(db).state == "ok"
+    assert store.client.get_run(run_id).info.status == "FINISHED"
+
+
+# ---------------------------------------------------------------------------------------
+# 2. preflight: store and outputs checked before any work (one line, exit 2, nothing written)
+# ---------------------------------------------------------------------------------------
+def test_unreachable_tracking_server_fails_in_preflight_within_seconds(tmp_path):
+    port = free_port()  # nothing listens there
+    t0 = time.monotonic()
+    result = mosd(["+fault=offset_var", f"tracking.uri=http://127.0.0.1:{port}", *SMALL], cwd=tmp_path, timeout=60)
+    elapsed = time.monotonic() - t0
+    line = one_line_exit_2(result)
+    assert f"tracking.uri=http://127.0.0.1:{port} is not reachable" in line and "tracking=none" in line
+    assert elapsed < 15, elapsed
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_corrupt_store_fails_in_preflight_naming_the_file(tmp_path):
+    outputs = tmp_path / "outputs"
+    outputs.mkdir()
+    junk = np.random.default_rng(1).bytes(20000)
+    (outputs / "mlflow.db").write_bytes(junk)
+    line = one_line_exit_2(mosd(["+fault=offset_var", *SMALL], cwd=tmp_path, timeout=120))
+    assert f"tracking store {outputs / 'mlflow.db'} is damaged" in line
+    assert sorted(p.name for p in outputs.iterdir()) == ["mlflow.db"]  # no run directory, no lock file
+    assert (outputs / "mlflow.db").read_bytes() == junk
+
+
+def test_unwritable_outputs_root_fails_in_preflight(tmp_path):
+    (tmp_path / "a_file").write_text("x")
+    line = one_line_exit_2(mosd(["+fault=offset_var", f"outputs_root={tmp_path / 'a_file' / 'out'}", *SMALL],
+                                cwd=tmp_path, timeout=120))
+    assert re.search(r"outputs_root=.*a_file/out cannot be written: .*a_file is not a directory", line), line
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a_file"]
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root writes into a read-only directory")
+def test_read_only_outputs_root_fails_in_preflight(tmp_path):
+    ro = tmp_path / "ro"
+    ro.mkdir(mode=0o555)
+    with pytest.raises(ConfigError, match="cannot be written"):
+        tracking.check_outputs(ro / "outputs")
+
+
+# ---------------------------------------------------------------------------------------
+# 4. values valid one by one but not together: refused in preflight with the derived bound
+# ---------------------------------------------------------------------------------------
+@pytest.mark.parametrize("overrides,pattern", [
+    (["plant.dt=0.1"], r"monitor\.burn_in=200 leaves no subgroup of a 52-point run \(scenario\.duration=5\.2 s at "
+                       r"plant\.dt=0\.1 s\); allowed: 0 <= monitor\.burn_in <= 47"),
+    (["monitor.burn_in=6000"], r"monitor\.burn_in=6000 leaves no subgroup of a 5200-point run .*<= 5195"),
+    (["denoise=wavelet", "denoise.level=12"], r"denoise\.level=12 needs at least 20480 chart points per run for db3; "
+                                              r"the run has 1000 .*allowed: denoise\.level <= 7"),
+    (["fault.onset=10"], r"fault\.onset=10 is past the end of the run \(scenario\.duration=5\.2\)"),
+    (["fault.onset=5.1999"], r"the fault never acts within the run .*allowed: 0 <= fault\.onset < scenario\.duration"),
+])
+def test_values_that_do_not_fit_together_are_refused_with_the_bound(overrides, pattern):
+    with pytest.raises((ConfigError, UsageError)) as info:
+        preflight_module.preflight(["+fault=offset_var", "tracking=none", *overrides])
+    message = str(info.value)
+    assert "\n" not in message and re.search(pattern, message), message
+
+
+@pytest.mark.parametrize("overrides", [["fault.onset=0"], ["monitor.burn_in=5195"], ["denoise=wavelet"]])
+def test_values_at_the_bound_pass_the_dry_run(overrides):
+    preflight_module.preflight(["+fault=offset_var", "tracking=none", *overrides])
+
+
+def test_a_sweep_checks_each_distinct_shape_once(monkeypatch):
+    calls = []
+    real = preflight_module.dry_run
+    monkeypatch.setattr(preflight_module, "dry_run", lambda setup: calls.append(setup) or real(setup))
+    preflight_module.preflight(["-m", "+fault=offset", "optimizer=mopso,nsga2", "seed=1,2", "tracking=none"])
+    assert len(calls) == 1  # optimiser and seed do not change the shapes
+    with pytest.raises(ConfigError, match="monitor.burn_in=6000"):
+        preflight_module.preflight(["-m", "+fault=offset", "monitor.burn_in=10,6000", "tracking=none"])
+
+
+# ---------------------------------------------------------------------------------------
+# 5. every documented command works after the documented install
+# ---------------------------------------------------------------------------------------
+def test_runtime_dependencies_cover_the_documented_commands():
+    tomllib = pytest.importorskip("tomllib")
+    root = Path(__file__).resolve().parents[1]
+    deps = tomllib.loads((root / "pyproject.toml").read_text())["project"]["dependencies"]
+    names = {re.split(r"[<>=!~ \[;]", d, maxsplit=1)[0].lower() for d in deps}
+    readme = (root / "README.md").read_text()
+    # the README's own install is `pip install .`: what its commands use must be a runtime dependency
+    assert "pip install . &&" in readme and "hydra/launcher=joblib" in readme and "mlflow server" in readme
+    assert {"hydra-joblib-launcher", "mlflow", "tqdm"} <= names  # tqdm: mosd.app.progress
+
+
+def test_every_documented_mosd_command_passes_the_cheap_checks():
+    """Each ``python -m mosd ...`` line of the README parses and names existing options."""
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    root = Path(__file__).resolve().parents[1]
+    commands = re.findall(r"^(?:\$ )?python -m mosd (?!report|log|\.)([^#\n]*)", (root / "README.md").read_text(), re.M)
+    assert len(commands) >= 8
+    for line in commands:
+        args = [a for a in line.split() if a not in ("-m", "--multirun")]
+        if not any(a.startswith(("+fault", "+experiment", "fault=")) for a in args):
+            continue  # the README's deliberate mistakes
+        parsed = OverridesParser.create().parse_overrides(args)
+        preflight_module.check_group_overrides(parsed)
+
+
+# ---------------------------------------------------------------------------------------
+# 2 (late): MLflow fails after the work -> summary, complete run directory, one line, exit 3
+# ---------------------------------------------------------------------------------------
+class _HealthyButBroken(BaseHTTPRequestHandler):
+    """Answers /health like an MLflow server and fails every API call (a store that breaks late)."""
+
+    def _reply(self):
+        ok = self.path.startswith("/health")
+        self.send_response(200 if ok else 503)
+        self.end_headers()
+        self.wfile.write(b"OK" if ok else b"down")
+
+    do_GET = do_POST = _reply
+
+    def log_message(self, *args):
+        pass
+
+
+@pytest.mark.slow
+def test_a_late_tracking_failure_keeps_the_result_and_logs_later(tmp_path):
+    server = ThreadingHTTPServer(("127.0.0.1", 0), _HealthyButBroken)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    try:
+        uri = f"http://127.0.0.1:{server.server_address[1]}"
+        result = mosd(["+fault=offset_var", f"tracking.uri={uri}", *SMALL], cwd=tmp_path, timeout=300)
+    finally:
+        server.shutdown()
+    assert result.returncode == 3, result.stderr[-3000:]
+    assert "Traceback" not in result.stderr
+    errors = [ln for ln in result.stderr.splitlines() if ln.startswith("mosd:")]
+    assert len(errors) == 1 and "the run was not logged to MLflow" in errors[0] and "python -m mosd log" in errors[0]
+    assert "FAR" in result.stdout and "NOT LOGGED" in result.stdout  # the summary is printed all the same
+    run_dir = next((tmp_path / "outputs" / "runs").iterdir())
+    for name in ("summary.json", "pareto.csv", "chart.png", "mlflow_pending.json"):
+        assert (run_dir / name).is_file(), name
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert summary["status"] == "finished" and summary["tracking"]["logged"] is False
+    # ... and `mosd log` puts it into a store later
+    store = f"sqlite:///{tmp_path / 'later.db'}"
+    logged = mosd(["log", str(run_dir), "--tracking-uri", store], cwd=tmp_path, timeout=300)
+    assert logged.returncode == 0, logged.stderr[-3000:]
+    from mlflow.tracking import MlflowClient
+
+    client = MlflowClient(tracking_uri=store)
+    runs = client.search_runs([client.get_experiment_by_name("mosd").experiment_id])
+    assert len(runs) == 1 and runs[0].info.status == "FINISHED" and FINAL_METRICS <= set(runs[0].data.metrics)
+    assert {"pareto.csv", "chart.png"} <= {a.path for a in client.list_artifacts(runs[0].info.run_id)}
+    assert json.loads((run_dir / "summary.json").read_text())["tracking"]["logged"] is True
+
+
+# ---------------------------------------------------------------------------------------
+# 1 (end to end): six concurrent first runs on a fresh outputs directory
+# ---------------------------------------------------------------------------------------
+def _env(outputs: Path | None = None) -> dict:
+    from test_app import PACKAGE_PARENT
+
+    env = {k: v for k, v in os.environ.items() if not k.startswith("MOSD_") and k != "HYDRA_FULL_ERROR"}
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (PACKAGE_PARENT, env.get("PYTHONPATH")) if p)
+    if outputs is not None:
+        env["MOSD_OUTPUTS"] = str(outputs)
+    return env
+
+
+def _runs(uri: str):
+    from mlflow.tracking import MlflowClient
+
+    client = MlflowClient(tracking_uri=uri)
+    experiment = client.get_experiment_by_name("mosd")
+    return client, ([] if experiment is None else client.search_runs([experiment.experiment_id], max_results=1000))
+
+
+@pytest.mark.slow
+def test_six_concurrent_first_runs_give_six_finished_runs_and_a_healthy_store(tmp_path):
+    budget = ["optimizer.pop_size=6", "optimizer.n_gen=2", "budget.n_test=2", "budget.n_train=2",
+              "budget.n_calibration=2", "optimizer.n_jobs=1", "progress=false", "scenario.duration=3"]
+    procs = [subprocess.Popen([sys.executable, "-m", "mosd", "+fault=offset_var", f"seed={i}", *budget], cwd=tmp_path,
+                              env=_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+             for i in range(6)]
+    outs = [p.communicate(timeout=600) for p in procs]
+    assert [p.returncode for p in procs] == [0] * 6, [o[1][-1500:] for o in outs]
+    db = tmp_path / "outputs" / "mlflow.db"
+    assert tracking.sqlite_store_state(db).state == "ok"
+    client, runs = _runs(f"sqlite:///{db}")
+    assert len(runs) == 6 and {r.info.status for r in runs} == {"FINISHED"}
+    assert all(FINAL_METRICS <= set(r.data.metrics) for r in runs)
+    assert mosd(["report"], cwd=tmp_path).returncode == 0
+
+
+# ---------------------------------------------------------------------------------------
+# 3. signals
+# ---------------------------------------------------------------------------------------
+def _descendants(pid: int) -> set[int]:
+    found, todo = set(), [pid]
+    while todo:
+        p = todo.pop()
+        for task in Path(f"/proc/{p}/task").glob("*"):
+            try:
+                children = (task / "children").read_text().split()
+            except OSError:
+                continue
+            for c in map(int, children):
+                if c not in found:
+                    found.add(c)
+                    todo.append(c)
+    return found
+
+
+def _alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state not in ("Z", "X")  # a zombie has ended; only its parent's wait is missing
+
+
+def _start_long_run(tmp_path: Path, *extra: str) -> subprocess.Popen:
+    args = ["+fault=offset_var", "optimizer.pop_size=10", "optimizer.n_gen=400", "budget.n_test=3",
+            "budget.n_train=3", "budget.n_calibration=3", "optimizer.n_jobs=2", "progress=false", *extra]
+    return subprocess.Popen([sys.executable, "-m", "mosd", *args], cwd=tmp_path, env=_env(), text=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
+
+
+def _wait_until_optimising(proc: subprocess.Popen, db: Path, timeout: float = 240) -> None:
+    """Until the MLflow run exists (RUNNING) and the evaluation workers are up."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        assert proc.poll() is None, proc.communicate()[1][-3000:]
+        if db.exists() and tracking.sqlite_store_state(db).state == "ok":
+            con = sqlite3.connect(db)
+            try:
+                running = con.execute("SELECT count(*) FROM runs WHERE status = 'RUNNING'").fetchone()[0]
+            except sqlite3.Error:
+                running = 0
+            finally:
+                con.close()
+            if running and len(_descendants(proc.pid)) >= 3:  # tracking process + 2 workers
+                time.sleep(1.0)
+                return
+        time.sleep(0.2)
+    pytest.fail("the run did not reach the optimisation")
+
+
+@pytest.mark.slow
+def test_sigterm_mid_optimisation_kills_the_run_and_leaves_no_process(tmp_path):
+    proc = _start_long_run(tmp_path)
+    db = tmp_path / "outputs" / "mlflow.db"
+    _wait_until_optimising(proc, db)
+    children = _descendants(proc.pid)
+    t0 = time.monotonic()
+    proc.send_signal(signal.SIGTERM)
+    out, err = proc.communicate(timeout=60)
+    elapsed = time.monotonic() - t0
+    assert proc.returncode == 143, err[-3000:]
+    assert elapsed < 5, elapsed
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and "stopped by SIGTERM" in lines[0] and "Traceback" not in err, err[-3000:]
+    deadline = time.monotonic() + 5
+    while time.monotonic() < deadline and any(_alive(c) for c in children):
+        time.sleep(0.1)
+    assert not [c for c in children if _alive(c)], "child processes survived"
+    _, runs = _runs(f"sqlite:///{db}")
+    assert [r.info.status for r in runs] == ["KILLED"]
+    run_dir = next((tmp_path / "outputs" / "runs").iterdir())
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert summary["status"] == "killed" and summary["error"] == "stopped by SIGTERM"
+
+
+@pytest.mark.slow
+def test_ctrl_c_to_the_process_group_is_one_line_and_exit_130(tmp_path):
+    proc = _start_long_run(tmp_path)
+    db = tmp_path / "outputs" / "mlflow.db"
+    _wait_until_optimising(proc, db)
+    children = _descendants(proc.pid)
+    os.killpg(proc.pid, signal.SIGINT)  # what the terminal does on Ctrl-C
+    out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err[-3000:]
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and "stopped by SIGINT" in lines[0], err[-3000:]
+    time.sleep(3)
+    assert not [c for c in children if _alive(c)]
+    _, runs = _runs(f"sqlite:///{db}")
+    assert [r.info.status for r in runs] == ["KILLED"]
