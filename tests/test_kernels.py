@@ -35,6 +35,16 @@ def test_population_recursion_is_bit_identical(order):
     assert np.array_equal(got, ref)
 
 
+@pytest.mark.parametrize("order", [1, 2, 3])
+def test_recursion_coefficients_are_numpy_polys(order):
+    from mosd.detectors.statistics import ewma_coefficients
+
+    lams = np.random.default_rng(order).uniform(1e-9, 1.0, 500)
+    gain, feedback = ewma_coefficients(lams, order)
+    assert np.array_equal(gain, lams**order)
+    assert np.array_equal(feedback, np.array([-np.poly(np.full(order, 1.0 - lam))[1:] for lam in lams]))
+
+
 @pytest.mark.parametrize("settings", [
     {},  # the paper's literal call: db3, level 3, rigrsure, soft, unscaled, coarsest details
     {"global_source": "all"}, {"global_source": "finest", "mode": "hard"}, {"scope": "level"},

@@ -55,7 +55,14 @@ def ewma_coefficients(lams, order: int = 1) -> tuple[np.ndarray, np.ndarray]:
     paths run the same arithmetic.
     """
     lams = np.asarray(lams, float).ravel()
-    denominator = np.array([np.poly(np.full(order, 1.0 - lam)) for lam in lams]).reshape(lams.size, order + 1)
+    pole = 1.0 - lams
+    # np.poly's products for orders 1 and 2 written out — the same bits, without a call per λ:
+    # (1 − p z⁻¹) → a_1 = −p;  (1 − p z⁻¹)² → a_1 = (−p) + (−p), a_2 = (−p)(−p)
+    if order == 1:
+        return lams**order, -(-pole)[:, None]
+    if order == 2:
+        return lams**order, -np.column_stack([(-pole) + (-pole), (-pole) * (-pole)])
+    denominator = np.array([np.poly(np.full(order, p)) for p in pole]).reshape(lams.size, order + 1)
     return lams**order, -denominator[:, 1:]
 
 
