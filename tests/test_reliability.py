@@ -341,7 +341,8 @@ def _alive(pid: int) -> bool:
 
 
 def _start_long_run(tmp_path: Path, *extra: str) -> subprocess.Popen:
-    args = ["+fault=offset_var", "optimizer.pop_size=10", "optimizer.n_gen=400", "budget.n_test=3",
+    # far more generations than the test waits for: the signal lands mid-optimisation
+    args = ["+fault=offset_var", "optimizer.pop_size=20", "optimizer.n_gen=100000", "budget.n_test=3",
             "budget.n_train=3", "budget.n_calibration=3", "optimizer.n_jobs=2", "progress=false", *extra]
     return subprocess.Popen([sys.executable, "-m", "mosd", *args], cwd=tmp_path, env=_env(), text=True,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
@@ -407,3 +408,154 @@ def test_ctrl_c_to_the_process_group_is_one_line_and_exit_130(tmp_path):
     assert not [c for c in children if _alive(c)]
     _, runs = _runs(f"sqlite:///{db}")
     assert [r.info.status for r in runs] == ["KILLED"]
+
+
+# ---------------------------------------------------------------------------------------
+# 6. the report never merges or hides different set-ups
+# ---------------------------------------------------------------------------------------
+def test_report_keeps_one_row_per_set_up_and_shows_what_differs(tmp_path):
+    pytest.importorskip("mlflow")
+    from mosd.app import report
+
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    store = tracking.MlflowStore(tracking.TrackingSettings(uri, (tmp_path / "art").as_uri(), "mosd"))
+
+    def job(estimator, n_test, far, seed=0, n_jobs=2):
+        tags = {"mosd.role": "job", "mosd.fault": "offset", "mosd.detector": "ss_dewma", "mosd.optimizer": "mopso",
+                "mosd.estimator": estimator, "mosd.denoise": "none", "mosd.params": "lam,K", "mosd.online": "true"}
+        run_id = store.create_run("r", tags)
+        params = {"estimator._target_": f"mosd.estimators.{estimator}", "budget.n_test": str(n_test),
+                  "seed": str(seed), "optimizer.n_jobs": str(n_jobs), "outputs_root": str(tmp_path)}
+        metrics = [(k, v, 0) for k, v in {"far": far, "mdr": 0.1, "accuracy": 0.9 - far, "lam": 0.5, "K": 3.0,
+                                          "n_test": float(n_test)}.items()]
+        store.log(run_id, params, metrics)
+        store.end(run_id)
+        time.sleep(0.01)  # distinct start times: "latest" is well defined
+        return run_id
+
+    job("innovation", 100, 0.01)
+    job("dedicated_observer", 100, 0.02)
+    job("dedicated_observer", 5, 0.03)
+    latest = job("dedicated_observer", 5, 0.04, n_jobs=1)  # same set-up as the one before: replaces it
+    rows = report.collect(uri)
+    assert len(rows) == 3
+    assert report.extra_columns(rows) == ["estimator", "budget.n_test"]
+    assert {(r["estimator"], r["budget.n_test"]) for r in rows} == {
+        ("innovation", "100"), ("dedicated_observer", "100"), ("dedicated_observer", "5")}
+    assert [r["run_id"] for r in rows if r["budget.n_test"] == "5"] == [latest]
+    table = report.to_markdown(rows)
+    assert table.splitlines()[0].startswith("| preset | fault | detector | optimizer | estimator | budget.n_test | MDR %")
+    assert "budget.n_test" in report.to_csv(rows).splitlines()[0]
+    assert len(report.collect(uri, latest_only=False)) == 4
+
+
+# ---------------------------------------------------------------------------------------
+# a real tracking server: a sweep and concurrent runs against http://127.0.0.1:PORT
+# ---------------------------------------------------------------------------------------
+@pytest.mark.slow
+def test_a_real_mlflow_server_takes_a_sweep_and_concurrent_runs(tmp_path):
+    import shutil
+    import urllib.request
+
+    mlflow_cli = shutil.which("mlflow", path=str(Path(sys.executable).parent)) or shutil.which("mlflow")
+    if mlflow_cli is None:
+        pytest.skip("the mlflow command is not installed")
+    port = free_port()
+    uri = f"http://127.0.0.1:{port}"
+    log = (tmp_path / "server.log").open("w")
+    server = subprocess.Popen([mlflow_cli, "server", "--workers", "1", "--host", "127.0.0.1", "--port", str(port),
+                               "--backend-store-uri", f"sqlite:///{tmp_path / 'server.db'}"],
+                              cwd=tmp_path, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 180
+        while True:
+            assert server.poll() is None, (tmp_path / "server.log").read_text()[-3000:]
+            try:
+                with urllib.request.urlopen(f"{uri}/health", timeout=2):
+                    break
+            except OSError:
+                assert time.monotonic() < deadline, "the server did not come up"
+                time.sleep(0.5)
+        budget = ["optimizer.pop_size=6", "optimizer.n_gen=2", "budget.n_test=2", "budget.n_train=2",
+                  "budget.n_calibration=2", "optimizer.n_jobs=1", "progress=false", "scenario.duration=3",
+                  f"tracking.uri={uri}"]
+        sweep = subprocess.Popen([sys.executable, "-m", "mosd", "-m", "+fault=offset,variance", "optimizer=mopso,nsga2",
+                                  *budget], cwd=tmp_path / ".", env=_env(tmp_path / "sweep_out"), text=True,
+                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        singles = [subprocess.Popen([sys.executable, "-m", "mosd", "+fault=offset_var", f"seed={i}", *budget],
+                                    cwd=tmp_path, env=_env(tmp_path / f"out{i}"), text=True,
+                                    stdout=subprocess.PIPE, stderr=subprocess.PIPE) for i in range(4)]
+        results = [(p, p.communicate(timeout=900)) for p in (sweep, *singles)]
+        assert [p.returncode for p, _ in results] == [0] * 5, [err[-1500:] for _, (_, err) in results]
+        client, runs = _runs(uri)
+        jobs = [r for r in runs if r.data.tags.get("mosd.role") == "job"]
+        parents = [r for r in runs if r.data.tags.get("mosd.role") == "sweep"]
+        assert len(parents) == 1 and parents[0].info.status == "FINISHED"
+        assert len(jobs) == 8 and {r.info.status for r in jobs} == {"FINISHED"}
+        assert sum(r.data.tags.get("mlflow.parentRunId") == parents[0].info.run_id for r in jobs) == 4
+        for r in jobs:
+            assert FINAL_METRICS <= set(r.data.metrics), r.info.run_id
+            assert {"summary.json", "pareto.csv", "chart.png"} <= {a.path for a in client.list_artifacts(r.info.run_id)}
+    finally:
+        os.killpg(server.pid, signal.SIGTERM)
+        try:
+            server.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            os.killpg(server.pid, signal.SIGKILL)
+            server.wait()
+        log.close()
+
+
+# ---------------------------------------------------------------------------------------
+# 9. plots that show what matters
+# ---------------------------------------------------------------------------------------
+def _capture_figures(monkeypatch):
+    from mosd.app import plots
+
+    figures = []
+    real = plots._save
+    monkeypatch.setattr(plots, "_save", lambda fig, path: figures.append(fig) or real(fig, path))
+    return plots, figures
+
+
+def test_chart_png_keeps_the_in_control_part_readable(tmp_path, monkeypatch):
+    plots, figures = _capture_figures(monkeypatch)
+    rng = np.random.default_rng(0)
+    t = np.arange(500) * 0.01
+    mask = t >= 2.7
+    statistic = np.where(mask, 40 + 10 * rng.random(500), rng.random(500))  # up to 60 after the onset, UCL 2
+    statistic[100] = 3.0  # one false alarm before the onset
+    plots.chart_trace(tmp_path / "chart.png", t, statistic, np.full(500, 2.0), mask, title="t")
+    ax = figures[-1].axes[0]
+    assert ax.get_yscale() == "log" and "1 false alarms in 270 fault-free points" in ax.get_title()
+    statistic[0] = 0.0  # a statistic that touches zero gets a symmetric log axis, linear below the limit
+    plots.chart_trace(tmp_path / "chart.png", t, statistic, np.full(500, 2.0), mask)
+    assert figures[-1].axes[0].get_yscale() == "symlog"
+    plots.chart_trace(tmp_path / "chart.png", t, np.minimum(statistic, 5.0), np.full(500, 2.0), mask)
+    assert figures[-1].axes[0].get_yscale() == "linear"  # no large excursion: nothing to compress
+
+
+def test_history_png_has_a_title_and_does_not_magnify_tiny_changes(tmp_path, monkeypatch):
+    plots, figures = _capture_figures(monkeypatch)
+    records = [{"generation": g, "n_eval": 10 * g, "archive_size": 5 + g, "hypervolume": 1.2090 + 0.00024 * g,
+                "best_accuracy": 0.9970 + 0.0001 * g} for g in (1, 2, 3)]
+    plots.optimisation_history(tmp_path / "history.png", records)
+    fig = figures[-1]
+    assert "3 generations, 30 evaluations" in fig._suptitle.get_text()
+    low, high = fig.axes[0].get_ylim()
+    assert high - low >= 0.05 and high <= 1.21 + 0.01  # a 0.04 % change stays a small change
+    low, high = fig.axes[2].get_ylim()
+    assert high - low >= 0.02 and high <= 1.0 + 0.001
+
+
+def test_pareto_png_zooms_on_the_best_trade_offs(tmp_path, monkeypatch):
+    plots, figures = _capture_figures(monkeypatch)
+    F = np.array([[0.0, 0.031], [0.0018, 0.0062], [0.002, 0.0016], [0.0022, 0.0008], [0.0034, 0.0006],
+                  [0.046, 0.0004], [0.13, 0.0001], [0.35, 0.0]])
+    plots.pareto_front(tmp_path / "pareto.png", F, chosen=3)
+    ax = figures[-1].axes[0]
+    assert ax.get_xlim()[1] < 0.01 and ax.get_ylim()[1] < 0.01  # zoomed on the knee
+    assert ax.get_xlim()[0] > -0.001 and ax.get_ylim()[0] > -0.001
+    assert len(ax.child_axes) == 1 and ax.child_axes[0].get_title() == "whole archive"
+    plots.pareto_front(tmp_path / "pareto.png", F[1:5], chosen=2)
+    assert not figures[-1].axes[0].child_axes  # nothing far away: no zoom, no inset

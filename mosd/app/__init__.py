@@ -33,6 +33,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     Ctrl-C, 143 SIGTERM).
     """
     started = time.perf_counter()
+    from_command_line = argv is None
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv[:1] == ["report"]:
         from .report import main as report_main
@@ -44,17 +45,25 @@ def main(argv: Sequence[str] | None = None) -> int:
         return log_main(argv[1:])
     from .run import NOT_LOGGED, EXIT_NOT_LOGGED, install_signal_handlers
 
+    import signal
+
+    from .run import STOP_SIGNALS
+
     install_signal_handlers()
     try:
         return _main(argv, started) or (EXIT_NOT_LOGGED if NOT_LOGGED else 0)
     except KeyboardInterrupt as exc:  # Interrupted (a signal) or a Ctrl-C before the handlers were set
-        import signal
-
         signum = getattr(exc, "signum", signal.SIGINT)
         if not getattr(exc, "reported", False):
             print(f"mosd: stopped by {signal.Signals(signum).name} before the run started; nothing was run",
                   file=sys.stderr)
         return 128 + signum
+    finally:
+        if from_command_line:
+            # the work is over: a late signal must not raise inside the interpreter's teardown
+            # (joining the worker pool's threads), which prints a traceback for nothing
+            for sig in STOP_SIGNALS:
+                signal.signal(sig, signal.SIG_IGN)
 
 
 def _main(argv: list[str], started: float) -> int:

@@ -37,9 +37,30 @@ def _finish_time_axes(ax, t: np.ndarray, fault_mask: np.ndarray, ylabel: str, ti
     ax.legend(loc="upper left", fontsize=8)
 
 
+def zoom_box(F: np.ndarray) -> tuple[float, float, float, float] | None:
+    """Axis limits around the archive's useful region, or None when the whole archive is that region.
+
+    The useful region is the designs whose sum of the two objectives is at most
+    twice the best sum plus 0.01 (for FAR and MDR: an accuracy within about one
+    point of the best when the best is good), padded by a tenth of its size.
+    Extreme designs (alarm almost always, almost never) stay in the inset.
+    """
+    F = np.atleast_2d(np.asarray(F, float))
+    total = F.sum(axis=1)
+    best = float(total.min())
+    near = F[total <= max(2.0 * best, best + 0.01)]
+    if len(near) == len(F):
+        return None
+    low, high = near.min(axis=0), near.max(axis=0)
+    pad = np.maximum(0.1 * (high - low), 1e-4)
+    # rates cannot be negative: show just a sliver below zero
+    bottom = np.maximum(low - pad, np.minimum(low, 0.0) - 0.03 * (high + pad))
+    return bottom[0], high[0] + pad[0], bottom[1], high[1] + pad[1]
+
+
 def pareto_front(path: str | Path, F: np.ndarray, chosen: int | None = None, title: str = "",
                  labels: tuple[str, str] = ("far", "mdr")) -> Path:
-    """Scatter of the archive in the plane of two objectives, the chosen design highlighted.
+    """The archive in the plane of two objectives, zoomed on its useful part, the chosen design highlighted.
 
     Parameters
     ----------
@@ -50,21 +71,40 @@ def pareto_front(path: str | Path, F: np.ndarray, chosen: int | None = None, tit
         Row of the chosen design.
     labels : pair of str
         The objectives' names.
+
+    When some designs are far from the best trade-off (:func:`zoom_box`) the
+    axes zoom on the designs near it and an inset shows the whole archive.
     """
     F = np.atleast_2d(np.asarray(F, float))
     fig = _figure()
     ax = fig.add_subplot()
     order = np.argsort(F[:, 0])
-    ax.plot(F[order, 0], F[order, 1], "o-", ms=4, lw=0.8, color="tab:blue", label="archive (training)")
-    if chosen is not None:
-        ax.plot(F[chosen, 0], F[chosen, 1], "*", ms=14, color="tab:red",
-                label=f"chosen: {labels[0]} {F[chosen, 0]:.4g}, {labels[1]} {F[chosen, 1]:.4g}")
+
+    def draw(axes, small=False):
+        axes.plot(F[order, 0], F[order, 1], "o-", ms=2.5 if small else 4, lw=0.8, color="tab:blue",
+                  label=None if small else f"archive (training), {len(F)} designs")
+        if chosen is not None:
+            axes.plot(F[chosen, 0], F[chosen, 1], "*", ms=8 if small else 14, color="tab:red",
+                      label=None if small else f"chosen: {labels[0]} {F[chosen, 0]:.4g}, {labels[1]} {F[chosen, 1]:.4g}")
+
+    draw(ax)
+    box = zoom_box(F) if F.shape[0] > 2 else None
+    if box is not None:
+        ax.set_xlim(box[0], box[1])
+        ax.set_ylim(box[2], box[3])
+        inset = ax.inset_axes([0.62, 0.42, 0.35, 0.33])
+        draw(inset, small=True)
+        inset.set_title("whole archive", fontsize=7)
+        inset.tick_params(labelsize=6)
+        inset.grid(alpha=0.3)
+        inset.indicate_inset([box[0], box[2], box[1] - box[0], box[3] - box[2]], edgecolor="0.4")
     names = {"far": "false-alarm rate FAR", "mdr": "missed-detection rate MDR"}
     ax.set_xlabel(names.get(labels[0], labels[0]))
     ax.set_ylabel(names.get(labels[1], labels[1]))
-    ax.set_title(title or "Pareto front")
+    ax.set_title((title or "Pareto front") + (" (zoom on the best trade-offs)" if box is not None else ""),
+                 fontsize=10)
     ax.grid(alpha=0.3)
-    ax.legend(loc="upper right", fontsize=8)
+    ax.legend(loc="upper left" if box is not None else "upper right", fontsize=8)
     return _save(fig, path)
 
 
@@ -90,8 +130,33 @@ def chart_trace(path: str | Path, t: np.ndarray, statistic: np.ndarray, ucl: np.
     ax.plot(t, ucl, lw=1.2, color="tab:red", ls="--", label="UCL")
     alarms = statistic > ucl
     ax.plot(t[alarms], statistic[alarms], ".", ms=3, color="tab:red", label="alarm")
-    _finish_time_axes(ax, t, fault_mask, "$l_k$", title or "Chart on one test replication")
+    scale = chart_scale(statistic, ucl)
+    if scale == "log":
+        ax.set_yscale("log")
+    elif scale == "symlog":
+        # linear up to the limit, logarithmic beyond: the in-control part keeps its detail
+        ax.set_yscale("symlog", linthresh=float(np.nanmax(np.abs(ucl))))
+    in_control = int(np.sum(~alarms & ~fault_mask))
+    false_alarms = int(np.sum(alarms & ~fault_mask))
+    note = f"; {false_alarms} false alarms in {in_control + false_alarms} fault-free points"
+    _finish_time_axes(ax, t, fault_mask, "$l_k$" + (" (log scale)" if scale != "linear" else ""),
+                      (title or "Chart on one test replication") + note)
+    ax.title.set_fontsize(9)
     return _save(fig, path)
+
+
+def chart_scale(statistic: np.ndarray, ucl: np.ndarray, ratio: float = 10.0) -> str:
+    """``linear``, or ``log``/``symlog`` when the statistic rises ``ratio`` times above the limit.
+
+    A post-fault excursion of 60 against a limit of 2 flattens the in-control part
+    (and its false alarms) on a linear axis.
+    """
+    statistic = np.asarray(statistic, float)
+    limit = float(np.nanmax(np.abs(ucl))) if np.size(ucl) else 0.0
+    finite = statistic[np.isfinite(statistic)]
+    if finite.size == 0 or limit <= 0 or np.max(np.abs(finite)) < ratio * limit:
+        return "linear"
+    return "log" if np.min(finite) > 0 else "symlog"
 
 
 def residual_trace(path: str | Path, residual: np.ndarray, fault_mask: np.ndarray, dt: float,
@@ -109,16 +174,49 @@ def residual_trace(path: str | Path, residual: np.ndarray, fault_mask: np.ndarra
     return _save(fig, path)
 
 
-def optimisation_history(path: str | Path, records: Sequence[dict]) -> Path:
-    """Hypervolume, archive size and best accuracy per generation."""
+def history_limits(values: Sequence[float], scale: float, cap: float | None = None) -> tuple[float, float] | None:
+    """y-limits showing at least ``scale`` around the values (None: nothing finite to show).
+
+    A hypervolume moving by 0.02 % must not fill the panel as if it jumped:
+    the axis spans at least ``scale`` (e.g. 5 % of the largest value).
+    """
+    v = np.asarray(values, float)
+    v = v[np.isfinite(v)]
+    if v.size == 0:
+        return None
+    low, high = float(v.min()), float(v.max())
+    span = max(high - low, scale)
+    middle = 0.5 * (low + high)
+    bottom, top = middle - 0.55 * span, middle + 0.55 * span
+    if cap is not None and top > cap and high <= cap:  # no room above the largest possible value
+        bottom, top = bottom - (top - cap), cap + 0.02 * span
+    return bottom, top
+
+
+def optimisation_history(path: str | Path, records: Sequence[dict], title: str = "") -> Path:
+    """Hypervolume, archive size and best accuracy per generation, on honest y-ranges."""
     fig = _figure(7.5, 4.0)
     axes = fig.subplots(1, 3)
     gen = [r["generation"] for r in records]
-    for ax, key, label in zip(axes, ("hypervolume", "archive_size", "best_accuracy"),
-                              ("hypervolume (ref 1.1, 1.1)", "archive size", "best 1 − FAR − MDR")):
-        ax.plot(gen, [r[key] for r in records], lw=1.2)
+    from matplotlib.ticker import MaxNLocator
+
+    # (key, label, smallest span shown, largest possible value)
+    panels = (("hypervolume", "hypervolume (ref 1.1, 1.1)", 0.05, 1.21), ("archive_size", "archive size", 2.0, None),
+              ("best_accuracy", "best 1 − FAR − MDR", 0.02, 1.0))
+    for ax, (key, label, floor, cap) in zip(axes, panels):
+        values = [r[key] for r in records]
+        ax.plot(gen, values, "o-", ms=2.5, lw=1.2)
+        finite = [v for v in values if np.isfinite(v)]
+        limits = history_limits(values, max(floor, 0.05 * max(abs(v) for v in finite)) if finite else floor, cap)
+        if limits is not None:
+            ax.set_ylim(*limits)
+        if key == "archive_size":
+            ax.yaxis.set_major_locator(MaxNLocator(integer=True))
         ax.ticklabel_format(axis="y", useOffset=False)
         ax.set_xlabel("generation")
         ax.set_title(label, fontsize=9)
         ax.grid(alpha=0.3)
+    n_eval = records[-1].get("n_eval") if records else None
+    fig.suptitle(title or (f"Optimisation history: {len(gen)} generations"
+                           + (f", {int(n_eval)} evaluations" if n_eval else "")), fontsize=10)
     return _save(fig, path)

@@ -173,7 +173,11 @@ def write_run_files(run_dir: Path, cfg, result, setup: Setup, labels: Mapping[st
                                             ex["dt"], mean=mean, sigma=result.sigma,
                                             channel_name=names[channel] if channel < len(names) else ""))
     if result.history:
-        written.append(plots.optimisation_history(run_dir / "history.png", result.history))
+        n_eval = int(result.history[-1].get("n_eval", 0))
+        written.append(plots.optimisation_history(
+            run_dir / "history.png", result.history,
+            title=f"{labels.get('optimizer', '')} on the {labels.get('fault', '')} fault: {len(result.history)} "
+                  f"generations, {n_eval} evaluations (training replications)"))
     return written
 
 
