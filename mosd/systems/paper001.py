@@ -100,7 +100,7 @@ def detection_table(seed: int = 2017, n_reps: int = 500,
 PAPER_DESIGN = {"mu_T": 0.5, "L": 1}
 #: the design MOPSO chose in ``python -m mosd +experiment=paper001`` (seed 0; far/mdr on 200 training runs):
 #: the report command scores it without re-running the optimiser
-TUNED_DESIGN = {"mu_T": 0.7823, "L": 1}
+TUNED_DESIGN = {"mu_T": 0.7822769303275614, "L": 1}
 SENSOR_FILTERS = ("s1", "s2", "s3")
 
 
