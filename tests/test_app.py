@@ -246,10 +246,12 @@ def test_sweep_under_the_joblib_launcher(tmp_path):
 
 
 class ExplodingFilter(CESCKF):
-    """A filter that constructs (so preflight accepts it) and fails when it runs."""
+    """A filter that constructs and passes preflight's one-replication dry run, and fails in the run."""
 
     def filter(self, model, y, u=None):
-        raise RuntimeError("boom: the filter diverged")
+        if y.shape[0] > 1:
+            raise RuntimeError("boom: the filter diverged")
+        return super().filter(model, y, u)
 
 
 @pytest.mark.slow
@@ -268,3 +270,6 @@ def test_a_failing_job_is_failed_and_the_parent_still_closes(tmp_path):
     assert ok.info.status == "FINISHED" and FINAL_METRICS <= set(ok.data.metrics)
     assert failed.info.status == "FAILED" and failed.data.tags["error"] == "RuntimeError: boom: the filter diverged"
     assert "Traceback" in failed.data.tags["error.traceback"]
+    # the failed job's directory says so instead of being a silent stub
+    status = json.loads((Path(failed.data.tags["mosd.run_dir"]) / "summary.json").read_text())
+    assert status["status"] == "failed" and status["error"] == "RuntimeError: boom: the filter diverged"

@@ -67,6 +67,12 @@ def make_store(path: Path, *, tables=("experiments", "runs", "alembic_version"),
 # ---------------------------------------------------------------------------------------
 # 1. the store: health, recovery of a killed creation, the lock
 # ---------------------------------------------------------------------------------------
+def test_sqlite_paths_follow_sqlalchemy():
+    assert tracking.sqlite_path("sqlite:////abs/outputs/mlflow.db") == Path("/abs/outputs/mlflow.db")
+    assert tracking.sqlite_path("sqlite:///relative/mlflow.db") == Path("relative/mlflow.db")
+    assert tracking.sqlite_path("sqlite://") is None and tracking.sqlite_path("http://127.0.0.1:5000") is None
+
+
 def test_store_state_tells_healthy_incomplete_and_corrupt_apart(tmp_path):
     assert tracking.sqlite_store_state(tmp_path / "none.db").state == "missing"
     (tmp_path / "empty.db").touch()
@@ -559,3 +565,11 @@ def test_pareto_png_zooms_on_the_best_trade_offs(tmp_path, monkeypatch):
     assert len(ax.child_axes) == 1 and ax.child_axes[0].get_title() == "whole archive"
     plots.pareto_front(tmp_path / "pareto.png", F[1:5], chosen=2)
     assert not figures[-1].axes[0].child_axes  # nothing far away: no zoom, no inset
+
+
+def test_report_on_a_damaged_store_is_one_line(tmp_path):
+    outputs = tmp_path / "outputs"
+    outputs.mkdir()
+    make_store(outputs / "mlflow.db", leftover=True, n_runs=2)
+    line = one_line_exit_2(mosd(["report"], cwd=tmp_path, timeout=120))
+    assert "is damaged" in line and "_alembic_tmp_runs" in line

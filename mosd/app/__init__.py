@@ -24,6 +24,10 @@ from ..validation import ConfigError
 from .config import CONFIG_DIR, CONFIG_NAME, UsageError
 
 
+#: Set once Hydra starts the run(s): a signal after that may have stopped runs in progress.
+_LAUNCHED = False
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """``python -m mosd`` / ``mosd``: run, sweep (``-m``), ``report`` or ``log RUN_DIR``.
 
@@ -55,8 +59,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt as exc:  # Interrupted (a signal) or a Ctrl-C before the handlers were set
         signum = getattr(exc, "signum", signal.SIGINT)
         if not getattr(exc, "reported", False):
-            print(f"mosd: stopped by {signal.Signals(signum).name} before the run started; nothing was run",
-                  file=sys.stderr)
+            where = ("runs that had started are marked KILLED, with status 'killed' in their summary.json"
+                     if _LAUNCHED else "before any run started; nothing was written")
+            print(f"mosd: stopped by {signal.Signals(signum).name}: {where}", file=sys.stderr)
         return 128 + signum
     finally:
         if from_command_line:
@@ -83,9 +88,11 @@ def _main(argv: list[str], started: float) -> int:
 
         run(cfg, started=started)
 
+    global _LAUNCHED
     saved = sys.argv
     sys.argv = [saved[0] if saved else "mosd", *argv]
     try:
+        _LAUNCHED = True
         task()
     finally:
         sys.argv = saved

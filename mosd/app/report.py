@@ -169,9 +169,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.tracking_uri.startswith("sqlite:///"):
             from pathlib import Path
 
-            db = Path(args.tracking_uri.removeprefix("sqlite:///"))
-            if not db.is_file():
+            from .tracking import sqlite_path, sqlite_store_state
+
+            db = sqlite_path(args.tracking_uri)
+            if db is None or not db.is_file():
                 raise ReportError(f"--tracking-uri={args.tracking_uri!r}: no such database (run mosd first)")
+            state = sqlite_store_state(db)
+            if state.state not in ("ok", "empty"):
+                raise ReportError(f"--tracking-uri={args.tracking_uri!r}: the store {db} is damaged ({state.detail}); "
+                                  f"allowed: a healthy MLflow store")
         rows = collect(args.tracking_uri, args.experiment, latest_only=not args.all)
     except ReportError as exc:
         print(f"mosd report: error: {exc}", file=sys.stderr)

@@ -55,18 +55,21 @@ class Interrupted(KeyboardInterrupt):
 
 
 def kill_workers() -> int:
-    """SIGKILL the evaluation pool's worker processes (loky), without taking any lock.
+    """SIGTERM the process pool's workers (loky), without taking any lock.
 
     Called from a signal handler: the executor's own ``shutdown`` takes locks the
-    interrupted main thread may hold. The workers' pids are read from the pool;
-    loky's resource tracker exits by itself once its clients are gone.
+    interrupted main thread may hold. The workers' pids are read from the pool.
+    An evaluation worker dies at once (default action); a job of the joblib
+    launcher runs :func:`run`, whose handler marks its own run KILLED first.
+    :func:`shutdown_workers` SIGKILLs whatever is left; loky's resource tracker
+    exits by itself once its clients are gone.
     """
     module = sys.modules.get("joblib.externals.loky.reusable_executor")
     executor = getattr(module, "_executor", None) if module is not None else None
     killed = 0
     for pid in list(getattr(executor, "_processes", {}) or {}):
         try:
-            os.kill(pid, signal.SIGKILL)
+            os.kill(pid, signal.SIGTERM)
             killed += 1
         except (ProcessLookupError, PermissionError):
             pass

@@ -90,7 +90,8 @@ def sqlite_path(uri: str) -> Path | None:
     parsed = urlparse(uri)
     if parsed.scheme != "sqlite" or parsed.path in ("", "/", "/:memory:"):
         return None
-    return Path("/" + parsed.path.lstrip("/"))  # sqlite:////abs/path parses to //abs/path
+    # SQLAlchemy: sqlite:///rel/path is relative to the working directory, sqlite:////abs/path absolute
+    return Path(parsed.path[1:])
 
 
 @contextlib.contextmanager
