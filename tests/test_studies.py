@@ -210,3 +210,33 @@ def test_report_command_experiment_is_the_preset(module):
         _same(getattr(preset, part), getattr(ours, part), part)
     assert (preset.duration, preset.budget, preset.seed) == (ours.duration, ours.budget, ours.seed)
     assert type(setup.study) is module.Study
+
+
+# -- the documented bars (slow: full Monte Carlo scale) --------------------------------------
+@pytest.mark.slow
+def test_paper001_bars_at_500_runs():
+    experiment = paper001.preset_experiment(seed=0, n_test=500)
+    study = paper001.Study(n_reps=500, figures=False)
+    tuned = experiment.detector.with_params(**paper001.TUNED_DESIGN)
+    metrics = study.metrics(study.compute(experiment, {"tuned": tuned}))
+    verdicts = {name: met for name, met, _ in paper001.bars(metrics)}
+    assert all(verdicts.values()), verdicts
+
+
+@pytest.mark.slow
+def test_paper003_multi_step_window_detects_sooner_only_on_the_observer_residual(tmp_path):
+    """Reading 2 shows the paper's window effect, reading 1 does not; FAR stays within 2α (about 1 min)."""
+    pytest.importorskip("torch")
+    experiment = paper003.preset_experiment(seed=0, cache_dir=str(tmp_path))
+    study = paper003.Study(windows=[1, 8], rates=[0.2, 0.5], n_runs=10, trace_rate=0.2, figures=False)
+    data = study.compute(experiment, {"paper": experiment.detector.with_params(**paper003.PAPER_DESIGN)})
+    observer = study.summary(data, "paper", "observer_chi2")
+    innovation = study.summary(data, "paper", "chi2")
+    assert observer["best_window"] == 8
+    assert observer["detection_step_n1"] >= 3 * observer["detection_step_best"]
+    assert observer["detection_rate_best"] > observer["detection_rate_n1"] + 0.3
+    assert observer["far"] <= 2 * paper003.PAPER_DESIGN["alpha"]
+    # the filter's innovation does not gain from the observer's window: it only raises the threshold
+    i1, i8 = data["windows"].index(1), data["windows"].index(8)
+    rate = data["table"]["paper"]["chi2"]["detection_rate"].mean(axis=1)
+    assert rate[i8] <= rate[i1] + 0.02 and innovation["far"] <= 2 * paper003.PAPER_DESIGN["alpha"]
