@@ -359,6 +359,7 @@ class MlflowStore:
 
         # alembic prints its migration steps at INFO when a fresh sqlite DB is created
         logging.getLogger("alembic").setLevel(logging.WARNING)
+        logging.getLogger("mlflow.store.db.utils").setLevel(logging.WARNING)
         self.settings = settings
         #: what happened to the store on the way in (e.g. an unfinished one moved aside), or None
         self.note: str | None = None
