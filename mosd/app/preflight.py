@@ -203,6 +203,16 @@ def check_job(cfg, setup: Setup, done: dict, multirun: bool = False) -> None:
 
     from .tracking import TrackingSettings, check_outputs, check_tracking
 
+    # the store and the outputs first: seconds at most, and no simulation for a server that is down
+    job_dir = OmegaConf.select(cfg, "hydra.sweep.dir" if multirun else "hydra.run.dir", default=None)
+    places = (str(cfg.outputs_root), *((str(job_dir),) if job_dir else ()))
+    if ("outputs",) + places not in done:
+        check_outputs(*places)
+        done[("outputs",) + places] = True
+    settings = TrackingSettings.from_config(dict(cfg.tracking), str(cfg.outputs_root))
+    if settings is not None and ("tracking", settings) not in done:
+        check_tracking(settings)
+        done[("tracking", settings)] = True
     key = _shape_key(cfg)
     if key not in done:
         try:
@@ -213,15 +223,6 @@ def check_job(cfg, setup: Setup, done: dict, multirun: bool = False) -> None:
             raise ConfigError(f"the configuration fails on a one-replication dry run "
                               f"({_run_length(setup)}): {type(exc).__name__}: {one_line(exc)}") from None
         done[key] = True
-    job_dir = OmegaConf.select(cfg, "hydra.sweep.dir" if multirun else "hydra.run.dir", default=None)
-    places = (str(cfg.outputs_root), *((str(job_dir),) if job_dir else ()))
-    if ("outputs",) + places not in done:
-        check_outputs(*places)
-        done[("outputs",) + places] = True
-    settings = TrackingSettings.from_config(dict(cfg.tracking), str(cfg.outputs_root))
-    if settings is not None and ("tracking", settings) not in done:
-        check_tracking(settings)
-        done[("tracking", settings)] = True
 
 
 def preflight(argv: Sequence[str]) -> None:
