@@ -87,10 +87,15 @@ def shutdown_workers() -> None:
             pass
 
 
+#: The stop signal this process received, if any (the sweep's parent run is then ended KILLED).
+RECEIVED: list[int] = []
+
+
 def _on_signal(signum, frame):
     # cleanup (marking the run KILLED, writing the status) must not be cut short by a second signal
     for sig in STOP_SIGNALS:
         signal.signal(sig, signal.SIG_IGN)
+    RECEIVED.append(int(signum))
     kill_workers()
     raise Interrupted(signum)
 
@@ -387,12 +392,14 @@ def run(cfg, started: float | None = None):
         return result
     except BaseException as exc:
         progress.close()
-        killed = isinstance(exc, KeyboardInterrupt)
+        # a signal raised inside compiled code (numba) comes out as a SystemError with the
+        # Interrupted as its context: what counts is that a stop signal arrived
+        killed = isinstance(exc, KeyboardInterrupt) or bool(RECEIVED)
         if killed:
             shutdown_workers()
+            signum = exc.signum if isinstance(exc, Interrupted) else (RECEIVED[-1] if RECEIVED else signal.SIGINT)
         status = "KILLED" if killed else "FAILED"
-        error = f"{type(exc).__name__}: {one_line(exc)}" if not isinstance(exc, Interrupted) else \
-            f"stopped by {signal.Signals(exc.signum).name}"
+        error = f"stopped by {signal.Signals(signum).name}" if killed else f"{type(exc).__name__}: {one_line(exc)}"
         run_id, marked = None, ""
         if tracker is not None and tracker.open:
             try:
@@ -408,11 +415,12 @@ def run(cfg, started: float | None = None):
         except OSError:
             pass
         if killed:
-            signum = getattr(exc, "signum", signal.SIGINT)
             print(f"mosd: stopped by {signal.Signals(signum).name} after {time.perf_counter() - started:.1f} s: "
                   f"{marked}{run_dir} is incomplete (summary.json status 'killed')", file=sys.stderr, flush=True)
-            if isinstance(exc, Interrupted):
-                exc.reported = True
+            interrupted = exc if isinstance(exc, Interrupted) else Interrupted(signum)
+            interrupted.reported = True
+            if interrupted is not exc:
+                raise interrupted from None
         raise
 
 

@@ -793,6 +793,11 @@ class SweepCallback(Callback):
     def _close(self, status: str, error: str | None = None) -> None:
         if self._store is None or self._run_id is None:
             return
+        received = getattr(sys.modules.get("mosd.app.run"), "RECEIVED", None)
+        if status != "FINISHED" and received:
+            import signal
+
+            status, error = "KILLED", f"the sweep was stopped by {signal.Signals(received[0]).name}"
         run_id, self._run_id = self._run_id, None
         os.environ.pop(PARENT_RUN_ENV, None)
         self._store.end(run_id, status, error)
