@@ -167,8 +167,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         args = parser.parse_args(list(sys.argv[1:] if argv is None else argv))
         if args.tracking_uri.startswith("sqlite:///"):
-            from pathlib import Path
-
             from .tracking import sqlite_path, sqlite_store_state
 
             db = sqlite_path(args.tracking_uri)
