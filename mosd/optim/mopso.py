@@ -5,22 +5,46 @@ objectives with particle swarm optimization", IEEE Trans. Evol. Comput. 8(3),
 256–279, 2004, as paper 000 uses it to minimise (FAR, MDR) over the chart parameters
 (eq. 36): an external archive of non-dominated solutions on an adaptive hypercube
 grid, truncated by eq. 37 when over capacity, leaders drawn from sparsely populated
-cells, and the constriction-factor velocity update of eqs. 38–39 (Table 2:
-w = 0.7298, c1 = c2 = 1.4962).
+cells, and a velocity/position update (eqs. 38–39).
+
+One class, two presets:
+
+* ``MOPSO()`` — the robust default. It keeps the grid archive, eq. 37 and the
+  density-based (roulette) leader choice, and changes what measurements on ZDT1–4,
+  ZDT6, a ZDT1 with its optimum inside the box, and DTLZ2 (:mod:`mosd.optim.benchmarks`,
+  ``docs/MOPSO.md``) showed to matter: inertia and social coefficients that decrease
+  over the run, positions that stay on a bound they crossed (``boundary="clip"``),
+  polynomial mutation of a share of the swarm, a personal best that follows the
+  particle unless dominated, and, inside eq. 37, removal of the most crowded member
+  of a cell rather than a random one — which in three or more objectives, where
+  most cells hold one member, is what keeps the archive spread — with the archive's
+  extremes kept; velocities are clamped to each variable's range.
+* ``MOPSO(**PAPER_PRESET)`` (``MOPSO.paper()``, ``optimizer=mopso_paper``) — paper
+  000's Table 2 literally: constriction w = 0.7298, c1 = c2 = 1.4962, velocities
+  reflected at the bounds, roulette-wheel leaders, Coello's mutation, random removal
+  inside eq. 37; with the same seed it gives the same archive as this module did
+  before the robust default.
 
 Where the paper and Coello 2004 leave a detail open, the choice is documented at the
 place that implements it:
 
 * order of eqs. 38/39 — :meth:`MOPSO._infill`;
-* how eq. 37 walks over the grid cells — :func:`eq37_removal_counts`;
+* how eq. 37 walks over the grid cells — :func:`eq37_removal_counts` and
+  :meth:`GridArchive._truncate`;
 * duplicates and constraints in the archive — :meth:`GridArchive.update`;
-* the mutation schedule and its horizon — :meth:`MOPSO._mutate` and
+* the run length that schedules and Coello's mutation refer to —
   :meth:`MOPSO._planned_generations`.
 
 Paper 000's step 4 also says to stop ("jump to step 7") once the archive is full; this
 implementation does not: the run length is pymoo's termination criterion (the paper's
 Table 2 uses M = 100 iterations), because an archive of 100 fills within a few
 generations and stopping there would make M meaningless.
+
+Integer variables: a problem may carry ``is_integer``, a boolean array of length
+``n_var`` (absent: all real). Those coordinates are rounded to the nearest integer in
+[⌈xl⌉, ⌊xu⌋] after sampling, every move and every mutation, so each evaluated X and
+``res.X`` is integral there. Velocities stay real: rounding repairs the position and
+leaves the swarm dynamics (eq. 39) as they are.
 """
 from __future__ import annotations
 
@@ -42,14 +66,33 @@ from ..validation import ConfigError, Interval, check_choice, check_in, check_in
 CONSTRICTION_PHI = 4.1
 #: Coello 2004's inertia variant: W = 0.4 and unit acceleration coefficients.
 COELLO_INERTIA = (0.4, 1.0, 1.0)
+#: The default's coefficients: inertia 0.6 → 0.2 and social 1.75 → 1.0 over the run, cognitive 1.0
+#: (chosen on ZDT1–3, a shifted ZDT1 and DTLZ2, docs/MOPSO.md).
+SCHEDULED = ((0.6, 0.2), 1.0, (1.75, 1.0))
+#: Velocity variants: which (w, c1, c2) an unset coefficient takes.
+VELOCITIES = ("scheduled", "constriction", "inertia")
 #: Coello 2004's numerator x of the cell fitness x / occupancy used for leader selection.
 LEADER_FITNESS_NUMERATOR = 10.0
-#: Iterations M of paper 000's Table 2, used as mutation horizon when the termination has none.
+#: Iterations M of paper 000's Table 2: the run length assumed when nothing else tells it.
 PAPER_MAX_ITERATIONS = 100
 #: Ways to treat a particle that leaves the box, see :func:`apply_bounds`.
-BOUNDARY_RULES = ("reflect", "absorb", "clip")
-#: Exponent of the mutation decay law (1 - t / (T p_m))^1.5 (see :meth:`MOPSO._mutate`).
+BOUNDARY_RULES = ("clip", "reflect", "absorb")
+#: Leader choice, see :meth:`GridArchive.select_leaders`.
+LEADER_RULES = ("roulette", "tournament")
+#: Personal-best update, see :meth:`MOPSO._update_personal_best`.
+PERSONAL_BEST_RULES = ("dominance", "coin")
+#: Which members of a crowded cell eq. 37 removes, see :meth:`GridArchive._truncate`.
+REMOVAL_RULES = ("crowding", "random")
+#: Mutation operators, see :meth:`MOPSO._infill`.
+MUTATIONS = ("polynomial", "coello")
+#: Exponent of Coello's mutation decay law (1 - t / (T p_m))^1.5 (see :meth:`MOPSO._coello_mutation`).
 MUTATION_DECAY_EXPONENT = 1.5
+
+#: Paper 000's Table 2 (with Coello 2004 where the paper is silent) as constructor arguments.
+PAPER_PRESET = dict(archive_size=100, n_divisions=30, velocity="constriction", w=None, c1=None,
+                    c2=None, max_velocity=None, boundary="reflect", leader="roulette",
+                    personal_best="coin", removal="random", keep_extremes=False, mutation="coello",
+                    mutation_rate=0.5)
 
 
 def constriction_coefficients(phi: float = CONSTRICTION_PHI) -> tuple[float, float, float]:
@@ -67,7 +110,7 @@ def constriction_coefficients(phi: float = CONSTRICTION_PHI) -> tuple[float, flo
     -------
     w, c1, c2 : float
     """
-    phi = check_in("mopso.phi", phi, Interval(4.0, math.inf, open_low=True))
+    phi = check_in("optimizer.phi", phi, Interval(4.0, math.inf, open_low=True))
     w = 2.0 / (phi - 2.0 + math.sqrt(phi * phi - 4.0 * phi))
     return w, w * phi / 2.0, w * phi / 2.0
 
@@ -105,12 +148,15 @@ def pairwise_dominates(Fa, CVa, Fb, CVb) -> np.ndarray:
 def _dominates(Fa, CVa, Fb, CVb):
     feasible_a, feasible_b = CVa <= 0.0, CVb <= 0.0
     pareto = np.all(Fa <= Fb, axis=-1) & np.any(Fa < Fb, axis=-1)
+    if feasible_a.all() and feasible_b.all():
+        return pareto
     return ((feasible_a & ~feasible_b)
             | (feasible_a & feasible_b & pareto)
             | (~feasible_a & ~feasible_b & (CVa < CVb)))
 
 
-def eq37_removal_counts(occupancy, capacity: int) -> np.ndarray:
+def eq37_removal_counts(occupancy, capacity: int, tie_break=None, removable=None,
+                        leftover: bool = True) -> np.ndarray:
     """How many members eq. 37 removes from each grid cell of an over-full archive.
 
     Paper 000, eq. 37: PN = Int((|A| − Z_ar) / |A| × Grid[q, 2] + 0.5), with |A| the
@@ -118,13 +164,16 @@ def eq37_removal_counts(occupancy, capacity: int) -> np.ndarray:
     cell q. The paper does not say in which order the cells are visited nor what happens
     when the rounded PN do not add up to the excess |A| − Z_ar; here:
 
-    1. cells are visited from the most to the least crowded (ties: lower cell index
-       first), and cell q loses min(PN_q, excess still to remove) members — so the
-       proportional rule hits the crowded cells and never removes more than the excess;
+    1. cells are visited from the most to the least crowded (ties: larger ``tie_break``
+       first, then lower cell index), and cell q loses min(PN_q, excess still to
+       remove) members — so the proportional rule hits the crowded cells and never
+       removes more than the excess;
     2. because Int(· + 0.5) rounds small shares down to 0 (e.g. one member too many in
        an archive of 101 removes nothing from any cell holding fewer than 51), any
        excess left is removed one member at a time from the currently most crowded
-       cell, which is Coello 2004's rule.
+       cell, which is Coello 2004's rule (same tie order). ``leftover=False`` skips
+       this step, for a caller that breaks those ties with information that changes as
+       members go (:meth:`GridArchive._truncate`).
 
     Parameters
     ----------
@@ -132,11 +181,19 @@ def eq37_removal_counts(occupancy, capacity: int) -> np.ndarray:
         Members per occupied cell.
     capacity : int
         Z_ar.
+    tie_break : array_like of float, shape (n_cells,), optional
+        Order among equally crowded cells, larger first; None: cell index order.
+    removable : array_like of int, shape (n_cells,), optional
+        At most this many members may leave each cell (protected members stay); None:
+        all. Ignored if the cells cannot give up the excess together.
+    leftover : bool
+        Whether to apply step 2.
 
     Returns
     -------
     ndarray of int, shape (n_cells,)
-        Members to remove from each cell; the total is max(0, |A| − Z_ar).
+        Members to remove from each cell; with ``leftover`` the total is
+        max(0, |A| − Z_ar).
     """
     occupancy = np.asarray(occupancy, dtype=int)
     size = int(occupancy.sum())
@@ -144,13 +201,22 @@ def eq37_removal_counts(occupancy, capacity: int) -> np.ndarray:
     removed = np.zeros_like(occupancy)
     if excess <= 0:
         return removed
-    order = np.argsort(-occupancy, kind="stable")
-    proportional = np.floor(excess / size * occupancy[order] + 0.5).astype(int)
+    tie = np.zeros(len(occupancy)) if tie_break is None else np.asarray(tie_break, dtype=float)
+    cap = occupancy if removable is None else np.minimum(np.asarray(removable, dtype=int), occupancy)
+    if cap.sum() < excess:
+        cap = occupancy
+    order = np.lexsort((np.arange(len(occupancy)), -tie, -occupancy))
+    proportional = np.minimum(np.floor(excess / size * occupancy[order] + 0.5).astype(int), cap[order])
     # cap the running total at the excess, most crowded cells first
     before = np.cumsum(proportional) - proportional
     removed[order] = np.clip(np.minimum(proportional, excess - before), 0, None)
-    for _ in range(excess - int(removed.sum())):
-        removed[np.argmax(occupancy - removed)] += 1
+    if leftover:
+        rank = np.empty(len(order), dtype=int)
+        rank[np.lexsort((np.arange(len(order)), -tie))] = np.arange(len(order))
+        for _ in range(excess - int(removed.sum())):
+            crowd = np.where(removed < cap, occupancy - removed, -1)
+            tied = np.flatnonzero(crowd == crowd.max())
+            removed[tied[np.argmin(rank[tied])]] += 1
     return removed
 
 
@@ -161,13 +227,14 @@ def apply_bounds(X: np.ndarray, V: np.ndarray, xl: np.ndarray, xu: np.ndarray,
     Every rule sets an out-of-range coordinate to the bound it crossed; they differ in
     what happens to that velocity component:
 
+    * ``"clip"`` — it is kept, so a particle still pushed outwards stays on the bound
+      (what pymoo's PSO-type repairs do to positions). The default: measured, it is the
+      rule that lets the swarm settle on optima at a bound (ZDT) while it costs nothing
+      when the optimum is inside the box (shifted ZDT1, DTLZ2), see ``docs/MOPSO.md``.
     * ``"reflect"`` — its sign is reversed: paper 000 (text after eq. 39) and Coello
-      2004 §IV-B. The default.
+      2004 §IV-B; SMPSO does the same.
     * ``"absorb"`` — it is set to 0 ("absorbing walls", Robinson & Rahmat-Samii,
       IEEE Trans. Antennas Propag. 52(2), 2004).
-    * ``"clip"`` — it is kept, so a particle pushed outwards stays on the bound (what
-      pymoo's own PSO-type repair does to positions). This favours optima on the
-      bounds, such as those of the ZDT problems; use it knowingly.
 
     Parameters
     ----------
@@ -175,7 +242,7 @@ def apply_bounds(X: np.ndarray, V: np.ndarray, xl: np.ndarray, xu: np.ndarray,
         Positions after eq. 38 and the velocities that produced them.
     xl, xu : ndarray, shape (n_var,)
         Bounds.
-    rule : {"reflect", "absorb", "clip"}
+    rule : {"clip", "reflect", "absorb"}
 
     Returns
     -------
@@ -188,19 +255,73 @@ def apply_bounds(X: np.ndarray, V: np.ndarray, xl: np.ndarray, xu: np.ndarray,
     elif rule == "absorb":
         V = np.where(outside, 0.0, V)
     elif rule != "clip":
-        raise ConfigError(f"mopso.boundary={rule!r} is not allowed; allowed: {', '.join(BOUNDARY_RULES)}")
+        raise ConfigError(f"optimizer.boundary={rule!r} is not allowed; allowed: {', '.join(BOUNDARY_RULES)}")
     return np.clip(X, xl, xu), V
+
+
+def round_integers(X: np.ndarray, is_integer: np.ndarray | None, xl: np.ndarray,
+                   xu: np.ndarray) -> np.ndarray:
+    """Integer coordinates rounded to the nearest integer inside [⌈xl⌉, ⌊xu⌋] (a new array).
+
+    Parameters
+    ----------
+    X : ndarray, shape (n, n_var)
+    is_integer : ndarray of bool, shape (n_var,), or None
+        None or all False: X is returned unchanged.
+    xl, xu : ndarray, shape (n_var,)
+    """
+    if is_integer is None or not is_integer.any():
+        return X
+    X = np.array(X, dtype=float)
+    X[:, is_integer] = np.clip(np.round(X[:, is_integer]), np.ceil(xl[is_integer]),
+                               np.floor(xu[is_integer]))
+    return X
+
+
+def polynomial_mutation(X: np.ndarray, xl: np.ndarray, xu: np.ndarray, probability: float,
+                        eta: float, random_state: np.random.Generator) -> np.ndarray:
+    """Deb & Agrawal's polynomial mutation with bounded perturbation (a new array).
+
+    Each coordinate changes with ``probability``: with u ~ U(0, 1), δ1 = (x − xl)/Δ,
+    δ2 = (xu − x)/Δ, the step is Δ [(2u + (1 − 2u)(1 − δ1)^(η+1))^(1/(η+1)) − 1] for
+    u ≤ 0.5 and Δ [1 − (2(1 − u) + 2(u − 0.5)(1 − δ2)^(η+1))^(1/(η+1))] otherwise, so
+    the result stays in [xl, xu] and small steps are likelier for larger η. SMPSO
+    (Nebro et al. 2009) applies it, with probability 1/n_var and η = 20, to one particle
+    in six.
+
+    Parameters
+    ----------
+    X : ndarray, shape (n, n_var)
+    xl, xu : ndarray, shape (n_var,)
+    probability : float
+        Per coordinate.
+    eta : float
+        Distribution index η >= 0.
+    random_state : numpy.random.Generator
+    """
+    span = xu - xl
+    hit = (random_state.random(X.shape) < probability) & (span > 0)
+    u = random_state.random(X.shape)
+    safe = np.where(span > 0, span, 1.0)
+    power = 1.0 / (eta + 1.0)
+    below = 2.0 * u + (1.0 - 2.0 * u) * (1.0 - (X - xl) / safe) ** (eta + 1.0)
+    above = 2.0 * (1.0 - u) + 2.0 * (u - 0.5) * (1.0 - (xu - X) / safe) ** (eta + 1.0)
+    step = np.where(u <= 0.5, below ** power - 1.0, 1.0 - above ** power)
+    return np.where(hit, np.clip(X + step * span, xl, xu), X)
 
 
 class GridArchive:
     """External archive of non-dominated solutions on an adaptive hypercube grid.
 
-    Coello 2004 §III-B, paper 000 steps 3–5: the objective space spanned by the archive is
-    divided into ``n_divisions`` intervals per objective; the grid is recomputed from the
-    members' extremes whenever a member lies outside it (i.e. when a newly inserted
-    solution falls outside the current bounds). Over capacity, eq. 37 removes members
-    from crowded cells (:func:`eq37_removal_counts`); leaders are drawn by roulette on
-    cells with fitness x / occupancy (:meth:`select_leaders`).
+    Coello 2004 §III-B, paper 000 steps 3–5: the objective space spanned by the archive
+    is divided into ``n_divisions`` intervals per objective, so d objectives give
+    hypercubes of d dimensions; the grid is recomputed from the members' extremes
+    whenever a member lies outside it (i.e. when a newly inserted solution falls outside
+    the current bounds). Over capacity, eq. 37 removes members from crowded cells
+    (:meth:`_truncate`); leaders come from sparsely populated cells
+    (:meth:`select_leaders`). Nothing here depends on d: cells are the distinct rows of
+    the members' integer grid coordinates, and crowding inside and between cells is
+    measured by Euclidean distances in grid-normalised objective space.
 
     Parameters
     ----------
@@ -208,12 +329,21 @@ class GridArchive:
         Z_ar, the maximum number of members.
     n_divisions : int
         Grid intervals per objective (Coello 2004 uses 30).
+    removal : {"crowding", "random"}
+        Which members of a cell eq. 37 removes: see :meth:`_truncate`.
+    keep_extremes : bool
+        Never remove the member with the smallest value of an objective (one per
+        objective) in truncation — they span the grid and the ends of the front.
     """
 
-    def __init__(self, capacity: int = 100, n_divisions: int = 30):
-        self.capacity = check_int("mopso.archive_size", capacity, 1)
-        self.n_divisions = check_int("mopso.n_divisions", n_divisions, 1)
+    def __init__(self, capacity: int = 100, n_divisions: int = 50, removal: str = "crowding",
+                 keep_extremes: bool = True):
+        self.capacity = check_int("optimizer.archive_size", capacity, 1)
+        self.n_divisions = check_int("optimizer.n_divisions", n_divisions, 1)
+        self.removal = check_choice("optimizer.removal", removal, REMOVAL_RULES)
+        self.keep_extremes = check_choice("optimizer.keep_extremes", keep_extremes, (True, False))
         self.members = Population.empty()
+        self._X, self._F, self._CV = np.empty((0, 0)), np.empty((0, 0)), np.empty(0)
         self.lower: np.ndarray | None = None
         self.upper: np.ndarray | None = None
 
@@ -222,16 +352,16 @@ class GridArchive:
 
     @property
     def X(self) -> np.ndarray:
-        return self.members.get("X")
+        return self._X
 
     @property
     def F(self) -> np.ndarray:
-        return self.members.get("F")
+        return self._F
 
     @property
     def CV(self) -> np.ndarray:
         """Constraint violation of each member, shape (n,)."""
-        return self.members.get("CV").reshape(-1)
+        return self._CV
 
     def update(self, candidates: Population, random_state: np.random.Generator) -> None:
         """Insert evaluated candidates (paper 000 steps 3–4).
@@ -248,15 +378,17 @@ class GridArchive:
         candidates : Population
             Evaluated solutions (F and, if constrained, G/H set).
         random_state : numpy.random.Generator
-            Chooses which members of a crowded cell are removed.
+            Breaks ties in truncation.
         """
         merged = Population.merge(self.members, candidates)
-        F = merged.get("F")
-        CV = merged.get("CV").reshape(-1)
+        X, F, CV = candidates.get("X", "F", "CV")
+        if len(self.members):
+            X, F = np.concatenate([self._X, X]), np.concatenate([self._F, F])
+        CV = np.concatenate([self._CV, CV.reshape(-1)])
         dominated = dominance_matrix(F, CV).any(axis=0)
         same = np.all(F[:, None, :] == F[None, :, :], axis=-1) & (CV[:, None] == CV[None, :])
-        repeated = np.triu(same, k=1).any(axis=0)
-        self.members = merged[~dominated & ~repeated]
+        keep = ~dominated & ~np.triu(same, k=1).any(axis=0)
+        self._set_members(merged[keep], X[keep], F[keep], CV[keep])
         if self.lower is None or self._outside_grid():
             self._regrid()
         if len(self.members) > self.capacity:
@@ -281,14 +413,26 @@ class GridArchive:
                                          return_inverse=True, return_counts=True)
         return labels.reshape(-1), occupancy
 
-    def select_leaders(self, n: int, random_state: np.random.Generator) -> np.ndarray:
+    def select_leaders(self, n: int, random_state: np.random.Generator,
+                       rule: str = "roulette") -> np.ndarray:
         """Indices of ``n`` leaders (gbest), one per particle (Coello 2004 §III-C).
 
-        A cell is chosen by roulette wheel with fitness x / occupancy (x = 10), i.e.
-        probability proportional to the inverse cell density (x cancels out in the
-        normalisation), then a member of that cell uniformly at random.
+        Both rules prefer members of sparsely populated cells, through Coello's cell
+        fitness x / occupancy (x = 10):
+
+        * ``"roulette"`` — Coello's rule: a cell by roulette wheel on that fitness, i.e.
+          probability proportional to the inverse cell density (x cancels out in the
+          normalisation), then a member of that cell uniformly at random;
+        * ``"tournament"`` — a binary tournament, as SMPSO chooses leaders by crowding
+          distance: two members uniformly at random, the one in the less crowded cell
+          wins (a fair coin on equal occupancy).
         """
         labels, occupancy = self.cells()
+        if rule == "tournament":
+            a, b = random_state.integers(len(labels), size=(2, n))
+            first, second = occupancy[labels[a]], occupancy[labels[b]]
+            coin = random_state.random(n) < 0.5
+            return np.where((first < second) | ((first == second) & coin), a, b)
         fitness = LEADER_FITNESS_NUMERATOR / occupancy
         chosen = random_state.choice(len(occupancy), size=n, p=fitness / fitness.sum())
         by_cell = np.argsort(labels, kind="stable")
@@ -296,27 +440,100 @@ class GridArchive:
         offset = np.floor(random_state.random(n) * occupancy[chosen]).astype(int)
         return by_cell[first[chosen] + offset]
 
+    def _set_members(self, members: Population, X: np.ndarray, F: np.ndarray, CV: np.ndarray) -> None:
+        # X, F and CV are kept as arrays too: Population.get walks every individual
+        self.members, self._X, self._F, self._CV = members, X, F, CV
+
     def _outside_grid(self) -> bool:
-        F = self.F
-        return bool(np.any(F < self.lower) or np.any(F > self.upper))
+        return bool(np.any(self._F < self.lower) or np.any(self._F > self.upper))
 
     def _regrid(self) -> None:
-        F = self.F
-        self.lower, self.upper = F.min(axis=0), F.max(axis=0)
+        self.lower, self.upper = self._F.min(axis=0), self._F.max(axis=0)
 
     def _truncate(self, random_state: np.random.Generator) -> None:
+        """Eq. 37 down to ``capacity`` members.
+
+        Eq. 37 (:func:`eq37_removal_counts`) says how many members each cell loses; the
+        paper does not say which. ``removal="random"`` takes them at random (Coello's
+        C code), with equally crowded cells taken in cell order. ``removal="crowding"``
+        removes, one at a time, the member of the cell whose two nearest other members
+        (grid-normalised objectives, d dimensions) are closest, and when eq. 37's
+        rounding leaves an excess, takes it from the most crowded cells, the most
+        crowded member first — so equally crowded cells (in three or more objectives,
+        typically all cells hold one member) are told apart by distances rather than by
+        their index. ``keep_extremes`` protects the per-objective minima either way.
+        """
         labels, occupancy = self.cells()
-        remove = eq37_removal_counts(occupancy, self.capacity)
-        # a random rank within each cell; the lowest `remove[cell]` ranks go
-        order = np.lexsort((random_state.random(len(labels)), labels))
-        first = np.cumsum(occupancy) - occupancy
-        rank = np.empty(len(labels), dtype=int)
-        rank[order] = np.arange(len(labels)) - first[labels[order]]
-        self.members = self.members[rank >= remove[labels]]
+        protected = np.zeros(len(labels), dtype=bool)
+        if self.keep_extremes:
+            protected[np.argmin(self._F, axis=0)] = True
+        removable = np.bincount(labels[~protected], minlength=len(occupancy))
+        excess = len(labels) - self.capacity
+        if removable.sum() < excess:
+            protected[:] = False
+            removable = occupancy.copy()
+        if self.removal == "random":
+            remove = eq37_removal_counts(occupancy, self.capacity, removable=removable)
+            # a random rank within each cell (protected members last); the lowest `remove[cell]` go
+            order = np.lexsort((random_state.random(len(labels)) + 2.0 * protected, labels))
+            first = np.cumsum(occupancy) - occupancy
+            rank = np.empty(len(labels), dtype=int)
+            rank[order] = np.arange(len(labels)) - first[labels[order]]
+            keep = rank >= remove[labels]
+        else:
+            keep = self._remove_crowded(labels, occupancy, protected, removable, excess, random_state)
+        self._set_members(self.members[keep], self._X[keep], self._F[keep], self._CV[keep])
+
+    def _remove_crowded(self, labels, occupancy, protected, removable, excess, random_state):
+        span = self.upper - self.lower
+        Z = (self._F - self.lower) / np.where(span > 0, span, 1.0)
+        D = np.sqrt(((Z[:, None, :] - Z[None, :, :]) ** 2).sum(axis=-1))
+        # a tiny random jitter turns exact distance ties into a random order
+        D += 1e-12 * random_state.random(D.shape)
+        np.fill_diagonal(D, np.inf)
+        alive = np.ones(len(D), dtype=bool)
+        neighbours = np.argpartition(D, 1, axis=1)[:, :2]
+        crowding = np.take_along_axis(D, neighbours, axis=1).sum(axis=1)
+        nearest_cells = np.full(len(occupancy), np.inf)
+        np.minimum.at(nearest_cells, labels[~protected], crowding[~protected])
+        remove = eq37_removal_counts(occupancy, self.capacity, tie_break=-nearest_cells,
+                                     removable=removable, leftover=False)
+        left, can_go = occupancy.copy(), removable.copy()
+
+        def drop(cells):
+            chosen = np.zeros(len(occupancy), dtype=bool)
+            chosen[cells] = True
+            candidates = np.flatnonzero(alive & ~protected & chosen[labels])
+            gone = candidates[np.argmin(crowding[candidates])]
+            alive[gone] = False
+            left[labels[gone]] -= 1
+            can_go[labels[gone]] -= 1
+            D[gone, :] = D[:, gone] = np.inf
+            # only members that had the removed one among their two nearest need a new score
+            stale = np.flatnonzero(alive & (neighbours == gone).any(axis=1))
+            neighbours[stale] = np.argpartition(D[stale], 1, axis=1)[:, :2]
+            crowding[stale] = np.take_along_axis(D[stale], neighbours[stale], axis=1).sum(axis=1)
+
+        for cell in np.flatnonzero(remove):
+            for _ in range(remove[cell]):
+                drop([cell])
+        for _ in range(excess - int(remove.sum())):
+            crowd = np.where(can_go > 0, left, -1)
+            drop(np.flatnonzero(crowd == crowd.max()))
+        return alive
 
 
 class MOPSO(Algorithm):
     """Grid-archive multi-objective PSO of Coello et al. 2004 as used by paper 000.
+
+    The defaults are the robust variant; ``MOPSO(**PAPER_PRESET)`` (or
+    :meth:`MOPSO.paper`) is paper 000's Table 2. Each move (eqs. 38–39, velocity first):
+
+        v ← w v + c1 r1 (pbest − x) + c2 r2 (leader − x),  v clamped to ±max_velocity Δ,
+        x ← x + v,  then the bound rule, mutation and integer rounding,
+
+    with r1, r2 ~ U(0, 1) per particle and dimension, a leader per particle and move
+    drawn from the archive, and Δ = xu − xl per variable.
 
     Parameters
     ----------
@@ -325,24 +542,57 @@ class MOPSO(Algorithm):
     archive_size : int
         Archive capacity Z_ar (Table 2: 100).
     n_divisions : int
-        Grid intervals per objective (Coello 2004: 30).
-    velocity : {"constriction", "inertia"}
-        "constriction": paper 000 eq. 39 with Clerc's constriction factor, φ = 4.1 →
-        w = 0.7298, c1 = c2 = 1.4962 (Table 2). "inertia": Coello 2004's W = 0.4,
-        c1 = c2 = 1.
-    w, c1, c2 : float or None
-        Override the variant's inertia weight / acceleration coefficients.
-    mutation_rate : float or None
-        Coello's mutation rate p_m (0.5 in Coello 2004); mutation acts during the first
-        p_m fraction of the run (:meth:`_mutate`). None disables it — paper 000 does not
-        mention a mutation operator.
-    boundary : {"reflect", "absorb", "clip"}
+        Grid intervals per objective (Coello 2004: 30; default 50, measured slightly
+        better on ZDT2/ZDT3 and no worse elsewhere).
+    velocity : {"scheduled", "constriction", "inertia"}
+        Where unset coefficients (``w``, ``c1``, ``c2`` = None) come from.
+        "scheduled" (the default): w 0.6 → 0.2, c1 = 1, c2 1.75 → 1.0 linearly over the
+        run — a decreasing inertia as in Shi & Eberhart 1998; the social coefficient
+        falls as well (unlike Ratnaweera et al.'s 2004 TVAC): early moves overshoot the
+        leader (c2 r2 > 1), late ones contract onto it. Constant coefficients either
+        converged on ZDT1 and stalled inside the box, or the reverse (docs/MOPSO.md).
+        "constriction": paper 000 eq. 39 with Clerc's
+        constriction factor, φ = 4.1 → w = 0.7298, c1 = c2 = 1.4962 (Table 2).
+        "inertia": Coello 2004's W = 0.4, c1 = c2 = 1.
+    w, c1, c2 : float, pair of float, or None
+        Inertia weight and cognitive / social coefficients, >= 0. A pair [start, end]
+        changes linearly from the first move to the last planned one (see ``horizon``)
+        and stays at ``end`` afterwards.
+    max_velocity : float or None
+        Each velocity component is clamped to ±max_velocity × (xu − xl) before the move
+        (SMPSO: 0.5). None: no clamp (paper 000 and Coello 2004). The default 1.0 (at
+        most the variable's range per move) measured as good as no clamp and better than
+        0.5 with the scheduled coefficients, and still stops a diverging swarm.
+    boundary : {"clip", "reflect", "absorb"}
         What an out-of-range coordinate does to its velocity (:func:`apply_bounds`);
         "reflect" is paper 000's and Coello's rule.
-    max_velocity : float or None
-        If set, each velocity component is clamped to ±max_velocity × (xu − xl) before
-        the move (as SMPSO does with 0.5; Eberhart & Shi 2000 recommend 1.0 together with
-        constriction). Neither paper 000 nor Coello 2004 clamps: None by default.
+    leader : {"roulette", "tournament"}
+        Leader choice from the grid (:meth:`GridArchive.select_leaders`).
+    personal_best : {"dominance", "coin"}
+        pbest update (:meth:`_update_personal_best`); "coin" is Coello 2004's.
+    removal : {"crowding", "random"}
+        Which members of a crowded cell eq. 37 removes (:meth:`GridArchive._truncate`).
+    keep_extremes : bool
+        Truncation never removes the archive's best member in any objective.
+    mutation : {"polynomial", "coello"} or None
+        "polynomial": each move, a share ``mutation_rate`` of the particles (drawn at
+        random) gets Deb's polynomial mutation with probability 1/n_var per variable and
+        distribution index ``mutation_eta`` (:func:`polynomial_mutation`; SMPSO: one
+        particle in six, η = 20). "coello": Coello 2004's operator
+        (:meth:`_coello_mutation`), active during the first ``mutation_rate`` of the run.
+        None: no mutation (paper 000 does not mention one).
+    mutation_rate : float or None
+        In (0, 1]: the share of particles mutated per move ("polynomial"), or Coello's p_m,
+        the share of the run during which mutation acts ("coello"). None: no mutation
+        (the pre-existing key's meaning).
+    mutation_eta : float
+        Distribution index of the polynomial mutation, >= 0.
+    horizon : int or None
+        Run length in generations (the initial swarm included) that scheduled
+        coefficients and Coello's mutation refer to. None: taken from the termination if
+        it is a plain ``("n_gen", G)`` (G) or ``("n_eval", E)`` (⌈E / pop_size⌉)
+        criterion; any other termination (time, tolerance, pymoo's default) does not say
+        how long the run lasts, so paper 000's M = 100 is assumed, with a warning.
     sampling : pymoo Sampling, optional
         Initial positions; uniform in the bounds by default (paper 000 step 1).
     **kwargs
@@ -351,72 +601,91 @@ class MOPSO(Algorithm):
 
     Notes
     -----
-    Measured on 30-variable ZDT problems at 10,000 evaluations
-    (:mod:`mosd.optim.benchmarks`): the paper's settings hardly converge (ZDT1 HV ≈ 0.01
-    of 0.877). Two things limit them: c1 = c2 = 1.4962 against w = 0.7298 keeps the swarm
-    spread when every particle follows a different, changing leader (smaller c or w
-    converges), and reflecting particles off the bound throws them away from ZDT's
-    optimum, which lies on the bound. ``boundary="clip"`` scores like SMPSO on ZDT only
-    because it parks particles on that bound; on a ZDT1 whose optimum lies inside the box
-    it does not help, whereas Coello's ``velocity="inertia"`` matches NSGA-II there.
-
-    ``res.X``/``res.F`` are the final archive. The archive lives in ``self.leader_archive``
-    because pymoo's base class reserves ``self.archive``. Every random draw uses
-    ``self.random_state``, the Generator pymoo seeds in ``setup`` from ``seed``.
+    Median hypervolumes at 10,000 evaluations are in ``docs/MOPSO.md`` (and
+    ``python -m mosd.optim.benchmarks``). ``res.X``/``res.F`` are the final archive. The
+    archive lives in ``self.leader_archive`` because pymoo's base class reserves
+    ``self.archive``. Every random draw uses ``self.random_state``, the Generator pymoo
+    seeds in ``setup`` from ``seed``; ``setup`` also resets the swarm, so a second
+    ``setup`` starts a new run.
     """
 
-    def __init__(self, pop_size: int = 100, archive_size: int = 100, n_divisions: int = 30,
-                 velocity: str = "constriction", w: float | None = None,
-                 c1: float | None = None, c2: float | None = None,
-                 mutation_rate: float | None = 0.5, boundary: str = "reflect",
-                 max_velocity: float | None = None, sampling: Sampling | None = None,
-                 output=None, **kwargs):
+    def __init__(self, pop_size: int = 100, archive_size: int = 100, n_divisions: int = 50,
+                 velocity: str = "scheduled", w=None, c1=None, c2=None,
+                 max_velocity: float | None = 1.0, boundary: str = "clip",
+                 leader: str = "roulette", personal_best: str = "dominance",
+                 removal: str = "crowding", keep_extremes: bool = True,
+                 mutation: str | None = "polynomial", mutation_rate: float | None = 0.15,
+                 mutation_eta: float = 20.0, horizon: int | None = None,
+                 sampling: Sampling | None = None, output=None, **kwargs):
         super().__init__(output=MultiObjectiveOutput() if output is None else output, **kwargs)
-        self.pop_size = check_int("mopso.pop_size", pop_size, 1)
-        self.archive_size = check_int("mopso.archive_size", archive_size, 1)
-        self.n_divisions = check_int("mopso.n_divisions", n_divisions, 1)
-        self.velocity = check_choice("mopso.velocity", velocity, ("constriction", "inertia"))
-        default_w, default_c1, default_c2 = (constriction_coefficients() if velocity == "constriction"
-                                             else COELLO_INERTIA)
-        coefficient = Interval(0.0, math.inf, open_high=True)
-        self.w = default_w if w is None else check_in("mopso.w", w, coefficient)
-        self.c1 = default_c1 if c1 is None else check_in("mopso.c1", c1, coefficient)
-        self.c2 = default_c2 if c2 is None else check_in("mopso.c2", c2, coefficient)
-        self.mutation_rate = (None if mutation_rate is None else
-                              check_in("mopso.mutation_rate", mutation_rate,
-                                       Interval(0.0, 1.0, open_low=True)))
-        self.boundary = check_choice("mopso.boundary", boundary, BOUNDARY_RULES)
+        self.pop_size = check_int("optimizer.pop_size", pop_size, 1)
+        self.archive_size = check_int("optimizer.archive_size", archive_size, 1)
+        self.n_divisions = check_int("optimizer.n_divisions", n_divisions, 1)
+        self.velocity = check_choice("optimizer.velocity", velocity, VELOCITIES)
+        defaults = {"scheduled": SCHEDULED, "constriction": constriction_coefficients(),
+                    "inertia": COELLO_INERTIA}[velocity]
+        self.w, self.c1, self.c2 = (_coefficient(f"optimizer.{name}", value, default)
+                                    for name, value, default in zip(("w", "c1", "c2"), (w, c1, c2), defaults))
         self.max_velocity = (None if max_velocity is None else
-                             check_in("mopso.max_velocity", max_velocity,
+                             check_in("optimizer.max_velocity", max_velocity,
                                       Interval(0.0, math.inf, open_low=True, open_high=True)))
+        self.boundary = check_choice("optimizer.boundary", boundary, BOUNDARY_RULES)
+        self.leader = check_choice("optimizer.leader", leader, LEADER_RULES)
+        self.personal_best = check_choice("optimizer.personal_best", personal_best, PERSONAL_BEST_RULES)
+        self.removal = check_choice("optimizer.removal", removal, REMOVAL_RULES)
+        self.keep_extremes = check_choice("optimizer.keep_extremes", keep_extremes, (True, False))
+        self.mutation = check_choice("optimizer.mutation", mutation, (*MUTATIONS, None))
+        self.mutation_rate = (None if mutation_rate is None else
+                              check_in("optimizer.mutation_rate", mutation_rate,
+                                       Interval(0.0, 1.0, open_low=True)))
+        self.mutation_eta = check_in("optimizer.mutation_eta", mutation_eta,
+                                     Interval(0.0, math.inf, open_high=True))
+        self.horizon = None if horizon is None else check_int("optimizer.horizon", horizon, 1)
         if sampling is not None and not isinstance(sampling, Sampling):
-            raise ConfigError(f"mopso.sampling={sampling!r} is not allowed; allowed: a pymoo Sampling")
+            raise ConfigError(f"optimizer.sampling={sampling!r} is not allowed; allowed: a pymoo Sampling")
         self.sampling = FloatRandomSampling() if sampling is None else sampling
 
+        # swarm state, (re)built by _setup
         self.leader_archive: GridArchive | None = None
-        self.personal_best: Population | None = None
+        self.particle_position: np.ndarray | None = None
         self.particle_velocity: np.ndarray | None = None
-        self.n_moves = 0
-        self.mutation_horizon: int | None = None
+        self.pbest_X: np.ndarray | None = None
+        self.pbest_F: np.ndarray | None = None
+        self.pbest_CV: np.ndarray | None = None
+        self.is_integer: np.ndarray | None = None
+        self.planned_generations: int | None = None
+
+    @classmethod
+    def paper(cls, **overrides) -> "MOPSO":
+        """Paper 000's Table 2 settings (:data:`PAPER_PRESET`), optionally overridden."""
+        return cls(**{**PAPER_PRESET, **overrides})
 
     # -- pymoo lifecycle ------------------------------------------------------------------
 
     def _setup(self, problem, **kwargs):
         if not problem.has_bounds() or not (np.all(np.isfinite(problem.xl))
                                             and np.all(np.isfinite(problem.xu))):
-            raise ConfigError("mopso: the problem needs finite bounds xl, xu; allowed: finite bounds")
-        if self.mutation_rate is not None:
-            self.mutation_horizon = self._planned_generations() - 1
+            raise ConfigError("optimizer: the problem needs finite bounds xl, xu; allowed: finite bounds")
+        self.is_integer = _integer_mask(problem)
+        self.leader_archive = GridArchive(self.archive_size, self.n_divisions, self.removal,
+                                          self.keep_extremes)
+        self.particle_position = self.particle_velocity = None
+        self.pbest_X = self.pbest_F = self.pbest_CV = None
+        self.planned_generations = self._planned_generations()
+        # a second setup() starts a new run: pymoo would otherwise skip _initialize_infill
+        self.is_initialized = False
 
     def _initialize_infill(self):
-        return self.sampling.do(self.problem, self.pop_size, algorithm=self,
-                                random_state=self.random_state)
+        X = self.sampling.do(self.problem, self.pop_size, algorithm=self,
+                             random_state=self.random_state).get("X")
+        return Population.new("X", round_integers(X, self.is_integer, self.problem.xl, self.problem.xu))
 
     def _initialize_advance(self, infills=None, **kwargs):
         # paper 000 step 1: v_0 = 0 and Pbest_0 = Pop_0
-        self.particle_velocity = np.zeros((len(infills), self.problem.n_var))
-        self.personal_best = infills.copy()
-        self.leader_archive = GridArchive(self.archive_size, self.n_divisions)
+        X, F, CV = infills.get("X", "F", "CV")
+        self.particle_position = X
+        self.particle_velocity = np.zeros_like(X, dtype=float)
+        self.pbest_X, self.pbest_F, self.pbest_CV = X.copy(), F.copy(), CV.reshape(-1).copy()
         self.leader_archive.update(infills, self.random_state)
 
     def _infill(self):
@@ -426,52 +695,70 @@ class MOPSO(Algorithm):
         taken literally with v_0 = 0 the first generation would re-evaluate the initial
         swarm. As Coello 2004 and Clerc & Kennedy do, the velocity is updated first and
         the position moves by the new velocity. r1, r2 are drawn per particle and
-        dimension; each particle has its own leader.
+        dimension; each particle has its own leader. Move t (0-based) is generation
+        n_iter = t + 2 of pymoo's count (generation 1 is the initial swarm).
         """
-        rng, archive = self.random_state, self.leader_archive
-        X = self.pop.get("X")
-        personal = self.personal_best.get("X")
-        leaders = archive.X[archive.select_leaders(len(X), rng)]
+        rng, archive, problem = self.random_state, self.leader_archive, self.problem
+        move = self.n_iter - 2
+        X, personal = self.particle_position, self.pbest_X
+        leaders = archive.X[archive.select_leaders(len(X), rng, self.leader)]
+        w, c1, c2 = (self._scheduled(value, move) for value in (self.w, self.c1, self.c2))
         r1, r2 = rng.random(X.shape), rng.random(X.shape)
-        velocity = (self.w * self.particle_velocity + self.c1 * r1 * (personal - X)
-                    + self.c2 * r2 * (leaders - X))
+        velocity = w * self.particle_velocity + c1 * r1 * (personal - X) + c2 * r2 * (leaders - X)
         if self.max_velocity is not None:
-            limit = self.max_velocity * (self.problem.xu - self.problem.xl)
+            limit = self.max_velocity * (problem.xu - problem.xl)
             velocity = np.clip(velocity, -limit, limit)
-        X_new, velocity = apply_bounds(X + velocity, velocity, self.problem.xl, self.problem.xu,
-                                       self.boundary)
-        if self.mutation_rate is not None:
-            X_new = self._mutate(X_new, self.n_moves)
+        X_new, velocity = apply_bounds(X + velocity, velocity, problem.xl, problem.xu, self.boundary)
+        if self.mutation_rate is not None and self.mutation == "coello":
+            X_new = self._coello_mutation(X_new, move)
+        elif self.mutation_rate is not None and self.mutation == "polynomial":
+            chosen = rng.random(len(X_new)) < self.mutation_rate
+            X_new[chosen] = polynomial_mutation(X_new[chosen], problem.xl, problem.xu,
+                                                1.0 / problem.n_var, self.mutation_eta, rng)
         self.particle_velocity = velocity
-        self.n_moves += 1
-        return Population.new("X", X_new)
+        return Population.new("X", round_integers(X_new, self.is_integer, problem.xl, problem.xu))
 
     def _advance(self, infills=None, **kwargs):
         self.pop = infills
         self.leader_archive.update(infills, self.random_state)
-        self._update_personal_best(infills)
+        self._update_personal_best(*infills.get("X", "F", "CV"))
 
     def _set_optimum(self):
         self.opt = self.leader_archive.members.copy()
 
     # -- components -------------------------------------------------------------------------
 
-    def _update_personal_best(self, infills: Population) -> None:
-        """pbest ← new position if it dominates pbest; keep pbest if pbest dominates it;
-        otherwise a fair coin decides (Coello 2004). Dominance is feasibility-first."""
-        new_F, new_CV = infills.get("F"), infills.get("CV")
-        old_F, old_CV = self.personal_best.get("F"), self.personal_best.get("CV")
-        new_wins = pairwise_dominates(new_F, new_CV, old_F, old_CV)
-        old_wins = pairwise_dominates(old_F, old_CV, new_F, new_CV)
-        coin = self.random_state.random(len(infills)) < 0.5
-        replace = new_wins | (~old_wins & coin)
-        self.personal_best[replace] = infills[replace]
+    def _update_personal_best(self, X: np.ndarray, F: np.ndarray, CV: np.ndarray) -> None:
+        """Move the particles to their evaluated positions and update pbest.
 
-    def _mutate(self, X: np.ndarray, move: int) -> np.ndarray:
+        ``"dominance"`` (SMPSO): pbest ← the new position unless pbest dominates it.
+        ``"coin"`` (Coello 2004): pbest ← the new position if it dominates pbest, pbest
+        stays if it dominates the new one, otherwise a fair coin decides. Dominance is
+        feasibility-first (:func:`dominance_matrix`).
+        """
+        CV = CV.reshape(-1)
+        self.particle_position = X
+        old_wins = pairwise_dominates(self.pbest_F, self.pbest_CV, F, CV)
+        if self.personal_best == "coin":
+            new_wins = pairwise_dominates(F, CV, self.pbest_F, self.pbest_CV)
+            coin = self.random_state.random(len(X)) < 0.5
+            replace = new_wins | (~old_wins & coin)
+        else:
+            replace = ~old_wins
+        self.pbest_X[replace], self.pbest_F[replace], self.pbest_CV[replace] = X[replace], F[replace], CV[replace]
+
+    def _scheduled(self, value, move: int) -> float:
+        if not isinstance(value, tuple):
+            return value
+        start, end = value
+        last = self.planned_generations - 2
+        return end if last <= 0 else start + (end - start) * min(1.0, move / last)
+
+    def _coello_mutation(self, X: np.ndarray, move: int) -> np.ndarray:
         """Coello 2004's mutation operator (§IV-C).
 
-        With T the number of moves in the run and t the index of this move (0-based),
-        the operator is active while t < T p_m, with strength
+        With T = planned generations − 1 the number of moves in the run and t the index
+        of this move (0-based), the operator is active while t < T p_m, with strength
         s = (1 − t / (T p_m))^1.5: each particle is mutated with probability s, in one
         dimension chosen at random, to a uniform value in [x − s Δ, x + s Δ] ∩ [xl, xu]
         (Δ = xu − xl). So at the start every particle is mutated over the full range, and
@@ -479,7 +766,7 @@ class MOPSO(Algorithm):
         paper gives the operator in words; the 1.5 decay exponent is that of the
         authors' C implementation. The velocity is left unchanged.
         """
-        horizon = self.mutation_horizon * self.mutation_rate
+        horizon = (self.planned_generations - 1) * self.mutation_rate
         if horizon <= 0 or move >= horizon:
             return X
         strength = (1.0 - move / horizon) ** MUTATION_DECAY_EXPONENT
@@ -496,26 +783,70 @@ class MOPSO(Algorithm):
         return X
 
     def _planned_generations(self) -> int:
-        """Generations the termination allows, for the mutation schedule.
+        """Generations the run is planned to last (the initial swarm counts as one).
 
-        Looks through the termination (and nested criteria, e.g. pymoo's default) for
-        ``n_gen`` and ``n_eval`` limits; an ``n_eval`` limit E counts as ⌈E / pop_size⌉
-        generations; the smallest finite limit wins. A termination without such a limit
-        (time, tolerance) falls back to paper 000's M = 100 iterations, with a warning.
+        ``horizon`` if given; else the limit of a termination that *is* a
+        MaximumGenerationTermination (``n_gen``) or MaximumFunctionCallTermination
+        (``n_eval`` E → ⌈E / pop_size⌉). The limits nested inside combined criteria such
+        as pymoo's default termination (1,000 generations or 100,000 evaluations, but
+        usually ended much earlier by its tolerances) are not a run length and are not
+        read; then, if anything depends on the run length, paper 000's M = 100 is
+        assumed with a warning.
         """
-        limits, stack = [], [self.termination]
-        while stack:
-            criterion = stack.pop()
-            if isinstance(criterion, MaximumGenerationTermination):
-                limits.append(criterion.n_max_gen)
-            elif isinstance(criterion, MaximumFunctionCallTermination) and criterion.n_max_evals is not None:
-                limits.append(math.ceil(criterion.n_max_evals / self.pop_size))
-            stack.extend(getattr(criterion, "criteria", ()))
-            if getattr(criterion, "termination", None) is not None:
-                stack.append(criterion.termination)
-        limits = [limit for limit in limits if limit is not None and math.isfinite(limit)]
-        if limits:
-            return max(1, int(min(limits)))
-        warnings.warn("MOPSO: the termination has no n_gen/n_eval limit; the mutation schedule "
-                      f"assumes {PAPER_MAX_ITERATIONS} generations (paper 000, Table 2)", stacklevel=2)
+        if self.horizon is not None:
+            return self.horizon
+        criterion = self.termination
+        limit = None
+        if isinstance(criterion, MaximumGenerationTermination):
+            limit = criterion.n_max_gen
+        elif isinstance(criterion, MaximumFunctionCallTermination) and criterion.n_max_evals is not None:
+            limit = math.ceil(criterion.n_max_evals / self.pop_size)
+        if limit is not None and math.isfinite(limit):
+            return max(1, int(limit))
+        scheduled = any(isinstance(value, tuple) for value in (self.w, self.c1, self.c2))
+        if scheduled or (self.mutation == "coello" and self.mutation_rate is not None):
+            warnings.warn("MOPSO: the termination is not an n_gen/n_eval limit and optimizer.horizon is "
+                          f"not set; schedules assume {PAPER_MAX_ITERATIONS} generations "
+                          "(paper 000, Table 2)", stacklevel=2)
         return PAPER_MAX_ITERATIONS
+
+
+def _coefficient(name: str, value, default):
+    """A coefficient >= 0, or a pair [start, end] of them (returned as a tuple); None → default."""
+    if value is None:
+        return default
+    allowed = "a number >= 0 or a pair [start, end] of such numbers"
+    if isinstance(value, (list, tuple)):
+        if len(value) != 2:
+            raise ConfigError(f"{name}={value!r} is not allowed; allowed: {allowed}")
+        pair = tuple(_coefficient(name, item, None) for item in value)
+        if any(isinstance(item, tuple) for item in pair):
+            raise ConfigError(f"{name}={value!r} is not allowed; allowed: {allowed}")
+        return pair
+    if isinstance(value, bool):
+        raise ConfigError(f"{name}={value!r} is not allowed; allowed: {allowed}")
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        raise ConfigError(f"{name}={value!r} is not allowed; allowed: {allowed}") from None
+    if not (math.isfinite(number) and number >= 0.0):
+        raise ConfigError(f"{name}={value!r} is out of range; allowed: {allowed}")
+    return value if isinstance(value, float) else number
+
+
+def _integer_mask(problem) -> np.ndarray | None:
+    """``problem.is_integer`` checked: None when absent or all False."""
+    mask = getattr(problem, "is_integer", None)
+    if mask is None:
+        return None
+    mask = np.asarray(mask)
+    if mask.dtype != bool or mask.shape != (problem.n_var,):
+        raise ConfigError(f"problem.is_integer has dtype {mask.dtype} and shape {mask.shape}; "
+                          f"allowed: a boolean array of length n_var={problem.n_var}")
+    if not mask.any():
+        return None
+    low, high = np.ceil(problem.xl[mask]), np.floor(problem.xu[mask])
+    if np.any(low > high):
+        raise ConfigError("problem.is_integer marks a variable whose bounds contain no integer; "
+                          "allowed: integer variables with an integer in [xl, xu]")
+    return mask

@@ -1,0 +1,75 @@
+"""The optimiser benchmark (mosd.optim.benchmarks): table shape quickly, the issue's targets slowly."""
+import numpy as np
+import pytest
+
+from mosd.optim.benchmarks import (ABLATIONS, ALGORITHMS, DEFAULT_NAME, NSGA2_NAME, PAPER_NAME, SMPSO_NAME,
+                                   JMetalSMPSO, benchmark_table, format_ratios, format_table, main,
+                                   make_problem, smpso_available)
+from mosd.validation import ConfigError
+
+needs_jmetal = pytest.mark.skipif(not smpso_available(), reason="jMetalPy not installed")
+
+
+def test_table_rows_per_problem_and_algorithm_and_markdown():
+    rows = benchmark_table(problems=("zdt1", "dtlz2"), algorithms=[DEFAULT_NAME, NSGA2_NAME],
+                           seeds=(1, 2), n_eval=400, n_jobs=1)
+    assert [(r["problem"], r["algorithm"]) for r in rows] == [
+        ("ZDT1", DEFAULT_NAME), ("ZDT1", NSGA2_NAME), ("DTLZ2", DEFAULT_NAME), ("DTLZ2", NSGA2_NAME)]
+    for row in rows:
+        assert len(row["hv"]) == 2 and row["hv_median"] == float(np.median(row["hv"]))
+        assert row["igd_median"] > 0.0 and row["n_eval"] == 400
+    assert rows[0]["reference_point"] == (1.1, 1.1) and rows[2]["reference_point"] == (1.1, 1.1, 1.1)
+    table = format_table(rows).splitlines()
+    assert table[0] == "| algorithm | ZDT1 HV | DTLZ2 HV |" and len(table) == 4
+    assert f"{rows[3]['hv_median']:.4f}" in table[3]
+    ratios = format_ratios(rows, references=(NSGA2_NAME,)).splitlines()
+    expected = rows[0]["hv_median"] / rows[1]["hv_median"] if rows[1]["hv_median"] else None
+    assert ratios[2].startswith(f"| {DEFAULT_NAME} / {NSGA2_NAME} |")
+    if expected is not None:
+        assert f"{expected:.3f}" in ratios[2]
+
+
+def test_same_seeds_same_table():
+    kwargs = dict(problems=("zdt2",), algorithms=[DEFAULT_NAME, PAPER_NAME], seeds=(3,), n_eval=300, n_jobs=1)
+    first, again = benchmark_table(**kwargs), benchmark_table(**kwargs)
+    assert [r["hv"] for r in first] == [r["hv"] for r in again]
+
+
+def test_unknown_names_fail_listing_the_allowed_ones():
+    with pytest.raises(ConfigError, match=r"benchmark.algorithms=\['SPEA2'\].*allowed: .*NSGA-II"):
+        benchmark_table(algorithms=["SPEA2"], n_eval=100)
+    with pytest.raises(ConfigError, match="benchmark.problems='zdt5'.*allowed: zdt1"):
+        make_problem("zdt5")
+    assert set(ABLATIONS).isdisjoint(ALGORITHMS)
+
+
+@needs_jmetal
+def test_smpso_runs_on_the_pymoo_problem_reproducibly():
+    problem = make_problem("zdt1")
+    first = JMetalSMPSO(swarm_size=20, archive_size=20).solve(problem, 400, seed=4)
+    again = JMetalSMPSO(swarm_size=20, archive_size=20).solve(problem, 400, seed=4)
+    assert first.ndim == 2 and first.shape[1] == 2 and 0 < len(first) <= 20
+    assert np.array_equal(first, again)
+    # objectives are the pymoo problem's at the returned points' objectives: f1 = x1 in [0, 1]
+    assert np.all((first[:, 0] >= 0) & (first[:, 0] <= 1))
+
+
+def test_main_prints_the_table_and_the_ratios(capsys):
+    assert main(["--problems", "zdt1", "--seeds", "1", "--n-eval", "200", "--n-jobs", "1"]) == 0
+    out = capsys.readouterr().out
+    assert "| algorithm | ZDT1 HV |" in out and f"| {DEFAULT_NAME} |" in out and f"| {PAPER_NAME} |" in out
+    assert f"| {DEFAULT_NAME} / {NSGA2_NAME} |" in out
+    assert (SMPSO_NAME in out) == smpso_available()
+
+
+@pytest.mark.slow
+@needs_jmetal
+def test_default_meets_the_issue_targets():
+    """Issue 14: median HV >= SMPSO's on ZDT1-3 and >= 0.95 x NSGA-II's on DTLZ2 (10,000 evaluations,
+    seeds 1-5). About 20 s on two idle cores."""
+    rows = benchmark_table(problems=("zdt1", "zdt2", "zdt3", "dtlz2"),
+                           algorithms=[DEFAULT_NAME, SMPSO_NAME, NSGA2_NAME], n_jobs=2)
+    hv = {(r["problem"], r["algorithm"]): r["hv_median"] for r in rows}
+    for problem in ("ZDT1", "ZDT2", "ZDT3"):
+        assert hv[problem, DEFAULT_NAME] >= hv[problem, SMPSO_NAME], problem
+    assert hv["DTLZ2", DEFAULT_NAME] >= 0.95 * hv["DTLZ2", NSGA2_NAME]
