@@ -454,8 +454,9 @@ class GridArchive:
         """Eq. 37 down to ``capacity`` members.
 
         Eq. 37 (:func:`eq37_removal_counts`) says how many members each cell loses; the
-        paper does not say which. ``removal="random"`` takes them at random (Coello's
-        C code), with equally crowded cells taken in cell order. ``removal="crowding"``
+        paper does not say which. ``removal="random"`` takes them at random, with
+        equally crowded cells taken in cell order (the previous behaviour, kept for the
+        paper preset). ``removal="crowding"``
         removes, one at a time, the member of the cell whose two nearest other members
         (grid-normalised objectives, d dimensions) are closest, and when eq. 37's
         rounding leaves an excess, takes it from the most crowded cells, the most
@@ -748,6 +749,8 @@ class MOPSO(Algorithm):
         self.pbest_X[replace], self.pbest_F[replace], self.pbest_CV[replace] = X[replace], F[replace], CV[replace]
 
     def _scheduled(self, value, move: int) -> float:
+        """A coefficient at move ``move``: a constant, or a pair [start, end] linear from the
+        first move (0) to the last planned one (planned generations − 2), then ``end``."""
         if not isinstance(value, tuple):
             return value
         start, end = value
