@@ -58,6 +58,7 @@ from .experiment import Budget, Experiment, PreparedData, Tuned
 from .faults import SensorFault
 from .metrics import DetectionReport, Estimate
 from .monitors import SubgroupMonitor as Monitor
+from .optim.mopso import PAPER_PRESET
 from .noise import GaussianNoise
 from .plants import MouldOscillator
 from .types import Subgroups
@@ -122,7 +123,7 @@ PAPER_GOOD_REGION = {"lam": (0.25, 0.45), "K": (3.5, 5.0), "below": 0.01}
 
 #: Table 2's MOPSO, literally: constriction (eqs. 38–39, w = 0.7298, c = 1.4962), velocity
 #: reversed at a bound, Coello's mutation, roulette leaders on the adaptive grid.
-PAPER_MOPSO: dict[str, Any] = {"velocity": "constriction", "boundary": "reflect", "mutation_rate": 0.5}
+PAPER_MOPSO: dict[str, Any] = dict(PAPER_PRESET)
 
 #: MOPSO search box of Table 2 (K_SD ∈ (0, 5); λ keeps its open (0, 1)).
 PAPER_BOUNDS = {"K": (0.0, 5.0)}
@@ -411,7 +412,7 @@ def make_solver(algorithm: str, pop_size: int):
     if algorithm == "mopso":
         from .optim.mopso import MOPSO
 
-        return MOPSO(pop_size=pop_size, archive_size=100, **PAPER_MOPSO)
+        return MOPSO(pop_size=pop_size, **PAPER_MOPSO)
     from pymoo.algorithms.moo.nsga2 import NSGA2
 
     return NSGA2(pop_size=pop_size)

@@ -154,7 +154,7 @@ def test_defaults_are_paper_scale(composer):
     assert isinstance(setup.algorithm, MOPSO) and setup.algorithm.pop_size == 100 and setup.n_gen == 100
     budget = setup.experiment.budget
     assert (budget.n_calibration, budget.n_train, budget.n_test) == (10, 10, 100)
-    assert setup.bounds == {"lam": (0.0, 1.0), "K": (0.0, 5.0)}
+    assert setup.bounds == {"lam": (0.0, 1.0), "K": (0.0, 10.0)}  # Fig. 1's range; paper000 keeps 5
     exp = setup.experiment
     assert isinstance(exp.plant, MouldOscillator) and isinstance(exp.noise, GaussianNoise)
     assert isinstance(exp.estimator, DedicatedObserverResidual) and isinstance(exp.estimator.filter, CESCKF)

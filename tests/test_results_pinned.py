@@ -17,9 +17,9 @@ from mosd.optim.mopso import MOPSO
 def test_main_command_setup_gives_the_pinned_design_and_metrics():
     with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
         cfg = compose("config", overrides=["+fault=offset_var", "denoise=wavelet", "budget.n_test=10",
-                                              "tracking=none"])
+                                              "detector.bounds.K=[0.0,5.0]", "tracking=none"])
     setup = build(cfg)
-    algorithm = MOPSO(pop_size=20, archive_size=100, n_divisions=30, **paper.PAPER_MOPSO)
+    algorithm = MOPSO.paper(pop_size=20)  # the pre-redesign default was the paper's Table 2
     result = setup.experiment.run(algorithm, ("n_gen", 10), n_jobs=1, bounds=setup.bounds, choose=setup.choose)
     assert result.params["lam"] == pytest.approx(0.5145937447268027, abs=1e-12)
     assert result.params["K"] == pytest.approx(5.0, abs=1e-12)

@@ -220,3 +220,25 @@ def optimisation_history(path: str | Path, records: Sequence[dict], title: str =
     fig.suptitle(title or (f"Optimisation history: {len(gen)} generations"
                            + (f", {int(n_eval)} evaluations" if n_eval else "")), fontsize=10)
     return _save(fig, path)
+
+
+def pareto_pairs(path: str | Path, F: np.ndarray, chosen: int | None = None, title: str = "",
+                 labels: tuple[str, ...] = ()) -> Path:
+    """An archive of three or more objectives: every pair of objectives in its own panel, chosen design starred."""
+    F = np.atleast_2d(np.asarray(F, float))
+    d = F.shape[1]
+    labels = tuple(labels) or tuple(f"f{i + 1}" for i in range(d))
+    pairs = [(i, j) for i in range(d) for j in range(i + 1, d)]
+    fig = _figure(3.4 * len(pairs), 3.4)
+    axes = np.atleast_1d(fig.subplots(1, len(pairs)))
+    finite = np.isfinite(F).all(axis=1)
+    for ax, (i, j) in zip(axes, pairs):
+        ax.scatter(F[finite, i], F[finite, j], s=10, color="tab:blue", label="archive (training)")
+        if chosen is not None and finite[chosen]:
+            ax.plot(F[chosen, i], F[chosen, j], "*", ms=13, color="tab:red", label="chosen")
+        ax.set_xlabel(labels[i])
+        ax.set_ylabel(labels[j])
+        ax.grid(alpha=0.3)
+    axes[0].legend(loc="best", fontsize=7)
+    fig.suptitle(title or f"Archive over {d} objectives")
+    return _save(fig, path)

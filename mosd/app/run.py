@@ -151,6 +151,7 @@ def write_run_files(run_dir: Path, cfg, result, setup: Setup, labels: Mapping[st
         "labels": dict(labels),
         "params": result.params,
         "online": bool(setup.experiment.detector.is_causal),
+        "on_bound": on_bound(result.params, setup),
         "objectives": list(result.objectives),
         "train": dict(result.train_objectives),
         "test": {k: {"mean": v.mean, "ci95_half_width": v.half_width, "n": v.n} for k, v in summary.items()},
@@ -164,9 +165,12 @@ def write_run_files(run_dir: Path, cfg, result, setup: Setup, labels: Mapping[st
     monitor = setup.experiment.monitor
     title = f"{labels.get('detector', '')} on {labels.get('fault', '')} fault: " + ", ".join(
         f"{k} = {v:.4g}" for k, v in result.params.items())
+    archive_title = f"Archive of {labels.get('optimizer', '')} (training replications)"
     if F.shape[1] == 2:
-        written.append(plots.pareto_front(run_dir / "pareto.png", F, result.chosen_index,
-                                          title=f"Archive of {labels.get('optimizer', '')} (training replications)",
+        written.append(plots.pareto_front(run_dir / "pareto.png", F, result.chosen_index, title=archive_title,
+                                          labels=tuple(objectives)))
+    else:
+        written.append(plots.pareto_pairs(run_dir / "pareto.png", F, result.chosen_index, title=archive_title,
                                           labels=tuple(objectives)))
     t = ex["t"] if ex.get("t") is not None else np.arange(len(ex["statistic"])) * ex["seconds_per_point"]
     written.append(plots.chart_trace(run_dir / "chart.png", t, ex["statistic"], ex["ucl"], ex["fault_mask"],
@@ -187,6 +191,18 @@ def write_run_files(run_dir: Path, cfg, result, setup: Setup, labels: Mapping[st
             title=f"{labels.get('optimizer', '')} on the {labels.get('fault', '')} fault: {len(result.history)} "
                   f"generations, {n_eval} evaluations (training replications)"))
     return written
+
+
+def on_bound(params: Mapping[str, float], setup: Setup) -> list[str]:
+    """The chosen parameters that sit on the optimiser's search box (1e-6 of its width)."""
+    names = []
+    for name, value in params.items():
+        interval = setup.experiment.detector.tunable[name]
+        low, high = setup.bounds.get(name, (interval.low, interval.high))
+        tol = 1e-6 * (high - low) + (1e-6 if interval.open_low or interval.open_high else 0.0)
+        if value <= low + tol or value >= high - tol:
+            names.append(f"{name} = {value:g} in [{low:g}, {high:g}]")
+    return names
 
 
 def final_metrics(result, seconds_per_point: float) -> dict[str, float]:
@@ -224,6 +240,8 @@ def _format_summary(labels, result, setup: Setup, metrics, timings, run_dir, tra
         f"mosd  {preset}fault={labels.get('fault')}  detector={labels.get('detector')}  optimizer={opt} "
         f"({pop} × {setup.n_gen})  estimator={labels.get('estimator')}  denoise={labels.get('denoise')}",
         f"chosen    {params}   (training: {train}; archive of {len(result.archive_F)})",
+        *([f"          on the search bound: {', '.join(on_bound(result.params, setup))} "
+           "(widen detector.bounds: the optimum may lie outside the box)"] if on_bound(result.params, setup) else []),
         f"test      {n_test} fresh replications, mean ± 95 % CI half-width; {online}",
         f"  FAR       {pm('far')}",
         f"  MDR       {pm('mdr')}",

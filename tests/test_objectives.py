@@ -1,0 +1,46 @@
+"""Any number of objectives chosen by name: a three-objective tuning end to end, and the on-bound flag."""
+import json
+
+import numpy as np
+import pytest
+from hydra import compose, initialize_config_dir
+
+from mosd.app import plots
+from mosd.app.build import build
+from mosd.app.config import CONFIG_DIR
+from mosd.app.run import on_bound
+from mosd.validation import ConfigError
+
+
+def _setup(*overrides):
+    with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
+        return build(compose("config", overrides=["+fault=offset_var", "tracking=none", *overrides]))
+
+
+def test_three_objectives_tune_choose_and_plot(tmp_path):
+    setup = _setup("optimizer.objectives=[far,mdr,delay_censored]", "selection.rule=knee", "budget.n_train=2",
+                   "budget.n_calibration=2", "budget.n_test=3")
+    result = setup.experiment.run(setup.algorithm, ("n_gen", 4), n_jobs=1, bounds=setup.bounds,
+                                  choose=setup.choose)
+    assert result.archive_F.shape[1] == 3 and result.objectives == ("far", "mdr", "delay_censored")
+    assert set(result.train_objectives) == {"far", "mdr", "delay_censored"}
+    # the knee of three objectives is the archive member closest to the (scaled) ideal point
+    F = result.archive_F
+    scaled = (F - F.min(axis=0)) / np.where(np.ptp(F, axis=0) > 0, np.ptp(F, axis=0), 1.0)
+    assert result.chosen_index == int(np.argmin(np.sqrt((scaled**2).sum(axis=1))))
+    path = plots.pareto_pairs(tmp_path / "pareto.png", F, result.chosen_index, labels=result.objectives)
+    assert path.stat().st_size > 0
+
+
+def test_far_mdr_rules_need_far_and_mdr():
+    with pytest.raises(ConfigError, match="selection.rule=max_accuracy needs far and mdr"):
+        _setup("optimizer.objectives=[far,delay_censored]")
+    with pytest.raises(ConfigError, match="optimizer.objectives: 'speed' is not an objective; allowed: "):
+        _setup("optimizer.objectives=[far,speed]")
+
+
+def test_a_design_on_the_search_box_is_flagged():
+    setup = _setup("detector.bounds.K=[0.0,5.0]")
+    assert on_bound({"lam": 0.4, "K": 5.0}, setup) == ["K = 5 in [0, 5]"]
+    assert on_bound({"lam": 0.4, "K": 3.0}, setup) == []
+    assert json.dumps(on_bound({"lam": 0.4, "K": 0.0}, setup))  # serialisable for summary.json
