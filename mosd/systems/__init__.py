@@ -15,3 +15,11 @@ that ran (its seed, budgets and components), ``result`` its
 Monte Carlo runs from the experiment's seed streams, so nothing it reports was
 seen by the optimiser.
 """
+
+
+def run_designs(study, experiment, designs: dict, out_dir):
+    """What a report command does with its designs: the study's data, metrics and figures (in ``out_dir``)."""
+    from pathlib import Path
+
+    data = study.compute(experiment, designs)
+    return data, study.metrics(data), study.write_figures(data, Path(out_dir))

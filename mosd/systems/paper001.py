@@ -31,6 +31,7 @@ from ..noise.continuous import ContinuousWhiteNoise
 from ..plants.networked_target import NetworkedTarget
 from ..scenario import Scenario
 from ..validation import ConfigError, check_int
+from . import run_designs
 
 DURATION = 41.0  # fusion instants t = 0, 1, ..., 40 s
 FILTERS = {"fused": None, "s1": ("s1",), "s2": ("s2",), "s3": ("s3",)}
@@ -352,10 +353,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ConfigError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    data = study.compute(experiment, {"tuned": tuned, "paper": paper})
-    metrics = study.metrics(data)
     out = Path(args.out)
-    files = study.write_figures(data, out)
+    data, metrics, files = run_designs(study, experiment, {"tuned": tuned, "paper": paper}, out)
     designs = {k: v["params"] for k, v in data["decisions"].items()}
     (out / "paper001_study.json").write_text(json.dumps({"metrics": metrics, "designs": designs,
                                                          "n_reps": args.n_reps, "seed": args.seed}, indent=1))

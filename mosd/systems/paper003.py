@@ -37,6 +37,7 @@ from ..faults.ramp import RampFault
 from ..plants.flapping_wing import FlappingWingMAV
 from ..scenario import STREAMS, replication_rngs
 from ..validation import ConfigError, Interval, check_in, check_int
+from . import run_designs
 
 #: σ of the logged channels' white noise: GPS altitude (m), down velocity (m/s), pitch (rad), throttle, tail (rad)
 LOG_NOISE_SIGMA = (0.05, 0.05, 0.005, 0.001, 0.001)
@@ -526,10 +527,8 @@ def main(argv=None) -> int:
     except ConfigError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    data = study.compute(experiment, {"tuned": tuned, "paper": paper})
-    metrics = study.metrics(data)
     out = Path(args.out)
-    files = study.write_figures(data, out)
+    data, metrics, files = run_designs(study, experiment, {"tuned": tuned, "paper": paper}, out)
     (out / "paper003_study.json").write_text(json.dumps({
         "metrics": metrics, "designs": data["params"], "windows": list(windows), "rates": list(study.rates),
         "n_runs": args.n_runs, "seed": args.seed, "observer_sigma": data["sigma"],
