@@ -146,10 +146,13 @@ def worker_pool(n_jobs: int, warm: bool = False):
     loading the compiled kernels from the on-disk cache), without waiting for it,
     so that process start-up overlaps with the caller's own work (simulation).
     """
-    from joblib.externals.loky import get_reusable_executor
+    # joblib's own memmapping flavour of loky's reusable executor: joblib.Parallel (used elsewhere in
+    # the same process, e.g. the optimiser benchmarks) reuses or replaces this one; a plain loky
+    # executor in that global slot makes Parallel fail (no _temp_folder_manager)
+    from joblib.executor import get_memmapping_executor
 
     n_workers = max(1, n_jobs - 1)
-    executor = get_reusable_executor(max_workers=n_workers, timeout=600)
+    executor = get_memmapping_executor(n_workers, timeout=600)
     if warm:
         for _ in range(n_workers):
             executor.submit(_warm_up, 0.05)
