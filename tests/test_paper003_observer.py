@@ -177,3 +177,15 @@ def test_module_imports_without_torch():
             "import mosd.estimators.neural_observer as m; print('ok')")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=".")
     assert done.returncode == 0 and "ok" in done.stdout, done.stderr
+
+
+def test_missing_pytorch_is_one_line_at_construction(monkeypatch):
+    import importlib.util
+
+    from mosd.estimators.neural_observer import MultiStepNeuralObserver
+    from mosd.validation import ConfigError
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "torch" else real(name, *a))
+    with pytest.raises(ConfigError, match=r"estimator=neural_observer needs PyTorch.*pip install"):
+        MultiStepNeuralObserver()

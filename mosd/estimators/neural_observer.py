@@ -35,6 +35,8 @@ runs do not retrain. Prediction runs in NumPy from the stored weights, so
 """
 from __future__ import annotations
 
+import importlib.util
+
 import hashlib
 import json
 import math
@@ -106,6 +108,10 @@ class MultiStepNeuralObserver(Estimator):
                  validation_fraction: float = 0.3, batch_size: int = 256, weighting: str = "linear",
                  altitude_channel: int = 0, ekf: AltitudeKalmanFilter | None = None,
                  cache_dir: str | None = DEFAULT_CACHE, progress: bool = True):
+        if importlib.util.find_spec("torch") is None:
+            # found now, before any simulation, rather than as a traceback when training starts
+            raise ConfigError("estimator=neural_observer needs PyTorch, which is not installed; allowed: "
+                              "pip install \".[nn]\" (on Linux the CPU wheel first: README, section PyTorch)")
         self.window = check_int("estimator.window", window, 1, 100)
         self.hidden = check_int("estimator.hidden", hidden, 1, 1000)
         self.fusion = check_int("estimator.fusion", fusion, 1, 1000)
