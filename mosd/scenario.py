@@ -95,7 +95,7 @@ def _merge(parts: list[tuple[list[int], Trace]], n_reps: int) -> Trace:
         for (idx, _), a in zip(parts, arrays):
             if out is None:
                 out = np.full((n_reps,) + ((width,) + a.shape[2:] if width is not None else a.shape[1:]), pad,
-                              dtype=a.dtype if a.dtype != bool and not np.issubdtype(a.dtype, np.integer) else a.dtype)
+                              dtype=a.dtype)
             out[idx, : a.shape[1]] = a
         return out
 

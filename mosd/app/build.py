@@ -93,11 +93,7 @@ def instantiate_section(name: str, node: Any, exclude: Sequence[str] = (), **ext
     except InstantiationException as exc:
         cause = exc.__cause__ or exc
         if isinstance(cause, ConfigError):
-            message = str(cause)
-            # the optimiser validates under its own name; the config key is optimizer.*
-            if name == "optimizer" and message.startswith("mopso."):
-                message = "optimizer." + message.removeprefix("mopso.")
-            raise ConfigError(message) from None
+            raise ConfigError(str(cause)) from None
         raise ConfigError(f"{name}: {type(cause).__name__}: {one_line(cause)}") from None
 
 

@@ -9,6 +9,7 @@ mean over runs (NaN runs — e.g. the delay of an undetected run — left out).
 """
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 from typing import Callable
 
@@ -100,20 +101,10 @@ def objective_values(names, decisions: np.ndarray, truth) -> np.ndarray:
     truth = as_truth(truth)
     for name in names:
         values = per_run(name, decisions, truth)
-        with np.errstate(invalid="ignore"), _quiet():
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # "mean of empty slice": handled just below
             mean = np.nanmean(values, axis=-1)
         # a metric undefined on every run (no detection at all) is the worst case, not a hole
         columns.append(np.where(np.isfinite(mean), mean, np.inf))
     return np.stack(columns, axis=-1)
 
-
-class _quiet:
-    def __enter__(self):
-        import warnings
-
-        self._catch = warnings.catch_warnings()
-        self._catch.__enter__()
-        warnings.simplefilter("ignore", RuntimeWarning)
-
-    def __exit__(self, *exc):
-        return self._catch.__exit__(*exc)
