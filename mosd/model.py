@@ -2,9 +2,29 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable
+from typing import Callable, Optional
 
 import numpy as np
+
+
+@dataclass(frozen=True)
+class PointwiseModel:
+    """The same f and h in the form a compiled filter runs (:mod:`mosd.kernels.cubature`).
+
+    Attributes
+    ----------
+    transition : str
+        Name of a compiled transition in :data:`mosd.kernels.cubature.TRANSITIONS`
+        that computes this model's ``f`` at one point.
+    params : tuple of float
+        Its parameters, in the order the kernel documents.
+    outputs : tuple of int
+        The measurement model: output i is state ``outputs[i]``.
+    """
+
+    transition: str
+    params: tuple[float, ...]
+    outputs: tuple[int, ...]
 
 
 @dataclass(frozen=True)
@@ -14,6 +34,8 @@ class StateSpaceModel:
     ``f`` and ``h`` broadcast over leading axes: ``f(x, u)`` takes x of shape
     (..., n_x) and u of shape (..., n_u) and returns (..., n_x); ``h(x)`` returns
     (..., n_y). ``x0`` and ``P0`` are the filter's initial mean and covariance.
+    ``pointwise``, when a plant gives it, is the same f and h for a compiled
+    filter (otherwise filters take their NumPy path).
     """
 
     f: Callable[[np.ndarray, np.ndarray], np.ndarray]
@@ -25,6 +47,7 @@ class StateSpaceModel:
     dt: float
     state_names: tuple[str, ...]
     output_names: tuple[str, ...]
+    pointwise: Optional[PointwiseModel] = None
 
     @property
     def n_x(self) -> int:
@@ -48,4 +71,6 @@ class StateSpaceModel:
             dt=self.dt,
             state_names=self.state_names,
             output_names=tuple(self.output_names[i] for i in keep),
+            pointwise=None if self.pointwise is None else PointwiseModel(
+                self.pointwise.transition, self.pointwise.params, tuple(self.pointwise.outputs[i] for i in keep)),
         )

@@ -9,7 +9,7 @@ import math
 
 import numpy as np
 
-from ..model import StateSpaceModel
+from ..model import PointwiseModel, StateSpaceModel
 from ..validation import Interval, check_in
 from .base import ClosedLoopPlant
 
@@ -177,7 +177,20 @@ class MouldOscillator(ClosedLoopPlant):
             dt=self.dt,
             state_names=self.state_names,
             output_names=self.output_names,
+            pointwise=self._pointwise(),
         )
+
+    def _pointwise(self) -> PointwiseModel | None:
+        """f and h for the compiled CESCKF (the parameter order of mosd.kernels.cubature._mould_oscillator).
+
+        None for a subclass that changes the physics: the kernel knows only this class's.
+        """
+        cls = type(self)
+        if any(getattr(cls, name) is not getattr(MouldOscillator, name) for name in ("f", "h", "derivative")):
+            return None
+        return PointwiseModel("mould_oscillator", (
+            self.dt, self.amplitude, self.gear_ratio, self.coulomb_torque, self.gravity_torque,
+            self.torque_constant, self.inertia, self.friction), (0, 1, 2))
 
     def controller(self) -> SpeedPI:
         """A fresh closed-loop speed controller (see class docstring)."""
