@@ -223,15 +223,21 @@ class Experiment:
         return report, example
 
     def tune(self, data: PreparedData, algorithm, termination, n_jobs: int = 2, bounds: dict | None = None,
-             choose: Callable | None = None, callback=None, verbose: bool = False, detector=None) -> Tuned:
-        """Minimise the objectives over the detector's parameters on the training runs."""
+             choose: Callable | None = None, callback=None, verbose: bool = False, detector=None,
+             backend: str = "loky", dask_address: str | None = None) -> Tuned:
+        """Minimise the objectives over the detector's parameters on the training runs.
+
+        ``backend``/``dask_address`` choose where the populations are evaluated
+        (:class:`mosd.optim.problem.TuningProblem`); the result does not depend on them.
+        """
         from pymoo.optimize import minimize
 
         from .optim.problem import TuningProblem
         from .optim.selection import choose as default_choose
 
         t0 = time.perf_counter()
-        problem = TuningProblem(self.evaluator(data, detector), bounds=bounds, n_jobs=n_jobs)
+        problem = TuningProblem(self.evaluator(data, detector), bounds=bounds, n_jobs=n_jobs, backend=backend,
+                                dask_address=dask_address)
         try:
             extra = {} if callback is None else {"callback": callback}
             res = minimize(problem, algorithm, termination, seed=self.seed, verbose=verbose, **extra)
@@ -246,14 +252,22 @@ class Experiment:
                      time.perf_counter() - t0)
 
     def run(self, algorithm, termination, n_jobs: int = 2, bounds: dict | None = None,
-            choose: Callable | None = None, callback=None, verbose: bool = False) -> ExperimentResult:
-        """Prepare, tune and evaluate the chosen design on fresh test runs."""
+            choose: Callable | None = None, callback=None, verbose: bool = False, backend: str = "loky",
+            dask_address: str | None = None) -> ExperimentResult:
+        """Prepare, tune and evaluate the chosen design on fresh test runs.
+
+        ``backend="dask"`` evaluates the optimiser's populations on a Dask cluster
+        (``dask_address``, or a local one of ``n_jobs`` workers); see :meth:`tune`.
+        """
         from concurrent.futures import ThreadPoolExecutor
 
+        from .optim.backends import check_backend
         from .optim.problem import worker_pool
 
+        # a misspelt backend must fail before the simulation, not after it
+        backend, dask_address = check_backend(backend, dask_address)
         timings: dict[str, float] = {}
-        if n_jobs > 1:
+        if n_jobs > 1 and backend == "loky":
             worker_pool(n_jobs, warm=True)  # workers start while the main process simulates
         t0 = time.perf_counter()
         data = self.prepare()
@@ -262,7 +276,7 @@ class Experiment:
         with ThreadPoolExecutor(max_workers=1) as background:
             test_future = background.submit(self.test_data, data)
             tuned = self.tune(data, algorithm, termination, n_jobs=n_jobs, bounds=bounds, choose=choose,
-                              callback=callback, verbose=verbose)
+                              callback=callback, verbose=verbose, backend=backend, dask_address=dask_address)
             timings["optimise_s"] = tuned.seconds
             t0 = time.perf_counter()
             test = test_future.result()

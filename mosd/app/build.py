@@ -32,6 +32,10 @@ class Setup:
     choose: Callable[[np.ndarray, np.ndarray], int]
     #: a paper's study run after the experiment (``study`` key; :mod:`mosd.systems`), or None
     study: Any = None
+    #: where fitness evaluations run (``optimizer.backend``: loky | dask; docs/SCALING.md)
+    backend: str = "loky"
+    #: ``optimizer.dask_address``: a Dask scheduler, or None for a local cluster (backend=dask)
+    dask_address: str | None = None
 
 
 def _accepted_parameters(target: Any) -> tuple[list[str], bool]:
@@ -176,6 +180,7 @@ def build(cfg) -> Setup:
     from ..denoisers.base import NoDenoiser
     from ..experiment import Budget, Experiment
     from ..metrics.registry import check_objectives
+    from ..optim.backends import check_backend
     from ..optim.selection import RULES, choose
     from .tracking import TrackingSettings
 
@@ -202,6 +207,8 @@ def build(cfg) -> Setup:
     check_int("optimizer.pop_size", optimizer.get("pop_size"), 1)
     n_gen = check_int("optimizer.n_gen", optimizer.get("n_gen"), 1)
     n_jobs = check_int("optimizer.n_jobs", optimizer.get("n_jobs"), 1, 64)
+    # an optimizer YAML without the keys evaluates with loky, as before they existed
+    backend, dask_address = check_backend(optimizer.get("backend", "loky"), optimizer.get("dask_address"))
     objectives = check_objectives(optimizer.get("objectives") or ("far", "mdr"))
     algorithm = instantiate_section("optimizer", optimizer, exclude=RUN_KEYS["optimizer"])
 
@@ -220,6 +227,6 @@ def build(cfg) -> Setup:
     study = instantiate_section("study", cfg.study) if cfg.get("study") is not None else None
     return Setup(experiment=experiment, algorithm=algorithm, termination=MaximumGenerationTermination(n_gen),
                  n_gen=n_gen, n_jobs=n_jobs, bounds=bounds, choose=functools.partial(choose, rule=rule, alpha=alpha),
-                 study=study)
+                 study=study, backend=backend, dask_address=dask_address)
 
 

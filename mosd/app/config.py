@@ -25,7 +25,7 @@ CONFIG_NAME = "config"
 #: Sections built with ``hydra.utils.instantiate`` (config group → constructor).
 COMPONENTS = ("plant", "noise", "fault", "estimator", "monitor", "denoise", "detector", "optimizer", "study")
 #: Keys of a component section that configure the run, not the constructor.
-RUN_KEYS = {"detector": ("bounds",), "optimizer": ("n_gen", "n_jobs", "objectives")}
+RUN_KEYS = {"detector": ("bounds",), "optimizer": ("n_gen", "n_jobs", "objectives", "backend", "dask_address")}
 #: Plain sections and their keys.
 SECTIONS = {
     "budget": ("n_calibration", "n_train", "n_test", "n_estimator"),

@@ -11,7 +11,8 @@ Two more checks catch what used to fail only after the optimisation:
   burn-in against the run's length, the wavelet level against the chart's
   length, the fault onset against the duration), refused with the derived bound;
 * the outputs directory and the tracking store (:func:`mosd.app.tracking.check_tracking`):
-  writable, healthy, reachable within a few seconds.
+  writable, healthy, reachable within a few seconds; likewise the Dask scheduler at
+  ``optimizer.dask_address`` (:func:`mosd.optim.backends.check_scheduler`).
 """
 from __future__ import annotations
 
@@ -212,6 +213,11 @@ def check_job(cfg, setup: Setup, done: dict, multirun: bool = False) -> None:
     if settings is not None and ("tracking", settings) not in done:
         check_tracking(settings)
         done[("tracking", settings)] = True
+    if setup.backend == "dask" and setup.dask_address and ("dask", setup.dask_address) not in done:
+        from ..optim.backends import check_scheduler
+
+        check_scheduler(setup.dask_address)  # a TCP connect: seconds at most, before the simulation
+        done[("dask", setup.dask_address)] = True
     key = _shape_key(cfg)
     if key not in done:
         try:

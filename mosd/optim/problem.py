@@ -23,6 +23,10 @@ candidate vectors. The pool can be started early (:func:`worker_pool` with
 overlap with the simulation. ``n_jobs=1`` evaluates in-process. Results do not
 depend on ``n_jobs`` because each candidate's evaluation is independent of the
 others in its chunk.
+
+``backend="dask"`` evaluates on a Dask cluster instead (:mod:`mosd.optim.backends`):
+a local one of ``n_jobs`` workers started for the problem, or the scheduler at
+``dask_address``; the results are the same as loky's (docs/SCALING.md).
 """
 from __future__ import annotations
 
@@ -36,6 +40,7 @@ from pymoo.core.problem import Problem
 
 from ..metrics.registry import as_truth, objective_values
 from ..validation import ConfigError, check_int
+from .backends import check_backend
 
 _OPEN_BOUND_MARGIN = 1e-6
 
@@ -169,12 +174,21 @@ class TuningProblem(Problem):
         Overrides the detector's declared bounds (e.g. K_SD in (0, 5) as in Table 2).
         Open bounds are moved inside by 1e-6.
     n_jobs : int
-        Worker processes (1 = in-process).
+        Worker processes (1 = in-process with loky; the local cluster's workers with dask).
+    backend : {"loky", "dask"}
+        Where populations are evaluated: loky processes on this machine, or a Dask
+        cluster (:class:`mosd.optim.backends.DaskEvaluation`, started at the first
+        generation and shut down by :meth:`close`).
+    dask_address : str or None
+        ``backend="dask"``: a scheduler address (``tcp://host:8786``); None starts a
+        local cluster on 127.0.0.1.
     """
 
-    def __init__(self, evaluator: CandidateEvaluator, bounds: dict | None = None, n_jobs: int = 2):
+    def __init__(self, evaluator: CandidateEvaluator, bounds: dict | None = None, n_jobs: int = 2,
+                 backend: str = "loky", dask_address: str | None = None):
         self.evaluator = evaluator
         self.n_jobs = check_int("optimizer.n_jobs", n_jobs, 1, 64)
+        self.backend, self.dask_address = check_backend(backend, dask_address)
         tunable = evaluator.detector.tunable
         self.names = list(tunable)
         xl, xu = [], []
@@ -192,8 +206,9 @@ class TuningProblem(Problem):
         #: True for the integer parameters (rounded before every evaluation)
         self.is_integer = np.array([tunable[name].integer for name in self.names], bool)
         super().__init__(n_var=len(self.names), n_obj=len(evaluator.objectives), xl=np.array(xl), xu=np.array(xu),
-                         exclude_from_serialization=["evaluator", "_payload"])
+                         exclude_from_serialization=["evaluator", "_payload", "_dask"])
         self._payload: str | None = None
+        self._dask = None  # the DaskEvaluation of backend="dask", started on first use
 
     @property
     def objectives(self) -> tuple[str, ...]:
@@ -220,6 +235,12 @@ class TuningProblem(Problem):
         the result is bit-identical for every n_jobs.
         """
         X = np.atleast_2d(X)
+        if self.backend == "dask":
+            if self._dask is None:
+                from .backends import DaskEvaluation
+
+                self._dask = DaskEvaluation(self.evaluator, self.n_jobs, self.dask_address)
+            return self._dask.evaluate(X)
         if self.n_jobs == 1 or X.shape[0] < 2:
             return self.evaluator(X)
         if self._payload is None:
@@ -233,7 +254,13 @@ class TuningProblem(Problem):
         return np.concatenate([first] + [f.result() for f in futures], axis=0)
 
     def close(self) -> None:
-        """Delete the evaluator file the workers load; the pool itself stays up for reuse."""
+        """Delete the evaluator file the workers load and shut down the Dask client/cluster this problem started.
+
+        The loky pool itself stays up for reuse.
+        """
+        dask, self._dask = self._dask, None
+        if dask is not None:
+            dask.close()
         if self._payload is not None:
             try:
                 os.remove(self._payload)

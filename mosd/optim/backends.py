@@ -1,0 +1,202 @@
+"""Where a tuning problem's fitness evaluations run: this machine (loky) or a Dask cluster.
+
+``loky`` (the default) is :class:`~mosd.optim.problem.TuningProblem`'s own
+persistent process pool on one machine. ``dask`` sends every generation to a
+`Dask distributed <https://distributed.dask.org>`_ cluster: a ``LocalCluster``
+of ``n_jobs`` single-threaded worker processes on 127.0.0.1 started for the
+problem, or the running scheduler at ``dask_address``. The evaluator (the cached
+features of the training runs) is scattered to every worker once per problem;
+a generation then ships only candidate vectors, as with loky.
+
+Results do not depend on the backend: each candidate's objectives are computed
+by the same code on the same arrays whatever process or chunk it lands in, so
+``dask`` gives bit-for-bit the archive of ``loky`` and of ``n_jobs=1`` for the
+same seed (``tests/test_scaleout.py``), provided the workers run the same mosd,
+NumPy and ``MOSD_KERNELS`` setting as the main process.
+
+``distributed`` is imported only when a Dask evaluation starts, so the core's
+import time does not change; without it, ``backend=dask`` fails with one line
+naming the install command.
+"""
+from __future__ import annotations
+
+import importlib.util
+import logging
+import socket
+from urllib.parse import urlsplit
+
+import numpy as np
+
+from ..validation import ConfigError
+
+#: The evaluation backends (``optimizer.backend``).
+BACKENDS = ("loky", "dask")
+#: What to install for ``backend=dask`` (and for the submitit launcher of sweeps).
+CLUSTER_INSTALL = 'pip install "mosd[cluster]"'
+#: Seconds to wait for a scheduler at ``dask_address`` before giving up.
+CONNECT_TIMEOUT_S = 30.0
+
+
+def _missing_distributed() -> ConfigError:
+    return ConfigError(f"optimizer.backend=dask needs the 'distributed' package, which is not installed; "
+                       f"install it with: {CLUSTER_INSTALL}")
+
+
+def check_backend(backend: str = "loky", dask_address: str | None = None) -> tuple[str, str | None]:
+    """Validate ``optimizer.backend`` and ``optimizer.dask_address``; return them.
+
+    Parameters
+    ----------
+    backend : {"loky", "dask"}
+        Where fitness evaluations run.
+    dask_address : str or None
+        ``backend=dask`` only: a scheduler address (``tcp://host:8786``), or None to
+        start a local cluster for the problem.
+
+    Raises
+    ------
+    ConfigError
+        An unknown backend, an address without ``backend=dask`` (it would be silently
+        ignored), an empty address, or ``backend=dask`` without ``distributed`` installed
+        (checked without importing it).
+    """
+    if backend not in BACKENDS:
+        raise ConfigError(f"optimizer.backend={backend!r} is not allowed; allowed: {', '.join(BACKENDS)}")
+    if dask_address is not None:
+        if not isinstance(dask_address, str) or not dask_address.strip():
+            raise ConfigError(f"optimizer.dask_address={dask_address!r} is not an address; allowed: null "
+                              "(a local cluster) or a scheduler address such as tcp://host:8786")
+        if backend != "dask":
+            raise ConfigError(f"optimizer.dask_address={dask_address!r} is set but optimizer.backend={backend}; "
+                              "allowed: optimizer.backend=dask with an address, or dask_address=null")
+        dask_address = dask_address.strip()
+    if backend == "dask" and importlib.util.find_spec("distributed") is None:
+        raise _missing_distributed()
+    return backend, dask_address
+
+
+def check_scheduler(address: str, timeout: float = 5.0) -> None:
+    """Raise ConfigError when nothing listens at a ``tcp://host:port`` scheduler address.
+
+    A plain TCP connection (no Dask import, a few seconds at most), so that a wrong
+    address is reported before the simulation rather than after it. Addresses of
+    other schemes (``tls://``, ``ucx://``, ``inproc://``) are left to Dask.
+    """
+    parts = urlsplit(address if "://" in address else f"tcp://{address}")
+    if parts.scheme != "tcp":
+        return
+    try:
+        host, port = parts.hostname, parts.port
+    except ValueError:
+        host, port = None, None
+    if not host or port is None:
+        raise ConfigError(f"optimizer.dask_address={address!r} has no host and port; "
+                          "allowed: a scheduler address such as tcp://host:8786")
+    try:
+        with socket.create_connection((host, port), timeout=timeout):
+            pass
+    except OSError as exc:
+        raise ConfigError(f"optimizer.dask_address={address!r}: no Dask scheduler answers there "
+                          f"({type(exc).__name__}: {exc}); allowed: the address a running `dask scheduler` "
+                          "prints, or null for a local cluster") from None
+
+
+def _evaluate_scattered(evaluator, X: np.ndarray) -> np.ndarray:
+    """A Dask task: the worker's copy of the scattered evaluator on one chunk of candidates."""
+    from .problem import _pin_threads
+
+    # the LocalCluster's nanny already sets OMP/MKL/OpenBLAS to one thread; a worker of a
+    # remote cluster may not, and n workers each starting a core's worth of BLAS threads thrash
+    _pin_threads()
+    return evaluator(X)
+
+
+class DaskEvaluation:
+    """Evaluate populations of one problem on a Dask cluster; owns the client (and cluster) it starts.
+
+    Parameters
+    ----------
+    evaluator : callable
+        X (P, d) -> F (P, n_obj), picklable (:class:`~mosd.optim.problem.CandidateEvaluator`);
+        scattered to every worker once.
+    n_jobs : int
+        Workers of the local cluster (one thread each); ignored with an address, where
+        the cluster's own workers count.
+    address : str or None
+        A scheduler address to connect to; None starts a ``LocalCluster`` on 127.0.0.1
+        (processes, one thread per worker, no dashboard).
+
+    Notes
+    -----
+    A population is split into as many chunks as the cluster has worker threads
+    (at most one candidate per chunk); each candidate's objectives are independent
+    of its chunk, so the split never changes the result. :meth:`close` (called by
+    :meth:`TuningProblem.close`) shuts down what this object started: the client,
+    and the local cluster if it started one, whose scattered data then disappears.
+    """
+
+    def __init__(self, evaluator, n_jobs: int, address: str | None = None,
+                 timeout: float = CONNECT_TIMEOUT_S):
+        try:
+            import distributed
+        except ImportError:
+            raise _missing_distributed() from None
+        # distributed configures its loggers at INFO: every worker start and stop would reach the
+        # run's stderr (the scheduler and nannies of a local cluster live in this process)
+        dask_logger = logging.getLogger("distributed")
+        if dask_logger.getEffectiveLevel() < logging.WARNING:
+            dask_logger.setLevel(logging.WARNING)
+        self.n_jobs = int(n_jobs)
+        self.address = address
+        self.cluster = None
+        self.client = None
+        try:
+            if address is None:
+                # no dashboard; the scheduler's remaining HTTP routes (health) on a free local port,
+                # not on 8787, which another cluster on the machine may hold
+                self.cluster = distributed.LocalCluster(
+                    n_workers=self.n_jobs, threads_per_worker=1, processes=True, host="127.0.0.1",
+                    scheduler_port=0, dashboard_address=None, scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},
+                    silence_logs=logging.ERROR)
+                self.client = distributed.Client(self.cluster, set_as_default=False)
+            else:
+                try:
+                    self.client = distributed.Client(address, timeout=timeout, set_as_default=False)
+                except OSError as exc:
+                    raise ConfigError(f"optimizer.dask_address={address!r}: could not connect within "
+                                      f"{timeout:g} s ({' '.join(str(exc).split())}); allowed: the address of "
+                                      "a running Dask scheduler, or null for a local cluster") from None
+            # once per problem, to every worker: a generation then carries only its candidates
+            self._evaluator = self.client.scatter(evaluator, broadcast=True, hash=False)
+        except BaseException:
+            self.close()
+            raise
+
+    def n_chunks(self) -> int:
+        """Worker threads of the cluster now (the local cluster: n_jobs)."""
+        threads = sum(self.client.nthreads().values())
+        return max(1, threads or self.n_jobs)
+
+    def evaluate(self, X: np.ndarray) -> np.ndarray:
+        """Objectives of every row of X, computed on the cluster's workers, in the order of X."""
+        X = np.atleast_2d(X)
+        chunks = np.array_split(X, max(1, min(self.n_chunks(), X.shape[0])))
+        futures = [self.client.submit(_evaluate_scattered, self._evaluator, chunk, pure=False) for chunk in chunks]
+        try:
+            parts = self.client.gather(futures)
+        except BaseException:
+            self.client.cancel(futures)
+            raise
+        return np.concatenate(parts, axis=0)
+
+    def close(self) -> None:
+        """Close the client, then the local cluster if this object started it (idempotent)."""
+        client, cluster = self.client, self.cluster
+        self.client = self.cluster = None
+        self.__dict__.pop("_evaluator", None)
+        for owned in (client, cluster):
+            if owned is not None:
+                try:
+                    owned.close()
+                except Exception:  # closing after a failure: what matters is that nothing stays up
+                    pass
