@@ -131,9 +131,18 @@ def _output_prediction(flt, model: StateSpaceModel, res: FilterResult, time_chun
     """ŷ_{k|k−1} and its covariance for every output of ``model`` from stored predictions (eqs. 6, 8, 15).
 
     Vectorised over replications and a chunk of samples at once; the stored
-    S_{k|k−1} give the filter's own points (up to rounding).
+    S_{k|k−1} give the filter's own points (up to rounding). Compiled
+    (:func:`mosd.kernels.cubature.output_prediction`, ~1e-15 relative to this)
+    when the model has a compiled form (``model.pointwise``).
     """
     eps, w = flt._rule.points(model.n_x)
+    if model.pointwise is not None:  # h is a choice of states: the compiled form applies
+        from .. import kernels
+
+        if kernels.enabled():
+            from ..kernels.cubature import output_prediction
+
+            return output_prediction(res.x_pred, res.sqrt_cov_pred, eps, w, model.pointwise.outputs, model.R)
     sqrt_w = np.sqrt(w)[:, None]
     n_reps, n_steps, _ = res.x_pred.shape
     n_y = model.n_y

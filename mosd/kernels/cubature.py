@@ -17,7 +17,7 @@ Which models are compiled
 The filter needs the plant's f and h as compiled code, and numba cannot cache
 a function that receives another compiled function as an argument (every
 process would recompile). So the transitions a kernel knows are listed here
-by name (:data:`TRANSITIONS`); a plant opts in by giving its
+by name (:data:`mosd.kernels.plants.TRANSITIONS`); a plant opts in by giving its
 :class:`mosd.model.StateSpaceModel` a :class:`mosd.model.PointwiseModel`
 (transition name, its parameters, and which states the outputs are). Any other
 model takes the NumPy path. ``tests/test_kernels.py`` checks every compiled
@@ -30,48 +30,8 @@ import math
 import numpy as np
 from numba import njit
 
-#: transition name -> the integer the kernel dispatches on
-TRANSITIONS = {"mould_oscillator": 0}
 
-_RPM_PER_RAD_S = 60.0 / (2.0 * math.pi)
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def _mould_oscillator(params, x, u, out):
-    """Euler step of :meth:`mosd.plants.MouldOscillator.f` (paper 000, eqs. 40–41) at one point.
-
-    params: dt, amplitude, gear_ratio, coulomb_torque, gravity_torque,
-    torque_constant, inertia, friction.
-    """
-    dt, amplitude, gear_ratio = params[0], params[1], params[2]
-    coulomb, gravity, torque_constant, inertia, friction = params[3], params[4], params[5], params[6], params[7]
-    theta, n = x[1], x[2]
-    cos_theta = math.cos(theta)
-    omega = 2.0 * math.pi * n / (60.0 * gear_ratio)
-    load = coulomb + gravity * cos_theta
-    n_dot = (torque_constant / inertia * _RPM_PER_RAD_S * u[0] - friction / inertia * n
-             - _RPM_PER_RAD_S * load / inertia)
-    out[0] = x[0] + dt * (amplitude * omega * cos_theta)
-    out[1] = x[1] + dt * omega
-    out[2] = x[2] + dt * n_dot
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def transition(kind, params, x, u, out):
-    """out = f(x, u) of the transition numbered ``kind`` (see :data:`TRANSITIONS`)."""
-    if kind == 0:
-        _mould_oscillator(params, x, u, out)
-    else:
-        raise ValueError("unknown compiled transition")
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def transition_points(kind, params, points, u):
-    """f at every row of ``points`` (P, n) with the same input u (the tests' view of :func:`transition`)."""
-    out = np.empty_like(points)
-    for i in range(points.shape[0]):
-        transition(kind, params, points[i], u, out[i])
-    return out
+from .plants import TRANSITIONS, transition, transition_points  # noqa: F401  (re-exported)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -313,20 +273,75 @@ def filter_batch(kind, params, outputs, y, u, x0, st0, eps, weights, sq_t, sr_t,
     outs = (np.empty((n_reps, n_steps, n_x)), np.empty((n_reps, n_steps, n_x)),
             np.empty((n_reps, n_steps, n_x, n_x)), np.empty((n_reps, n_steps, n_x, n_x)),
             np.empty((n_reps, n_steps, n_y)), np.empty((n_reps, n_steps, n_y)), np.empty((n_reps, n_steps, n_y, n_y)))
-    n_threads = max(1, min(default_threads() if threads is None else int(threads), n_reps))
-    bounds = np.linspace(0, n_reps, n_threads + 1).astype(np.int64)
-    def run(first, stop):
-        cesckf(kind, params, outputs, y, u, x0, st0, eps, weights, sq_t, sr_t, first, stop, *outs)
+    _over_replications(lambda first, stop: cesckf(kind, params, outputs, y, u, x0, st0, eps, weights, sq_t, sr_t,
+                                                   first, stop, *outs), n_reps, threads)
+    return outs
 
+
+def _over_replications(run, n_reps, threads=None):
+    """run(first, stop) over [0, n_reps) split into contiguous blocks, one per thread."""
+    from . import threads as default_threads
+
+    n_threads = max(1, min(default_threads() if threads is None else int(threads), n_reps))
     if n_threads == 1:
         run(0, n_reps)
-    else:
-        from concurrent.futures import ThreadPoolExecutor
+        return
+    from concurrent.futures import ThreadPoolExecutor
 
-        with ThreadPoolExecutor(n_threads) as pool:
-            for future in [pool.submit(run, bounds[i], bounds[i + 1]) for i in range(n_threads)]:
-                future.result()
-    return outs
+    bounds = np.linspace(0, n_reps, n_threads + 1).astype(np.int64)
+    with ThreadPoolExecutor(n_threads) as pool:
+        for future in [pool.submit(run, bounds[i], bounds[i + 1]) for i in range(n_threads)]:
+            future.result()
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _output_prediction(x_pred, sqrt_cov_pred, eps, weights, outputs, meas_cov, first, stop, y_pred, cov):
+    n_steps, n_x = x_pred.shape[1], x_pred.shape[2]
+    n_pts, n_y = weights.shape[0], outputs.shape[0]
+    sqrt_w = np.sqrt(weights)
+    predicted = np.empty((n_pts, n_y))
+    yp = np.empty(n_y)
+    for r in range(first, stop):
+        for k in range(n_steps):
+            for i in range(n_pts):
+                for c in range(n_y):
+                    j = outputs[c]
+                    acc = 0.0
+                    for m in range(n_x):
+                        acc += sqrt_cov_pred[r, k, j, m] * eps[i, m]
+                    predicted[i, c] = x_pred[r, k, j] + acc
+            for c in range(n_y):
+                acc = 0.0
+                for i in range(n_pts):
+                    acc += weights[i] * predicted[i, c]
+                yp[c] = acc
+                y_pred[r, k, c] = acc
+            for i in range(n_pts):
+                for c in range(n_y):
+                    predicted[i, c] = sqrt_w[i] * (predicted[i, c] - yp[c])
+            for a in range(n_y):
+                for b in range(n_y):
+                    acc = 0.0
+                    for i in range(n_pts):
+                        acc += predicted[i, a] * predicted[i, b]
+                    cov[r, k, a, b] = acc + meas_cov[a, b]
+
+
+def output_prediction(x_pred, sqrt_cov_pred, eps, weights, outputs, meas_cov, threads=None):
+    """ŷ_{k|k−1} and its covariance for the outputs ``outputs`` (states) from stored predictions (eqs. 6, 8, 15).
+
+    The compiled :func:`mosd.estimators.residuals._output_prediction`: the
+    points x̂ + S ε_i of every stored S_{k|k−1} (lower), their weighted mean and
+    Σ √w_i² (Y_i − ŷ)(Y_i − ŷ)ᵀ + R.
+    """
+    n_reps, n_steps, _ = x_pred.shape
+    n_y = len(outputs)
+    y_pred = np.empty((n_reps, n_steps, n_y))
+    cov = np.empty((n_reps, n_steps, n_y, n_y))
+    args = (np.ascontiguousarray(x_pred), np.ascontiguousarray(sqrt_cov_pred), np.ascontiguousarray(eps),
+            np.asarray(weights, float), np.asarray(outputs, np.int64), np.ascontiguousarray(meas_cov, float))
+    _over_replications(lambda first, stop: _output_prediction(*args, first, stop, y_pred, cov), n_reps, threads)
+    return y_pred, cov
 
 
 def warm_up() -> None:
@@ -334,3 +349,5 @@ def warm_up() -> None:
     n_x = 3
     filter_batch(0, np.ones(8), np.arange(n_x), np.zeros((1, 2, n_x)), np.zeros((1, 2, 1)), np.zeros(n_x),
                  np.eye(n_x), np.zeros((1, n_x)), np.ones(1), np.eye(n_x), np.eye(n_x), threads=1)
+    output_prediction(np.zeros((1, 2, n_x)), np.zeros((1, 2, n_x, n_x)), np.zeros((1, n_x)), np.ones(1),
+                      np.arange(n_x), np.eye(n_x), threads=1)

@@ -77,17 +77,28 @@ class ClosedLoopPlant(Plant):
             mask[:] = fault.active(t)
         controller = self.controller()
         controller.reset(n_reps)
-        x = np.empty((n_reps, N, len(self.state_names)))
-        y = np.empty((n_reps, N, n_y))
-        u = np.empty((n_reps, N, len(self.input_names)))
-        xk = np.broadcast_to(self.initial_state(), (n_reps, x.shape[-1])).copy()
-        for k in range(N):
-            x[:, k] = xk
-            yk = self.h(xk) + v[:, k] + g[:, k]
-            y[:, k] = yk
-            uk = controller(yk)
-            u[:, k] = uk
-            xk = self.f(xk, uk) + w[:, k]
+        compiled = self._compiled_loop(controller)
+        if compiled is not None:
+            x, y, u = compiled(np.asarray(self.initial_state(), float), v, g, w)
+        else:
+            x = np.empty((n_reps, N, len(self.state_names)))
+            y = np.empty((n_reps, N, n_y))
+            u = np.empty((n_reps, N, len(self.input_names)))
+            xk = np.broadcast_to(self.initial_state(), (n_reps, x.shape[-1])).copy()
+            for k in range(N):
+                x[:, k] = xk
+                yk = self.h(xk) + v[:, k] + g[:, k]
+                y[:, k] = yk
+                uk = controller(yk)
+                u[:, k] = uk
+                xk = self.f(xk, uk) + w[:, k]
         meta = {"fault": repr(fault), "fault_scale": float(fault_scale), "output_names": tuple(self.output_names),
                 "dt": self.dt}
         return Trace(t=t, u=u, x=x, y=y, fault_mask=mask, meta=meta)
+
+    def _compiled_loop(self, controller):
+        """A compiled form of the loop above for this plant and controller, or None (the default).
+
+        It must return the loop's x, y, u bit for bit: ``(x0, v, g, w) -> (x, y, u)``.
+        """
+        return None

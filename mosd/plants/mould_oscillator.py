@@ -180,13 +180,33 @@ class MouldOscillator(ClosedLoopPlant):
             pointwise=self._pointwise(),
         )
 
+    def _compiled_loop(self, controller):
+        """:func:`mosd.kernels.plants.simulate_mould_oscillator` when kernels are on and nothing was overridden."""
+        from .. import kernels
+
+        pointwise = self._pointwise()
+        if pointwise is None or type(controller) is not SpeedPI or not kernels.enabled():
+            return None
+        from ..kernels.plants import simulate_mould_oscillator
+
+        params = np.asarray(pointwise.params, float)
+        gains = np.array([controller.n_ref, controller.kp, controller.ki, controller.i_ff, controller.i_max,
+                          controller.dt, controller.speed_channel], float)
+
+        def loop(x0, v, g, w):
+            return simulate_mould_oscillator(params, gains, x0, np.ascontiguousarray(v), np.ascontiguousarray(g),
+                                             np.ascontiguousarray(w))
+
+        return loop
+
     def _pointwise(self) -> PointwiseModel | None:
         """f and h for the compiled CESCKF (the parameter order of mosd.kernels.cubature._mould_oscillator).
 
         None for a subclass that changes the physics: the kernel knows only this class's.
         """
         cls = type(self)
-        if any(getattr(cls, name) is not getattr(MouldOscillator, name) for name in ("f", "h", "derivative")):
+        if any(getattr(cls, name) is not getattr(MouldOscillator, name)
+               for name in ("f", "h", "derivative", "initial_state")):
             return None
         return PointwiseModel("mould_oscillator", (
             self.dt, self.amplitude, self.gear_ratio, self.coulomb_torque, self.gravity_torque,
