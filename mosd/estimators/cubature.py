@@ -65,7 +65,6 @@ __all__ = [
     "CESCKF",
     "InnovationResidual",
     "DedicatedObserverResidual",
-    "benchmark_filter",
 ]
 
 _DELTA1_RANGE = Interval(math.sqrt(0.5), math.inf, open_low=True)
