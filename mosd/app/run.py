@@ -110,21 +110,30 @@ def install_signal_handlers() -> None:
 
 
 def write_run_files(run_dir: Path, cfg, result, setup: Setup, labels: Mapping[str, str],
-                    study: Mapping[str, float] | None = None) -> list[Path]:
-    """Resolved config, Pareto set and history as CSV, summary JSON and the PNG plots."""
+                    study: Mapping[str, float] | None = None, figures=None) -> list[Path]:
+    """Resolved config, Pareto set and history as CSV, summary JSON and the PNG plots.
+
+    ``figures``: a :class:`mosd.app.plots.FigureWriter` (started with the run) that
+    draws the PNGs in its side process while this writes the other files; None
+    draws them here.
+    """
     from omegaconf import OmegaConf
 
     from . import plots
 
     run_dir.mkdir(parents=True, exist_ok=True)
+    F = result.archive_F
+    objectives = list(result.objectives)
+    # the figures first: they are the slow part, drawn while the text files are written
+    jobs = _figure_jobs(run_dir, result, setup, labels)
+    if figures is not None:
+        figures.submit(jobs)
     written = []
     path = run_dir / "resolved_config.yaml"
     path.write_text(OmegaConf.to_yaml(cfg, resolve=True))
     written.append(path)
 
     names = list(result.params)
-    F = result.archive_F
-    objectives = list(result.objectives)
     order = np.argsort(F[:, 0], kind="stable")
     columns = [result.archive_X[order], F[order]]
     header = [*names, *objectives]
@@ -160,37 +169,42 @@ def write_run_files(run_dir: Path, cfg, result, setup: Setup, labels: Mapping[st
         "timings": result.timings,
     }, indent=2, allow_nan=True))
     written.append(path)
+    written += figures.result() if figures is not None else plots.draw(jobs)
+    return written
 
+
+def _figure_jobs(run_dir: Path, result, setup: Setup, labels: Mapping[str, str]) -> list[tuple[str, dict]]:
+    """The run's figures as ``(name in mosd.app.plots, keyword arguments)`` (plain arrays: picklable)."""
+    F = result.archive_F
+    objectives = tuple(result.objectives)
     ex = result.example
     monitor = setup.experiment.monitor
     title = f"{labels.get('detector', '')} on {labels.get('fault', '')} fault: " + ", ".join(
         f"{k} = {v:.4g}" for k, v in result.params.items())
     archive_title = f"Archive of {labels.get('optimizer', '')} (training replications)"
-    if F.shape[1] == 2:
-        written.append(plots.pareto_front(run_dir / "pareto.png", F, result.chosen_index, title=archive_title,
-                                          labels=tuple(objectives)))
-    else:
-        written.append(plots.pareto_pairs(run_dir / "pareto.png", F, result.chosen_index, title=archive_title,
-                                          labels=tuple(objectives)))
+    jobs = [("pareto_front" if F.shape[1] == 2 else "pareto_pairs",
+             dict(path=run_dir / "pareto.png", F=F, chosen=result.chosen_index, title=archive_title,
+                  labels=objectives))]
     t = ex["t"] if ex.get("t") is not None else np.arange(len(ex["statistic"])) * ex["seconds_per_point"]
-    written.append(plots.chart_trace(run_dir / "chart.png", t, ex["statistic"], ex["ucl"], ex["fault_mask"],
-                                     title=title))
+    jobs.append(("chart_trace", dict(path=run_dir / "chart.png", t=t, statistic=ex["statistic"], ucl=ex["ucl"],
+                                     fault_mask=ex["fault_mask"], title=title)))
     channel = getattr(setup.experiment.fault, "channel", 0)
     if ex.get("residual") is not None:
         channels = getattr(monitor, "channels", ())
         mean = float(monitor.mean_[channels.index(channel)]) if channel in channels and hasattr(monitor, "mean_") \
             else 0.0
         names = tuple(getattr(setup.experiment.plant, "output_names", ()))
-        written.append(plots.residual_trace(run_dir / "residual.png", ex["residual"], ex["residual_fault_mask"],
-                                            ex["dt"], mean=mean, sigma=result.sigma,
-                                            channel_name=names[channel] if channel < len(names) else ""))
+        jobs.append(("residual_trace", dict(path=run_dir / "residual.png", residual=ex["residual"],
+                                            fault_mask=ex["residual_fault_mask"], dt=ex["dt"], mean=mean,
+                                            sigma=result.sigma,
+                                            channel_name=names[channel] if channel < len(names) else "")))
     if result.history:
         n_eval = int(result.history[-1].get("n_eval", 0))
-        written.append(plots.optimisation_history(
-            run_dir / "history.png", result.history,
+        jobs.append(("optimisation_history", dict(
+            path=run_dir / "history.png", records=result.history,
             title=f"{labels.get('optimizer', '')} on the {labels.get('fault', '')} fault: {len(result.history)} "
-                  f"generations, {n_eval} evaluations (training replications)"))
-    return written
+                  f"generations, {n_eval} evaluations (training replications)")))
+    return jobs
 
 
 def on_bound(params: Mapping[str, float], setup: Setup) -> list[str]:
@@ -223,10 +237,19 @@ def final_metrics(result, seconds_per_point: float) -> dict[str, float]:
     return metrics
 
 
-def _format_summary(labels, result, setup: Setup, metrics, timings, run_dir, tracking_line, study=None) -> str:
-    n_test = int(metrics["n_test"])
-    opt = labels.get("optimizer", "")
+def header_line(labels: Mapping[str, str], setup: Setup) -> str:
+    """``mosd  fault=…  detector=…  optimizer=… (pop × gen)  estimator=…  denoise=…``: the summary's first line."""
     pop = getattr(setup.algorithm, "pop_size", "?")
+    preset = f"experiment={labels['experiment']}  " if labels.get("experiment") else ""
+    return (f"mosd  {preset}fault={labels.get('fault')}  detector={labels.get('detector')}  "
+            f"optimizer={labels.get('optimizer', '')} ({pop} × {setup.n_gen})  estimator={labels.get('estimator')}  "
+            f"denoise={labels.get('denoise')}")
+
+
+def _format_summary(labels, result, setup: Setup, metrics, timings, run_dir, tracking_line, study=None,
+                    header: bool = True) -> str:
+    """The summary printed at the end of a run; ``header=False`` leaves out the first line (printed at the start)."""
+    n_test = int(metrics["n_test"])
     params = "  ".join(f"{k} = {v}" if isinstance(v, int) else f"{k} = {v:.4f}" for k, v in result.params.items())
 
     def pm(key, digits=4):
@@ -235,10 +258,8 @@ def _format_summary(labels, result, setup: Setup, metrics, timings, run_dir, tra
     train = ", ".join(f"{k} {v:.4g}" for k, v in result.train_objectives.items())
     online = "online (causal detector)" if setup.experiment.detector.is_causal else \
         "NOT online: the detector uses future points (non-causal)"
-    preset = f"experiment={labels['experiment']}  " if labels.get("experiment") else ""
     lines = [
-        f"mosd  {preset}fault={labels.get('fault')}  detector={labels.get('detector')}  optimizer={opt} "
-        f"({pop} × {setup.n_gen})  estimator={labels.get('estimator')}  denoise={labels.get('denoise')}",
+        *([header_line(labels, setup)] if header else []),
         f"chosen    {params}   (training: {train}; archive of {len(result.archive_F)})",
         *([f"          on the search bound: {', '.join(on_bound(result.params, setup))} "
            "(widen detector.bounds: the optimum may lie outside the box)"] if on_bound(result.params, setup) else []),
@@ -334,6 +355,7 @@ def run(cfg, started: float | None = None):
     from hydra.types import RunMode
     from omegaconf import OmegaConf
 
+    from .plots import FigureWriter
     from .progress import Progress
     from .tracking import TrackingError, flatten
 
@@ -358,7 +380,14 @@ def run(cfg, started: float | None = None):
     progress = Progress(setup.n_gen, enabled=cfg.progress, position=position,
                         description=f"job {hc.job.num}" if multirun else "")
     timings = {"startup_s": task_start - started}
+    figures = None
     try:
+        if not multirun:
+            # the summary's first line now, so that a user (or a log file) sees the run start; the
+            # rest comes at the end (a sweep prints each job's summary whole: jobs may run at once)
+            print(header_line(labels, setup), flush=True)
+        # started now: matplotlib loads on the other core while this process simulates
+        figures = FigureWriter()
         result = setup.experiment.run(setup.algorithm, setup.termination, n_jobs=n_jobs, bounds=setup.bounds,
                                       choose=setup.choose, callback=progress)
         progress.close()
@@ -370,8 +399,11 @@ def run(cfg, started: float | None = None):
             study_metrics, study_files = setup.study.run(setup.experiment, result, run_dir)
             result.timings["study_s"] = timings["study_s"] = time.perf_counter() - t0
         t0 = time.perf_counter()
-        files = write_run_files(run_dir, cfg, result, setup, labels, study_metrics) + list(study_files)
+        files = write_run_files(run_dir, cfg, result, setup, labels, study_metrics, figures) + list(study_files)
+        figures.close()
         timings["files_s"] = time.perf_counter() - t0
+        if figures.fallback:
+            log.warning("figures drawn in-process: %s", figures.fallback)
         metrics = {**final_metrics(result, result.example["seconds_per_point"]),
                    **{k: float(v) for k, v in study_metrics.items()}}
         tracking_line, not_logged = "", None
@@ -401,8 +433,8 @@ def run(cfg, started: float | None = None):
                 if tracker.note:
                     tracking_line += f"\n          store: {tracker.note}"
         timings["wall_s"] = time.perf_counter() - started
-        print(_format_summary(labels, result, setup, metrics, timings, run_dir, tracking_line, study_metrics),
-              flush=True)
+        print(_format_summary(labels, result, setup, metrics, timings, run_dir, tracking_line, study_metrics,
+                              header=multirun), flush=True)
         if not_logged is not None:
             NOT_LOGGED.append(run_dir)
             print(f"mosd: error: the run was not logged to MLflow ({not_logged}); its files are complete in "
@@ -410,6 +442,8 @@ def run(cfg, started: float | None = None):
         return result
     except BaseException as exc:
         progress.close()
+        if figures is not None:
+            figures.close(wait=False)
         # a signal raised inside compiled code (numba) comes out as a SystemError with the
         # Interrupted as its context: what counts is that a stop signal arrived
         killed = isinstance(exc, KeyboardInterrupt) or bool(RECEIVED)
