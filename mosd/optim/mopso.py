@@ -310,6 +310,20 @@ def polynomial_mutation(X: np.ndarray, xl: np.ndarray, xu: np.ndarray, probabili
     return np.where(hit, np.clip(X + step * span, xl, xu), X)
 
 
+def evaluated_arrays(population: Population) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """X (n, n_var), F (n, n_obj) and CV (n, 1) of an evaluated population.
+
+    The same arrays as ``population.get("X", "F", "CV")``, read through the
+    individuals' attributes: ``Population.get`` resolves every key of every
+    individual through ``Individual.get``'s generic lookup, which cost more per
+    generation than the whole archive update.
+    """
+    if len(population) == 0:
+        return population.get("X", "F", "CV")
+    return (np.array([ind.X for ind in population]), np.array([ind.F for ind in population]),
+            np.array([ind.CV for ind in population]))
+
+
 class GridArchive:
     """External archive of non-dominated solutions on an adaptive hypercube grid.
 
@@ -363,7 +377,8 @@ class GridArchive:
         """Constraint violation of each member, shape (n,)."""
         return self._CV
 
-    def update(self, candidates: Population, random_state: np.random.Generator) -> None:
+    def update(self, candidates: Population, random_state: np.random.Generator,
+               evaluated: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> None:
         """Insert evaluated candidates (paper 000 steps 3–4).
 
         A candidate enters when no member and no other candidate dominates it in the
@@ -379,9 +394,11 @@ class GridArchive:
             Evaluated solutions (F and, if constrained, G/H set).
         random_state : numpy.random.Generator
             Breaks ties in truncation.
+        evaluated : (X, F, CV), optional
+            The candidates' arrays when the caller has them (:func:`evaluated_arrays`).
         """
         merged = Population.merge(self.members, candidates)
-        X, F, CV = candidates.get("X", "F", "CV")
+        X, F, CV = evaluated_arrays(candidates) if evaluated is None else evaluated
         if len(self.members):
             X, F = np.concatenate([self._X, X]), np.concatenate([self._F, F])
         CV = np.concatenate([self._CV, CV.reshape(-1)])
@@ -683,11 +700,11 @@ class MOPSO(Algorithm):
 
     def _initialize_advance(self, infills=None, **kwargs):
         # paper 000 step 1: v_0 = 0 and Pbest_0 = Pop_0
-        X, F, CV = infills.get("X", "F", "CV")
+        X, F, CV = evaluated = evaluated_arrays(infills)
         self.particle_position = X
         self.particle_velocity = np.zeros_like(X, dtype=float)
         self.pbest_X, self.pbest_F, self.pbest_CV = X.copy(), F.copy(), CV.reshape(-1).copy()
-        self.leader_archive.update(infills, self.random_state)
+        self.leader_archive.update(infills, self.random_state, evaluated)
 
     def _infill(self):
         """One move of the swarm, eqs. 38–39.
@@ -721,8 +738,9 @@ class MOPSO(Algorithm):
 
     def _advance(self, infills=None, **kwargs):
         self.pop = infills
-        self.leader_archive.update(infills, self.random_state)
-        self._update_personal_best(*infills.get("X", "F", "CV"))
+        evaluated = evaluated_arrays(infills)
+        self.leader_archive.update(infills, self.random_state, evaluated)
+        self._update_personal_best(*evaluated)
 
     def _set_optimum(self):
         self.opt = self.leader_archive.members.copy()
