@@ -197,3 +197,51 @@ def test_close_ends_the_figure_process_promptly(tmp_path):
     t0 = time.monotonic()
     writer.close(wait=False)  # a stopped run: the process may still be importing matplotlib
     assert proc.poll() is not None and time.monotonic() - t0 < 5
+
+
+# ---------------------------------------------------------------------------------------
+# a terminal sees a line at once while the command line is checked; an error stays one line
+# ---------------------------------------------------------------------------------------
+def _on_a_terminal(tmp_path: Path, args: list[str], timeout: float = 120) -> tuple[int, str, str]:
+    """Run ``python -m mosd ARGS`` with stderr on a pseudo-terminal; (exit code, stdout, terminal bytes)."""
+    import pty
+
+    master, slave = pty.openpty()
+    proc = subprocess.Popen([sys.executable, "-m", "mosd", *args], cwd=tmp_path, env=_env(tmp_path),
+                            stdout=subprocess.PIPE, stderr=slave, stdin=subprocess.DEVNULL)
+    os.close(slave)
+    seen = b""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        ready, _, _ = select.select([master], [], [], 0.2)
+        if ready:
+            try:
+                chunk = os.read(master, 4096)
+            except OSError:  # the terminal's other side closed: the process has ended
+                break
+            if not chunk:
+                break
+            seen += chunk
+        elif proc.poll() is not None:
+            break
+    os.close(master)
+    out = proc.communicate(timeout=timeout)[0].decode()
+    return proc.returncode, out, seen.decode(errors="replace")
+
+
+def test_a_terminal_sees_the_check_at_once_and_an_error_is_still_one_line(tmp_path):
+    from mosd.app import CHECKING
+
+    code, out, seen = _on_a_terminal(tmp_path, ["+fault=offset_var", "detector.lam=1.5"])
+    assert code == 2 and out == ""
+    assert seen.startswith(CHECKING + "\r\x1b[K"), seen  # shown first, erased before the error
+    rest = seen[len(CHECKING) + 4:].replace("\r\n", "\n").strip().splitlines()
+    assert len(rest) == 1 and rest[0].startswith("mosd: error: detector.lam=1.5 is out of range"), seen
+    assert not (tmp_path / "outputs").exists()
+
+
+def test_help_on_a_terminal_shows_no_check_line(tmp_path):
+    from mosd.app import CHECKING
+
+    code, out, seen = _on_a_terminal(tmp_path, ["--help"])
+    assert code == 0 and "+fault=" in out and CHECKING not in seen

@@ -114,14 +114,49 @@ def exit_now(code: int) -> None:
         os._exit(code)
 
 
+#: What a terminal shows while the command line is checked (erased before anything else is printed).
+CHECKING = "mosd: checking the configuration (composition, components, a one-replication dry run) ..."
+
+
+def _transient(text: str | None) -> None:
+    """Show ``text`` on a terminal's stderr without a newline; None erases it. Nothing off a terminal.
+
+    The checks before a run take one to three seconds; a terminal gets this line
+    at once, and it is erased so that an error is still one line and a log
+    file or a pipe gets nothing from it.
+    """
+    stream = sys.stderr
+    try:
+        if not stream.isatty():
+            return
+        stream.write(text if text is not None else "\r\033[K")
+        stream.flush()
+    except (AttributeError, OSError, ValueError):  # a replaced or closed stream: nothing to show
+        pass
+
+
 def _main(argv: list[str], started: float) -> int:
+    # Hydra's informational modes (help, config printing) check nothing: no transient line for them
+    informational = {"--help", "-h", "--hydra-help", "--version", "--info", "-i", "--cfg", "-c",
+                     "--shell-completion", "-sc", "--experimental-rerun"}
+    checking = not informational.intersection(a.split("=", 1)[0] for a in argv if a.startswith("-"))
+    if checking:
+        _transient(CHECKING)
     try:
         from .preflight import preflight
 
         preflight(argv)
     except (UsageError, ConfigError) as exc:
+        if checking:
+            _transient(None)
         print(f"mosd: error: {exc}", file=sys.stderr)
         return 2
+    except BaseException:
+        if checking:
+            _transient(None)
+        raise
+    if checking:
+        _transient(None)
 
     import hydra
 
