@@ -127,3 +127,14 @@ def test_compiled_output_prediction_matches_the_reference(trace):
         ref = _output_prediction(CESCKF(), model, res)
     for a, b in zip(got, ref):
         np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-12 * np.abs(b).max())
+
+
+def test_compile_command_readies_every_kernel_module(capsys):
+    from mosd.kernels import MODULES
+    from mosd.kernels.__main__ import main
+
+    assert main(["--jobs", "1"]) == 0
+    err = capsys.readouterr().err
+    assert f"{len(MODULES)} of {len(MODULES)} kernel modules ready" in err
+    for name in MODULES:
+        assert f"mosd.kernels: {name}" in err

@@ -82,11 +82,16 @@ def set_threads(n: int) -> None:
     _STATE["threads"] = max(1, int(n))
 
 
-def warm_up() -> None:
-    """Load (or compile) every kernel now, e.g. in a fresh worker before its first task."""
+#: every kernel module, and those a candidate evaluation (an optimiser's worker) needs
+MODULES = ("ewma", "wavelet", "chart", "plants", "cubature")
+EVALUATION_MODULES = ("ewma", "wavelet", "chart")
+
+
+def warm_up(modules: tuple[str, ...] = EVALUATION_MODULES) -> None:
+    """Load (or compile) the kernels of ``modules`` now, e.g. in a fresh worker before its first task."""
     if not enabled():
         return
-    from . import chart, cubature, ewma, wavelet
+    import importlib
 
-    for module in (ewma, wavelet, chart, cubature):
-        module.warm_up()
+    for name in modules:
+        importlib.import_module(f"{__name__}.{name}").warm_up()

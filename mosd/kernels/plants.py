@@ -111,3 +111,11 @@ def simulate_mould_oscillator(params, controller, x0, v, g, w):
             for i in range(n_x):
                 xk[i] = nxt[i] + w[r, k, i]
     return x, y, u
+
+
+def warm_up() -> None:
+    """Load (or compile) the transitions and the closed-loop simulation."""
+    params = np.ones(8)
+    transition_points(0, params, np.zeros((1, 3)), np.zeros(1))
+    simulate_mould_oscillator(params, np.array([1.0, 0.0, 0.0, 0.0, 1.0, 1.0, 2.0]), np.zeros(3),
+                              np.zeros((1, 2, 3)), np.zeros((1, 2, 3)), np.zeros((1, 2, 3)))
