@@ -164,6 +164,9 @@ def test_dask_population_equals_in_process_and_closes_its_cluster(evaluator):
         # started once, for this problem: two single-threaded workers on 127.0.0.1
         assert cluster is not None and cluster.scheduler_address.startswith("tcp://127.0.0.1:")
         assert sorted(client.nthreads().values()) == [1, 1]
+        # BLAS/OpenMP pinned to one thread in every worker (a lambda travels by value, not by module name)
+        pools = client.run(lambda: [p["num_threads"] for p in __import__("threadpoolctl").threadpool_info()])
+        assert len(pools) == 2 and all(threads and set(threads) == {1} for threads in pools.values()), pools
         again = problem.evaluate_population(X[::-1])
         single = problem.evaluate_population(X[:1])
         assert problem._dask is dask  # the same cluster every generation
