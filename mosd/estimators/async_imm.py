@@ -159,22 +159,25 @@ class AsyncIMMFusion(Estimator):
         step = _Transitions(models)
         n_reps, n_points = trace.n_reps, grid.size
 
-        mu = np.broadcast_to(mu0, (n_reps, n_models)).copy()
-        x = np.broadcast_to(models[0].x0, (n_reps, n_models, n_aug)).copy()
-        P = np.broadcast_to(models[0].P0, (n_reps, n_models, n_aug, n_aug)).copy()
-        out_mu = np.empty((n_reps, n_points, n_models))
-        out_x = np.empty((n_reps, n_points, n_models, n_aug))
-        out_P = np.empty((n_reps, n_points, n_models, n_aug, n_aug))
-        out_ll = np.zeros((n_reps, n_points, n_models))
-        out_mu[:, 0], out_x[:, 0], out_P[:, 0] = mu, x, P
-        interval = self._sequential if self.fusion == "sequential" else self._equivalent_measurement
-        for k in range(1, n_points):
-            x0, P0, cbar = mix(mu, x, P, trans)
-            x, P, loglik = interval(x0, P0, meas, k, grid, step, H, Rm)
-            mu = mode_update(cbar, loglik)
-            out_mu[:, k], out_x[:, k], out_P[:, k], out_ll[:, k] = mu, x, P, loglik
-
-        fused_x, fused_P = fuse(out_mu, out_x, out_P)
+        compiled = self._compiled(meas, grid, step, H, Rm, trans, mu0, models[0])
+        if compiled is not None:
+            out_mu, out_x, out_P, out_ll, fused_x, fused_P = compiled
+        else:
+            mu = np.broadcast_to(mu0, (n_reps, n_models)).copy()
+            x = np.broadcast_to(models[0].x0, (n_reps, n_models, n_aug)).copy()
+            P = np.broadcast_to(models[0].P0, (n_reps, n_models, n_aug, n_aug)).copy()
+            out_mu = np.empty((n_reps, n_points, n_models))
+            out_x = np.empty((n_reps, n_points, n_models, n_aug))
+            out_P = np.empty((n_reps, n_points, n_models, n_aug, n_aug))
+            out_ll = np.zeros((n_reps, n_points, n_models))
+            out_mu[:, 0], out_x[:, 0], out_P[:, 0] = mu, x, P
+            interval = self._sequential if self.fusion == "sequential" else self._equivalent_measurement
+            for k in range(1, n_points):
+                x0, P0, cbar = mix(mu, x, P, trans)
+                x, P, loglik = interval(x0, P0, meas, k, grid, step, H, Rm)
+                mu = mode_update(cbar, loglik)
+                out_mu[:, k], out_x[:, k], out_P[:, k], out_ll[:, k] = mu, x, P, loglik
+            fused_x, fused_P = fuse(out_mu, out_x, out_P)
         extra = {
             "mode_probabilities": out_mu,
             "x_filt": fused_x[..., :n_x],
@@ -189,6 +192,20 @@ class AsyncIMMFusion(Estimator):
             "sensors": names,
         }
         return Residuals.of(trace, r=np.empty((n_reps, n_points, 0)), channels=(), extra=extra)
+
+    def _compiled(self, meas, grid, step, H, Rm, trans, mu0, prior):
+        """The compiled time loop's outputs (:mod:`mosd.kernels.imm`) when kernels are on, else None.
+
+        None also when the kernel leaves the decision to this reference (a
+        non-finite packet, an innovation covariance that is not positive definite).
+        """
+        from .. import kernels
+
+        if not kernels.enabled():
+            return None
+        from ..kernels.imm import filter_batch
+
+        return filter_batch(self.fusion == "sequential", meas, grid, step, H, Rm, trans, mu0, prior.x0, prior.P0)
 
     @staticmethod
     def _sequential(x, P, meas, k, grid, step, H, Rm):
