@@ -15,7 +15,10 @@ tolerance):
   materialises no (P, R, K) array;
 * :mod:`mosd.kernels.cubature` — the CESCKF over a batch of replications, for
   models that give a compiled form of f and h; the one kernel that is not
-  bit-identical (LAPACK's QR sums in another order): ~1e-13 relative.
+  bit-identical (LAPACK's QR sums in another order): ~1e-13 relative;
+* :mod:`mosd.kernels.imm` — paper 001's asynchronous IMM fusion filter
+  (:class:`mosd.estimators.AsyncIMMFusion`, both fusion forms) over a batch of
+  runs; not bit-identical either (BLAS products, LU/Cholesky): ~1e-14 relative.
 
 Compiled code is cached on disk (``cache=True``), so only the first run on a
 machine pays the compilation. The NumPy path is used when numba is missing, when
