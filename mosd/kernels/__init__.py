@@ -1,6 +1,6 @@
 """Compiled (numba) kernels for the hot loops, with the NumPy code kept as the reference.
 
-Every kernel here but the filter reproduces one NumPy routine of the science core operation for
+Every kernel here but the two filters reproduces one NumPy routine of the science core operation for
 operation, in the same order of floating-point additions, so that its results are
 bit-identical to the reference (``tests/test_kernels.py`` checks equality, not a
 tolerance):
@@ -14,7 +14,7 @@ tolerance):
   chart (recursion, denoising, Phase-I limit, alarm counts for FAR/MDR), which
   materialises no (P, R, K) array;
 * :mod:`mosd.kernels.cubature` — the CESCKF over a batch of replications, for
-  models that give a compiled form of f and h; the one kernel that is not
+  models that give a compiled form of f and h; not
   bit-identical (LAPACK's QR sums in another order): ~1e-13 relative;
 * :mod:`mosd.kernels.imm` — paper 001's asynchronous IMM fusion filter
   (:class:`mosd.estimators.AsyncIMMFusion`, both fusion forms) over a batch of
