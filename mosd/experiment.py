@@ -262,12 +262,12 @@ class Experiment:
         from concurrent.futures import ThreadPoolExecutor
 
         from .optim.backends import check_backend
-        from .optim.problem import worker_pool
+        from .optim.problem import uses_threads, worker_pool
 
         # a misspelt backend must fail before the simulation, not after it
         backend, dask_address = check_backend(backend, dask_address)
         timings: dict[str, float] = {}
-        if n_jobs > 1 and backend == "loky":
+        if n_jobs > 1 and backend == "loky" and not uses_threads(self.detector, self.objectives, n_jobs, backend):
             worker_pool(n_jobs, warm=True)  # workers start while the main process simulates
         t0 = time.perf_counter()
         data = self.prepare()

@@ -47,6 +47,32 @@ def test_n_jobs_1_and_2_give_identical_objectives(evaluator):
     np.testing.assert_array_equal(serial[::-1], again)
 
 
+def test_fused_evaluation_runs_on_threads_and_the_rest_on_processes(evaluator):
+    from mosd import kernels
+    from mosd.optim.problem import uses_threads
+
+    ev, phase1, train, mask = evaluator
+    chart = ev.detector
+    assert ChartTuningProblem(ev, n_jobs=2).in_threads and uses_threads(chart, ("far", "mdr"), 2)
+    assert not ChartTuningProblem(ev, n_jobs=1).in_threads and not uses_threads(chart, ("far", "mdr"), 1)
+    assert not uses_threads(chart, ("far", "mdr"), 2, backend="dask")
+    with kernels.disabled():
+        assert not ChartTuningProblem(ev, n_jobs=2).in_threads and not uses_threads(chart, ("far", "mdr"), 2)
+    # an objective the kernel does not compute: the NumPy path, on loky processes, still identical
+    objectives = ("far", "mdr", "accuracy")
+    slow = CandidateEvaluator(chart, chart.features(phase1), chart.features(train), mask, objectives)
+    assert not uses_threads(chart, objectives, 2)
+    X = np.random.default_rng(2).uniform([0.01, 0.0], [0.99, 5.0], size=(9, 2))
+    processes = ChartTuningProblem(slow, n_jobs=2)
+    try:
+        assert not processes.in_threads
+        pooled = processes.evaluate_population(X)
+    finally:
+        processes.close()
+    np.testing.assert_array_equal(pooled, ChartTuningProblem(slow, n_jobs=1).evaluate_population(X))
+    np.testing.assert_array_equal(pooled[:, :2], ChartTuningProblem(ev, n_jobs=2).evaluate_population(X))
+
+
 def test_bounds():
     ev = CandidateEvaluator(SSDEWMA(), np.zeros((1, 2, 10)), np.zeros((1, 2, 10)), np.zeros((1, 10), bool))
     p = ChartTuningProblem(ev, bounds={"K": (0, 5)}, n_jobs=1)

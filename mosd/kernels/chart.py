@@ -282,13 +282,14 @@ def _validated(detector, X: np.ndarray) -> dict:
     return params
 
 
-def fused_evaluation(detector, calibration_features, features, truth, objectives):
-    """A :class:`FusedChartEvaluation` when the kernel reproduces this set-up exactly, else None.
+def supports(detector, objectives) -> bool:
+    """True when the fused kernel reproduces this detector and these objectives, whatever the data.
 
-    Only a mean–variance chart with the Phase-I limit whose statistic, limit and
-    decision code is the base classes' own (no override in a subclass), no
-    denoiser or a whole-series wavelet the kernel supports, and objectives among
-    FAR and MDR.
+    A mean–variance chart with the Phase-I limit whose statistic, limit and
+    decision code is the base classes' own (no override in a subclass), order
+    1 or 2, combined by ``ss`` or ``max``, no denoiser or a whole-series
+    wavelet the kernel supports, and objectives among FAR and MDR.
+    :func:`fused_evaluation` adds the checks on the data.
     """
     from ..denoisers.base import NoDenoiser
     from ..denoisers.wavelet import WaveletDenoiser
@@ -299,17 +300,36 @@ def fused_evaluation(detector, calibration_features, features, truth, objectives
 
     cls = type(detector)
     if not isinstance(detector, _MeanVarianceChart) or getattr(detector, "limit", None) != "phase1":
-        return None
+        return False
     same = [(name, owner) for owner, names in ((Chart, ("population", "population_limits", "fit_statistic",
                                                          "_phase1_limit", "plotted")),
                                                 (_MeanVarianceChart, ("population_statistics", "_combine",
                                                                       "control_limit", "normalise", "features")))
             for name in names]
     if any(getattr(cls, name) is not getattr(owner, name) for name, owner in same):
-        return None
+        return False
     if detector.order not in (1, 2) or detector.combine not in ("ss", "max"):
-        return None
+        return False
     if not set(objectives) <= set(_FUSED_OBJECTIVES):
+        return False
+    denoiser = detector.denoiser
+    return type(denoiser) is NoDenoiser or (type(denoiser) is WaveletDenoiser and plan(denoiser) is not None)
+
+
+def fused_evaluation(detector, calibration_features, features, truth, objectives):
+    """A :class:`FusedChartEvaluation` when the kernel reproduces this set-up exactly, else None.
+
+    Only a mean–variance chart with the Phase-I limit whose statistic, limit and
+    decision code is the base classes' own (no override in a subclass), no
+    denoiser or a whole-series wavelet the kernel supports, and objectives among
+    FAR and MDR.
+    """
+    from ..denoisers.base import NoDenoiser
+    from ..denoisers.wavelet import WaveletDenoiser
+
+    from .wavelet import plan
+
+    if not supports(detector, objectives):
         return None
     calibration_features = np.asarray(calibration_features)
     features = np.asarray(features)

@@ -14,8 +14,12 @@ sees a piecewise-constant objective in those coordinates and the reported
 designs are integral.
 
 Parallelism: a population is split into ``n_jobs`` chunks; the main process
-evaluates the first and ``n_jobs − 1`` workers of a persistent loky process
-pool the others. Each worker pins BLAS/OpenMP to one thread, loads the cached
+evaluates the first and ``n_jobs − 1`` workers the others. When the compiled
+fused chart evaluation applies (:mod:`mosd.kernels.chart`), the workers are
+threads of this process: the kernel releases the GIL for all its work, so
+threads compute in parallel with no process to start, no evaluator to copy and
+no pipe per generation. Otherwise they are processes of a persistent loky
+pool. Each worker pins BLAS/OpenMP to one thread, loads the cached
 evaluator once (from a file the main process writes at the first pooled
 generation) and keeps it between generations; each generation ships only the
 candidate vectors. The pool can be started early (:func:`worker_pool` with
@@ -164,6 +168,36 @@ def worker_pool(n_jobs: int, warm: bool = False):
     return executor
 
 
+_THREADS: dict = {"pool": None, "size": 0}
+
+
+def _thread_pool(n_threads: int):
+    """A process-wide pool of ``n_threads`` threads for the fused evaluation, reused between problems."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    if _THREADS["pool"] is None or _THREADS["size"] != n_threads:
+        if _THREADS["pool"] is not None:
+            _THREADS["pool"].shutdown(wait=True)
+        _THREADS.update(pool=ThreadPoolExecutor(n_threads, thread_name_prefix="mosd-evaluate"), size=n_threads)
+    return _THREADS["pool"]
+
+
+def uses_threads(detector, objectives, n_jobs: int, backend: str = "loky") -> bool:
+    """Whether a tuning of ``detector`` will evaluate on threads rather than loky processes.
+
+    What :attr:`TuningProblem.in_threads` will say, decided before the data
+    exist (the detector and objectives alone), so that a caller does not start
+    worker processes it will not use.
+    """
+    from .. import kernels
+
+    if backend != "loky" or n_jobs <= 1 or not kernels.enabled():
+        return False
+    from ..kernels.chart import supports
+
+    return supports(detector, objectives)
+
+
 class TuningProblem(Problem):
     """Minimise the evaluator's objectives over the detector's tunable parameters (eq. 36).
 
@@ -206,13 +240,27 @@ class TuningProblem(Problem):
         #: True for the integer parameters (rounded before every evaluation)
         self.is_integer = np.array([tunable[name].integer for name in self.names], bool)
         super().__init__(n_var=len(self.names), n_obj=len(evaluator.objectives), xl=np.array(xl), xu=np.array(xu),
-                         exclude_from_serialization=["evaluator", "_payload", "_dask"])
+                         exclude_from_serialization=["evaluator", "_payload", "_dask", "_in_threads"])
         self._payload: str | None = None
         self._dask = None  # the DaskEvaluation of backend="dask", started on first use
 
     @property
     def objectives(self) -> tuple[str, ...]:
         return self.evaluator.objectives
+
+    @property
+    def in_threads(self) -> bool:
+        """True when the loky backend's extra workers are threads of this process (see the module docstring).
+
+        The compiled fused evaluation releases the GIL for all its work, so
+        threads run it in parallel without starting processes or copying the
+        cached features to them.
+        """
+        if "_in_threads" not in self.__dict__:
+            fused = getattr(self.evaluator, "fused", None)
+            self.__dict__["_in_threads"] = (self.backend == "loky" and self.n_jobs > 1 and fused is not None
+                                            and fused() is not None)
+        return self.__dict__["_in_threads"]
 
     def round(self, X: np.ndarray) -> np.ndarray:
         """X with its integer columns rounded (and kept inside the box)."""
@@ -243,11 +291,16 @@ class TuningProblem(Problem):
             return self._dask.evaluate(X)
         if self.n_jobs == 1 or X.shape[0] < 2:
             return self.evaluator(X)
+        chunks = np.array_split(X, min(self.n_jobs, X.shape[0]))
+        if self.in_threads:
+            pool = _thread_pool(self.n_jobs - 1)
+            futures = [pool.submit(self.evaluator, chunk) for chunk in chunks[1:]]
+            first = self.evaluator(chunks[0])
+            return np.concatenate([first] + [f.result() for f in futures], axis=0)
         if self._payload is None:
             fd, self._payload = tempfile.mkstemp(prefix="mosd-evaluator-", suffix=".pkl")
             with os.fdopen(fd, "wb") as fh:
                 pickle.dump(self.evaluator, fh, protocol=pickle.HIGHEST_PROTOCOL)
-        chunks = np.array_split(X, min(self.n_jobs, X.shape[0]))
         executor = worker_pool(self.n_jobs)
         futures = [executor.submit(_evaluate_chunk, self._payload, chunk) for chunk in chunks[1:]]
         first = self.evaluator(chunks[0])
