@@ -74,9 +74,26 @@ def test_threads_change_no_number(trace):
     args = (TRANSITIONS["mould_oscillator"], np.asarray(model.pointwise.params), np.arange(3), tr.y, tr.u,
             model.x0, np.eye(3), eps, weights, _lower_sqrt(model.Q).T.copy(), _lower_sqrt(model.R).T.copy())
     one = filter_batch(*args, threads=1)
-    for n in (2, 4, 64):
-        for a, b in zip(one, filter_batch(*args, threads=n)):
+    for n, lanes in ((2, 64), (4, 64), (64, 64), (1, 1), (1, 4), (3, 2)):
+        for a, b in zip(one, filter_batch(*args, threads=n, lanes=lanes)):
             assert np.array_equal(a, b, equal_nan=True)
+
+
+def test_more_replications_than_lanes_with_gaps_match_the_reference():
+    plant, noise = MouldOscillator(), GaussianNoise()
+    tr = Scenario(plant, noise, None, duration=0.08).simulate(5, 70, stream="calibration")
+    y = tr.y.copy()
+    y[np.random.default_rng(3).random(y.shape) < 0.1] = np.nan
+    model = plant.model(noise)
+    previous = kernels.threads()
+    kernels.set_threads(1)  # one block of 64 lanes and one of 6
+    try:
+        got = CESCKF().filter(model, y, tr.u)
+    finally:
+        kernels.set_threads(previous)
+    with kernels.disabled():
+        ref = CESCKF().filter(model, y, tr.u)
+    _agree(got, ref)
 
 
 def test_dedicated_observer_residuals_match_the_reference(trace):

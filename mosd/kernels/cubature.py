@@ -1,9 +1,10 @@
 """The square-root cubature filter (:class:`mosd.estimators.CESCKF`, paper 000 eqs. 2–18), compiled.
 
-One compiled call filters every replication over every step: per replication
-and step it draws the cubature points, pushes them through the plant's
-transition, forms the weighted moments and takes the square roots with a
-Householder "tria" — the same algebra as the NumPy reference in
+One compiled call filters every replication over every step: per step it
+draws the cubature points, pushes them through the plant's transition, forms
+the weighted moments and takes the square roots with a Householder "tria" —
+for 64 replications side by side (the innermost axis of every array, so the
+compiler vectorises each line of the algebra) — the same algebra as the NumPy reference in
 :mod:`mosd.estimators.cubature`, in the same layout (square roots carried
 transposed, upper triangular, diagonal ≥ 0). Unlike the other kernels this
 one is *not* bit-identical to its reference: the reference calls LAPACK's QR
@@ -31,7 +32,7 @@ import numpy as np
 from numba import njit
 
 
-from .plants import TRANSITIONS, transition, transition_points  # noqa: F401  (re-exported)
+from .plants import TRANSITIONS, transition, transition_lanes, transition_points  # noqa: F401  (re-exported)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -68,9 +69,128 @@ def _tria(a, n_cols, out):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
+def _tria_lanes(a, n_rows, n_cols, out, n_lanes, norm2, v0, vtv, alpha, scale):
+    """:func:`_tria` on every lane of a (rows, cols, lanes) stack, lanes innermost (vectorised).
+
+    The same operations in the same order per lane as :func:`_tria`, so the
+    results are bit-identical to it; the guards become per-lane selections.
+    """
+    for j in range(n_cols):
+        for b in range(n_lanes):
+            norm2[b] = 0.0
+        for i in range(j, n_rows):
+            for b in range(n_lanes):
+                norm2[b] += a[i, j, b] * a[i, j, b]
+        for b in range(n_lanes):
+            ajj = a[j, j, b]
+            norm = math.sqrt(norm2[b])
+            alpha[b] = -norm if ajj >= 0.0 else norm
+            v0[b] = ajj - alpha[b]
+            vtv[b] = v0[b] * v0[b] + (norm2[b] - ajj * ajj)
+        for c in range(j + 1, n_cols):
+            for b in range(n_lanes):
+                scale[b] = v0[b] * a[j, c, b]
+            for i in range(j + 1, n_rows):
+                for b in range(n_lanes):
+                    scale[b] += a[i, j, b] * a[i, c, b]
+            for b in range(n_lanes):
+                scale[b] = 2.0 * scale[b] / vtv[b] if (norm2[b] > 0.0 and vtv[b] > 0.0) else 0.0
+                a[j, c, b] -= scale[b] * v0[b]
+            for i in range(j + 1, n_rows):
+                for b in range(n_lanes):
+                    a[i, c, b] -= scale[b] * a[i, j, b]
+        for b in range(n_lanes):
+            if norm2[b] > 0.0:
+                a[j, j, b] = alpha[b]
+            sign = -1.0 if a[j, j, b] < 0.0 else 1.0
+            for c in range(n_cols):
+                out[j, c, b] = sign * a[j, c, b] if c >= j else 0.0
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _update_lane(b, yk, xp, stp, centred_y, deviation, sr_t, xf, stf, present, stack_y, syy_used, pxy, gain, innov,
+                 yp, stack_yx, root):
+    """The measurement update of lane ``b`` with its missing channels (NaN in ``yk``) left out.
+
+    Eqs. 12–18 on the present channels only: N and S_R keep the rows of the
+    present channels (the rows of any square root of R are a square root of
+    that block of R); nothing present keeps the prediction.
+    """
+    n_pts, n_y = centred_y.shape[0], centred_y.shape[1]
+    n_x = xp.shape[0]
+    n_present = 0
+    for c in range(n_y):
+        if not math.isnan(yk[c]):
+            present[n_present] = c
+            n_present += 1
+    if n_present == 0:
+        for i in range(n_x):
+            xf[i, b] = xp[i, b]
+            for j in range(n_x):
+                stf[i, j, b] = stp[i, j, b]
+        return
+    for i in range(n_pts):
+        for a in range(n_present):
+            stack_y[i, a] = centred_y[i, present[a], b]
+    for i in range(n_y):
+        for a in range(n_present):
+            stack_y[n_pts + i, a] = sr_t[i, present[a]]
+    _tria(stack_y, n_present, syy_used)
+    for a in range(n_present):
+        for j in range(n_x):
+            acc = 0.0
+            for i in range(n_pts):
+                acc += centred_y[i, present[a], b] * deviation[i, j, b]
+            pxy[a, j] = acc
+    for j in range(n_x):
+        for a in range(n_present):
+            acc = pxy[a, j]
+            for c in range(a):
+                acc -= syy_used[c, a] * gain[c, j]
+            gain[a, j] = acc / syy_used[a, a]
+        for a in range(n_present - 1, -1, -1):
+            acc = gain[a, j]
+            for c in range(a + 1, n_present):
+                acc -= syy_used[a, c] * gain[c, j]
+            gain[a, j] = acc / syy_used[a, a]
+    for a in range(n_present):
+        innov[a] = yk[present[a]] - yp[present[a], b]
+    for j in range(n_x):
+        acc = xp[j, b]
+        for a in range(n_present):
+            acc += innov[a] * gain[a, j]
+        xf[j, b] = acc
+    for i in range(n_pts):
+        for j in range(n_x):
+            acc = 0.0
+            for a in range(n_present):
+                acc += centred_y[i, present[a], b] * gain[a, j]
+            stack_yx[i, j] = deviation[i, j, b] - acc
+    for i in range(n_y):
+        for j in range(n_x):
+            acc = 0.0
+            for a in range(n_present):
+                acc += sr_t[i, present[a]] * gain[a, j]
+            stack_yx[n_pts + i, j] = acc
+    _tria(stack_yx, n_x, root)
+    for i in range(n_x):
+        for j in range(n_x):
+            stf[i, j, b] = root[i, j]
+
+
+#: replications filtered side by side (the innermost, vectorised axis of the kernel's arrays)
+LANES = 64
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
 def cesckf(kind, params, outputs, y, u, x0, st0, eps, weights, sq_t, sr_t, first, stop,
-           x_pred, x_filt, sqrt_cov_pred, sqrt_cov_filt, y_pred, innovation, innovation_cov):
-    """Filter every replication (paper 000, eqs. 2–18); the compiled :meth:`CESCKF.filter`.
+           x_pred, x_filt, sqrt_cov_pred, sqrt_cov_filt, y_pred, innovation, innovation_cov, lanes):
+    """Filter replications ``first``..``stop`` (paper 000, eqs. 2–18); the compiled :meth:`CESCKF.filter`.
+
+    Replications go ``lanes`` at a time, side by side: every array of the
+    step carries them on its last axis, so each line of the algebra is a loop
+    the compiler vectorises. A lane with a missing channel at a step has its
+    update redone on the present channels (:func:`_update_lane`).
 
     Parameters
     ----------
@@ -94,172 +214,220 @@ def cesckf(kind, params, outputs, y, u, x0, st0, eps, weights, sq_t, sr_t, first
         ŷ_{k|k−1} and y_k − ŷ_{k|k−1} (NaN where y is).
     innovation_cov : float64 (R, N, n_y, n_y), filled
         S_yy S_yyᵀ over every channel.
+    lanes : int
+        Replications side by side.
     """
     n_steps, n_y = y.shape[1], y.shape[2]
+    n_u = u.shape[2]
     n_x = x0.shape[0]
     n_pts = weights.shape[0]
     sqrt_w = np.sqrt(weights)
-
-    point = np.empty(n_x)
-    moved = np.empty((n_pts, n_x))
-    deviation = np.empty((n_pts, n_x))
-    predicted_y = np.empty((n_pts, n_y))
-    centred_y = np.empty((n_pts, n_y))
-    stack_x = np.empty((n_pts + n_x, n_x))  # [M; S_Qᵀ] (eq. 10) and [R − K N; K S_R]ᵀ (eq. 18)
-    stack_y = np.empty((n_pts + n_y, n_y))  # [N; S_Rᵀ] (eq. 15)
-    stack_yx = np.empty((n_pts + n_y, n_x))
-    syy = np.empty((n_y, n_y))
-    syy_used = np.empty((n_y, n_y))
+    L = lanes
+    point = np.empty((n_x, L))
+    u_k = np.empty((max(n_u, 1), L))
+    moved = np.empty((n_pts, n_x, L))
+    deviation = np.empty((n_pts, n_x, L))
+    centred_y = np.empty((n_pts, n_y, L))
+    stack_x = np.empty((n_pts + n_x, n_x, L))   # [M; S_Qᵀ] (eq. 10)
+    stack_y = np.empty((n_pts + n_y, n_y, L))   # [N; S_Rᵀ] (eq. 15)
+    stack_yx = np.empty((n_pts + n_y, n_x, L))  # [R − K N; K S_R]ᵀ (eq. 18)
+    syy = np.empty((n_y, n_y, L))
+    pxy = np.empty((n_y, n_x, L))
+    gain = np.empty((n_y, n_x, L))
+    innov = np.empty((n_y, L))
+    acc = np.empty(L)
+    xp = np.empty((n_x, L))
+    stp = np.empty((n_x, n_x, L))
+    xf = np.empty((n_x, L))
+    stf = np.empty((n_x, n_x, L))
+    yp = np.empty((n_y, L))
+    norm2, v0, vtv, alpha, scale = np.empty(L), np.empty(L), np.empty(L), np.empty(L), np.empty(L)
+    # one lane's scratch for _update_lane
     present = np.empty(n_y, np.int64)
-    pxy = np.empty((n_y, n_x))
-    gain = np.empty((n_y, n_x))
-    innov = np.empty(n_y)
-    xp = np.empty(n_x)
-    stp = np.empty((n_x, n_x))
-    xf = np.empty(n_x)
-    stf = np.empty((n_x, n_x))
-    yp = np.empty(n_y)
+    lane_stack_y = np.empty((n_pts + n_y, n_y))
+    lane_syy = np.empty((n_y, n_y))
+    lane_pxy = np.empty((n_y, n_x))
+    lane_gain = np.empty((n_y, n_x))
+    lane_innov = np.empty(n_y)
+    lane_stack_yx = np.empty((n_pts + n_y, n_x))
+    lane_root = np.empty((n_x, n_x))
 
-    for r in range(first, stop):
+    for r0 in range(first, stop, L):
+        nb = min(L, stop - r0)
         for k in range(n_steps):
             if k == 0:
-                xp[:] = x0
-                stp[:, :] = st0
+                for i in range(n_x):
+                    for b in range(nb):
+                        xp[i, b] = x0[i]
+                    for j in range(n_x):
+                        for b in range(nb):
+                            stp[i, j, b] = st0[i, j]
             else:
                 # eqs. 4–5: X_i = x̂ + S ε_i, X*_i = f(X_i, u_{k−1}); eq. 3: the weighted mean
+                for c in range(n_u):
+                    for b in range(nb):
+                        u_k[c, b] = u[r0 + b, k - 1, c]
                 for j in range(n_x):
-                    xp[j] = 0.0
+                    for b in range(nb):
+                        xp[j, b] = 0.0
                 for i in range(n_pts):
                     for j in range(n_x):
-                        acc = xf[j]
+                        for b in range(nb):
+                            point[j, b] = xf[j, b]
                         for m in range(n_x):
-                            acc += eps[i, m] * stf[m, j]
-                        point[j] = acc
-                    transition(kind, params, point, u[r, k - 1], moved[i])
+                            e = eps[i, m]
+                            for b in range(nb):
+                                point[j, b] += e * stf[m, j, b]
+                    transition_lanes(kind, params, point, u_k, moved[i], nb)
+                    w = weights[i]
                     for j in range(n_x):
-                        xp[j] += weights[i] * moved[i, j]
+                        for b in range(nb):
+                            xp[j, b] += w * moved[i, j, b]
                 # eqs. 10–11: S_{k|k−1} = tria([M, S_Q]), M_i = √w_i (X*_i − x̂)
                 for i in range(n_pts):
+                    s = sqrt_w[i]
                     for j in range(n_x):
-                        stack_x[i, j] = sqrt_w[i] * (moved[i, j] - xp[j])
+                        for b in range(nb):
+                            stack_x[i, j, b] = s * (moved[i, j, b] - xp[j, b])
                 for i in range(n_x):
                     for j in range(n_x):
-                        stack_x[n_pts + i, j] = sq_t[i, j]
-                _tria(stack_x, n_x, stp)
-            for i in range(n_x):
-                x_pred[r, k, i] = xp[i]
-                for j in range(i + 1):
-                    sqrt_cov_pred[r, k, i, j] = stp[j, i]
-                for j in range(i + 1, n_x):
-                    sqrt_cov_pred[r, k, i, j] = 0.0
+                        for b in range(nb):
+                            stack_x[n_pts + i, j, b] = sq_t[i, j]
+                _tria_lanes(stack_x, n_pts + n_x, n_x, stp, nb, norm2, v0, vtv, alpha, scale)
+            for b in range(nb):
+                for i in range(n_x):
+                    x_pred[r0 + b, k, i] = xp[i, b]
+                    for j in range(i + 1):
+                        sqrt_cov_pred[r0 + b, k, i, j] = stp[j, i, b]
+                    for j in range(i + 1, n_x):
+                        sqrt_cov_pred[r0 + b, k, i, j] = 0.0
 
-            # eq. 8: points re-drawn from S_{k|k−1}; eq. 16: √w_i (X_i − x̂); eq. 9: Y_i = h(X_i)
-            for i in range(n_pts):
-                for j in range(n_x):
-                    acc = 0.0
-                    for m in range(n_x):
-                        acc += eps[i, m] * stp[m, j]
-                    deviation[i, j] = sqrt_w[i] * acc
-                    point[j] = xp[j] + acc
-                for c in range(n_y):
-                    predicted_y[i, c] = point[outputs[c]]
-            # eq. 6: ŷ; eq. 17: N_i = √w_i (Y_i − ŷ); eq. 15: S_yy = tria([N, S_R]) over every channel
+            # eq. 8: points re-drawn from S_{k|k−1}; eq. 16: √w_i (X_i − x̂); eq. 9: Y_i = h(X_i); eq. 6: ŷ
             for c in range(n_y):
-                yp[c] = 0.0
+                for b in range(nb):
+                    yp[c, b] = 0.0
             for i in range(n_pts):
+                s = sqrt_w[i]
+                for j in range(n_x):
+                    for b in range(nb):
+                        acc[b] = 0.0
+                    for m in range(n_x):
+                        e = eps[i, m]
+                        for b in range(nb):
+                            acc[b] += e * stp[m, j, b]
+                    for b in range(nb):
+                        deviation[i, j, b] = s * acc[b]
+                        point[j, b] = xp[j, b] + acc[b]
+                w = weights[i]
                 for c in range(n_y):
-                    yp[c] += weights[i] * predicted_y[i, c]
+                    o = outputs[c]
+                    for b in range(nb):
+                        centred_y[i, c, b] = point[o, b]
+                        yp[c, b] += w * point[o, b]
+            # eq. 17: N_i = √w_i (Y_i − ŷ); eq. 15: S_yy = tria([N, S_R]) over every channel
             for i in range(n_pts):
+                s = sqrt_w[i]
                 for c in range(n_y):
-                    centred_y[i, c] = sqrt_w[i] * (predicted_y[i, c] - yp[c])
-                    stack_y[i, c] = centred_y[i, c]
+                    for b in range(nb):
+                        centred_y[i, c, b] = s * (centred_y[i, c, b] - yp[c, b])
+                        stack_y[i, c, b] = centred_y[i, c, b]
             for i in range(n_y):
                 for c in range(n_y):
-                    stack_y[n_pts + i, c] = sr_t[i, c]
-            _tria(stack_y, n_y, syy)
-            for c in range(n_y):
-                y_pred[r, k, c] = yp[c]
-                innovation[r, k, c] = y[r, k, c] - yp[c]
+                    for b in range(nb):
+                        stack_y[n_pts + i, c, b] = sr_t[i, c]
+            _tria_lanes(stack_y, n_pts + n_y, n_y, syy, nb, norm2, v0, vtv, alpha, scale)
+            for b in range(nb):
+                for c in range(n_y):
+                    y_pred[r0 + b, k, c] = yp[c, b]
+                    innov[c, b] = y[r0 + b, k, c] - yp[c, b]
+                    innovation[r0 + b, k, c] = innov[c, b]
+                for a in range(n_y):
+                    for c in range(n_y):
+                        total = 0.0
+                        for m in range(n_y):
+                            total += syy[m, a, b] * syy[m, c, b]
+                        innovation_cov[r0 + b, k, a, c] = total
+            # eq. 14: P_xyᵀ = Nᵀ R; eq. 13: Kᵀ = S_yy⁻ᵀ (S_yy⁻¹ P_xyᵀ) by two triangular solves
             for a in range(n_y):
-                for b in range(n_y):
-                    acc = 0.0
-                    for m in range(n_y):
-                        acc += syy[m, a] * syy[m, b]
-                    innovation_cov[r, k, a, b] = acc
-
-            n_present = 0
-            for c in range(n_y):
-                if not math.isnan(y[r, k, c]):
-                    present[n_present] = c
-                    n_present += 1
-            if n_present == 0:
-                xf[:] = xp
-                stf[:, :] = stp
-            else:
-                if n_present == n_y:
-                    syy_used[:, :] = syy
-                else:
-                    # the rows of any square root of R are a square root of that block of R
+                for j in range(n_x):
+                    for b in range(nb):
+                        acc[b] = 0.0
                     for i in range(n_pts):
-                        for a in range(n_present):
-                            stack_y[i, a] = centred_y[i, present[a]]
-                    for i in range(n_y):
-                        for a in range(n_present):
-                            stack_y[n_pts + i, a] = sr_t[i, present[a]]
-                    _tria(stack_y, n_present, syy_used)
-                # eq. 14: P_xyᵀ = Nᵀ R; eq. 13: Kᵀ = S_yy⁻ᵀ (S_yy⁻¹ P_xyᵀ) by two triangular solves
-                for a in range(n_present):
-                    for j in range(n_x):
-                        acc = 0.0
-                        for i in range(n_pts):
-                            acc += centred_y[i, present[a]] * deviation[i, j]
-                        pxy[a, j] = acc
+                        for b in range(nb):
+                            acc[b] += centred_y[i, a, b] * deviation[i, j, b]
+                    for b in range(nb):
+                        pxy[a, j, b] = acc[b]
+            for j in range(n_x):
+                for a in range(n_y):  # forward: (S_yyᵀ)ᵀ z = P_xyᵀ, lower
+                    for b in range(nb):
+                        acc[b] = pxy[a, j, b]
+                    for c in range(a):
+                        for b in range(nb):
+                            acc[b] -= syy[c, a, b] * gain[c, j, b]
+                    for b in range(nb):
+                        gain[a, j, b] = acc[b] / syy[a, a, b]
+                for a in range(n_y - 1, -1, -1):  # backward: S_yyᵀ Kᵀ = z, upper
+                    for b in range(nb):
+                        acc[b] = gain[a, j, b]
+                    for c in range(a + 1, n_y):
+                        for b in range(nb):
+                            acc[b] -= syy[a, c, b] * gain[c, j, b]
+                    for b in range(nb):
+                        gain[a, j, b] = acc[b] / syy[a, a, b]
+            # eq. 12: x̂_{k|k} = x̂_{k|k−1} + K r_k
+            for j in range(n_x):
+                for b in range(nb):
+                    acc[b] = xp[j, b]
+                for a in range(n_y):
+                    for b in range(nb):
+                        acc[b] += innov[a, b] * gain[a, j, b]
+                for b in range(nb):
+                    xf[j, b] = acc[b]
+            # eq. 18: S_{k|k} = tria([R − K N, K S_R])
+            for i in range(n_pts):
                 for j in range(n_x):
-                    for a in range(n_present):  # forward: (S_yyᵀ)ᵀ z = P_xyᵀ, lower
-                        acc = pxy[a, j]
-                        for b in range(a):
-                            acc -= syy_used[b, a] * gain[b, j]
-                        gain[a, j] = acc / syy_used[a, a]
-                    for a in range(n_present - 1, -1, -1):  # backward: S_yyᵀ Kᵀ = z, upper
-                        acc = gain[a, j]
-                        for b in range(a + 1, n_present):
-                            acc -= syy_used[a, b] * gain[b, j]
-                        gain[a, j] = acc / syy_used[a, a]
-                # eq. 12: x̂_{k|k} = x̂_{k|k−1} + K r_k
-                for a in range(n_present):
-                    innov[a] = y[r, k, present[a]] - yp[present[a]]
+                    for b in range(nb):
+                        acc[b] = 0.0
+                    for a in range(n_y):
+                        for b in range(nb):
+                            acc[b] += centred_y[i, a, b] * gain[a, j, b]
+                    for b in range(nb):
+                        stack_yx[i, j, b] = deviation[i, j, b] - acc[b]
+            for i in range(n_y):
                 for j in range(n_x):
-                    acc = xp[j]
-                    for a in range(n_present):
-                        acc += innov[a] * gain[a, j]
-                    xf[j] = acc
-                # eq. 18: S_{k|k} = tria([R − K N, K S_R])
-                for i in range(n_pts):
-                    for j in range(n_x):
-                        acc = 0.0
-                        for a in range(n_present):
-                            acc += centred_y[i, present[a]] * gain[a, j]
-                        stack_yx[i, j] = deviation[i, j] - acc
-                for i in range(n_y):
-                    for j in range(n_x):
-                        acc = 0.0
-                        for a in range(n_present):
-                            acc += sr_t[i, present[a]] * gain[a, j]
-                        stack_yx[n_pts + i, j] = acc
-                _tria(stack_yx, n_x, stf)
-            for i in range(n_x):
-                x_filt[r, k, i] = xf[i]
-                for j in range(i + 1):
-                    sqrt_cov_filt[r, k, i, j] = stf[j, i]
-                for j in range(i + 1, n_x):
-                    sqrt_cov_filt[r, k, i, j] = 0.0
+                    for b in range(nb):
+                        acc[b] = 0.0
+                    for a in range(n_y):
+                        for b in range(nb):
+                            acc[b] += sr_t[i, a] * gain[a, j, b]
+                    for b in range(nb):
+                        stack_yx[n_pts + i, j, b] = acc[b]
+            _tria_lanes(stack_yx, n_pts + n_y, n_x, stf, nb, norm2, v0, vtv, alpha, scale)
+            # lanes with a missing channel: the update again on the present channels
+            for b in range(nb):
+                gap = False
+                for c in range(n_y):
+                    if math.isnan(y[r0 + b, k, c]):
+                        gap = True
+                if gap:
+                    _update_lane(b, y[r0 + b, k], xp, stp, centred_y, deviation, sr_t, xf, stf, present,
+                                 lane_stack_y, lane_syy, lane_pxy, lane_gain, lane_innov, yp, lane_stack_yx,
+                                 lane_root)
+            for b in range(nb):
+                for i in range(n_x):
+                    x_filt[r0 + b, k, i] = xf[i, b]
+                    for j in range(i + 1):
+                        sqrt_cov_filt[r0 + b, k, i, j] = stf[j, i, b]
+                    for j in range(i + 1, n_x):
+                        sqrt_cov_filt[r0 + b, k, i, j] = 0.0
 
 
-def filter_batch(kind, params, outputs, y, u, x0, st0, eps, weights, sq_t, sr_t, threads=None):
+def filter_batch(kind, params, outputs, y, u, x0, st0, eps, weights, sq_t, sr_t, threads=None, lanes=LANES):
     """:func:`cesckf` over every replication of ``y`` (R, N, n_y), split over ``threads`` threads.
 
-    Replications are independent, so the split changes no number; the kernel
-    releases the GIL, so threads run it in parallel. ``threads=None`` uses
+    Replications are independent, so neither the split over threads nor
+    ``lanes`` (replications side by side in the kernel) changes a number; the
+    kernel releases the GIL, so threads run it in parallel. ``threads=None`` uses
     :func:`mosd.kernels.threads`.
 
     Returns
@@ -274,7 +442,7 @@ def filter_batch(kind, params, outputs, y, u, x0, st0, eps, weights, sq_t, sr_t,
             np.empty((n_reps, n_steps, n_x, n_x)), np.empty((n_reps, n_steps, n_x, n_x)),
             np.empty((n_reps, n_steps, n_y)), np.empty((n_reps, n_steps, n_y)), np.empty((n_reps, n_steps, n_y, n_y)))
     _over_replications(lambda first, stop: cesckf(kind, params, outputs, y, u, x0, st0, eps, weights, sq_t, sr_t,
-                                                   first, stop, *outs), n_reps, threads)
+                                                   first, stop, *outs, lanes), n_reps, threads)
     return outs
 
 

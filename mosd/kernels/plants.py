@@ -21,7 +21,7 @@ _RPM_PER_RAD_S = 60.0 / (2.0 * math.pi)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _mould_oscillator(params, x, u, out):
+def _mould_step(params, x_p, theta, n, i_q):
     """Euler step of :meth:`mosd.plants.MouldOscillator.f` (paper 000, eqs. 40–41) at one point.
 
     params: dt, amplitude, gear_ratio, coulomb_torque, gravity_torque,
@@ -29,15 +29,18 @@ def _mould_oscillator(params, x, u, out):
     """
     dt, amplitude, gear_ratio = params[0], params[1], params[2]
     coulomb, gravity, torque_constant, inertia, friction = params[3], params[4], params[5], params[6], params[7]
-    theta, n = x[1], x[2]
     cos_theta = math.cos(theta)
     omega = 2.0 * math.pi * n / (60.0 * gear_ratio)
     load = coulomb + gravity * cos_theta
-    n_dot = (torque_constant / inertia * _RPM_PER_RAD_S * u[0] - friction / inertia * n
+    n_dot = (torque_constant / inertia * _RPM_PER_RAD_S * i_q - friction / inertia * n
              - _RPM_PER_RAD_S * load / inertia)
-    out[0] = x[0] + dt * (amplitude * omega * cos_theta)
-    out[1] = x[1] + dt * omega
-    out[2] = x[2] + dt * n_dot
+    return x_p + dt * (amplitude * omega * cos_theta), theta + dt * omega, n + dt * n_dot
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _mould_oscillator(params, x, u, out):
+    """:func:`_mould_step` on x (3,), u (1,) into out (3,)."""
+    out[0], out[1], out[2] = _mould_step(params, x[0], x[1], x[2], u[0])
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -45,6 +48,16 @@ def transition(kind, params, x, u, out):
     """out = f(x, u) of the transition numbered ``kind`` (see :data:`TRANSITIONS`)."""
     if kind == 0:
         _mould_oscillator(params, x, u, out)
+    else:
+        raise ValueError("unknown compiled transition")
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def transition_lanes(kind, params, x, u, out, n_lanes):
+    """out[:, b] = f(x[:, b], u[:, b]) for the first ``n_lanes`` lanes (replications) of (n, lanes) arrays."""
+    if kind == 0:
+        for b in range(n_lanes):
+            out[0, b], out[1, b], out[2, b] = _mould_step(params, x[0, b], x[1, b], x[2, b], u[0, b])
     else:
         raise ValueError("unknown compiled transition")
 
