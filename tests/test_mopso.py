@@ -23,7 +23,7 @@ from mosd.optim.mopso import (PAPER_PRESET, apply_bounds, constriction_coefficie
 from mosd.validation import ConfigError
 
 CONF = Path(__file__).resolve().parents[1] / "conf" / "optimizer"
-RUN_KEYS = {"_target_", "pop_size", "n_gen", "n_jobs", "objectives"}
+RUN_KEYS = {"_target_", "pop_size", "n_gen", "n_jobs", "objectives", "backend", "dask_address"}
 
 
 def population(F, CV=None):

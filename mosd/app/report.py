@@ -31,7 +31,8 @@ CHOICE_GROUPS = ("experiment", "plant", "noise", "fault", "estimator", "monitor"
 #: Columns every row has anyway.
 _FIXED = {"experiment": "preset", "fault": "fault", "detector": "detector", "optimizer": "optimizer"}
 #: Params that do not change what a run measures (where it wrote, how many workers evaluated).
-_IGNORED_PARAMS = ("tracking.", "outputs_root", "progress", "optimizer.n_jobs", "hydra.")
+_IGNORED_PARAMS = ("tracking.", "outputs_root", "progress", "optimizer.n_jobs", "optimizer.backend",
+                   "optimizer.dask_address", "hydra.")
 
 
 class ReportError(Exception):
