@@ -90,7 +90,7 @@ def set_threads(n: int) -> None:
 
 
 #: every kernel module, and those a candidate evaluation (an optimiser's worker) needs
-MODULES = ("ewma", "wavelet", "chart", "plants", "cubature")
+MODULES = ("ewma", "wavelet", "chart", "plants", "cubature", "imm", "entropy")
 EVALUATION_MODULES = ("ewma", "wavelet", "chart")
 
 

@@ -34,7 +34,8 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     failed = 0
     # the slowest first, so that the parallel compiles end together
-    order = sorted(MODULES, key=("cubature", "wavelet", "chart", "plants", "ewma").index)
+    slowest = ("cubature", "imm", "wavelet", "chart", "entropy", "plants", "ewma")
+    order = sorted(MODULES, key=lambda name: slowest.index(name) if name in slowest else len(slowest))
     with ProcessPoolExecutor(max(1, min(args.jobs, len(order)))) as pool:
         futures = {pool.submit(_compile, name): name for name in order}
         for future in as_completed(futures):
