@@ -84,9 +84,29 @@ def test_degenerate_particles():
     assert V == pytest.approx(1.0 / (60 * math.sqrt(2.0 * math.pi) * math.sqrt(2.0) * 1e-12), rel=1e-15)
     assert dV == 0.0 and d2V == 0.0
     _assert_agree(a, b, 0.3, 1e-12)
-    # a bandwidth where part of the pairs underflow to subnormal or zero Gaussians
+    # a bandwidth where part of the pairs underflow to subnormal or zero Gaussians (z/σ up to 45)
     spread = np.linspace(0.0, 1.0, 40)
-    _assert_agree(spread, 0.5 * spread, 0.2, 0.02)
+    _assert_agree(spread, 0.5 * spread, 0.2, 0.014)
+
+
+def test_each_gaussian_agrees_with_libm_over_the_whole_range():
+    # two particles: V′ = G_σ(z) z Δb / (2 σ²) and V″ show one Gaussian, from G(0) = 1/(√(2π) σ) down to the
+    # subnormal range (z/σ > 37.6, where the kernel hands the exponential back to libm) and to 0
+    ip = _compiled().information_potential
+    s = 0.3
+    sigma = math.sqrt(2.0) * s
+    worst, zeros = 0.0, 0
+    for q in np.concatenate([np.linspace(0.0, 40.0, 4001), [37.62, 37.63, 38.5, 38.6, 38.7]]):
+        a, b = np.array([0.0, q * sigma]), np.array([0.0, -1.0])
+        got, ref = ip(a, b, 0.0, s), information_potential(a, b, 0.0, s)
+        for g, r in zip(got, ref):
+            if abs(r) > 1e-290:
+                worst = max(worst, abs(g - r) / abs(r))
+            else:  # subnormal results carry few digits on either path
+                assert abs(g - r) < 1e-300, (q, g, r)
+                zeros += r == 0.0 and g == 0.0
+    assert zeros > 100
+    assert worst < 2e-15  # measured 4e-16: ~1 ulp of the exponential and 1–2 of the constants factored out
 
 
 def test_entropy_and_cost_agree_with_the_reference():
@@ -123,7 +143,7 @@ def test_estimator_uses_the_kernel_only_when_kernels_are_on(monkeypatch):
     assert len(calls) == (1 if kernels.enabled() else 0)
 
 
-def _design(n_particles, newton_steps, seed):
+def _design(n_particles, newton_steps, seed, calls=None):
     faults = FaultSet([RandomAmplitudeFault("sine", role="target"), RandomAmplitudeFault("ramp", role="nuisance")])
     sc = Scenario(ScalarNonlinearPlant(), BoundedNoise(), faults, duration=10.0)
     template, model = sc.simulate(0, 1, "estimator"), sc.plant.model(sc.noise)
@@ -131,14 +151,31 @@ def _design(n_particles, newton_steps, seed):
     got = est.fit(template, model, np.random.default_rng(seed))
     gains, design = got.gain_.copy(), {key: v.copy() for key, v in got.design_.items()}
     with kernels.disabled():
-        ref = EntropyIsolationFilter(n_particles=n_particles, newton_steps=newton_steps).fit(
-            template, model, np.random.default_rng(seed))
+        reference = EntropyIsolationFilter(n_particles=n_particles, newton_steps=newton_steps)
+        if calls is not None:  # keep the reference's own cost evaluations (a, b, U, s), both ensembles
+            reference_cost = reference.cost
+
+            def keeping(a1, b1, a2, b2, gain, s1, s2):
+                calls.extend([(a1.copy(), b1.copy(), gain, s1), (a2.copy(), b2.copy(), gain, s2)])
+                return reference_cost(a1, b1, a2, b2, gain, s1, s2)
+
+            reference.cost = keeping
+        ref = reference.fit(template, model, np.random.default_rng(seed))
     return gains, design, ref
 
 
 @pytest.mark.parametrize("n_particles, seed", [(200, 9), (500, 2013)])
 def test_designed_gain_schedule_agrees_with_the_reference(n_particles, seed):
-    gains, design, ref = _design(n_particles, 1, seed)
+    calls = []
+    gains, design, ref = _design(n_particles, 1, seed, calls)
+    # every cost the design evaluated: V, V′, V″ within 1e-12 of the value itself (measured with 500 particles:
+    # 2.4e-13 on V′ where its terms cancel to 1/8e4 of their absolute sum, a few 1e-15 on V)
+    assert len(calls) >= 400
+    worst = np.zeros(3)
+    for args in calls:
+        got, want = _compiled().information_potential(*args), information_potential(*args)
+        worst = np.maximum(worst, np.abs(np.subtract(got, want)) / np.abs(want))
+    assert np.all(worst < 1e-12), worst
     assert gains.shape == ref.gain_.shape == (100,)
     np.testing.assert_allclose(gains, ref.gain_, rtol=0.0, atol=1e-9)
     for key in ("target_error", "nuisance_error"):
@@ -150,13 +187,14 @@ def test_designed_gain_schedule_agrees_with_the_reference(n_particles, seed):
 def test_converged_newton_iterations_agree_up_to_a_step_below_the_rounding_of_j():
     # Several Newton iterations per step converge until a step's predicted decrease J′²/(2 J″) (~1e-15) is
     # below the rounding of J itself (|J| ≈ 26, 1 ulp ≈ 3.6e-15): whether "J_trial <= J" then holds is the
-    # last digit of either sum, and a step of ~4e-9 is taken (or halved away) on one path and not on the
-    # other. Measured here: 7 of 100 gains differ by more than 1e-9, at most by 6.9e-9; each differing step
-    # is bounded by sqrt(2 · 8 ulp(J) / J″) ≈ 2e-8 (J″ ≈ 120), and the schedules never drift apart.
+    # last digit of either sum, and a step of a few 1e-9 is taken (or halved away) on one path and not on the
+    # other. Measured: 6 of 100 gains differ by more than 1e-9 here (120 particles, 4 iterations; 10 with
+    # 500 and 3, 6 with 300 and 20), at most by 8.2e-9; such a step is bounded by sqrt(2 · 8 ulp(J) / J″)
+    # ≈ 2e-8 (J″ ≈ 120), and the schedules never drift apart. With one iteration (the preset) they agree to 1e-16.
     gains, _, ref = _design(120, 4, 3)
     difference = np.abs(gains - ref.gain_)
     assert difference.max() < 2e-8
-    assert np.sum(difference > 1e-9) <= 10
+    assert np.sum(difference > 1e-9) <= 15
 
 
 def test_warm_up_runs():
