@@ -277,13 +277,17 @@ def pareto_pairs(path: str | Path, F: np.ndarray, chosen: int | None = None, tit
 # ------------------------------------------------------------------------------------
 # drawing in a side process
 # ------------------------------------------------------------------------------------
-def _warm_up() -> None:
+def _warm_up(stop=None) -> None:
     """Draw each kind of figure once on small data: matplotlib, its fonts, glyph and mathtext caches loaded.
 
     The first figure of a kind costs about twice the next ones (measured: 1.0 s
     against 0.5 s for the four of a run), so the side process pays that while
-    the run computes.
+    the run computes. ``stop`` (a ``threading.Event``) ends the warm-up between
+    two figures: real work has arrived.
     """
+    from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: F401
+    from matplotlib.figure import Figure  # noqa: F401
+
     rng = np.random.default_rng(0)
     k = 64
     t = np.arange(k) * 0.01
@@ -295,10 +299,35 @@ def _warm_up() -> None:
                for g in (1, 2, 3)]
     with tempfile.TemporaryDirectory(prefix="mosd-figures-") as tmp:
         folder = Path(tmp)
-        pareto_front(folder / "p.png", F, 0, title="warm-up")
-        chart_trace(folder / "c.png", t, statistic, np.full(k, 2.0), mask, title="warm-up")
-        residual_trace(folder / "r.png", rng.normal(size=k), mask, 0.01, sigma=1.0, channel_name="y")
-        optimisation_history(folder / "h.png", records, title="warm-up")
+        steps = (lambda: pareto_front(folder / "p.png", F, 0, title="warm-up"),
+                 lambda: chart_trace(folder / "c.png", t, statistic, np.full(k, 2.0), mask, title="warm-up"),
+                 lambda: residual_trace(folder / "r.png", rng.normal(size=k), mask, 0.01, sigma=1.0,
+                                        channel_name="y"),
+                 lambda: optimisation_history(folder / "h.png", records, title="warm-up"))
+        for step in steps:
+            if stop is not None and stop.is_set():
+                return
+            step()
+
+
+#: Nice value of the warm-up thread (Linux: per thread): the run's own processes come first.
+WARM_UP_NICE = 10
+
+
+def _warm_up_in_background(stop) -> None:
+    """:func:`_warm_up` at a lower priority, in its own thread (see :func:`_serve`)."""
+    import threading
+
+    if sys.platform.startswith("linux"):
+        # on Linux a nice value belongs to a thread: only the warm-up yields, not the drawing
+        try:
+            os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), WARM_UP_NICE)
+        except OSError:
+            pass
+    try:
+        _warm_up(stop)
+    except Exception:  # a warm-up is an optimisation: the real figures report real errors
+        pass
 
 
 def draw(jobs: Sequence[tuple[str, dict[str, Any]]]) -> list[Path]:
@@ -318,14 +347,23 @@ def _serve() -> None:
     # the app ends this process when it stops (close or kill): a Ctrl-C meant for the app must not
     # print a traceback from here first
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    import threading
+
     requests, replies = sys.stdin.buffer, os.fdopen(os.dup(1), "wb")
     os.dup2(2, 1)  # anything a library prints must not corrupt the reply channel
-    _warm_up()
+    # the warm-up runs while the run computes, at a lower priority (the run's processes are on the
+    # critical path, the warm-up is not); the figures themselves are drawn by this thread at the
+    # normal priority, once the warm-up has finished or stopped between two figures
+    stop = threading.Event()
+    warm = threading.Thread(target=_warm_up_in_background, args=(stop,), name="mosd-figures-warm-up", daemon=True)
+    warm.start()
     while True:
         try:
             jobs = pickle.load(requests)
         except EOFError:  # the app closed the channel (or died): nothing more to draw
             break
+        stop.set()
+        warm.join()
         try:
             reply = {"ok": True, "paths": [str(p) for p in draw(jobs)]}
         except Exception as exc:  # reported to the app, which draws in-process instead

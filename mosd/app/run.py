@@ -23,7 +23,7 @@ import threading
 import time
 import traceback
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Callable, Mapping
 
 import numpy as np
 
@@ -110,12 +110,14 @@ def install_signal_handlers() -> None:
 
 
 def write_run_files(run_dir: Path, cfg, result, setup: Setup, labels: Mapping[str, str],
-                    study: Mapping[str, float] | None = None, figures=None) -> list[Path]:
+                    study: Mapping[str, float] | None = None, figures=None,
+                    on_text_files: Callable[[list[Path]], None] | None = None) -> list[Path]:
     """Resolved config, Pareto set and history as CSV, summary JSON and the PNG plots.
 
     ``figures``: a :class:`mosd.app.plots.FigureWriter` (started with the run) that
     draws the PNGs in its side process while this writes the other files; None
-    draws them here.
+    draws them here. ``on_text_files`` is called with the text files once they
+    are written, before the figures are waited for (MLflow takes them meanwhile).
     """
     from omegaconf import OmegaConf
 
@@ -169,6 +171,8 @@ def write_run_files(run_dir: Path, cfg, result, setup: Setup, labels: Mapping[st
         "timings": result.timings,
     }, indent=2, allow_nan=True))
     written.append(path)
+    if on_text_files is not None:
+        on_text_files(list(written))
     written += figures.result() if figures is not None else plots.draw(jobs)
     return written
 
@@ -398,24 +402,40 @@ def run(cfg, started: float | None = None):
             run_dir.mkdir(parents=True, exist_ok=True)
             study_metrics, study_files = setup.study.run(setup.experiment, result, run_dir)
             result.timings["study_s"] = timings["study_s"] = time.perf_counter() - t0
+        metrics = {**final_metrics(result, result.example["seconds_per_point"]),
+                   **{k: float(v) for k, v in study_metrics.items()}}
+        logged: list[tuple[str, float, int]] = []
+        params: dict[str, str] = {}
+        sent: list[Path] = []  # artifacts already handed to MLflow
+
+        def log_early(text_files: list[Path]) -> None:
+            # MLflow logs the config, the history, the results and the text files while the
+            # figures are drawn; only the timings and the PNGs are left for the end
+            nonlocal params
+            if tracker is None:
+                return
+            params = flatten(OmegaConf.to_container(cfg, resolve=True))
+            logged.extend((key, record[key], record["generation"]) for record in result.history
+                          for key in ("hypervolume", "archive_size", "best_accuracy", "n_eval")
+                          if np.isfinite(record[key]))
+            logged.extend((k, v, 0) for k, v in metrics.items())
+            sent.extend([*text_files, *study_files])
+            tracker.log(params=params, metrics=logged, artifacts=sent)
+            tracker.send()
+
         t0 = time.perf_counter()
-        files = write_run_files(run_dir, cfg, result, setup, labels, study_metrics, figures) + list(study_files)
+        files = write_run_files(run_dir, cfg, result, setup, labels, study_metrics, figures,
+                                on_text_files=log_early) + list(study_files)
         figures.close()
         timings["files_s"] = time.perf_counter() - t0
         if figures.fallback:
             log.warning("figures drawn in-process: %s", figures.fallback)
-        metrics = {**final_metrics(result, result.example["seconds_per_point"]),
-                   **{k: float(v) for k, v in study_metrics.items()}}
         tracking_line, not_logged = "", None
         if tracker is not None:
             t0 = time.perf_counter()
-            history = [(key, record[key], record["generation"]) for record in result.history
-                       for key in ("hypervolume", "archive_size", "best_accuracy", "n_eval")
-                       if np.isfinite(record[key])]
-            finals = {**metrics, **timings, "wall_time_s": time.perf_counter() - started}
-            params = flatten(OmegaConf.to_container(cfg, resolve=True))
-            logged = [*history, *((k, v, 0) for k, v in finals.items())]
-            tracker.log(params=params, metrics=logged, artifacts=files)
+            finals = [(k, v, 0) for k, v in {**timings, "wall_time_s": time.perf_counter() - started}.items()]
+            logged.extend(finals)
+            tracker.log(metrics=finals, artifacts=[f for f in files if f not in sent])
             try:
                 run_id = tracker.finish("FINISHED")
             except TrackingError as exc:
@@ -424,6 +444,7 @@ def run(cfg, started: float | None = None):
                 mark_not_logged(run_dir, not_logged, _pending(tracker, params, logged, files))
                 tracking_line = f"mlflow    NOT LOGGED ({tracker.settings.uri}): {not_logged}"
             else:
+                # what MLflow still took after the figures (the rest overlapped them)
                 timings["mlflow_s"] = time.perf_counter() - t0
                 where = "in-process" if tracker.in_process else "side process, overlapping the run"
                 startup = ", ".join(f"{k.removeprefix('mlflow_').removesuffix('_s')} {v:.1f} s"

@@ -629,6 +629,18 @@ class RunTracker:
                              "tags": {k: str(v) for k, v in (tags or {}).items()},
                              "artifacts": [str(Path(a).resolve()) for a in artifacts]})
 
+    def send(self) -> None:
+        """Send the queued batches now; their replies are read by :meth:`finish`.
+
+        MLflow then works on them (in the side process) while the app goes on;
+        a failure is reported by :meth:`finish`, as for batches sent there.
+        """
+        if self._channel is None:
+            raise TrackingError("RunTracker.send called before start")
+        for request in self._queued:
+            self._channel.send(request)
+        self._queued = []
+
     def finish(self, status: str = "FINISHED", error: str | None = None, timeout: float | None = None) -> str | None:
         """Send the queued batches, end the run with ``status`` and return its id.
 
