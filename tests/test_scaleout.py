@@ -276,3 +276,32 @@ def test_sweep_under_the_submitit_local_launcher(tmp_path):
     assert {c.data.tags["mosd.optimizer"] for c in children} == {"mopso", "nsga2"}
     # not the joblib launcher: each job is a process of its own and keeps its evaluation pool
     assert {c.data.tags["mosd.n_jobs"] for c in children} == {"2"}
+
+
+@pytest.mark.slow
+def test_the_command_line_evaluates_on_the_dask_cluster_it_names(tmp_path, local_cluster):
+    """``python -m mosd ... optimizer.backend=dask``: the tasks reach the named scheduler; same result as loky."""
+    import distributed
+
+    env = {k: v for k, v in os.environ.items() if not k.startswith("MOSD_") and k != "HYDRA_FULL_ERROR"}
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (PACKAGE_PARENT, env.get("PYTHONPATH")) if p)
+    with distributed.Client(local_cluster) as client:
+        def task_count(dask_scheduler=None):
+            return dask_scheduler.transition_counter  # task state transitions the scheduler has made
+
+        before = client.run_on_scheduler(task_count)
+        summaries = {}
+        for backend in ("loky", "dask"):
+            extra = ["optimizer.backend=dask", f"optimizer.dask_address={local_cluster.scheduler_address}"] \
+                if backend == "dask" else []
+            out = tmp_path / backend
+            out.mkdir()
+            done = subprocess.run([sys.executable, "-m", "mosd", *TINY, *extra, "optimizer.n_jobs=2"], cwd=out,
+                                  env=env, capture_output=True, text=True, timeout=600)
+            assert done.returncode == 0, done.stderr[-3000:]
+            run_dir = next((out / "outputs" / "runs").iterdir())
+            summaries[backend] = json.loads((run_dir / "summary.json").read_text())
+        after = client.run_on_scheduler(task_count)
+    assert after > before  # the generations' chunks ran on the named cluster
+    assert summaries["dask"]["params"] == summaries["loky"]["params"]
+    assert summaries["dask"]["test"] == summaries["loky"]["test"]

@@ -326,7 +326,8 @@ def _start_tracking(cfg, hc, labels: Mapping[str, str], n_jobs: int, run_dir: Pa
     multirun = hc.mode == RunMode.MULTIRUN
     tags = {"mosd.role": "job", "mosd.mode": "multirun" if multirun else "run",
             "mosd.overrides": " ".join(hc.overrides.task), "mosd.run_dir": str(run_dir.resolve()),
-            "mosd.n_jobs": str(n_jobs), **{f"mosd.{k}": v for k, v in labels.items()}}
+            "mosd.n_jobs": str(n_jobs), "mosd.backend": str(cfg.optimizer.get("backend", "loky")),
+            **{f"mosd.{k}": v for k, v in labels.items()}}
     if params:
         tags["mosd.params"] = ",".join(params)
     commit = git_commit()
@@ -393,7 +394,8 @@ def run(cfg, started: float | None = None):
         # started now: matplotlib loads on the other core while this process simulates
         figures = FigureWriter()
         result = setup.experiment.run(setup.algorithm, setup.termination, n_jobs=n_jobs, bounds=setup.bounds,
-                                      choose=setup.choose, callback=progress)
+                                      choose=setup.choose, callback=progress, backend=setup.backend,
+                                      dask_address=setup.dask_address)
         progress.close()
         timings.update(result.timings)
         study_metrics, study_files = {}, []

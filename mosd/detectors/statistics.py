@@ -4,7 +4,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy import signal, special
+from scipy import special
 
 
 def subgroup_mean_statistic(z: np.ndarray) -> np.ndarray:
@@ -42,9 +42,12 @@ def ewma(x: np.ndarray, lam: float, order: int = 1) -> np.ndarray:
     order=1 is eq. 21/22 (Y_k = (1−λ)Y_{k−1} + λU_k); order=2 is the double EWMA of
     eqs. 23/24, i.e. the filter λ²/(1 − (1−λ)z⁻¹)², computed in one IIR pass.
     """
+    # imported here: scipy.signal pulls in scipy.stats, ~1 s on a run's critical path for one call
+    from scipy.signal import lfilter
+
     pole = 1.0 - lam
     a = np.poly(np.full(order, pole))
-    return signal.lfilter([lam**order], a, x, axis=-1)
+    return lfilter([lam**order], a, x, axis=-1)
 
 
 def ewma_coefficients(lams, order: int = 1) -> tuple[np.ndarray, np.ndarray]:
