@@ -178,6 +178,28 @@ def _update_lane(b, yk, xp, stp, centred_y, deviation, sr_t, xf, stf, present, s
             stf[i, j, b] = root[i, j]
 
 
+@njit(cache=True, nogil=True, error_model="numpy")
+def _store_lanes(first, k, n_lanes, x, root_t, x_out, root_out):
+    """Step k of lanes 0..n_lanes into replications first..: x̂ and the lower root S (from Sᵀ, upper)."""
+    n_x = x.shape[0]
+    for b in range(n_lanes):
+        for i in range(n_x):
+            x_out[first + b, k, i] = x[i, b]
+            for j in range(i + 1):
+                root_out[first + b, k, i, j] = root_t[j, i, b]
+            for j in range(i + 1, n_x):
+                root_out[first + b, k, i, j] = 0.0
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _fill_rows(stack, first_row, block, n_lanes):
+    """stack[first_row + i, j, b] = block[i, j] for every lane: a square root shared by all replications."""
+    for i in range(block.shape[0]):
+        for j in range(block.shape[1]):
+            for b in range(n_lanes):
+                stack[first_row + i, j, b] = block[i, j]
+
+
 #: replications filtered side by side (the innermost, vectorised axis of the kernel's arrays)
 LANES = 64
 
@@ -289,18 +311,9 @@ def cesckf(kind, params, outputs, y, u, x0, st0, eps, weights, sq_t, sr_t, first
                     for j in range(n_x):
                         for b in range(nb):
                             stack_x[i, j, b] = s * (moved[i, j, b] - xp[j, b])
-                for i in range(n_x):
-                    for j in range(n_x):
-                        for b in range(nb):
-                            stack_x[n_pts + i, j, b] = sq_t[i, j]
+                _fill_rows(stack_x, n_pts, sq_t, nb)
                 _tria_lanes(stack_x, n_pts + n_x, n_x, stp, nb, norm2, v0, vtv, alpha, scale)
-            for b in range(nb):
-                for i in range(n_x):
-                    x_pred[r0 + b, k, i] = xp[i, b]
-                    for j in range(i + 1):
-                        sqrt_cov_pred[r0 + b, k, i, j] = stp[j, i, b]
-                    for j in range(i + 1, n_x):
-                        sqrt_cov_pred[r0 + b, k, i, j] = 0.0
+            _store_lanes(r0, k, nb, xp, stp, x_pred, sqrt_cov_pred)
 
             # eq. 8: points re-drawn from S_{k|k−1}; eq. 16: √w_i (X_i − x̂); eq. 9: Y_i = h(X_i); eq. 6: ŷ
             for c in range(n_y):
@@ -331,10 +344,7 @@ def cesckf(kind, params, outputs, y, u, x0, st0, eps, weights, sq_t, sr_t, first
                     for b in range(nb):
                         centred_y[i, c, b] = s * (centred_y[i, c, b] - yp[c, b])
                         stack_y[i, c, b] = centred_y[i, c, b]
-            for i in range(n_y):
-                for c in range(n_y):
-                    for b in range(nb):
-                        stack_y[n_pts + i, c, b] = sr_t[i, c]
+            _fill_rows(stack_y, n_pts, sr_t, nb)
             _tria_lanes(stack_y, n_pts + n_y, n_y, syy, nb, norm2, v0, vtv, alpha, scale)
             for b in range(nb):
                 for c in range(n_y):
@@ -413,13 +423,7 @@ def cesckf(kind, params, outputs, y, u, x0, st0, eps, weights, sq_t, sr_t, first
                     _update_lane(b, y[r0 + b, k], xp, stp, centred_y, deviation, sr_t, xf, stf, present,
                                  lane_stack_y, lane_syy, lane_pxy, lane_gain, lane_innov, yp, lane_stack_yx,
                                  lane_root)
-            for b in range(nb):
-                for i in range(n_x):
-                    x_filt[r0 + b, k, i] = xf[i, b]
-                    for j in range(i + 1):
-                        sqrt_cov_filt[r0 + b, k, i, j] = stf[j, i, b]
-                    for j in range(i + 1, n_x):
-                        sqrt_cov_filt[r0 + b, k, i, j] = 0.0
+            _store_lanes(r0, k, nb, xf, stf, x_filt, sqrt_cov_filt)
 
 
 def filter_batch(kind, params, outputs, y, u, x0, st0, eps, weights, sq_t, sr_t, threads=None, lanes=LANES):
