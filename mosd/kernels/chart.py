@@ -266,18 +266,22 @@ def _validated(detector, X: np.ndarray) -> dict:
     """Each tunable parameter's column of X, validated and rounded as ``Detector.with_params`` does.
 
     Same checks and the same values as ``detector.candidates(X)``, without copying
-    the detector once per row (which cost as much as the compiled evaluation).
+    the detector once per row (which cost as much as the compiled evaluation):
+    a column inside its interval is taken whole; a column with a value outside
+    goes through ``check_in`` value by value, which raises its message.
     """
     from ..validation import check_in
 
-    X = np.atleast_2d(X)
+    X = np.atleast_2d(np.asarray(X, float))
     params = {}
     for column, (name, interval) in enumerate(detector.tunable.items()):
-        values = []
-        for value in X[:, column]:
-            if interval.integer:
-                value = round(float(value))
-            values.append(check_in(f"detector.{name}", value, interval))
+        values = X[:, column]
+        if interval.integer:
+            values = np.round(values)
+        low_ok = values > interval.low if interval.open_low else values >= interval.low
+        high_ok = values < interval.high if interval.open_high else values <= interval.high
+        if not np.all(low_ok & high_ok):
+            values = np.array([check_in(f"detector.{name}", value, interval) for value in values], float)
         params[name] = values
     return params
 

@@ -145,9 +145,22 @@ def pairwise_dominates(Fa, CVa, Fb, CVb) -> np.ndarray:
                       np.asarray(Fb, float), np.asarray(CVb, float).reshape(-1))
 
 
+def _all_objectives(compare, Fa, Fb, combine):
+    """compare(Fa[..., j], Fb[..., j]) combined over the objectives j by ``combine`` (np.logical_and / _or).
+
+    One elementwise pass per objective: NumPy's reductions over a last axis of
+    2 or 3 cost more than the comparisons themselves (this runs every generation).
+    """
+    result = compare(Fa[..., 0], Fb[..., 0])
+    for j in range(1, Fa.shape[-1]):
+        combine(result, compare(Fa[..., j], Fb[..., j]), out=result)
+    return result
+
+
 def _dominates(Fa, CVa, Fb, CVb):
     feasible_a, feasible_b = CVa <= 0.0, CVb <= 0.0
-    pareto = np.all(Fa <= Fb, axis=-1) & np.any(Fa < Fb, axis=-1)
+    pareto = (_all_objectives(np.less_equal, Fa, Fb, np.logical_and)
+              & _all_objectives(np.less, Fa, Fb, np.logical_or))
     if feasible_a.all() and feasible_b.all():
         return pareto
     return ((feasible_a & ~feasible_b)
@@ -310,18 +323,21 @@ def polynomial_mutation(X: np.ndarray, xl: np.ndarray, xu: np.ndarray, probabili
     return np.where(hit, np.clip(X + step * span, xl, xu), X)
 
 
-def evaluated_arrays(population: Population) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def evaluated_arrays(population: Population, constrained: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """X (n, n_var), F (n, n_obj) and CV (n, 1) of an evaluated population.
 
     The same arrays as ``population.get("X", "F", "CV")``, read through the
     individuals' attributes: ``Population.get`` resolves every key of every
     individual through ``Individual.get``'s generic lookup, which cost more per
-    generation than the whole archive update.
+    generation than the whole archive update. ``constrained=False`` (a problem
+    without constraints, whose CV is 0 by definition) skips reading CV.
     """
     if len(population) == 0:
         return population.get("X", "F", "CV")
-    return (np.array([ind.X for ind in population]), np.array([ind.F for ind in population]),
-            np.array([ind.CV for ind in population]))
+    X = np.array([ind.X for ind in population])
+    F = np.array([ind.F for ind in population])
+    CV = np.array([ind.CV for ind in population]) if constrained else np.zeros((len(population), 1))
+    return X, F, CV
 
 
 class GridArchive:
@@ -403,7 +419,7 @@ class GridArchive:
             X, F = np.concatenate([self._X, X]), np.concatenate([self._F, F])
         CV = np.concatenate([self._CV, CV.reshape(-1)])
         dominated = dominance_matrix(F, CV).any(axis=0)
-        same = np.all(F[:, None, :] == F[None, :, :], axis=-1) & (CV[:, None] == CV[None, :])
+        same = _all_objectives(np.equal, F[:, None, :], F[None, :, :], np.logical_and) & (CV[:, None] == CV[None, :])
         keep = ~dominated & ~np.triu(same, k=1).any(axis=0)
         self._set_members(merged[keep], X[keep], F[keep], CV[keep])
         if self.lower is None or self._outside_grid():
@@ -700,7 +716,7 @@ class MOPSO(Algorithm):
 
     def _initialize_advance(self, infills=None, **kwargs):
         # paper 000 step 1: v_0 = 0 and Pbest_0 = Pop_0
-        X, F, CV = evaluated = evaluated_arrays(infills)
+        X, F, CV = evaluated = evaluated_arrays(infills, self.problem.has_constraints())
         self.particle_position = X
         self.particle_velocity = np.zeros_like(X, dtype=float)
         self.pbest_X, self.pbest_F, self.pbest_CV = X.copy(), F.copy(), CV.reshape(-1).copy()
@@ -738,7 +754,7 @@ class MOPSO(Algorithm):
 
     def _advance(self, infills=None, **kwargs):
         self.pop = infills
-        evaluated = evaluated_arrays(infills)
+        evaluated = evaluated_arrays(infills, self.problem.has_constraints())
         self.leader_archive.update(infills, self.random_state, evaluated)
         self._update_personal_best(*evaluated)
 

@@ -34,6 +34,7 @@ a local one of ``n_jobs`` workers started for the problem, or the scheduler at
 """
 from __future__ import annotations
 
+import itertools
 import os
 import pickle
 import tempfile
@@ -169,6 +170,8 @@ def worker_pool(n_jobs: int, warm: bool = False):
 
 
 _THREADS: dict = {"pool": None, "size": 0}
+#: chunks per thread in a threaded evaluation (see TuningProblem._evaluate_in_threads)
+_CHUNKS_PER_THREAD = 2
 
 
 def _thread_pool(n_threads: int):
@@ -291,12 +294,9 @@ class TuningProblem(Problem):
             return self._dask.evaluate(X)
         if self.n_jobs == 1 or X.shape[0] < 2:
             return self.evaluator(X)
-        chunks = np.array_split(X, min(self.n_jobs, X.shape[0]))
         if self.in_threads:
-            pool = _thread_pool(self.n_jobs - 1)
-            futures = [pool.submit(self.evaluator, chunk) for chunk in chunks[1:]]
-            first = self.evaluator(chunks[0])
-            return np.concatenate([first] + [f.result() for f in futures], axis=0)
+            return self._evaluate_in_threads(X)
+        chunks = np.array_split(X, min(self.n_jobs, X.shape[0]))
         if self._payload is None:
             fd, self._payload = tempfile.mkstemp(prefix="mosd-evaluator-", suffix=".pkl")
             with os.fdopen(fd, "wb") as fh:
@@ -305,6 +305,29 @@ class TuningProblem(Problem):
         futures = [executor.submit(_evaluate_chunk, self._payload, chunk) for chunk in chunks[1:]]
         first = self.evaluator(chunks[0])
         return np.concatenate([first] + [f.result() for f in futures], axis=0)
+
+    def _evaluate_in_threads(self, X: np.ndarray) -> np.ndarray:
+        """The population in small chunks that this thread and ``n_jobs − 1`` pool threads take in turn.
+
+        Candidates do not cost the same (the wavelet's threshold search
+        depends on the design), so a few chunks per thread, taken as each
+        thread gets free, balance the load better than one chunk each.
+        """
+        chunks = np.array_split(X, min(X.shape[0], _CHUNKS_PER_THREAD * self.n_jobs))
+        results: list = [None] * len(chunks)
+        taken = itertools.count()  # next() on it is atomic: each chunk goes to exactly one thread
+
+        def work():
+            for index in iter(taken.__next__, None):
+                if index >= len(chunks):
+                    return
+                results[index] = self.evaluator(chunks[index])
+
+        futures = [_thread_pool(self.n_jobs - 1).submit(work) for _ in range(self.n_jobs - 1)]
+        work()
+        for future in futures:
+            future.result()
+        return np.concatenate(results, axis=0)
 
     def close(self) -> None:
         """Delete the evaluator file the workers load and shut down the Dask client/cluster this problem started.
