@@ -7,8 +7,9 @@ other, so machine noise hits both. Sections:
   workload (1,000 subgroups of 5 per sequence, SS-DEWMA, wavelet on, Phase-I
   limit, FAR and MDR): the compiled fused kernel (:mod:`mosd.kernels`) against
   the NumPy vectorised population (the reference path, same process, checked
-  bit-identical) and a naive per-candidate Python loop; each timing is the
-  shortest of a few repeats;
+  bit-identical) and a naive per-candidate Python loop; then the same chart
+  without the wavelet (the app's default, ``denoise=none``), compiled against
+  NumPy; each timing is the shortest of a few repeats;
 * ``filter`` — CESCKF replication-steps per second: the compiled kernel
   (threads, and one thread) against the NumPy reference, batched and one
   replication at a time; paper 001's IMM batched against one run at a time;
@@ -24,10 +25,12 @@ Usage: ``python -m mosd.bench [--only candidates,filter,...] [--quick] [--json]`
 ``--json`` runs candidates, filter, parallel and main unless ``--only`` says
 otherwise, prints the table on stderr and one JSON object on stdout with
 ``candidates_per_s``, ``candidates_numpy_per_s``, ``candidates_speedup_vs_numpy``,
-``candidates_speedup_vs_naive``, ``candidates_identical``,
+``candidates_speedup_vs_naive``, ``candidates_identical``, ``candidates_plain_per_s``,
+``candidates_plain_speedup_vs_numpy``,
 ``parallel_speedup_2v1``, ``parallel_identical``, ``parallel_candidates_per_s``,
 ``filter_steps_per_s``, ``filter_speedup_vs_numpy`` (and their ``_one_thread`` forms), ``filter_numpy_steps_per_s``,
-``filter_speedup_batched_vs_single``, ``main_command_wall_s``,
+``filter_speedup_batched_vs_single``, ``imm_runs_per_s``, ``imm_numpy_runs_per_s``,
+``imm_speedup_vs_numpy``, ``imm_speedup_batched_vs_single``, ``entropy_speedup_vs_numpy``, ``main_command_wall_s``,
 ``main_command_first_wall_s`` (of the sections run) and ``cpus``,
 ``load_average_1min`` (other load on the machine skews every ratio), ``quick``.
 """
@@ -195,6 +198,7 @@ def _best_of(fn, repeats: int) -> float:
 
 def bench_candidates(quick: bool = False) -> tuple[list, dict]:
     from . import kernels
+    from .denoisers import NoDenoiser
     from .optim.problem import CandidateEvaluator
 
     chart = _paper_chart()
@@ -227,7 +231,24 @@ def bench_candidates(quick: bool = False) -> tuple[list, dict]:
         ("sequences processed/s, compiled (Phase-I + training, 1,000 subgroups each)",
          len(X) * (n_seq + phase1.shape[0]) / compiled, ""),
     ]
+    # the app's default chart (denoise=none): the recursion, the limit and the counts without the wavelet
+    plain = _paper_chart()
+    plain.denoiser = NoDenoiser()
+    plain_evaluator = CandidateEvaluator(plain, plain.features(phase1), plain.features(train), mask)
+    plain_F = plain_evaluator(X)
+    plain_compiled = _best_of(lambda: plain_evaluator(X), repeats)
+    with kernels.disabled():
+        plain_identical = bool(np.array_equal(plain_F, plain_evaluator(X)))
+        plain_vectorised = _best_of(lambda: plain_evaluator(X), max(1, repeats // 2))
+    rows += [
+        ("candidate evaluations/s, compiled, no denoiser (the app's default)", len(X) * n_seq / plain_compiled, ""),
+        ("candidate evaluations/s, NumPy, no denoiser", len(X) * n_seq / plain_vectorised, ""),
+        ("speed-up compiled / NumPy, no denoiser", plain_vectorised / plain_compiled,
+         f"identical = {int(plain_identical)}"),
+    ]
     metrics = {
+        "candidates_plain_per_s": len(X) * n_seq / plain_compiled,
+        "candidates_plain_speedup_vs_numpy": plain_vectorised / plain_compiled,
         "candidates_per_s": len(X) * n_seq / compiled,
         "candidates_numpy_per_s": len(X) * n_seq / vectorised,
         "candidates_speedup_vs_numpy": vectorised / compiled,
