@@ -1,7 +1,8 @@
 """Where a tuning problem's fitness evaluations run: this machine (loky) or a Dask cluster.
 
-``loky`` (the default) is :class:`~mosd.optim.problem.TuningProblem`'s own
-persistent process pool on one machine. ``dask`` sends every generation to a
+``loky`` (the default) is this machine: threads of the run's own process when
+the compiled chart evaluation applies, else :class:`~mosd.optim.problem.TuningProblem`'s
+persistent loky process pool. ``dask`` sends every generation to a
 `Dask distributed <https://distributed.dask.org>`_ cluster: a ``LocalCluster``
 of ``n_jobs`` single-threaded worker processes on 127.0.0.1 started for the
 problem, or the running scheduler at ``dask_address``. The evaluator (the cached
