@@ -102,3 +102,15 @@ def warm_up(modules: tuple[str, ...] = EVALUATION_MODULES) -> None:
 
     for name in modules:
         importlib.import_module(f"{__name__}.{name}").warm_up()
+
+
+def compile_module(name: str) -> tuple[str, float]:
+    """Load (or compile) one kernel module of :data:`MODULES`; its name and the seconds it took.
+
+    What ``python -m mosd.kernels`` runs in each of its processes.
+    """
+    import time
+
+    t0 = time.perf_counter()
+    warm_up((name,))
+    return name, time.perf_counter() - t0

@@ -8,22 +8,15 @@ Exit code 0 when every kernel compiled, 1 otherwise.
 from __future__ import annotations
 
 import argparse
+import multiprocessing
 import os
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
 
 
-def _compile(name: str) -> tuple[str, float]:
-    from . import warm_up
-
-    t0 = time.perf_counter()
-    warm_up((name,))
-    return name, time.perf_counter() - t0
-
-
 def main(argv: list[str] | None = None) -> int:
-    from . import MODULES, available, enabled
+    from . import MODULES, available, compile_module, enabled
 
     parser = argparse.ArgumentParser(prog="python -m mosd.kernels", description=__doc__.splitlines()[0])
     parser.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="parallel compiling processes")
@@ -36,8 +29,10 @@ def main(argv: list[str] | None = None) -> int:
     # the slowest first, so that the parallel compiles end together
     slowest = ("cubature", "imm", "wavelet", "chart", "entropy", "plants", "ewma")
     order = sorted(MODULES, key=lambda name: slowest.index(name) if name in slowest else len(slowest))
-    with ProcessPoolExecutor(max(1, min(args.jobs, len(order)))) as pool:
-        futures = {pool.submit(_compile, name): name for name in order}
+    # spawned, not forked: a fork of a process with threads (a caller's pools) can inherit a held lock
+    context = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(max(1, min(args.jobs, len(order))), mp_context=context) as pool:
+        futures = {pool.submit(compile_module, name): name for name in order}
         for future in as_completed(futures):
             try:
                 name, seconds = future.result()
@@ -46,7 +41,7 @@ def main(argv: list[str] | None = None) -> int:
                 failed += 1
                 print(f"mosd.kernels: {futures[future]} failed: {type(exc).__name__}: {exc}", file=sys.stderr)
     print(f"mosd.kernels: {len(order) - failed} of {len(order)} kernel modules ready in "
-          f"{time.perf_counter() - t0:.1f} s (cached for later runs)", file=sys.stderr)
+          f"{time.perf_counter() - t0:.1f} s" + (" (cached for later runs)" if not failed else ""), file=sys.stderr)
     return 1 if failed else 0
 
 
