@@ -7,7 +7,8 @@ in %), the chosen design, as a markdown table (paper 000, Table 3 layout) or as 
 
 A set-up is every choice a run was made with: its config groups (estimator,
 denoiser, …) and every configuration value (budgets, seed, a detector's bounds),
-except where the outputs go and how many worker processes evaluated. Besides the
+except where the outputs go and where and on how many workers it evaluated
+(``optimizer.n_jobs``, ``backend``, ``dask_address``: they change no result). Besides the
 preset, fault, detector and optimizer, the table gets a column for each choice
 that differs among the rows shown, so two runs are never merged into one row or
 shown side by side without the difference that separates them.
