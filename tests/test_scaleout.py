@@ -54,13 +54,8 @@ def local_cluster():
 
 
 @pytest.fixture(scope="module")
-def evaluator():
-    rng = np.random.default_rng(0)
-    phase1 = rng.standard_normal((4, 300, 5))
-    train = rng.standard_normal((3, 300, 5))
-    train[:, 150:] = 2.0 * train[:, 150:] + 0.5
-    mask = np.zeros((3, 300), bool)
-    mask[:, 150:] = True
+def evaluator(small_chart_data):
+    phase1, train, mask = small_chart_data
     chart = SSDEWMA(limit="phase1")
     return CandidateEvaluator(chart, chart.features(phase1), chart.features(train), mask)
 

@@ -108,6 +108,22 @@ def _tria_lanes(a, n_rows, n_cols, out, n_lanes, norm2, v0, vtv, alpha, scale):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
+def _solve_columns(low, n, rhs, n_cols, out):
+    """out[:n, :n_cols] = (L Lᵀ)⁻¹ rhs[:n, :n_cols] by a forward and a backward substitution."""
+    for c in range(n_cols):
+        for a in range(n):
+            acc = rhs[a, c]
+            for b in range(a):
+                acc -= low[a, b] * out[b, c]
+            out[a, c] = acc / low[a, a]
+        for a in range(n - 1, -1, -1):
+            acc = out[a, c]
+            for b in range(a + 1, n):
+                acc -= low[b, a] * out[b, c]
+            out[a, c] = acc / low[a, a]
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
 def _update_lane(b, yk, xp, stp, centred_y, deviation, sr_t, xf, stf, present, stack_y, syy_used, pxy, gain, innov,
                  yp, stack_yx, root):
     """The measurement update of lane ``b`` with its missing channels (NaN in ``yk``) left out.
@@ -142,17 +158,8 @@ def _update_lane(b, yk, xp, stp, centred_y, deviation, sr_t, xf, stf, present, s
             for i in range(n_pts):
                 acc += centred_y[i, present[a], b] * deviation[i, j, b]
             pxy[a, j] = acc
-    for j in range(n_x):
-        for a in range(n_present):
-            acc = pxy[a, j]
-            for c in range(a):
-                acc -= syy_used[c, a] * gain[c, j]
-            gain[a, j] = acc / syy_used[a, a]
-        for a in range(n_present - 1, -1, -1):
-            acc = gain[a, j]
-            for c in range(a + 1, n_present):
-                acc -= syy_used[a, c] * gain[c, j]
-            gain[a, j] = acc / syy_used[a, a]
+    # eq. 13: Kᵀ = P_yy⁻¹ P_xyᵀ with P_yy = S_yy S_yyᵀ and S_yy = syy_usedᵀ (lower)
+    _solve_columns(syy_used.T, n_present, pxy, n_x, gain)
     for a in range(n_present):
         innov[a] = yk[present[a]] - yp[present[a], b]
     for j in range(n_x):

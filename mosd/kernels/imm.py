@@ -34,7 +34,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .cubature import _over_replications
+from .cubature import _over_replications, _solve_columns
 
 _LOG_2PI = math.log(2.0 * math.pi)
 
@@ -59,22 +59,6 @@ def _cholesky(a, n, low):
         for i in range(j):
             low[i, j] = 0.0
     return True
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def _solve_columns(low, n, rhs, n_cols, out):
-    """out[:n, :n_cols] = (L Lᵀ)⁻¹ rhs[:n, :n_cols] by a forward and a backward substitution."""
-    for c in range(n_cols):
-        for a in range(n):
-            acc = rhs[a, c]
-            for b in range(a):
-                acc -= low[a, b] * out[b, c]
-            out[a, c] = acc / low[a, a]
-        for a in range(n - 1, -1, -1):
-            acc = out[a, c]
-            for b in range(a + 1, n):
-                acc -= low[b, a] * out[b, c]
-            out[a, c] = acc / low[a, a]
 
 
 @njit(cache=True, nogil=True, error_model="numpy")

@@ -34,6 +34,7 @@ a local one of ``n_jobs`` workers started for the problem, or the scheduler at
 """
 from __future__ import annotations
 
+import functools
 import itertools
 import os
 import pickle
@@ -243,7 +244,7 @@ class TuningProblem(Problem):
         #: True for the integer parameters (rounded before every evaluation)
         self.is_integer = np.array([tunable[name].integer for name in self.names], bool)
         super().__init__(n_var=len(self.names), n_obj=len(evaluator.objectives), xl=np.array(xl), xu=np.array(xu),
-                         exclude_from_serialization=["evaluator", "_payload", "_dask", "_in_threads"])
+                         exclude_from_serialization=["evaluator", "_payload", "_dask", "in_threads"])
         self._payload: str | None = None
         self._dask = None  # the DaskEvaluation of backend="dask", started on first use
 
@@ -251,7 +252,7 @@ class TuningProblem(Problem):
     def objectives(self) -> tuple[str, ...]:
         return self.evaluator.objectives
 
-    @property
+    @functools.cached_property
     def in_threads(self) -> bool:
         """True when the loky backend's extra workers are threads of this process (see the module docstring).
 
@@ -259,11 +260,8 @@ class TuningProblem(Problem):
         threads run it in parallel without starting processes or copying the
         cached features to them.
         """
-        if "_in_threads" not in self.__dict__:
-            fused = getattr(self.evaluator, "fused", None)
-            self.__dict__["_in_threads"] = (self.backend == "loky" and self.n_jobs > 1 and fused is not None
-                                            and fused() is not None)
-        return self.__dict__["_in_threads"]
+        fused = getattr(self.evaluator, "fused", None)
+        return self.backend == "loky" and self.n_jobs > 1 and fused is not None and fused() is not None
 
     def round(self, X: np.ndarray) -> np.ndarray:
         """X with its integer columns rounded (and kept inside the box)."""
@@ -318,7 +316,7 @@ class TuningProblem(Problem):
         taken = itertools.count()  # next() on it is atomic: each chunk goes to exactly one thread
 
         def work():
-            for index in iter(taken.__next__, None):
+            for index in taken:
                 if index >= len(chunks):
                     return
                 results[index] = self.evaluator(chunks[index])
