@@ -2,6 +2,8 @@
 import numpy as np
 import pytest
 
+from mosd.types import SensorSamples, Trace
+
 
 @pytest.fixture(scope="session")
 def small_chart_data():
@@ -16,3 +18,21 @@ def small_chart_data():
     mask = np.zeros((3, 300), bool)
     mask[:, 150:] = True
     return phase1, train, mask
+
+
+def _hand_trace(times, sensors, y, grid):
+    """One replication whose sensors deliver y at arbitrary instants (not on any grid, ties allowed), all arrived."""
+    samples = {}
+    for name in sorted(set(sensors)):
+        pick = [i for i, s in enumerate(sensors) if s == name]
+        samples[name] = SensorSamples(t=np.asarray(times)[pick][None], y=np.asarray(y)[pick][None],
+                                      arrived=np.ones((1, len(pick)), bool))
+    n = grid.size
+    return Trace(t=grid, u=np.zeros((1, n, 2)), x=np.zeros((1, n, 4)), y=np.zeros((1, n, 0)),
+                 fault_mask=np.zeros((1, n), bool), sensors=samples)
+
+
+@pytest.fixture
+def hand_trace():
+    """``hand_trace(times, sensors, y, grid)``: a paper 001 trace with measurements placed by hand."""
+    return _hand_trace

@@ -25,18 +25,6 @@ def _paper(n_reps=12, seed=4, duration=41, **plant_kwargs):
     return plant.model(NOISE), Scenario(plant, NOISE, ActuatorFault(), duration=duration).simulate(seed, n_reps, "test")
 
 
-def _hand_trace(times, sensors, y, grid):
-    """One replication with measurements at arbitrary instants (ties, one exactly at a fusion instant)."""
-    samples = {}
-    for name in sorted(set(sensors)):
-        pick = [i for i, s in enumerate(sensors) if s == name]
-        samples[name] = SensorSamples(t=np.asarray(times)[pick][None], y=np.asarray(y)[pick][None],
-                                      arrived=np.ones((1, len(pick)), bool))
-    n = grid.size
-    return Trace(t=grid, u=np.zeros((1, n, 2)), x=np.zeros((1, n, 4)), y=np.zeros((1, n, 0)),
-                 fault_mask=np.zeros((1, n), bool), sensors=samples)
-
-
 def _both(estimator, trace, model):
     got = estimator.estimate(trace, model)
     with kernels.disabled():
@@ -88,11 +76,11 @@ def test_heavy_loss_single_sensor_and_empty_intervals_match_the_reference(fusion
 
 
 @pytest.mark.parametrize("fusion", FUSIONS)
-def test_arbitrary_instants_ties_and_unreachable_models_match_the_reference(fusion):
+def test_arbitrary_instants_ties_and_unreachable_models_match_the_reference(fusion, hand_trace):
     grid = np.arange(6.0)
     rng = np.random.default_rng(11)
     times = np.r_[rng.uniform(0.0, 5.0, 9), 2.0, 3.3, 3.3]  # a sample exactly at t_2 and a simultaneous pair
-    trace = _hand_trace(times, ["s1", "s2", "s3"] * 4, rng.normal(0.0, 2.0, (12, 2)), grid)
+    trace = hand_trace(times, ["s1", "s2", "s3"] * 4, rng.normal(0.0, 2.0, (12, 2)), grid)
     model = NetworkedTarget().model(NOISE)
     _agree(*_both(AsyncIMMFusion(fusion=fusion), trace, model))
     # Λ = I and μ_0 with a zero: c̄ = 0 for model 1, log 0 = −inf, its probability stays 0

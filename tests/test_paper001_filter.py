@@ -15,7 +15,6 @@ from mosd.monitors.outputs import OutputMonitor
 from mosd.noise.continuous import ContinuousWhiteNoise
 from mosd.plants.networked_target import NetworkedTarget
 from mosd.scenario import Scenario, replication_rngs
-from mosd.types import SensorSamples, Trace
 from mosd.validation import ConfigError
 
 NOISE = ContinuousWhiteNoise()
@@ -27,27 +26,14 @@ def _paper_trace(n_reps=6, seed=0, duration=41, fault=None):
     return plant, Scenario(plant, NOISE, fault, duration=duration).simulate(seed, n_reps, "test")
 
 
-def _hand_trace(times, sensors, y, grid):
-    """One replication with measurements at arbitrary instants (not on any grid)."""
-    names = sorted(set(sensors))
-    samples = {}
-    for name in names:
-        pick = [i for i, s in enumerate(sensors) if s == name]
-        samples[name] = SensorSamples(t=np.asarray(times)[pick][None], y=np.asarray(y)[pick][None],
-                                      arrived=np.ones((1, len(pick)), bool))
-    n = grid.size
-    return Trace(t=grid, u=np.zeros((1, n, 2)), x=np.zeros((1, n, 4)), y=np.zeros((1, n, 0)),
-                 fault_mask=np.zeros((1, n), bool), sensors=samples)
-
-
 def _outputs(res):
     keys = ("mode_probabilities", "model_states", "model_covariances", "model_log_likelihood", "x_filt")
     return {k: res.extra[k] for k in keys}
 
 
-def test_measurements_are_grouped_by_fusion_interval_in_time_order():
+def test_measurements_are_grouped_by_fusion_interval_in_time_order(hand_trace):
     grid = np.arange(4.0)
-    trace = _hand_trace([0.5, 1.0, 0.2, 2.7, 2.7, 0.0, 3.5], ["s1", "s1", "s2", "s1", "s2", "s3", "s3"],
+    trace = hand_trace([0.5, 1.0, 0.2, 2.7, 2.7, 0.0, 3.5], ["s1", "s1", "s2", "s1", "s2", "s3", "s3"],
                         np.arange(14.0).reshape(7, 2), grid)
     meas = IntervalMeasurements.of(trace, ["s1", "s2", "s3"], grid)
     # (0, 1]: 0.2 (s2), 0.5 (s1), 1.0 (s1); (1, 2]: none; (2, 3]: 2.7 twice; 0.0 and 3.5 are outside (0, t_N]
@@ -68,12 +54,12 @@ def test_equivalent_measurement_update_equals_sequential_updates():
     assert np.all(np.isfinite(batch["mode_probabilities"]))
 
 
-def test_equivalent_measurement_equals_sequential_at_arbitrary_instants_and_ties():
+def test_equivalent_measurement_equals_sequential_at_arbitrary_instants_and_ties(hand_trace):
     grid = np.arange(6.0)
     rng = np.random.default_rng(11)
     times = np.r_[rng.uniform(0.0, 5.0, 9), 2.0, 3.3, 3.3]  # a sample exactly at t_2 and a simultaneous pair
     sensors = ["s1", "s2", "s3"] * 4
-    trace = _hand_trace(times, sensors, rng.normal(0.0, 2.0, (12, 2)), grid)
+    trace = hand_trace(times, sensors, rng.normal(0.0, 2.0, (12, 2)), grid)
     model = NetworkedTarget().model(NOISE)
     batch = _outputs(AsyncIMMFusion(fusion="equivalent_measurement").estimate(trace, model))
     seq = _outputs(AsyncIMMFusion(fusion="sequential").estimate(trace, model))
@@ -127,14 +113,14 @@ def _joint_gaussian_posteriors(aug, times, sensor_index, y, grid):
 
 
 @pytest.mark.parametrize("fusion", ["equivalent_measurement", "sequential"])
-def test_without_mode_switching_each_model_is_the_exact_gaussian_posterior(fusion):
+def test_without_mode_switching_each_model_is_the_exact_gaussian_posterior(fusion, hand_trace):
     grid = np.arange(5.0)
     rng = np.random.default_rng(5)
     times = np.sort(rng.uniform(0.05, 4.0, 10))
     sensors = list(rng.choice(["s1", "s2", "s3"], 10))
     truth_f = np.array([0.0, 0.0, 1.5])  # readings consistent with a fault on actuator 2
     y = rng.normal(0.0, 0.5, (10, 2)) + truth_f[1:] * times[:, None]
-    trace = _hand_trace(times, sensors, y, grid)
+    trace = hand_trace(times, sensors, y, grid)
     model = NetworkedTarget().model(NOISE)
     mu0 = np.array([0.6, 0.15, 0.25])
     estimator = AsyncIMMFusion(transition=np.eye(3), initial_probabilities=mu0, fusion=fusion)
