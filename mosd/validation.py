@@ -21,8 +21,9 @@ class ConfigError(ValueError):
 class Interval:
     """A real interval; ``open_low``/``open_high`` exclude the bound.
 
-    ``integer=True`` declares an integer parameter (e.g. the L of a persistence
-    rule): optimisers round it, :func:`check_in` refuses non-integral values.
+    ``integer=True`` declares an integer parameter (e.g. the length of a
+    persistence rule): optimisers round it with :meth:`round`, :func:`check_in`
+    refuses non-integral values.
     """
 
     low: float
@@ -38,6 +39,38 @@ class Interval:
         lo_ok = v > self.low if self.open_low else v >= self.low
         hi_ok = v < self.high if self.open_high else v <= self.high
         return lo_ok and hi_ok
+
+    def round(self, value, clip: bool = False):
+        """``value`` rounded to the nearest integer when the interval is integer (else unchanged).
+
+        The one rounding of integer parameters (the tuning problem, the
+        optimisers, ``with_params``, the detectors' populations, the compiled
+        chart and the preflight all call it). Ties go to the even integer, as
+        :func:`numpy.round` and Python's ``round`` do.
+
+        Parameters
+        ----------
+        value : float or ndarray
+        clip : bool
+            Also move the result to the nearest integer inside the interval
+            (an open bound excludes its own value). ``low`` and ``high`` may then
+            be arrays broadcasting against ``value`` (one box per column).
+
+        Returns
+        -------
+        int (a finite scalar), float (NaN, ±inf) or ndarray of float
+        """
+        if not self.integer:
+            return value
+        rounded = np.round(value)
+        if clip:
+            low = np.floor(self.low) + 1.0 if self.open_low else np.ceil(self.low)
+            high = np.ceil(self.high) - 1.0 if self.open_high else np.floor(self.high)
+            rounded = np.clip(rounded, low, high)
+        if np.ndim(rounded) == 0:  # a scalar as the user would write it, for the error messages
+            rounded = float(rounded)
+            return int(rounded) if math.isfinite(rounded) else rounded
+        return rounded
 
     def __str__(self) -> str:
         text = f"{'(' if self.open_low else '['}{self.low:g}, {self.high:g}{')' if self.open_high else ']'}"

@@ -155,7 +155,7 @@ def _default_design(setup: Setup) -> np.ndarray:
         low, high = setup.bounds.get(name, (interval.low, interval.high))
         value = getattr(detector, name, None)
         value = float(value) if isinstance(value, (int, float)) and low <= float(value) <= high else 0.5 * (low + high)
-        row.append(float(round(value)) if interval.integer else value)
+        row.append(float(interval.round(value)))
     return np.array([row], float)
 
 

@@ -80,9 +80,7 @@ class Detector:
             del new.__dict__[key]
         for name, value in params.items():
             interval = self.tunable[name]
-            if interval.integer:
-                value = round(float(value))
-            setattr(new, name, check_in(f"detector.{name}", value, interval))
+            setattr(new, name, check_in(f"detector.{name}", interval.round(value), interval))
         return new
 
     def candidates(self, X: np.ndarray) -> list["Detector"]:

@@ -68,7 +68,7 @@ class ModeProbabilityDetector(Detector):
                               f"with M >= 2 (normal model first), e.g. monitor.outputs=[mode_probabilities]")
         X = np.atleast_2d(np.asarray(X, float))
         threshold = X[:, 0]
-        lengths = np.rint(X[:, 1]).astype(int)
+        lengths = self.tunable["L"].round(X[:, 1], clip=True).astype(int)
         faults = np.moveaxis(mu[..., 1:], -1, -2)  # (R, M−1, K): time last for the persistence rule
         above = faults[None] > threshold[:, None, None, None]  # (P, R, M−1, K)
         held = persistent(above, lengths)

@@ -54,7 +54,7 @@ class ThresholdDetector(Detector):
         """Decisions of every design in X (P, 2) = (threshold, L); calibration data are not used."""
         X = np.atleast_2d(np.asarray(X, float))
         threshold = X[:, 0].reshape(-1, 1, 1)
-        L = np.maximum(np.rint(X[:, 1]), 1).astype(int)
+        L = self.tunable["L"].round(X[:, 1], clip=True).astype(int)
         statistic = np.broadcast_to(features, (X.shape[0],) + features.shape)
         with np.errstate(invalid="ignore"):
             exceeds = statistic > threshold

@@ -276,8 +276,7 @@ def _validated(detector, X: np.ndarray) -> dict:
     params = {}
     for column, (name, interval) in enumerate(detector.tunable.items()):
         values = X[:, column]
-        if interval.integer:
-            values = np.round(values)
+        values = interval.round(values)
         low_ok = values > interval.low if interval.open_low else values >= interval.low
         high_ok = values < interval.high if interval.open_high else values <= interval.high
         if not np.all(low_ok & high_ok):

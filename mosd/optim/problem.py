@@ -45,7 +45,7 @@ import numpy as np
 from pymoo.core.problem import Problem
 
 from ..metrics.registry import as_truth, objective_values
-from ..validation import ConfigError, check_int
+from ..validation import ConfigError, Interval, check_int
 from .backends import check_backend
 
 _OPEN_BOUND_MARGIN = 1e-6
@@ -268,7 +268,7 @@ class TuningProblem(Problem):
         X = np.array(X, float, copy=True)
         if self.is_integer.any():
             cols = self.is_integer
-            X[..., cols] = np.clip(np.round(X[..., cols]), np.ceil(self.xl[cols]), np.floor(self.xu[cols]))
+            X[..., cols] = Interval(self.xl[cols], self.xu[cols], integer=True).round(X[..., cols], clip=True)
         return X
 
     def _evaluate(self, X, out, *args, **kwargs):
