@@ -79,3 +79,25 @@ def test_plant_and_noise_validation():
         GaussianNoise(process_cov=[1, 2])
     with pytest.raises(ConfigError, match="noise.measurement_cov"):
         GaussianNoise(measurement_cov=-1)
+
+
+def test_the_closed_loop_adds_the_one_sensor_fault_injection():
+    """ClosedLoopPlant.simulate injects mosd.faults.sensor_fault_signals: y differs from the fault-free run by g."""
+    from mosd.faults import SensorFault, sensor_fault_signals
+    from mosd.noise.gaussian import GaussianNoise
+    from mosd.plants.mould_oscillator import MouldOscillator
+
+    plant, noise = MouldOscillator(), GaussianNoise(process_cov=0.0)
+    fault = SensorFault(kind="offset_var", channel=1, onset=20.5 * plant.dt, a=1.5, b=2.0)
+    seeds = [np.random.default_rng([3, r]) for r in range(2)]
+    faulty = plant.simulate(40, noise, fault, seeds, fault_scale=0.01)
+    clean = plant.simulate(40, noise, None, [np.random.default_rng([3, r]) for r in range(2)])
+    rngs = [np.random.default_rng([3, r]) for r in range(2)]
+    for rng in rngs:
+        noise.draw(rng, 40)  # the plant draws the noise first, then the fault's extra noise
+    g, mask = sensor_fault_signals(fault, faulty.t, rngs, 3, 0.01)
+    np.testing.assert_array_equal(mask, faulty.fault_mask)
+    first = int(np.argmax(mask[0]))
+    assert 0 < first < 40 and np.all(g[:, :first] == 0) and np.all(g[..., [0, 2]] == 0)
+    # before the first faulty sample feeds back through the controller, y is the fault-free y plus g
+    np.testing.assert_allclose(faulty.y[:, : first + 1], clean.y[:, : first + 1] + g[:, : first + 1], rtol=0, atol=1e-12)

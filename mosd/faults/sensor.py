@@ -10,6 +10,7 @@ observer of :mod:`mosd.estimators.residuals`) the residual's standard deviation 
 from __future__ import annotations
 
 import math
+from typing import Sequence
 
 import numpy as np
 
@@ -17,6 +18,46 @@ from ..validation import ConfigError, Interval, check_choice, check_in, check_in
 from .base import Fault
 
 FAULT_KINDS = ("offset", "variance", "offset_var", "drift")
+
+
+def sensor_fault_signals(fault, t: np.ndarray, rngs: Sequence[np.random.Generator], n_outputs: int,
+                         scale: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """The additive sensor-fault signal g of every replication, and where the fault is active.
+
+    The one injection of a sensor fault (a :class:`SensorFault`, a
+    :class:`~mosd.faults.ramp.RampFault`: anything with ``channel``,
+    ``signal(t, scale, rng)`` and ``active(t)``): the plants add ``g`` to their
+    outputs, and a study that adds a fault to a fault-free log after the fact
+    gets the same numbers as the plant.
+
+    Parameters
+    ----------
+    fault : fault or None
+        None: no fault (g = 0, the mask all False).
+    t : ndarray, shape (N,)
+        Sample times (s).
+    rngs : sequence of numpy.random.Generator
+        One per replication, in order (replication r's ``signal`` draws from ``rngs[r]``).
+    n_outputs : int
+        Number of output channels n_y.
+    scale : float
+        σ of the faulty channel's residual (the unit of a relative fault's magnitudes).
+
+    Returns
+    -------
+    g : ndarray, shape (R, N, n_y)
+        Zero except on the fault's channel.
+    mask : ndarray of bool, shape (R, N)
+        True where the fault is active.
+    """
+    t = np.asarray(t, float)
+    g = np.zeros((len(rngs), t.shape[0], int(n_outputs)))
+    mask = np.zeros((len(rngs), t.shape[0]), dtype=bool)
+    if fault is not None:
+        for r, rng in enumerate(rngs):
+            g[r, :, fault.channel] = fault.signal(t, scale, rng)
+        mask[:] = fault.active(t)
+    return g, mask
 
 
 class SensorFault(Fault):

@@ -21,6 +21,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from ..faults.sensor import sensor_fault_signals
 from ..types import Trace
 from ..validation import ConfigError
 
@@ -69,12 +70,7 @@ class ClosedLoopPlant(Plant):
         w = np.stack([d[0] for d in draws])  # (R, N, n_x)
         v = np.stack([d[1] for d in draws])  # (R, N, n_y)
         n_y = v.shape[-1]
-        g = np.zeros((n_reps, N, n_y))
-        mask = np.zeros((n_reps, N), dtype=bool)
-        if fault is not None:
-            for r, rng in enumerate(rngs):
-                g[r, :, fault.channel] = fault.signal(t, fault_scale, rng)
-            mask[:] = fault.active(t)
+        g, mask = sensor_fault_signals(fault, t, rngs, n_y, fault_scale)
         controller = self.controller()
         controller.reset(n_reps)
         compiled = self._compiled_loop(controller)

@@ -18,6 +18,7 @@ from typing import Sequence
 import numpy as np
 from scipy import linalg, optimize
 
+from ..faults.sensor import sensor_fault_signals
 from ..types import Trace
 from ..validation import ConfigError, Interval, check_in, check_int
 from .base import Plant
@@ -298,14 +299,9 @@ class FlappingWingMAV(Plant):
         flap_noise = np.stack([o[2] for o in own])            # (R, N M, 2)
         wander0 = np.stack([o[3] for o in own])               # (R, 2 processes, 2 stages)
         wander_noise = np.stack([o[4] for o in own])          # (R, N M, 2)
-        g = np.zeros((n_reps, N))
-        mask = np.zeros((n_reps, N), dtype=bool)
-        if fault is not None:
-            channel = fault.channel
-            g = np.stack([fault.signal(t, fault_scale, rng) for rng in rngs])
-            mask[:] = fault.active(t)
-        else:
-            channel = 0
+        channel = 0 if fault is None else fault.channel
+        g, mask = sensor_fault_signals(fault, t, rngs, len(self.output_names), fault_scale)
+        g = g[..., channel]
 
         # GPS bias: exact first-order Gauss-Markov discretisation on the logging grid
         decay = math.exp(-self.gps_bias_rate * self.dt)
