@@ -16,30 +16,11 @@ from typing import TextIO
 import numpy as np
 from pymoo.core.callback import Callback
 
+from ..metrics.summary import accuracy, hypervolume
 from ..validation import ConfigError, check_int
 
-#: Reference point of the hypervolume: just beyond the worst possible (FAR, MDR) = (1, 1),
-#: so that the extreme designs of a front still add area.
-REFERENCE_POINT = (1.1, 1.1)
-
-
-def hypervolume_2d(F: np.ndarray, reference: tuple[float, float] = REFERENCE_POINT) -> float:
-    """Area dominated by the points F (n, 2) and bounded by ``reference`` (both minimised).
-
-    Points that do not dominate the reference are ignored; dominated points add
-    nothing. Sorting by the first objective turns the union of rectangles into a
-    sum of disjoint strips.
-    """
-    F = np.asarray(F, dtype=float).reshape(-1, 2)
-    ref = np.asarray(reference, dtype=float)
-    F = F[np.all(F < ref, axis=1)]
-    if F.shape[0] == 0:
-        return 0.0
-    F = F[np.lexsort((F[:, 1], F[:, 0]))]
-    best_second = np.minimum.accumulate(F[:, 1])
-    front = F[np.r_[True, F[1:, 1] < best_second[:-1]]]
-    widths = np.diff(np.r_[front[:, 0], ref[0]])
-    return float(np.sum(widths * (ref[1] - front[:, 1])))
+#: the hypervolume of :mod:`mosd.metrics.summary` (reference 1.1 in every objective), by its old name
+hypervolume_2d = hypervolume
 
 
 class Progress(Callback):
@@ -95,7 +76,7 @@ class Progress(Callback):
             "archive_size": int(F.shape[0]),
             # the (FAR, MDR) hypervolume and accuracy are defined for two rate objectives only
             "hypervolume": hypervolume_2d(F) if F.shape[1] == 2 and np.all(F <= 1.0) else float("nan"),
-            "best_accuracy": float(np.max(1.0 - F[:, 0] - F[:, 1])) if F.shape[0] and F.shape[1] == 2
+            "best_accuracy": float(np.max(accuracy(F[:, 0], F[:, 1]))) if F.shape[0] and F.shape[1] == 2
             else float("nan"),
             "elapsed_s": now - self._started,
         }

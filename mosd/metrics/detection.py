@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .summary import accuracy
+
 
 def _alarms(decisions: np.ndarray) -> np.ndarray:
     decisions = np.asarray(decisions)
@@ -37,7 +39,7 @@ def fault_detection_rate(alarms: np.ndarray, fault_mask: np.ndarray) -> np.ndarr
 
 def detection_accuracy(alarms: np.ndarray, fault_mask: np.ndarray) -> np.ndarray:
     """The paper's "detection accuracy" 1 − FAR − MDR."""
-    return 1.0 - false_alarm_rate(alarms, fault_mask) - missed_detection_rate(alarms, fault_mask)
+    return accuracy(false_alarm_rate(alarms, fault_mask), missed_detection_rate(alarms, fault_mask))
 
 
 def _first_hit(alarms: np.ndarray, fault_mask: np.ndarray):

@@ -4,35 +4,12 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import special
 
 from .registry import METRICS, per_run
+from .summary import Estimate
 
 #: What every report holds (more can be asked for by name).
 DEFAULT_METRICS = ("far", "mdr", "accuracy", "delay", "detection_rate", "delay_censored")
-
-
-@dataclass(frozen=True)
-class Estimate:
-    """A mean over replications with its 95 % confidence half-width (Student t)."""
-
-    mean: float
-    half_width: float
-    n: int
-
-    @classmethod
-    def of(cls, values: np.ndarray, level: float = 0.95) -> "Estimate":
-        v = np.asarray(values, float)
-        v = v[np.isfinite(v)]
-        if v.size == 0:
-            return cls(float("nan"), float("nan"), 0)
-        if v.size == 1:
-            return cls(float(v[0]), float("nan"), 1)
-        sem = v.std(ddof=1) / np.sqrt(v.size)
-        return cls(float(v.mean()), float(special.stdtrit(v.size - 1, 0.5 + level / 2) * sem), int(v.size))
-
-    def __str__(self) -> str:
-        return f"{self.mean:.4g} ± {self.half_width:.2g}"
 
 
 @dataclass(frozen=True)

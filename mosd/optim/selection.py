@@ -16,6 +16,7 @@ import warnings
 
 import numpy as np
 
+from ..metrics.summary import accuracy
 from ..validation import ConfigError, Interval, check_in
 
 #: Differences in FAR, MDR or accuracy below this count as ties (floating-point noise of
@@ -55,8 +56,8 @@ def max_accuracy(F) -> int:
     lower MDR, then the first row).
     """
     F = _check_front(F)
-    accuracy = 1.0 - F[:, 0] - F[:, 1]
-    candidates = np.flatnonzero(accuracy >= accuracy.max() - TIE_TOLERANCE)
+    values = accuracy(F[:, 0], F[:, 1])
+    candidates = np.flatnonzero(values >= values.max() - TIE_TOLERANCE)
     return _lowest_far(F, candidates)
 
 
