@@ -13,15 +13,20 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from mosd.systems import paper001, paper002, paper003
+from mosd.systems import base, cli, paper001, paper002, paper003
 from mosd.validation import ConfigError
 
 P001_NAMES = {f"rmse_{q}_{f}" for q in ("state", "amplitude") for f in ("fused", "sensor1", "sensor2", "sensor3")} | {
-    "isolation_rate", "false_isolation_rate", "far", "mdr", "delay_s", "detected_rate", "no_fault_declared_rate"}
+    "isolation_rate", "false_isolation_rate", "far", "mdr", "delay_s", "detection_rate", "no_fault_declared_rate"}
 P002_NAMES = {f"{p}{k}_r{r}" for p in ("", "baseline_") for r in (0, 10)
               for k in ("delay_target_s", "detection_rate_target", "false_alarm_nuisance")}
 P003_NAMES = {"detection_step_n1", "detection_step_best", "best_window", "detection_rate_n1", "detection_rate_best",
               "far"}
+
+
+def _preset(name, *overrides):
+    """The experiment of ``+experiment=NAME`` with Hydra overrides: what the report commands run."""
+    return cli.preset(name, list(overrides)).experiment
 
 
 def _result(detector):
@@ -38,20 +43,20 @@ def _finite(metrics, names):
 
 # -- paper 001 ------------------------------------------------------------------------------
 def test_paper001_study_names_and_figures(tmp_path):
-    experiment = paper001.preset_experiment(seed=3, n_test=20)
-    metrics, files = paper001.Study(n_reps=20).run(experiment, _result(experiment.detector.with_params(mu_T=0.8)),
+    experiment = _preset("paper001", "seed=3", "budget.n_test=20")
+    metrics, files = paper001.Study(n_runs=20).run(experiment, _result(experiment.detector.with_params(mu_T=0.8)),
                                                      tmp_path)
     _finite(metrics, P001_NAMES | {"paper_" + k for k in ("isolation_rate", "no_fault_declared_rate")})
     assert len(files) == 4 and all(f.exists() and f.stat().st_size > 10_000 for f in files)
-    for key in ("isolation_rate", "false_isolation_rate", "far", "mdr", "detected_rate", "no_fault_declared_rate"):
+    for key in ("isolation_rate", "false_isolation_rate", "far", "mdr", "detection_rate", "no_fault_declared_rate"):
         assert 0.0 <= metrics[key] <= 1.0
     # the paper's lower threshold can only add declarations on the same fault-free runs
     assert metrics["paper_no_fault_declared_rate"] <= metrics["no_fault_declared_rate"]
 
 
 def test_paper001_fusion_beats_every_single_sensor_on_100_runs():
-    experiment = paper001.preset_experiment(seed=11, n_test=100)
-    study = paper001.Study(n_reps=100, figures=False)
+    experiment = _preset("paper001", "seed=11", "budget.n_test=100")
+    study = paper001.Study(n_runs=100, figures=False)
     metrics = study.metrics(study.compute(experiment, {"tuned": experiment.detector}))
     for quantity in ("state", "amplitude"):
         fused = metrics[f"rmse_{quantity}_fused"]
@@ -63,9 +68,9 @@ def test_paper001_fusion_beats_every_single_sensor_on_100_runs():
 
 def test_paper001_report_command_rejects_bad_input_in_one_line(tmp_path, capsys):
     out = tmp_path / "out"
-    assert paper001.main(["--n-reps", "1", "--out", str(out)]) == 2
+    assert paper001.main(["--n-runs", "1", "--out", str(out)]) == 2
     err = capsys.readouterr().err.strip()
-    assert len(err.splitlines()) == 1 and "study.n_reps" in err and "allowed" in err
+    assert len(err.splitlines()) == 1 and "study.n_runs" in err and "allowed" in err
     assert not out.exists()
     assert paper001.main(["--mu-T", "1.5", "--out", str(out)]) == 2
     assert "detector.mu_T" in capsys.readouterr().err and not out.exists()
@@ -76,7 +81,7 @@ def test_paper001_report_command_rejects_bad_input_in_one_line(tmp_path, capsys)
 def paper002_setup():
     from mosd.estimators.entropy_filter import EntropyIsolationFilter
 
-    experiment = paper002.preset_experiment(seed=5)
+    experiment = _preset("paper002", "seed=5")
     experiment.estimator = EntropyIsolationFilter(n_particles=100)  # a coarser gain design: seconds, not tens
     experiment.fit_estimator()
     return experiment
@@ -86,6 +91,7 @@ def test_paper002_study_names_and_figures(paper002_setup, tmp_path):
     detector = paper002_setup.detector.with_params(threshold=0.67, L=1)
     study = paper002.Study(n_runs=10, missing_rates=[0.0, 0.1])
     metrics, files = study.run(paper002_setup, _result(detector), tmp_path)
+    assert not any(k.startswith("paper_") for k in metrics)  # the paper's threshold is lost: no reference design
     _finite(metrics, P002_NAMES | {"roc_auc", "baseline_roc_auc", "equal_fa_target_detection"})
     assert not any(k.endswith("_r5") for k in metrics)
     assert len(files) == 3 and all(f.exists() and f.stat().st_size > 10_000 for f in files)
@@ -94,15 +100,15 @@ def test_paper002_study_names_and_figures(paper002_setup, tmp_path):
 def test_paper002_separation_paths_agree_and_target_error_dominates(paper002_setup):
     detector = paper002_setup.detector.with_params(threshold=0.67, L=2)
     study = paper002.Study(n_runs=40, missing_rates=[0.0, 0.2], figures=False)
-    data = study.compute(paper002_setup, detector)
+    data = study.compute(paper002_setup, {"tuned": detector})
     metrics = study.metrics(data)
     # the ROC sweep and the study's own scoring count nuisance false alarms the same way at the same design
     for name, prefix in paper002.FILTER_PREFIXES.items():
-        roc = data["roc"][name]
+        roc = data["designs"]["tuned"]["roc"][name]
         k = int(np.flatnonzero(np.isclose(roc["threshold"], 0.67))[0])
         assert roc["false_alarm"][k] == pytest.approx(metrics[f"{prefix}false_alarm_nuisance_r0"], abs=1e-12)
     # a ROC curve: fewer alarms of both kinds as the threshold rises
-    for roc in data["roc"].values():
+    for roc in data["designs"]["tuned"]["roc"].values():
         assert np.all(np.diff(roc["false_alarm"]) <= 1e-12) and np.all(np.diff(roc["detection"]) <= 1e-12)
     # isolation needs the target's steady error well above the nuisance's at every missing rate
     for tag in ("r0", "r20"):
@@ -123,7 +129,8 @@ def test_paper003_replayed_ramp_equals_the_plant_simulating_it():
     from mosd.faults.ramp import RampFault
     from mosd.scenario import replication_rngs
 
-    plant, noise = paper003.FlappingWingMAV(), paper003.default_noise()
+    preset = _preset("paper003")
+    plant, noise = preset.plant, preset.noise
     fault = RampFault(rate=0.7, onset=40.0)
     clean = plant.simulate(300, noise, None, replication_rngs(2, "test", 2))
     direct = plant.simulate(300, noise, fault, replication_rngs(2, "test", 2))
@@ -134,16 +141,10 @@ def test_paper003_replayed_ramp_equals_the_plant_simulating_it():
 
 def _tiny_paper003(tmp_path, epochs=3):
     pytest.importorskip("torch")
-    from mosd.estimators.neural_observer import MultiStepNeuralObserver
-    from mosd.experiment import Budget, Experiment
-    from mosd.monitors.outputs import OutputMonitor
-
-    return Experiment(paper003.FlappingWingMAV(), paper003.default_noise(), paper003.RampFault(onset=30.0),
-                      MultiStepNeuralObserver(window=3, epochs=epochs, cache_dir=str(tmp_path / "cache"),
-                                              progress=False),
-                      OutputMonitor(outputs=["observer_chi2", "observer_residual"], burn_in=15),
-                      paper003.AdaptiveChi2Detector(), duration=50.0,
-                      budget=Budget(n_calibration=2, n_train=2, n_test=2, n_estimator=2), seed=4)
+    return _preset("paper003", "seed=4", "scenario.duration=50.0", "fault.onset=30.0", "estimator.window=3",
+                   f"estimator.epochs={epochs}", f"estimator.cache_dir='{tmp_path / 'cache'}'",
+                   "estimator.progress=false", "budget.n_calibration=2", "budget.n_train=2", "budget.n_test=2",
+                   "budget.n_estimator=2")
 
 
 def test_paper003_study_names_and_figures(tmp_path):
@@ -176,48 +177,54 @@ def test_paper003_with_window_keeps_every_other_setting():
     assert other.ekf is base.ekf and other.cache_dir is None
 
 
-# -- the report commands run the presets' experiments -----------------------------------------
-def _same(a, b, path=""):
-    """Recursive comparison of two components' parameters (arrays exactly, nested components by their vars)."""
-    if hasattr(a, "__dict__") and not isinstance(a, type):
-        assert type(a) is type(b), path
-        keys = {k for k in vars(a) if not k.endswith("_")}
-        assert keys == {k for k in vars(b) if not k.endswith("_")}, path
-        for k in keys:
-            _same(vars(a)[k], vars(b)[k], f"{path}.{k}")
-    elif isinstance(a, (list, tuple)) and a and hasattr(a[0], "__dict__"):
-        assert len(a) == len(b), path
-        for i, (x, y) in enumerate(zip(a, b)):
-            _same(x, y, f"{path}[{i}]")
-    else:
-        np.testing.assert_array_equal(np.asarray(a, dtype=object), np.asarray(b, dtype=object), err_msg=path)
-
-
+# -- the study contract and the report commands ----------------------------------------------
 @pytest.mark.parametrize("module", [paper001, paper002, paper003])
-def test_report_command_experiment_is_the_preset(module):
-    from pathlib import Path
-
-    from hydra import compose, initialize_config_dir
-
-    from mosd.app.build import build
-
+def test_every_study_keeps_the_contract_and_its_preset_names_it(module):
     name = module.__name__.rsplit(".", 1)[-1]
-    conf = Path(__file__).resolve().parents[1] / "conf"
-    with initialize_config_dir(config_dir=str(conf), version_base="1.3", job_name="test"):
-        setup = build(compose("config", overrides=[f"+experiment={name}"]))
-    preset, ours = setup.experiment, module.preset_experiment()
-    for part in ("plant", "noise", "fault", "estimator", "monitor", "detector"):
-        _same(getattr(preset, part), getattr(ours, part), part)
-    assert (preset.duration, preset.budget, preset.seed) == (ours.duration, ours.budget, ours.seed)
+    assert issubclass(module.Study, base.Study) and module.Study.system == name
+    setup = cli.preset(name)
     assert type(setup.study) is module.Study
+    recorded = base.recorded_designs(name)
+    # the recorded tuned design is a valid design of the preset's detector (validated by with_params)
+    tuned = setup.experiment.detector.with_params(**recorded["tuned"])
+    assert {k: getattr(tuned, k) for k in recorded["tuned"]} == recorded["tuned"]
+    with pytest.raises(ConfigError, match="study.figures"):
+        module.Study(figures="yes")
+
+
+def test_report_experiment_is_the_preset_with_the_command_line_overrides():
+    setup = cli.preset("paper001", ["seed=7", "budget.n_test=30"])
+    assert (setup.experiment.seed, setup.experiment.budget.n_test) == (7, 30)
+    assert setup.study.n_runs == 500  # conf/experiment/paper001.yaml study.n_runs
+    with pytest.raises(ConfigError, match="budget.n_tests"):
+        cli.preset("paper001", ["budget.n_tests=30"])
+    with pytest.raises(ConfigError, match="experiment"):
+        cli.preset("paper999")
+
+
+def test_recorded_designs_come_from_the_package_data():
+    assert base.recorded_designs("paper001")["paper"] == {"mu_T": 0.5, "L": 1}
+    assert set(base.recorded_designs("paper002")) == {"tuned", "midway"}
+    assert all(not k.startswith("_") for k in base.recorded_designs("paper003"))
+    with pytest.raises(ConfigError, match="paper999"):
+        base.recorded_designs("paper999")
+
+
+def test_report_parser_errors_are_one_line_and_exit_2(capsys):
+    parser = cli.report_parser("python -m mosd.systems.x", "x", out="outputs/x")
+    with pytest.raises(SystemExit) as stop:
+        parser.parse_args(["--seed", "one"])
+    assert stop.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and err.startswith("error:") and "--seed" in err
 
 
 # -- the documented bars (slow: full Monte Carlo scale) --------------------------------------
 @pytest.mark.slow
 def test_paper001_bars_at_500_runs():
-    experiment = paper001.preset_experiment(seed=0, n_test=500)
-    study = paper001.Study(n_reps=500, figures=False)
-    tuned = experiment.detector.with_params(**paper001.TUNED_DESIGN)
+    experiment = _preset("paper001", "seed=0", "budget.n_test=500")
+    study = paper001.Study(n_runs=500, figures=False)
+    tuned = experiment.detector.with_params(**base.recorded_designs("paper001")["tuned"])
     metrics = study.metrics(study.compute(experiment, {"tuned": tuned}))
     verdicts = {name: met for name, met, _ in paper001.bars(metrics)}
     assert all(verdicts.values()), verdicts
@@ -227,16 +234,17 @@ def test_paper001_bars_at_500_runs():
 def test_paper003_multi_step_window_detects_sooner_only_on_the_observer_residual(tmp_path):
     """Reading 2 shows the paper's window effect, reading 1 does not; FAR stays within 2α (about 1 min)."""
     pytest.importorskip("torch")
-    experiment = paper003.preset_experiment(seed=0, cache_dir=str(tmp_path))
+    experiment = _preset("paper003", "seed=0", f"estimator.cache_dir='{tmp_path}'")
     study = paper003.Study(windows=[1, 8], rates=[0.2, 0.5], n_runs=10, trace_rate=0.2, figures=False)
-    data = study.compute(experiment, {"paper": experiment.detector.with_params(**paper003.PAPER_DESIGN)})
+    paper = base.recorded_designs("paper003")["paper"]
+    data = study.compute(experiment, {"paper": experiment.detector.with_params(**paper)})
     observer = study.summary(data, "paper", "observer_chi2")
     innovation = study.summary(data, "paper", "chi2")
     assert observer["best_window"] == 8
     assert observer["detection_step_n1"] >= 3 * observer["detection_step_best"]
     assert observer["detection_rate_best"] > observer["detection_rate_n1"] + 0.3
-    assert observer["far"] <= 2 * paper003.PAPER_DESIGN["alpha"]
+    assert observer["far"] <= 2 * paper["alpha"]
     # the filter's innovation does not gain from the observer's window: it only raises the threshold
     i1, i8 = data["windows"].index(1), data["windows"].index(8)
     rate = data["table"]["paper"]["chi2"]["detection_rate"].mean(axis=1)
-    assert rate[i8] <= rate[i1] + 0.02 and innovation["far"] <= 2 * paper003.PAPER_DESIGN["alpha"]
+    assert rate[i8] <= rate[i1] + 0.02 and innovation["far"] <= 2 * paper["alpha"]

@@ -21,113 +21,29 @@ from typing import Sequence
 
 import numpy as np
 
-from ..detectors.mode_probability import ModeProbabilityDetector
-from ..estimators.async_imm import AsyncIMMFusion
-from ..faults.actuator import ActuatorFault
 from ..metrics.estimation import rmse_over_runs
 from ..metrics.registry import per_run
-from ..monitors.outputs import OutputMonitor
-from ..noise.continuous import ContinuousWhiteNoise
-from ..plants.networked_target import NetworkedTarget
-from ..scenario import Scenario
-from ..validation import ConfigError, check_int
-from . import run_designs
+from ..validation import check_int
+from . import base, cli
+from .base import TUNED, figure, prefixed, recorded_designs
 
-DURATION = 41.0  # fusion instants t = 0, 1, ..., 40 s
-FILTERS = {"fused": None, "s1": ("s1",), "s2": ("s2",), "s3": ("s3",)}
-#: the scenario's only fault (label 1) is the model set's fault 2 (actuator 2)
-LABELS = (2, 1)
-DESIGNS = ((0.5, 1), (0.5, 2), (0.5, 3), (0.7, 1), (0.7, 2), (0.9, 1))
-
-
-def scenario(faulty: bool = True) -> Scenario:
-    """The paper's example: actuator 2 fails with f = 2 at 16.5 s (or no fault)."""
-    return Scenario(NetworkedTarget(), ContinuousWhiteNoise(), ActuatorFault() if faulty else None, duration=DURATION)
-
-
-def rmse_study(seed: int = 2017, n_reps: int = 500) -> dict:
-    """Figs. 2–5: per filter, RMSE curves of the state and of the fault input, and their means over t = 1..40.
-
-    Also the fused filter's mean mode probabilities (Fig. 2) and the mean
-    amplitude estimate of the actuator-2 model per filter (Fig. 3).
-    """
-    sc = scenario()
-    trace = sc.simulate(seed, n_reps, "test")
-    model = sc.plant.model(sc.noise)
-    out = {"t": trace.t.tolist(), "filters": {}}
-    for name, sensors in FILTERS.items():
-        res = AsyncIMMFusion(sensors=sensors).estimate(trace, model)
-        state = rmse_over_runs(res.extra["x_filt"], trace.x[..., :2])
-        fault = rmse_over_runs(res.extra["fault_estimate"], trace.x[..., 2:])
-        out["filters"][name] = {
-            "state_rmse": state.tolist(), "fault_rmse": fault.tolist(),
-            "state_rmse_mean": float(state[1:].mean()), "fault_rmse_mean": float(fault[1:].mean()),
-            "amplitude_mean": res.extra["fault_amplitudes"][..., 1].mean(axis=0).tolist(),
-            "mode_probabilities_mean": res.extra["mode_probabilities"].mean(axis=0).tolist(),
-        }
-    return out
-
-
-def detection_table(seed: int = 2017, n_reps: int = 500,
-                    designs: Sequence[tuple[float, int]] = DESIGNS) -> list[dict]:
-    """The decision rule (§4) for designs (μ_T, L): false alarms on faulty and fault-free runs, delay, isolation."""
-    sc = scenario()
-    model = sc.plant.model(sc.noise)
-    estimator, monitor = AsyncIMMFusion(), OutputMonitor(outputs=["mode_probabilities"])
-    faulty = monitor.transform(estimator.estimate(sc.simulate(seed, n_reps, "test"), model))
-    clean = monitor.transform(estimator.estimate(scenario(False).simulate(seed, n_reps, "calibration"), model))
-    detector = ModeProbabilityDetector(labels=LABELS)
-    X = np.asarray(designs, float)
-    on_faulty = detector.population(None, faulty.z, X).decision
-    on_clean = detector.population(None, clean.z, X).decision
-    rows = []
-    for (mu_T, L), d, d0 in zip(designs, on_faulty, on_clean):
-        rows.append({
-            "mu_T": float(mu_T), "L": int(L),
-            "far": float(per_run("far", d, faulty).mean()),
-            "far_fault_free": float(per_run("far", d0, clean).mean()),
-            "alarmed_fault_free_runs": float(np.mean((d0 != 0).any(axis=-1))),
-            "delay": float(np.nanmean(per_run("delay", d, faulty))),
-            "detection_rate": float(np.nanmean(per_run("detection_rate", d, faulty))),
-            "isolation_rate": float(np.nanmean(per_run("isolation_rate", d, faulty))),
-        })
-    return rows
-
-
-# ------------------------------------------------------------------------------------
-# the study of the +experiment=paper001 preset, and its report command
-# ------------------------------------------------------------------------------------
-#: the paper's own decision rule (§5: μ_T = 0.5; L = 1, it gives no persistence value)
-PAPER_DESIGN = {"mu_T": 0.5, "L": 1}
-#: the design MOPSO chose in ``python -m mosd +experiment=paper001`` (seed 0; far/mdr on 200 training runs):
-#: the report command scores it without re-running the optimiser
-TUNED_DESIGN = {"mu_T": 0.7822769303275614, "L": 1}
+SYSTEM = "paper001"
 SENSOR_FILTERS = ("s1", "s2", "s3")
 
 
-def _figure(width: float, height: float):
-    """A matplotlib figure without pyplot (no global state, no display)."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(width, height), layout="constrained")
-    FigureCanvasAgg(fig)
-    return fig
-
-
-class Study:
+class Study(base.Study):
     """Paper 001's Monte Carlo comparison (Figs. 2–5 and the decision rule) for a tuned design.
 
-    Runs ``n_reps`` faulty and ``n_reps`` fault-free replications of the
+    Runs ``n_runs`` faulty and ``n_runs`` fault-free replications of the
     experiment's scenario on the ``test`` seed stream (the fault-free runs share
     the faulty runs' seeds: common random numbers), estimates with the
     experiment's fusion filter on all sensors and on each sensor alone, and
     decides with the tuned detector and with the paper's design (μ_T = 0.5,
-    L = 1; metrics prefixed ``paper_``).
+    L = 1, ``mosd/systems/designs/paper001.json``; metrics prefixed ``paper_``).
 
     Parameters
     ----------
-    n_reps : int
+    n_runs : int
         Monte Carlo runs of each kind (the paper: 500).
     figures : bool
         Write the PNG figures into ``out_dir``.
@@ -144,30 +60,23 @@ class Study:
     * ``isolation_rate``: faulty runs whose first alarm at or after the onset
       names actuator 2; ``false_isolation_rate``: faulty runs that declare
       actuator 1 at any point at or after the onset.
-    * ``far``, ``mdr``: point rates of the metric registry on the faulty runs;
-      ``delay_s``: mean over detected runs of (first alarm − first faulty
-      fusion instant) in seconds; ``detected_rate``: faulty runs detected.
+    * ``far``, ``mdr``, ``detection_rate`` (faulty runs detected): the metric
+      registry's, on the faulty runs; ``delay_s``: mean over detected runs of
+      (first alarm − first faulty fusion instant) in seconds.
     * ``no_fault_declared_rate``: fault-free runs without any declaration.
     """
 
-    def __init__(self, n_reps: int = 500, figures: bool = True):
-        self.n_reps = check_int("study.n_reps", n_reps, 2)
-        if not isinstance(figures, bool):
-            raise ConfigError(f"study.figures={figures!r} is not allowed; allowed: true, false")
-        self.figures = figures
+    system = SYSTEM
 
-    def run(self, experiment, result, out_dir) -> tuple[dict[str, float], list[Path]]:
-        """The study for ``result.detector`` (the tuned design) beside the paper's design."""
-        paper = result.detector.with_params(**PAPER_DESIGN)
-        data = self.compute(experiment, {"tuned": result.detector, "paper": paper})
-        files = self.write_figures(data, Path(out_dir)) if self.figures else []
-        return self.metrics(data), files
+    def __init__(self, n_runs: int = 500, figures: bool = True):
+        super().__init__(figures=figures)
+        self.n_runs = check_int("study.n_runs", n_runs, 2)
 
     # -- computation --------------------------------------------------------------------
     def compute(self, experiment, designs: dict) -> dict:
         """Estimates, RMSE curves and decisions of each named detector design (plain dict)."""
-        faulty = experiment.simulate(experiment.fault, self.n_reps, "test")
-        clean = experiment.simulate(None, self.n_reps, "test")
+        faulty = experiment.simulate(experiment.fault, self.n_runs, "test")
+        clean = experiment.simulate(None, self.n_runs, "test")
         onset_index = int(np.argmax(faulty.fault_mask.any(axis=0)))
         filters = {"fused": experiment.estimator}
         for i, name in enumerate(SENSOR_FILTERS, start=1):
@@ -196,7 +105,7 @@ class Study:
         return {"t": faulty.t, "onset_index": onset_index, "onset_s": float(experiment.fault.onset),
                 "true_amplitude": faulty.x[0, :, 2:], "curves": curves,
                 "mode_probabilities_mean": fused.extra["mode_probabilities"].mean(axis=0),
-                "decisions": decisions, "n_reps": self.n_reps}
+                "decisions": decisions, "n_runs": self.n_runs}
 
     @staticmethod
     def _score(detector, d, d0, points, clean_points, period: float) -> dict:
@@ -210,30 +119,28 @@ class Study:
             "far": float(np.nanmean(per_run("far", d, points))),
             "mdr": float(np.nanmean(per_run("mdr", d, points))),
             "delay_s": float(np.nanmean(delay) * period) if np.isfinite(delay).any() else math.nan,
-            "detected_rate": float(np.nanmean(per_run("detection_rate", d, points))),
+            "detection_rate": float(np.nanmean(per_run("detection_rate", d, points))),
             "no_fault_declared_rate": float(np.mean(~(d0 != 0).any(axis=-1))),
             "far_fault_free": float(np.mean(d0 != 0)),
         }
 
-    @staticmethod
-    def metrics(data: dict) -> dict[str, float]:
-        """The study's metrics by name (class docstring): the tuned design's, then ``paper_``-prefixed."""
+    def metrics(self, data: dict) -> dict[str, float]:
+        """The study's metrics by name (class docstring): the tuned design's, then the others' prefixed."""
         k0 = data["onset_index"]
         out = {}
         for name, curve in data["curves"].items():
             out[f"rmse_state_{name}"] = float(curve["state"][k0:].mean())
         for name, curve in data["curves"].items():
             out[f"rmse_amplitude_{name}"] = float(curve["amplitude"][k0:].mean())
-        for design, prefix in (("tuned", ""), ("paper", "paper_")):
-            if design in data["decisions"]:
-                out.update({prefix + k: float(v) for k, v in data["decisions"][design].items() if k != "params"})
+        for design, scores in data["decisions"].items():
+            out.update({prefixed(design) + k: float(v) for k, v in scores.items() if k != "params"})
         return out
 
     # -- figures --------------------------------------------------------------------------
-    @staticmethod
-    def write_figures(data: dict, out_dir: Path, prefix: str = "paper001_") -> list[Path]:
+    def write_figures(self, data: dict, out_dir: Path) -> list[Path]:
         """Figs. 2–5 as PNG files: mode probabilities, amplitude, state RMSE, amplitude RMSE."""
         out_dir.mkdir(parents=True, exist_ok=True)
+        prefix = f"{self.system}_"
         t, onset = data["t"], data["onset_s"]
         styles = {"fused": ("k", "-"), "sensor1": ("tab:blue", "--"), "sensor2": ("tab:orange", "-."),
                   "sensor3": ("tab:green", ":")}
@@ -247,17 +154,17 @@ class Study:
             ax.grid(alpha=0.3)
             ax.legend(fontsize=8)
 
-        fig = _figure(6.0, 3.4)
+        fig = figure(6.0, 3.4)
         ax = fig.add_subplot()
         mu = data["mode_probabilities_mean"]
         for m, label in enumerate(("normal model", "actuator-1 fault model", "actuator-2 fault model")):
             ax.plot(t, mu[:, m], marker="o", ms=2.5, label=label)
         ax.axhline(0.5, color="r", lw=0.8, ls="--", label="μ_T = 0.5")
-        finish(ax, "mean mode probability", f"Fig. 2: fused IMM, mean over {data['n_reps']} runs")
+        finish(ax, "mean mode probability", f"Fig. 2: fused IMM, mean over {data['n_runs']} runs")
         files.append(out_dir / f"{prefix}mode_probabilities.png")
         fig.savefig(files[-1], dpi=110)
 
-        fig = _figure(6.0, 3.4)
+        fig = figure(6.0, 3.4)
         ax = fig.add_subplot()
         ax.plot(t, data["true_amplitude"][:, 1], color="r", lw=1.0, label="true f (actuator 2)")
         for name, curve in data["curves"].items():
@@ -269,24 +176,15 @@ class Study:
 
         for key, title, fname in (("state", "Fig. 4: RMSE of the state", "rmse_state"),
                                   ("amplitude", "Fig. 5: RMSE of the fault input", "rmse_amplitude")):
-            fig = _figure(6.0, 3.4)
+            fig = figure(6.0, 3.4)
             ax = fig.add_subplot()
             for name, curve in data["curves"].items():
                 color, ls = styles[name]
                 ax.plot(t, curve[key], color=color, ls=ls, label=name)
-            finish(ax, "RMSE over runs", f"{title}, {data['n_reps']} runs")
+            finish(ax, "RMSE over runs", f"{title}, {data['n_runs']} runs")
             files.append(out_dir / f"{prefix}{fname}.png")
             fig.savefig(files[-1], dpi=110)
         return files
-
-
-def preset_experiment(seed: int = 0, n_test: int = 500):
-    """The ``+experiment=paper001`` set-up built without Hydra (the report command's experiment)."""
-    from ..experiment import Budget, Experiment
-
-    return Experiment(NetworkedTarget(), ContinuousWhiteNoise(), ActuatorFault(), AsyncIMMFusion(),
-                      OutputMonitor(outputs=["mode_probabilities"]), ModeProbabilityDetector(labels=LABELS),
-                      duration=DURATION, budget=Budget(n_calibration=100, n_train=200, n_test=n_test), seed=seed)
 
 
 def format_report(metrics: dict[str, float], designs: dict[str, dict]) -> str:
@@ -296,10 +194,10 @@ def format_report(metrics: dict[str, float], designs: dict[str, dict]) -> str:
         lines.append(f"| {name} | {metrics[f'rmse_state_{name}']:.4f} | {metrics[f'rmse_amplitude_{name}']:.4f} |")
     lines += ["", "| design | μ_T | L | isolation | false isolation (act. 1) | detected | delay (s) | FAR | MDR "
               "| fault-free runs declaring no fault |", "|---|---|---|---|---|---|---|---|---|---|"]
-    for design, prefix in (("tuned", ""), ("paper", "paper_")):
-        p = designs[design]
+    for design, p in designs.items():
+        prefix = prefixed(design)
         lines.append(f"| {design} | {p['mu_T']:.4g} | {int(p['L'])} | {metrics[prefix + 'isolation_rate']:.3f} "
-                     f"| {metrics[prefix + 'false_isolation_rate']:.3f} | {metrics[prefix + 'detected_rate']:.3f} "
+                     f"| {metrics[prefix + 'false_isolation_rate']:.3f} | {metrics[prefix + 'detection_rate']:.3f} "
                      f"| {metrics[prefix + 'delay_s']:.3f} | {metrics[prefix + 'far']:.4f} "
                      f"| {metrics[prefix + 'mdr']:.4f} | {metrics[prefix + 'no_fault_declared_rate']:.3f} |")
     return "\n".join(lines)
@@ -329,44 +227,37 @@ def bars(metrics: dict[str, float], prefix: str = "") -> list[tuple[str, bool, s
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m mosd.systems.paper001 [--n-reps 500] [--seed 0] [--mu-T 0.7823] [--L 1] [--out DIR]``."""
-    import argparse
-    import json
-    import sys
-    import time
+    """``python -m mosd.systems.paper001 [--n-runs 500] [--seed 0] [--mu-T M] [--L L] [--out DIR]``."""
+    recorded = recorded_designs(SYSTEM)
+    parser = cli.report_parser("python -m mosd.systems.paper001", "Paper 001's Monte Carlo study (Figs. 2-5, "
+                               "decision rule) without the optimiser: the tuned design beside the paper's.",
+                               out="outputs/systems/paper001")
+    parser.add_argument("--n-runs", type=int, default=500, help="faulty and fault-free runs each (default 500)")
+    parser.add_argument("--mu-T", type=float, default=recorded[TUNED]["mu_T"],
+                        help="tuned μ_T (default: the recorded design, mosd/systems/designs/paper001.json)")
+    parser.add_argument("--L", type=int, default=recorded[TUNED]["L"], help="tuned persistence L")
 
-    parser = argparse.ArgumentParser(prog="python -m mosd.systems.paper001",
-                                     description="Paper 001's Monte Carlo study (Figs. 2-5, decision rule) "
-                                                 "without the optimiser: the tuned design beside the paper's.")
-    parser.add_argument("--n-reps", type=int, default=500, help="faulty and fault-free runs each (default 500)")
-    parser.add_argument("--seed", type=int, default=0, help="root seed; the test stream is used (default 0)")
-    parser.add_argument("--mu-T", type=float, default=TUNED_DESIGN["mu_T"], help="tuned μ_T (default: seed 0's MOPSO)")
-    parser.add_argument("--L", type=int, default=TUNED_DESIGN["L"], help="tuned persistence L")
-    parser.add_argument("--out", default="outputs/systems/paper001", help="directory of the figures and JSON")
-    args = parser.parse_args(argv)
-    t0 = time.perf_counter()
-    try:
-        study = Study(n_reps=args.n_reps)
-        experiment = preset_experiment(seed=args.seed, n_test=args.n_reps)
-        tuned = experiment.detector.with_params(mu_T=args.mu_T, L=args.L)
-        paper = experiment.detector.with_params(**PAPER_DESIGN)
-    except ConfigError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    out = Path(args.out)
-    data, metrics, files = run_designs(study, experiment, {"tuned": tuned, "paper": paper}, out)
-    designs = {k: v["params"] for k, v in data["decisions"].items()}
-    (out / "paper001_study.json").write_text(json.dumps({"metrics": metrics, "designs": designs,
-                                                         "n_reps": args.n_reps, "seed": args.seed}, indent=1))
-    print(f"## Paper 001: {args.n_reps} faulty + {args.n_reps} fault-free runs, seed {args.seed} (test stream)\n")
-    print(format_report(metrics, designs) + "\n")
-    for design, prefix in (("tuned", ""), ("paper", "paper_")):
-        print(f"### Scientific bars, {design} design\n\n| bar | met | numbers |\n|---|---|---|")
-        for name, met, numbers in bars(metrics, prefix):
-            print(f"| {name} | {'met' if met else '**not met**'} | {numbers} |")
-        print()
-    print(f"wrote: {', '.join(str(p) for p in [*files, out / 'paper001_study.json'])}  ({time.perf_counter() - t0:.1f} s)")
-    return 0
+    def body(args):
+        study = Study(n_runs=args.n_runs)
+        experiment = cli.preset(SYSTEM, [f"seed={args.seed}", f"budget.n_test={args.n_runs}"]).experiment
+        designs = {TUNED: experiment.detector.with_params(mu_T=args.mu_T, L=args.L),
+                   **study.reference_designs(experiment.detector)}
+        out = Path(args.out)
+        data = study.compute(experiment, designs)
+        metrics, files = study.metrics(data), study.write_figures(data, out)
+        params = {k: v["params"] for k, v in data["decisions"].items()}
+        files.append(cli.write_json(out / "paper001_study.json", {"metrics": metrics, "designs": params,
+                                                                  "n_runs": args.n_runs, "seed": args.seed}))
+        print(f"## Paper 001: {args.n_runs} faulty + {args.n_runs} fault-free runs, seed {args.seed} (test stream)\n")
+        print(format_report(metrics, params) + "\n")
+        for design in params:
+            print(f"### Scientific bars, {design} design\n\n| bar | met | numbers |\n|---|---|---|")
+            for name, met, numbers in bars(metrics, prefixed(design)):
+                print(f"| {name} | {'met' if met else '**not met**'} | {numbers} |")
+            print()
+        return files
+
+    return cli.run_report(parser, argv, body)
 
 
 if __name__ == "__main__":

@@ -9,7 +9,7 @@ runs and the nuisance fault on the other half (a FaultSet), fills missing
 outputs by EM, estimates with :class:`~mosd.estimators.entropy_filter.EntropyIsolationFilter`
 and the fixed-gain baseline, and decides with a
 :class:`~mosd.detectors.threshold.ThresholdDetector` on |x − x̂|. Everything
-returned is plain dicts, lists and floats (the report command prints/plots them).
+returned is plain dicts, arrays and floats (the report command prints/plots them).
 """
 from __future__ import annotations
 
@@ -19,195 +19,27 @@ from pathlib import Path
 
 import numpy as np
 
-from ..detectors.threshold import ThresholdDetector
-from ..estimators.entropy_filter import EntropyIsolationFilter, FixedGainFilter
-from ..faults.base import FaultSet
-from ..faults.random_amplitude import RandomAmplitudeFault
-from ..metrics import detection
-from ..monitors.outputs import OutputMonitor
-from ..noise.bounded import BoundedNoise
-from ..plants.scalar_nonlinear import ScalarNonlinearPlant
-from ..scenario import STREAMS, Scenario
+from ..estimators.entropy_filter import FixedGainFilter
+from ..metrics import Estimate, detection
+from ..scenario import Scenario
 from ..validation import ConfigError, Interval, check_in, check_int
+from . import base, cli
+from .base import TUNED, figure, prefixed, recorded_designs
 
+SYSTEM = "paper002"
 MISSING_RATES = (0.0, 0.05, 0.10, 0.20)
 PAPER = {  # Tables 1–2 of the paper (delays in s; "fails" at 20 %)
     "target_delay": {0.05: 1.112, 0.10: 2.451, 0.20: math.nan},
     "nuisance_delay": {0.05: 1.176, 0.10: 2.578, 0.20: math.nan},
 }
-DURATION = 10.0   # 100 steps of 0.1 s
-ONSET = 5.0       # step 50
 SETTLE = 10       # steps after the onset before the error's level is read
-
-
-def mean_ci(values) -> dict:
-    """Mean and 95 % normal confidence half-width over the finite values."""
-    v = np.asarray(values, float)
-    v = v[np.isfinite(v)]
-    if v.size == 0:
-        return {"mean": math.nan, "ci95": math.nan, "n": 0}
-    half = 1.96 * v.std(ddof=1) / math.sqrt(v.size) if v.size > 1 else math.nan
-    return {"mean": float(v.mean()), "ci95": float(half), "n": int(v.size)}
-
-
-def scenario(missing_rate: float, draw: str = "per_run") -> Scenario:
-    """The reconstructed plant with target and nuisance runs alternating."""
-    faults = FaultSet([RandomAmplitudeFault("sine", draw=draw, onset=ONSET, role="target"),
-                       RandomAmplitudeFault("ramp", draw=draw, onset=ONSET, role="nuisance")])
-    return Scenario(ScalarNonlinearPlant(missing_rate=missing_rate), BoundedNoise(), faults, duration=DURATION)
-
-
-def design_entropy_filter(seed: int = 2013, n_particles: int = 500, draw: str = "per_run",
-                          missing: str = "em", **options) -> EntropyIsolationFilter:
-    """The entropy filter with its gain schedule designed on the estimator's seed stream."""
-    sc = scenario(0.0, draw)
-    target = RandomAmplitudeFault("sine", draw=draw, onset=ONSET, role="target")
-    nuisance = RandomAmplitudeFault("ramp", draw=draw, onset=ONSET, role="nuisance")
-    est = EntropyIsolationFilter(n_particles=n_particles, target=target, nuisance=nuisance, missing=missing, **options)
-    template = sc.simulate(seed, 1, "estimator")
-    return est.fit(template, sc.plant.model(sc.noise), np.random.default_rng([seed, STREAMS["estimator"], 10**6]))
-
-
-def run_metrics(outputs, threshold: float, L: int, burn_in: int, dt: float) -> dict:
-    """Per-run isolation numbers of one estimator's outputs (target and nuisance runs apart)."""
-    points = OutputMonitor(("error",), burn_in=burn_in).transform(outputs)
-    decisions = ThresholdDetector(threshold=threshold, L=L, threshold_max=max(10.0, threshold)).decide(
-        points.z[:1], points.z).decision
-    label = outputs.fault_label
-    role_of_label = np.array(["none", *outputs.fault_roles])
-    is_target = role_of_label[label.max(axis=1)] == "target"
-    error = outputs.extra["error"]
-    N = error.shape[1]
-    onset = int(np.argmax(label.max(axis=0) > 0))
-    steady = error[:, onset + SETTLE:]
-    level = steady.mean(axis=1)
-    # the paper's "delay": when the error shows the fault — first reaching half its run's steady level
-    reached = (error[:, onset:] >= 0.5 * level[:, None]) & (level[:, None] > 0)
-    response = np.where(reached.any(axis=1), np.argmax(reached, axis=1) * dt, (N - onset) * dt)
-    delay = detection.detection_delay(decisions, points.fault_mask) * dt
-    out = {}
-    for role, rows in (("target", is_target), ("nuisance", ~is_target)):
-        out[role] = {
-            "detection_rate": mean_ci(detection.detection_rate(decisions[rows], points.fault_mask[rows])),
-            "isolation_delay_s": mean_ci(delay[rows]),
-            "false_alarm_run_rate": mean_ci(detection.false_alarm_run_rate(decisions[rows], points.fault_mask[rows])),
-            "far": mean_ci(detection.false_alarm_rate(decisions[rows], points.fault_mask[rows])),
-            "response_delay_s": mean_ci(response[rows]),
-            "error_level": mean_ci(level[rows]),
-            "error_fluctuation": mean_ci(steady[rows].std(axis=1, ddof=1)),
-            "prefault_fluctuation": mean_ci(error[rows, burn_in:onset].std(axis=1, ddof=1)),
-            "imputation_rmse": mean_ci(_imputation_rmse(outputs, rows)),
-        }
-    return out
-
-
-def _imputation_rmse(outputs, rows) -> np.ndarray:
-    """RMS of ỹ − x over the filled samples of each run (NaN where nothing was missing)."""
-    y = outputs.extra["y_filled"][rows]
-    x = outputs.extra["x_hat"][rows] + outputs.extra["error"][rows]
-    missing = np.isnan(outputs.r[rows, :, 0])
-    with np.errstate(invalid="ignore"):
-        sq = np.where(missing, (y - x) ** 2, 0.0).sum(axis=1) / missing.sum(axis=1)
-    return np.sqrt(sq)
-
-
-def isolation_table(missing_rates=MISSING_RATES, n_runs: int = 200, seed: int = 2013, n_particles: int = 500,
-                    fixed_gain: float = 0.27, L: int = 3, burn_in: int = 10, threshold: float | None = None,
-                    draw: str = "per_run", missing: str = "em") -> dict:
-    """Tables 1–2 as ours: every metric as {mean, ci95, n} per estimator, missing rate and fault role.
-
-    Parameters
-    ----------
-    missing_rates : sequence of float
-        MCAR rates of the outputs (paper: 0, 5, 10, 20 %).
-    n_runs : int
-        Monte Carlo runs per fault (target and nuisance each); the same seeds at
-        every rate (nested missing sets: common random numbers).
-    seed : int
-    n_particles : int
-        Particles per design ensemble of the entropy filter.
-    fixed_gain : float
-        U of the fixed-gain baseline.
-    L : int
-        Persistence of the threshold detector.
-    burn_in : int
-        Points dropped before deciding (the x̂_0 = 0 vs x_0 ~ U[0, 1] transient).
-    threshold : float, optional
-        Threshold on |x − x̂|; default per estimator: midway between the mean
-        steady error levels of target and nuisance runs of the complete-data
-        calibration stream (never the test runs).
-    draw : {"per_run", "per_step"}
-        How the fault amplitudes vary (plant and filter design alike).
-    missing : {"em", "skip"}
-
-    Returns
-    -------
-    dict
-        ``rates``, ``gain`` (the entropy schedule, list), ``thresholds``
-        (per estimator), ``results[estimator][rate][role][metric]`` and
-        ``paper`` (the paper's delays).
-    """
-    entropy = design_entropy_filter(seed, n_particles, draw, missing)
-    estimators = {"entropy": entropy, "fixed": FixedGainFilter(gain=fixed_gain, missing=missing)}
-    dt = scenario(0.0, draw).plant.dt
-    thresholds = {}
-    for name, est in estimators.items():
-        if threshold is not None:
-            thresholds[name] = float(threshold)
-            continue
-        sc = scenario(0.0, draw)
-        cal = est.estimate(sc.simulate(seed, 2 * n_runs, "calibration"), sc.plant.model(sc.noise))
-        calib = run_metrics(cal, 1.0, L, burn_in, dt)
-        thresholds[name] = 0.5 * (calib["target"]["error_level"]["mean"] + calib["nuisance"]["error_level"]["mean"])
-    results = {name: {} for name in estimators}
-    for rate in missing_rates:
-        sc = scenario(float(rate), draw)
-        trace = sc.simulate(seed, 2 * n_runs, "test")
-        model = sc.plant.model(sc.noise)
-        for name, est in estimators.items():
-            results[name][float(rate)] = run_metrics(est.estimate(trace, model), thresholds[name], L, burn_in, dt)
-    return {"rates": [float(r) for r in missing_rates], "gain": entropy.gain_.tolist(), "thresholds": thresholds,
-            "results": results, "paper": PAPER, "n_runs": int(n_runs), "draw": draw, "missing": missing}
-
-
-def summary_lines(table: dict) -> list[str]:
-    """One printable line per estimator, rate and role (for a quick look; the report command formats its own)."""
-    lines = []
-    for name, by_rate in table["results"].items():
-        for rate, by_role in by_rate.items():
-            for role, m in by_role.items():
-                lines.append(
-                    f"{name:8s} {rate:5.2f} {role:8s} det={m['detection_rate']['mean']:.3f} "
-                    f"delay={m['isolation_delay_s']['mean']:.3f}±{m['isolation_delay_s']['ci95']:.3f}s "
-                    f"FA-run={m['false_alarm_run_rate']['mean']:.3f} "
-                    f"resp={m['response_delay_s']['mean']:.3f}±{m['response_delay_s']['ci95']:.3f}s "
-                    f"level={m['error_level']['mean']:.3f}±{m['error_level']['ci95']:.3f} "
-                    f"fluct={m['error_fluctuation']['mean']:.3f} pre={m['prefault_fluctuation']['mean']:.3f} "
-                    f"imp={m['imputation_rmse']['mean']:.3f}")
-    return lines
 
 
 # ------------------------------------------------------------------------------------
 # the study of the +experiment=paper002 preset, and its report command
 # ------------------------------------------------------------------------------------
-#: the design MOPSO chose in ``python -m mosd +experiment=paper002`` (seed 0; far/mdr on 100 training runs):
-#: the report command scores it without re-running the optimiser
-TUNED_DESIGN = {"threshold": 0.6696173191876901, "L": 1}
-#: the reconstruction's fixed design of docs/systems/paper002.md (the paper's threshold is lost): L = 3 and the
-#: threshold midway between the mean steady error levels of target and nuisance calibration runs
-RECONSTRUCTION_L = 3
 FILTER_PREFIXES = {"entropy": "", "baseline": "baseline_"}
 THRESHOLD_GRID = np.round(np.arange(0.05, 3.0001, 0.01), 2)  # the threshold sweep of the ROC curves
-
-
-def _figure(width: float, height: float):
-    """A matplotlib figure without pyplot (no global state, no display)."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(width, height), layout="constrained")
-    FigureCanvasAgg(fig)
-    return fig
 
 
 def rate_tag(rate: float) -> str:
@@ -215,7 +47,7 @@ def rate_tag(rate: float) -> str:
     return f"r{int(round(100 * rate))}"
 
 
-class Study:
+class Study(base.Study):
     """Paper 002's comparison over missing-data rates (Tables 1–2, Figs. 3–10) for a tuned design.
 
     For each missing rate, ``n_runs`` target-fault and ``n_runs`` nuisance-fault
@@ -223,7 +55,8 @@ class Study:
     ``missing_rate`` replaced) are drawn from the ``test`` seed stream, the
     same seeds at every rate (nested missing sets). The experiment's trained
     entropy-optimal filter and the fixed-gain baseline estimate them; the tuned
-    detector (``result.detector``: threshold and L) decides on both.
+    detector (``result.detector``: threshold and L) decides on both; the report
+    command adds the reconstruction's fixed design (metrics prefixed ``midway_``).
 
     Parameters
     ----------
@@ -259,8 +92,11 @@ class Study:
     tuned design on the entropy filter (interpolated on the sweep).
     """
 
+    system = SYSTEM
+
     def __init__(self, n_runs: int = 200, missing_rates=MISSING_RATES, baseline_gain: float = 0.27,
                  figures: bool = True):
+        super().__init__(figures=figures)
         self.n_runs = check_int("study.n_runs", n_runs, 2)
         if isinstance(missing_rates, (str, bytes)) or not hasattr(missing_rates, "__len__") or not len(missing_rates):
             raise ConfigError(f"study.missing_rates={missing_rates!r} is not allowed; allowed: a list of rates in "
@@ -270,15 +106,6 @@ class Study:
             raise ConfigError(f"study.missing_rates={list(missing_rates)!r} repeats a rate (in whole per cent); "
                               f"allowed: distinct rates")
         self.baseline_gain = check_in("study.baseline_gain", baseline_gain, Interval(-2.0, 2.0))
-        if not isinstance(figures, bool):
-            raise ConfigError(f"study.figures={figures!r} is not allowed; allowed: true, false")
-        self.figures = figures
-
-    def run(self, experiment, result, out_dir) -> tuple[dict[str, float], list[Path]]:
-        """The study for ``result.detector`` (the tuned threshold and L)."""
-        data = self.compute(experiment, result.detector)
-        files = self.write_figures(data, Path(out_dir)) if self.figures else []
-        return self.metrics(data), files
 
     # -- computation --------------------------------------------------------------------
     def baseline(self, estimator) -> FixedGainFilter:
@@ -286,14 +113,15 @@ class Study:
         return FixedGainFilter(gain=self.baseline_gain, missing=getattr(estimator, "missing", "em"),
                                em_half_width=getattr(estimator, "em_half_width", 1))
 
-    def compute(self, experiment, detector) -> dict:
-        """Per rate and filter: decisions, per-run numbers, mean error curves; the ROC on complete data."""
+    def compute(self, experiment, designs: dict) -> dict:
+        """Per rate and filter: mean error curves and, per design, the scores; the ROC on complete data."""
         filters = {"entropy": experiment.estimator, "baseline": self.baseline(experiment.estimator)}
         dt = float(experiment.plant.dt)
-        out = {"rates": self.missing_rates, "dt": dt, "n_runs": self.n_runs, "params":
-               {k: float(getattr(detector, k)) for k in detector.tunable}, "results": {}, "curves": {}, "roc": {},
+        out = {"rates": self.missing_rates, "dt": dt, "n_runs": self.n_runs, "curves": {},
                "gain": np.asarray(getattr(experiment.estimator, "gain_", np.full(1, np.nan))),
-               "baseline_gain": self.baseline_gain}
+               "baseline_gain": self.baseline_gain,
+               "designs": {name: {"params": {k: float(getattr(d, k)) for k in d.tunable}, "results": {}, "roc": {}}
+                           for name, d in designs.items()}}
         for rate in self.missing_rates:
             plant = copy.copy(experiment.plant)
             plant.missing_rate = check_in("study.missing_rates", rate, Interval(0.0, 0.9))
@@ -302,10 +130,13 @@ class Study:
             for name, est in filters.items():
                 outputs = est.estimate(trace, experiment.model)
                 points = experiment.monitor.transform(outputs)
-                out["results"][(name, rate)] = self._score(detector, outputs, points, dt)
                 out["curves"][(name, rate)] = self._curves(outputs)
+                for design, detector in designs.items():
+                    scored = out["designs"][design]
+                    scored["results"][(name, rate)] = self._score(detector, outputs, points, dt)
+                    if rate == self.missing_rates[0]:
+                        scored["roc"][name] = self._roc(detector, points)
                 if rate == self.missing_rates[0]:
-                    out["roc"][name] = self._roc(detector, points)
                     out["onset_s"] = float(outputs.t[int(np.argmax(outputs.fault_label.max(axis=0) > 0))])
                     out["t"] = np.asarray(outputs.t, float)
         return out
@@ -326,7 +157,7 @@ class Study:
         nuisance = (d[~is_target] != 0) & active[~is_target]
         return {
             "delay_target_s": float(np.nanmean(delay)) if np.isfinite(delay).any() else math.nan,
-            "delay_target_ci95": mean_ci(delay)["ci95"],
+            "delay_target_ci95": Estimate.of(delay).half_width,
             "detection_rate_target": float(np.mean(detection.detection_rate(d[is_target], points.fault_mask[is_target]))),
             "false_alarm_nuisance": float(nuisance.sum() / max(active[~is_target].sum(), 1)),
             "error_level_target": float(level[is_target].mean()),
@@ -367,31 +198,36 @@ class Study:
         return float(np.sum(np.diff(fa) * (hit[1:] + hit[:-1]) / 2))
 
     def metrics(self, data: dict) -> dict[str, float]:
-        """The study's metrics by name (class docstring)."""
+        """The study's metrics by name (class docstring); a design other than the tuned one prefixed."""
         out = {}
-        for name, prefix in FILTER_PREFIXES.items():
-            for rate in data["rates"]:
-                tag = rate_tag(rate)
-                for key, value in data["results"][(name, rate)].items():
-                    if key in ("delay_target_ci95", "nuisance_level_p95"):
-                        continue
-                    out[f"{prefix}{key}_{tag}"] = float(value)
-        tuned_fa = data["results"][("entropy", data["rates"][0])]["false_alarm_nuisance"]
-        for name, prefix in FILTER_PREFIXES.items():
-            roc = data["roc"][name]
-            out[f"{prefix}roc_auc"] = self._auc(roc)
-            out[f"{prefix}equal_fa_target_detection"] = self._at_false_alarm(roc, tuned_fa)
+        for design, scored in data["designs"].items():
+            for name, prefix in FILTER_PREFIXES.items():
+                for rate in data["rates"]:
+                    tag = rate_tag(rate)
+                    for key, value in scored["results"][(name, rate)].items():
+                        if key in ("delay_target_ci95", "nuisance_level_p95"):
+                            continue
+                        out[f"{prefixed(design)}{prefix}{key}_{tag}"] = float(value)
+            own_fa = scored["results"][("entropy", data["rates"][0])]["false_alarm_nuisance"]
+            for name, prefix in FILTER_PREFIXES.items():
+                roc = scored["roc"][name]
+                out[f"{prefixed(design)}{prefix}roc_auc"] = self._auc(roc)
+                out[f"{prefixed(design)}{prefix}equal_fa_target_detection"] = self._at_false_alarm(roc, own_fa)
         return out
 
     # -- figures --------------------------------------------------------------------------
-    @staticmethod
-    def write_figures(data: dict, out_dir: Path, prefix: str = "paper002_") -> list[Path]:
-        """Figs. 3–10 (error responses per rate and role), the gain, the ROC and the delay over the rate."""
+    def write_figures(self, data: dict, out_dir: Path) -> list[Path]:
+        """Figs. 3–10 (error responses per rate and role), the gain, the ROC and the delay over the rate.
+
+        The thresholds, ROC and delays shown are the tuned design's (the first design if none is tuned).
+        """
         out_dir.mkdir(parents=True, exist_ok=True)
+        prefix = f"{self.system}_"
         files = []
         t, onset, rates = data["t"], data["onset_s"], data["rates"]
-        threshold = data["params"].get("threshold", math.nan)
-        fig = _figure(9.0, 2.2 * len(rates))
+        shown = data["designs"].get(TUNED) or next(iter(data["designs"].values()))
+        threshold = shown["params"].get("threshold", math.nan)
+        fig = figure(9.0, 2.2 * len(rates))
         axes = fig.subplots(len(rates), 2, sharex=True, sharey=True, squeeze=False)
         for i, rate in enumerate(rates):
             for j, role in enumerate(("target", "nuisance")):
@@ -416,7 +252,7 @@ class Study:
         files.append(out_dir / f"{prefix}errors.png")
         fig.savefig(files[-1], dpi=100)
 
-        fig = _figure(6.0, 3.2)
+        fig = figure(6.0, 3.2)
         ax = fig.add_subplot()
         gain = data["gain"]
         ax.step(t[: gain.size], gain, where="post", label="entropy-optimal U_k (R1 = 1, R2 = 20)")
@@ -430,22 +266,22 @@ class Study:
         files.append(out_dir / f"{prefix}gain.png")
         fig.savefig(files[-1], dpi=110)
 
-        fig = _figure(9.0, 3.4)
+        fig = figure(9.0, 3.4)
         ax, bx = fig.subplots(1, 2)
         for name, color in (("entropy", "tab:blue"), ("baseline", "tab:orange")):
-            roc = data["roc"][name]
+            roc = shown["roc"][name]
             label = "entropy gain" if name == "entropy" else f"fixed gain {data['baseline_gain']:g}"
             ax.plot(roc["false_alarm"], roc["detection"], color=color, label=label)
-            delays = [data["results"][(name, r)]["delay_target_s"] for r in rates]
-            cis = [data["results"][(name, r)]["delay_target_ci95"] for r in rates]
+            delays = [shown["results"][(name, r)]["delay_target_s"] for r in rates]
+            cis = [shown["results"][(name, r)]["delay_target_ci95"] for r in rates]
             bx.errorbar([100 * r for r in rates], delays, yerr=cis, color=color, marker="o", capsize=3, label=label)
-        tuned = data["results"][("entropy", rates[0])]
+        tuned = shown["results"][("entropy", rates[0])]
         ax.axvline(tuned["false_alarm_nuisance"], color="r", ls="--", lw=0.8, label="tuned design's nuisance FA")
         ax.set_xscale("symlog", linthresh=1e-3)
         ax.set_xlim(0.0, 1.0)
         ax.set_xlabel("nuisance points alarmed")
         ax.set_ylabel("target points detected")
-        ax.set_title(f"Separation, complete data, L = {int(data['params'].get('L', 1))}", fontsize=10)
+        ax.set_title(f"Separation, complete data, L = {int(shown['params'].get('L', 1))}", fontsize=10)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
         paper = [(100 * r, PAPER["target_delay"][r]) for r in rates if r in PAPER["target_delay"]]
@@ -458,18 +294,6 @@ class Study:
         files.append(out_dir / f"{prefix}separation_delay.png")
         fig.savefig(files[-1], dpi=110)
         return files
-
-
-def preset_experiment(seed: int = 0):
-    """The ``+experiment=paper002`` set-up built without Hydra (the report command's experiment)."""
-    from ..experiment import Budget, Experiment
-
-    faults = FaultSet([RandomAmplitudeFault("sine", onset=ONSET, role="target"),
-                       RandomAmplitudeFault("ramp", onset=ONSET, role="nuisance")])
-    return Experiment(ScalarNonlinearPlant(), BoundedNoise(), faults, EntropyIsolationFilter(),
-                      OutputMonitor(outputs=["error"], burn_in=10), ThresholdDetector(threshold=0.8, L=3, threshold_max=3.0),
-                      duration=DURATION, budget=Budget(n_calibration=40, n_train=100, n_test=200, n_estimator=1),
-                      seed=seed)
 
 
 def midway_threshold(experiment, n_runs: int) -> float:
@@ -486,13 +310,13 @@ def midway_threshold(experiment, n_runs: int) -> float:
     return float(0.5 * (level[is_target].mean() + level[~is_target].mean()))
 
 
-def format_report(designs: dict[str, dict], by_design: dict[str, dict]) -> str:
+def format_report(designs: dict[str, dict], metrics: dict[str, float]) -> str:
     """Markdown: per design, filter and rate, the study's numbers beside the paper's delays."""
     lines = ["| design | filter | missing | target detected | target delay (s) | paper delay (s) "
              "| nuisance points alarmed | error level target / nuisance |", "|---|---|---|---|---|---|---|---|"]
-    for design, metrics in by_design.items():
-        p = designs[design]
-        for name, prefix in FILTER_PREFIXES.items():
+    for design, p in designs.items():
+        for name, filter_prefix in FILTER_PREFIXES.items():
+            prefix = prefixed(design) + filter_prefix
             for tag, rate in ((rate_tag(r), r) for r in MISSING_RATES):
                 if f"{prefix}delay_target_s_{tag}" not in metrics:
                     continue
@@ -505,10 +329,11 @@ def format_report(designs: dict[str, dict], by_design: dict[str, dict]) -> str:
                     f"| {metrics[f'{prefix}false_alarm_nuisance_{tag}']:.4f} "
                     f"| {metrics[f'{prefix}error_level_target_{tag}']:.3f} / "
                     f"{metrics[f'{prefix}error_level_nuisance_{tag}']:.3f} |")
-    lines += ["", "| design | filter | ROC AUC (complete data) | target points detected at the tuned entropy design's "
-              "nuisance false-alarm rate |", "|---|---|---|---|"]
-    for design, metrics in by_design.items():
-        for name, prefix in FILTER_PREFIXES.items():
+    lines += ["", "| design | filter | ROC AUC (complete data) | target points detected at the design's own "
+              "nuisance false-alarm rate on the entropy filter |", "|---|---|---|---|"]
+    for design in designs:
+        for name, filter_prefix in FILTER_PREFIXES.items():
+            prefix = prefixed(design) + filter_prefix
             lines.append(f"| {design} | {name} | {metrics[prefix + 'roc_auc']:.4f} "
                          f"| {metrics[prefix + 'equal_fa_target_detection']:.4f} |")
     return "\n".join(lines)
@@ -516,46 +341,34 @@ def format_report(designs: dict[str, dict], by_design: dict[str, dict]) -> str:
 
 def main(argv=None) -> int:
     """``python -m mosd.systems.paper002 [--n-runs 200] [--seed 0] [--threshold T] [--L L] [--out DIR]``."""
-    import argparse
-    import json
-    import sys
-    import time
-
-    parser = argparse.ArgumentParser(prog="python -m mosd.systems.paper002",
-                                     description="Paper 002's study over missing rates (Tables 1-2, Figs. 3-10) "
-                                                 "without the optimiser: the tuned design beside the "
-                                                 "reconstruction's fixed one (midway threshold, L = 3).")
+    recorded = recorded_designs(SYSTEM)
+    parser = cli.report_parser("python -m mosd.systems.paper002", "Paper 002's study over missing rates (Tables "
+                               "1-2, Figs. 3-10) without the optimiser: the tuned design beside the "
+                               "reconstruction's fixed one (midway threshold, L = 3).", out="outputs/systems/paper002")
     parser.add_argument("--n-runs", type=int, default=200, help="target and nuisance runs each, per rate (default 200)")
-    parser.add_argument("--seed", type=int, default=0, help="root seed; the test stream is used (default 0)")
-    parser.add_argument("--threshold", type=float, default=TUNED_DESIGN["threshold"],
-                        help="tuned threshold (default: seed 0's MOPSO)")
-    parser.add_argument("--L", type=int, default=TUNED_DESIGN["L"], help="tuned persistence L")
-    parser.add_argument("--out", default="outputs/systems/paper002", help="directory of the figures and JSON")
-    args = parser.parse_args(argv)
-    t0 = time.perf_counter()
-    try:
+    parser.add_argument("--threshold", type=float, default=recorded[TUNED]["threshold"],
+                        help="tuned threshold (default: the recorded design, mosd/systems/designs/paper002.json)")
+    parser.add_argument("--L", type=int, default=recorded[TUNED]["L"], help="tuned persistence L")
+
+    def body(args):
         study = Study(n_runs=args.n_runs)
-        experiment = preset_experiment(seed=args.seed)
+        experiment = cli.preset(SYSTEM, [f"seed={args.seed}"]).experiment
         tuned = experiment.detector.with_params(threshold=args.threshold, L=args.L)
-    except ConfigError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    experiment.fit_estimator()
-    fixed = experiment.detector.with_params(threshold=midway_threshold(experiment, args.n_runs), L=RECONSTRUCTION_L)
-    out = Path(args.out)
-    by_design, designs, files = {}, {}, []
-    for design, detector in (("tuned", tuned), ("midway", fixed)):
-        data = study.compute(experiment, detector)
-        by_design[design], designs[design] = study.metrics(data), data["params"]
-        if design == "tuned":
-            files = study.write_figures(data, out)
-    (out / "paper002_study.json").write_text(json.dumps({"metrics": by_design, "designs": designs,
-                                                         "n_runs": args.n_runs, "seed": args.seed}, indent=1))
-    print(f"## Paper 002: {args.n_runs} target + {args.n_runs} nuisance runs per missing rate, seed {args.seed} "
-          f"(test stream)\n")
-    print(format_report(designs, by_design) + "\n")
-    print(f"wrote: {', '.join(str(p) for p in [*files, out / 'paper002_study.json'])}  ({time.perf_counter() - t0:.1f} s)")
-    return 0
+        experiment.fit_estimator()
+        midway = experiment.detector.with_params(threshold=midway_threshold(experiment, args.n_runs),
+                                                 **recorded["midway"])
+        out = Path(args.out)
+        data = study.compute(experiment, {TUNED: tuned, "midway": midway})
+        metrics, files = study.metrics(data), study.write_figures(data, out)
+        params = {name: d["params"] for name, d in data["designs"].items()}
+        files.append(cli.write_json(out / "paper002_study.json", {"metrics": metrics, "designs": params,
+                                                                  "n_runs": args.n_runs, "seed": args.seed}))
+        print(f"## Paper 002: {args.n_runs} target + {args.n_runs} nuisance runs per missing rate, seed {args.seed} "
+              f"(test stream)\n")
+        print(format_report(params, metrics) + "\n")
+        return files
+
+    return cli.run_report(parser, argv, body)
 
 
 if __name__ == "__main__":

@@ -1,4 +1,4 @@
-"""The computations behind paper 003's results, on our reconstruction (plain dicts and arrays).
+"""Paper 003's Table 2 and Figs. 6–8 as ours: observer windows N against ramp rates (plain dicts and arrays).
 
 Wang et al. 2020 (paper 003) §2.2: ramp faults of 0.1 … 1.0 m/s are injected
 into the GPS altitude at step 500 (100 s at 5 Hz) and observers of windows
@@ -6,12 +6,12 @@ N = 1 … 15 are compared by their mean detection step and detection rate
 (Table 2), per ramp rate (Fig. 8); Fig. 7 shows the residual and the adaptive
 threshold of N = 1 and of a multi-step observer; Fig. 6 the training loss.
 
-:func:`table2` runs all of it on simulated flights of
+:class:`Study` runs all of it on simulated flights of
 :class:`~mosd.plants.flapping_wing.FlappingWingMAV`: one set of fault-free
 training flights (seed stream ``"estimator"``) trains one observer per N;
 the same test flights (stream ``"test"``) are replayed with every ramp rate
 (the fault is injected into the log only, so the flights themselves do not
-depend on the rate) and decided on by :class:`AdaptiveChi2Detector` for both
+depend on the rate) and decided on by the adaptive-χ² detector for both
 readings of the χ² statistic (``"observer_chi2"`` and the filter's ``"chi2"``).
 
 Definitions (the paper does not define its two numbers):
@@ -27,28 +27,18 @@ from __future__ import annotations
 
 from dataclasses import replace
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 
-from ..detectors.adaptive_chi2 import AdaptiveChi2Detector
 from ..estimators.neural_observer import MultiStepNeuralObserver
 from ..faults.ramp import RampFault
-from ..plants.flapping_wing import FlappingWingMAV
-from ..scenario import STREAMS, replication_rngs
+from ..scenario import STREAMS
 from ..validation import ConfigError, Interval, check_in, check_int
-from . import run_designs
+from . import base, cli
+from .base import TUNED, figure, prefixed, recorded_designs
 
-#: σ of the logged channels' white noise: GPS altitude (m), down velocity (m/s), pitch (rad), throttle, tail (rad)
-LOG_NOISE_SIGMA = (0.05, 0.05, 0.005, 0.001, 0.001)
+SYSTEM = "paper003"
 STATISTICS = ("observer_chi2", "chi2")
-
-
-def default_noise():
-    """The white log noise of :data:`LOG_NOISE_SIGMA`, no process noise (a Gaussian noise model)."""
-    from ..noise.gaussian import GaussianNoise  # the lead's module; imported only when the default is used
-
-    return GaussianNoise(process_cov=0.0, measurement_cov=np.square(LOG_NOISE_SIGMA), n_x=6, n_y=5)
 
 
 def detection_summary(decision: np.ndarray, onset_step: int, first_valid: int = 0) -> dict[str, np.ndarray]:
@@ -71,110 +61,15 @@ def detection_summary(decision: np.ndarray, onset_step: int, first_valid: int = 
             "false_alarm_rate": alarm[..., first_valid:onset_step].mean((-1, -2)), "first_alarm": first}
 
 
-def table2(windows: Sequence[int] = tuple(range(1, 16)), rates: Sequence[float] = tuple(np.round(np.arange(1, 11) / 10, 1)),
-           n_test: int = 20, n_train: int = 10, n_samples: int = 1000, onset_step: int = 500, seed: int = 0,
-           alpha: float = 0.01, a: float = 1.0, b: float = 1.0, plant: FlappingWingMAV | None = None, noise=None,
-           observer: dict | None = None, trace_rate: float = 0.1) -> dict:
-    """Table 2, Fig. 6, Fig. 7 and Fig. 8 of paper 003 on simulated flights (module docstring).
-
-    Parameters
-    ----------
-    windows, rates : observer windows N and ramp rates (m/s) to compare.
-    n_test : test flights per rate (the paper's full scale: >= 20).
-    n_train : fault-free training flights.
-    n_samples, onset_step : run length and fault onset in steps.
-    alpha, a, b : the detector's design (paper: a = b = 1).
-    plant, noise : default :class:`FlappingWingMAV` and :func:`default_noise`.
-    observer : further :class:`MultiStepNeuralObserver` parameters (epochs, cache_dir, ...).
-    trace_rate : ramp rate whose first run's traces are kept for Fig. 7.
-
-    Returns
-    -------
-    dict with ``windows``, ``rates``, per statistic s in :data:`STATISTICS`:
-    ``[s]["detection_step"]``, ``["detection_rate"]``, ``["run_detection_share"]``,
-    ``["false_alarm_rate"]`` each (len(windows), len(rates)) and their means over
-    rates ``["mean_detection_step"]`` etc. (len(windows),); ``loss`` (per N:
-    train and validation curves); ``traces`` (per N: observer residual, χ²
-    statistics and thresholds of one run at ``trace_rate``); ``observer_sigma``
-    (per N, the held-out σ of the N-step prediction error).
-    """
-    plant = plant or FlappingWingMAV()
-    noise = noise or default_noise()
-    model = plant.model(noise)
-    dt = plant.dt
-    onset = onset_step * dt
-    training = plant.simulate(n_samples, noise, None, replication_rngs(seed, "estimator", n_train))
-    tests = {rate: plant.simulate(n_samples, noise, RampFault(rate=rate, onset=onset), replication_rngs(seed, "test", n_test))
-             for rate in rates}
-    detector = AdaptiveChi2Detector(alpha=alpha, a=a, b=b)
-    shape = (len(windows), len(rates))
-    results = {s: {key: np.full(shape, np.nan) for key in
-                   ("detection_step", "detection_rate", "run_detection_share", "false_alarm_rate")} for s in STATISTICS}
-    loss, traces, sigma = {}, {}, {}
-    for i, window in enumerate(windows):
-        estimator = MultiStepNeuralObserver(window=window, **(observer or {}))
-        estimator.fit(training, model, np.random.default_rng([seed, 3, 10**6 + window]))
-        loss[window] = estimator.history_
-        sigma[window] = estimator.residual_std_
-        for j, rate in enumerate(rates):
-            outputs = estimator.estimate(tests[rate], model)
-            for s in STATISTICS:
-                z = np.stack([outputs.extra[s], outputs.extra["observer_residual"]], -1)
-                decided = detector.decide(z, z)
-                summary = detection_summary(decided.decision, onset_step, first_valid=window)
-                for key in results[s]:
-                    results[s][key][i, j] = summary[key]
-                if rate == trace_rate:
-                    traces.setdefault(window, {"observer_residual": outputs.extra["observer_residual"][0]})
-                    traces[window][s] = {"statistic": decided.statistic[0], "threshold": decided.threshold[0],
-                                         "first_alarm": int(summary["first_alarm"][0])}
-    for s in STATISTICS:
-        for key in list(results[s]):
-            values = results[s][key]
-            seen = np.isfinite(values)
-            with np.errstate(invalid="ignore", divide="ignore"):
-                results[s]["mean_" + key] = np.where(seen, values, 0.0).sum(1) / seen.sum(1)
-    return {"windows": list(windows), "rates": list(rates), "n_test": n_test, "n_train": n_train,
-            "n_samples": n_samples, "onset_step": onset_step, "seed": seed, **results, "loss": loss,
-            "traces": traces, "observer_sigma": sigma}
-
-
-def format_table2(result: dict, statistic: str = "observer_chi2") -> str:
-    """Table 2 as text: N, mean detection step, detection rate, run share, false-alarm rate."""
-    r = result[statistic]
-    lines = [f"statistic={statistic}  (rates {result['rates'][0]}..{result['rates'][-1]} m/s, "
-             f"{result['n_test']} runs each, onset step {result['onset_step']})",
-             "  N  mean step  detection rate  runs detected  false alarms"]
-    for i, window in enumerate(result["windows"]):
-        lines.append(f"{window:3d}  {r['mean_detection_step'][i]:9.1f}  {100 * r['mean_detection_rate'][i]:13.1f}%"
-                     f"  {100 * r['mean_run_detection_share'][i]:12.1f}%  {100 * r['mean_false_alarm_rate'][i]:11.2f}%")
-    return "\n".join(lines)
-
-
 # ------------------------------------------------------------------------------------
 # the study of the +experiment=paper003 preset, and its report command
 # ------------------------------------------------------------------------------------
-#: the paper's detector: a = b = 1 (§1.2); α is not given, 0.01 as in docs/systems/paper003.md
-PAPER_DESIGN = {"alpha": 0.01, "a": 1.0, "b": 1.0}
-#: the design MOPSO chose in ``python -m mosd +experiment=paper003`` (seed 0; far/mdr on 10 training flights,
-#: ramp 0.5 m/s, N = 12): the report command scores it without re-running the optimiser
-TUNED_DESIGN = {"alpha": 0.22855225425573583, "a": 5.0, "b": 20.0}
 #: the study's default windows (six trainings: about 1.5 min cold on 2 cores); the report command's: 1 … 15
 STUDY_WINDOWS = (1, 2, 4, 8, 12, 15)
 FULL_WINDOWS = tuple(range(1, 16))
 RATES = tuple(float(r) for r in np.round(np.arange(1, 11) / 10, 1))
 #: the other reading's metric prefix, by the statistic the preset's monitor tests
 READING_PREFIX = {"observer_chi2": "observer_", "chi2": "innovation_"}
-
-
-def _figure(width: float, height: float):
-    """A matplotlib figure without pyplot (no global state, no display)."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(width, height), layout="constrained")
-    FigureCanvasAgg(fig)
-    return fig
 
 
 def with_window(estimator: MultiStepNeuralObserver, window: int) -> MultiStepNeuralObserver:
@@ -199,7 +94,7 @@ def with_fault(trace, fault):
     return replace(trace, y=y, fault_mask=mask)
 
 
-class Study:
+class Study(base.Study):
     """Paper 003's Table 2 and Figs. 6–8 for a tuned adaptive-χ² design, windows N against ramp rates.
 
     One observer per window N is trained like the experiment's (the same
@@ -241,8 +136,11 @@ class Study:
     the first N) that alarm, for the best N and for N = 1.
     """
 
+    system = SYSTEM
+
     def __init__(self, windows=STUDY_WINDOWS, rates=RATES, n_runs: int = 20, trace_rate: float = 0.1,
                  figures: bool = True):
+        super().__init__(figures=figures)
         if isinstance(windows, (str, bytes)) or not hasattr(windows, "__len__") or not len(windows):
             raise ConfigError(f"study.windows={windows!r} is not allowed; allowed: a list of integers in [1, 100] "
                               f"including 1")
@@ -260,16 +158,6 @@ class Study:
         if self.trace_rate not in self.rates:
             raise ConfigError(f"study.trace_rate={trace_rate!r} is not allowed; allowed: one of study.rates "
                               f"{list(self.rates)}")
-        if not isinstance(figures, bool):
-            raise ConfigError(f"study.figures={figures!r} is not allowed; allowed: true, false")
-        self.figures = figures
-
-    def run(self, experiment, result, out_dir) -> tuple[dict[str, float], list[Path]]:
-        """The study for ``result.detector`` (the tuned α, a, b) beside the paper's design."""
-        designs = {"tuned": result.detector, "paper": result.detector.with_params(**PAPER_DESIGN)}
-        data = self.compute(experiment, designs)
-        files = self.write_figures(data, Path(out_dir)) if self.figures else []
-        return self.metrics(data), files
 
     # -- computation --------------------------------------------------------------------
     def compute(self, experiment, designs: dict) -> dict:
@@ -352,23 +240,22 @@ class Study:
         out = {}
         preset = data["statistic"]
         other = next(s for s in STATISTICS if s != preset)
-        for design, prefix in (("tuned", ""), ("paper", "paper_")):
-            if design not in data["table"]:
-                continue
+        for design in data["table"]:
+            prefix = prefixed(design)
             out.update({prefix + k: v for k, v in self.summary(data, design, preset).items()})
             out.update({prefix + READING_PREFIX[other] + k: v for k, v in self.summary(data, design, other).items()})
         return out
 
     # -- figures --------------------------------------------------------------------------
-    @classmethod
-    def write_figures(cls, data: dict, out_dir: Path, prefix: str = "paper003_") -> list[Path]:
+    def write_figures(self, data: dict, out_dir: Path) -> list[Path]:
         """Table 2 (step and rate against N), Fig. 8 (per rate), Fig. 7 (residual vs threshold), Fig. 6 (loss)."""
         out_dir.mkdir(parents=True, exist_ok=True)
+        prefix = f"{self.system}_"
         files = []
         windows, rates, s0 = data["windows"], data["rates"], data["statistic"]
         names = {"observer_chi2": "observer's χ² (reading 2)", "chi2": "filter's innovation χ² (reading 1)"}
 
-        fig = _figure(9.0, 3.4)
+        fig = figure(9.0, 3.4)
         ax, bx = fig.subplots(1, 2)
         for design, ls in (("tuned", "-"), ("paper", "--")):
             for s, color in (("observer_chi2", "tab:blue"), ("chi2", "tab:orange")):
@@ -376,8 +263,8 @@ class Study:
                     continue
                 t = data["table"][design][s]
                 label = f"{design}, {names[s]}"
-                ax.plot(windows, cls._over_rates(t["detection_step"]), ls=ls, color=color, marker="o", label=label)
-                bx.plot(windows, 100 * cls._over_rates(t["detection_rate"]), ls=ls, color=color, marker="o",
+                ax.plot(windows, self._over_rates(t["detection_step"]), ls=ls, color=color, marker="o", label=label)
+                bx.plot(windows, 100 * self._over_rates(t["detection_rate"]), ls=ls, color=color, marker="o",
                         label=label)
         ax.set_xlabel("window N")
         ax.set_ylabel("detection step after the onset")
@@ -391,7 +278,7 @@ class Study:
         files.append(out_dir / f"{prefix}table2.png")
         fig.savefig(files[-1], dpi=110)
 
-        fig = _figure(6.5, 3.6)
+        fig = figure(6.5, 3.6)
         ax = fig.add_subplot()
         steps = data["table"]["tuned"][s0]["detection_step"]
         colors = _colormap(len(rates))
@@ -406,8 +293,8 @@ class Study:
         files.append(out_dir / f"{prefix}detection_point.png")
         fig.savefig(files[-1], dpi=110)
 
-        best = int(cls.summary(data, "tuned", s0)["best_window"])
-        fig = _figure(9.0, 5.0)
+        best = int(self.summary(data, "tuned", s0)["best_window"])
+        fig = figure(9.0, 5.0)
         axes = fig.subplots(2, 1, sharex=True)
         lo, hi = max(data["onset_step"] - 60, 0), data["onset_step"] + 120
         for ax, window in zip(axes, (1, best)):
@@ -429,7 +316,7 @@ class Study:
         files.append(out_dir / f"{prefix}residual_threshold.png")
         fig.savefig(files[-1], dpi=110)
 
-        fig = _figure(6.5, 3.4)
+        fig = figure(6.5, 3.4)
         ax = fig.add_subplot()
         for window, color in zip(sorted({1, best, windows[-1]}), ("tab:blue", "tab:green", "tab:red")):
             curves = data["loss"][window]
@@ -453,22 +340,6 @@ def _colormap(n: int) -> list:
     return [cmap(i / max(n - 1, 1)) for i in range(n)]
 
 
-def preset_experiment(seed: int = 0, cache_dir: str | None = "~/.cache/mosd/observers"):
-    """The ``+experiment=paper003`` set-up built without Hydra (the report command's experiment)."""
-    from ..experiment import Budget, Experiment
-    from ..monitors.outputs import OutputMonitor
-    from ..noise.gaussian import GaussianNoise
-
-    # the preset's literal values (conf/plant/flapping_wing.yaml, conf/noise/flapping_wing.yaml), so that the
-    # training flights, and with them the cached observers, are the preset's own (tests/test_studies.py)
-    plant = FlappingWingMAV(gps_bias_rate=0.000909)
-    noise = GaussianNoise(process_cov=0.0, measurement_cov=[0.0025, 0.0025, 2.5e-5, 1.0e-6, 1.0e-6], n_x=6, n_y=5)
-    return Experiment(plant, noise, RampFault(), MultiStepNeuralObserver(cache_dir=cache_dir),
-                      OutputMonitor(outputs=["observer_chi2", "observer_residual"], burn_in=15),
-                      AdaptiveChi2Detector(), duration=200.0,
-                      budget=Budget(n_calibration=10, n_train=10, n_test=20, n_estimator=10), seed=seed)
-
-
 def format_report(data: dict) -> str:
     """Table 2 per design and reading as markdown (steps after the onset and absolute)."""
     lines = []
@@ -490,60 +361,57 @@ def format_report(data: dict) -> str:
     return "\n".join(lines)
 
 
+def parse_windows(text: str) -> tuple[int, ...]:
+    """``--windows``: ``'A-B'`` (a range) or a comma list of integers."""
+    try:
+        if "-" in text:
+            low, high = (int(v) for v in text.split("-"))
+            return tuple(range(low, high + 1))
+        return tuple(int(v) for v in text.split(","))
+    except ValueError:
+        raise ConfigError(f"--windows={text!r} is not allowed; allowed: 'A-B' or a comma list of integers, "
+                          f"e.g. 1-15 or 1,4,12") from None
+
+
 def main(argv=None) -> int:
     """``python -m mosd.systems.paper003 [--n-runs 20] [--windows 1-15] [--seed 0] [--out DIR]``."""
-    import argparse
-    import json
-    import sys
-    import time
-
-    parser = argparse.ArgumentParser(prog="python -m mosd.systems.paper003",
-                                     description="Paper 003's Table 2 and Figs. 6-8 at full scale without the "
-                                                 "optimiser: the tuned design beside the paper's (alpha 0.01, a = b = 1).")
+    recorded = recorded_designs(SYSTEM)
+    parser = cli.report_parser("python -m mosd.systems.paper003", "Paper 003's Table 2 and Figs. 6-8 at full scale "
+                               "without the optimiser: the tuned design beside the paper's (alpha 0.01, a = b = 1).",
+                               out="outputs/systems/paper003")
     parser.add_argument("--n-runs", type=int, default=20, help="test flights per ramp rate (default 20)")
     parser.add_argument("--windows", default="1-15",
                         help="observer windows: 'A-B' or a comma list including 1 (default 1-15; trains one each)")
-    parser.add_argument("--seed", type=int, default=0, help="root seed (default 0)")
-    parser.add_argument("--alpha", type=float, default=TUNED_DESIGN["alpha"], help="tuned alpha (default: seed 0's MOPSO)")
-    parser.add_argument("--a", type=float, default=TUNED_DESIGN["a"], help="tuned a")
-    parser.add_argument("--b", type=float, default=TUNED_DESIGN["b"], help="tuned b")
-    parser.add_argument("--out", default="outputs/systems/paper003", help="directory of the figures and JSON")
-    args = parser.parse_args(argv)
-    t0 = time.perf_counter()
-    try:
-        try:
-            if "-" in args.windows:
-                low, high = (int(v) for v in args.windows.split("-"))
-                windows = tuple(range(low, high + 1))
-            else:
-                windows = tuple(int(v) for v in args.windows.split(","))
-        except ValueError:
-            raise ConfigError(f"--windows={args.windows!r} is not allowed; allowed: 'A-B' or a comma list of "
-                              f"integers, e.g. 1-15 or 1,4,12") from None
+    parser.add_argument("--alpha", type=float, default=recorded[TUNED]["alpha"],
+                        help="tuned alpha (default: the recorded design, mosd/systems/designs/paper003.json)")
+    parser.add_argument("--a", type=float, default=recorded[TUNED]["a"], help="tuned a")
+    parser.add_argument("--b", type=float, default=recorded[TUNED]["b"], help="tuned b")
+
+    def body(args):
+        windows = parse_windows(args.windows)
         study = Study(windows=windows, n_runs=args.n_runs)
-        experiment = preset_experiment(seed=args.seed)
-        tuned = experiment.detector.with_params(alpha=args.alpha, a=args.a, b=args.b)
-        paper = experiment.detector.with_params(**PAPER_DESIGN)
-    except ConfigError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    out = Path(args.out)
-    data, metrics, files = run_designs(study, experiment, {"tuned": tuned, "paper": paper}, out)
-    (out / "paper003_study.json").write_text(json.dumps({
-        "metrics": metrics, "designs": data["params"], "windows": list(windows), "rates": list(study.rates),
-        "n_runs": args.n_runs, "seed": args.seed, "observer_sigma": data["sigma"],
-        "table": {d: {s: {k: v.tolist() for k, v in t.items()} for s, t in by_s.items()}
-                  for d, by_s in data["table"].items()},
-        "far": {d: {s: v.tolist() for s, v in by_s.items()} for d, by_s in data["far"].items()}}, indent=1))
-    print(f"## Paper 003: windows {windows[0]}..{windows[-1]}, rates {study.rates[0]:g}..{study.rates[-1]:g} m/s, "
-          f"{args.n_runs} flights each, seed {args.seed}\n")
-    print(format_report(data))
-    print("| metric | value |\n|---|---|")
-    for k, v in metrics.items():
-        print(f"| {k} | {v:.4g} |")
-    print(f"\nwrote: {', '.join(str(p) for p in [*files, out / 'paper003_study.json'])}  "
-          f"({time.perf_counter() - t0:.1f} s)")
-    return 0
+        experiment = cli.preset(SYSTEM, [f"seed={args.seed}"]).experiment
+        designs = {TUNED: experiment.detector.with_params(alpha=args.alpha, a=args.a, b=args.b),
+                   **study.reference_designs(experiment.detector)}
+        out = Path(args.out)
+        data = study.compute(experiment, designs)
+        metrics, files = study.metrics(data), study.write_figures(data, out)
+        files.append(cli.write_json(out / "paper003_study.json", {
+            "metrics": metrics, "designs": data["params"], "windows": list(windows), "rates": list(study.rates),
+            "n_runs": args.n_runs, "seed": args.seed, "observer_sigma": data["sigma"],
+            "table": {d: {s: {k: v.tolist() for k, v in t.items()} for s, t in by_s.items()}
+                      for d, by_s in data["table"].items()},
+            "far": {d: {s: v.tolist() for s, v in by_s.items()} for d, by_s in data["far"].items()}}))
+        print(f"## Paper 003: windows {windows[0]}..{windows[-1]}, rates {study.rates[0]:g}..{study.rates[-1]:g} m/s, "
+              f"{args.n_runs} flights each, seed {args.seed}\n")
+        print(format_report(data))
+        print("| metric | value |\n|---|---|")
+        for k, v in metrics.items():
+            print(f"| {k} | {v:.4g} |")
+        print()
+        return files
+
+    return cli.run_report(parser, argv, body)
 
 
 if __name__ == "__main__":

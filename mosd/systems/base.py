@@ -1,0 +1,137 @@
+"""The contract of a system's study, the one figure helper and the recorded designs (plain Python).
+
+A *study* is what a system reports beyond the tuned design's test metrics: the
+paper's Monte Carlo comparison (its tables and figures), run on the experiment
+that was tuned. Every system has one subclass of :class:`Study`; the app calls
+:meth:`Study.run` after the experiment when the config's ``study`` key names it
+(the ``+experiment=paperNNN`` presets do), and the system's report command
+(``python -m mosd.systems.paperNNN``) calls :meth:`Study.compute`,
+:meth:`Study.metrics` and :meth:`Study.write_figures` on a recorded design
+without running the optimiser.
+"""
+from __future__ import annotations
+
+import abc
+import json
+from functools import lru_cache
+from importlib import resources
+from pathlib import Path
+from typing import Any, Mapping
+
+from ..validation import ConfigError
+
+#: the name of the optimiser's design among a study's designs; its metrics carry no prefix
+TUNED = "tuned"
+
+
+def check_flag(name: str, value: Any) -> bool:
+    """A boolean option (YAML true/false), or a one-line :class:`ConfigError` naming it."""
+    if not isinstance(value, bool):
+        raise ConfigError(f"{name}={value!r} is not allowed; allowed: true, false")
+    return value
+
+
+def figure(width: float, height: float):
+    """A matplotlib figure without pyplot: no global state, no display, safe in worker threads.
+
+    Every study and report draws on one of these and saves it with ``fig.savefig``.
+    """
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(width, height), layout="constrained")
+    FigureCanvasAgg(fig)
+    return fig
+
+
+@lru_cache(maxsize=None)
+def _designs_text(system: str) -> str:
+    try:
+        return resources.files(__package__).joinpath("designs", f"{system}.json").read_text()
+    except FileNotFoundError:
+        raise ConfigError(f"system={system!r} has no recorded designs (mosd/systems/designs/{system}.json); "
+                          f"allowed: a system with a designs file") from None
+
+
+def recorded_designs(system: str) -> dict[str, dict]:
+    """The designs recorded for ``system`` (``mosd/systems/designs/<system>.json``), by name.
+
+    ``"tuned"`` is the design the optimiser chose in the last full run of the system's preset
+    (the file's ``"provenance"`` says which run), ``"paper"`` the paper's own design where it
+    gives one; a report command scores them without re-running the optimiser. Keys starting
+    with ``_`` are comments. Returns a fresh copy: callers may change it.
+    """
+    data = json.loads(_designs_text(system))
+    return {k: v for k, v in data.items() if not k.startswith("_")}
+
+
+def prefixed(design: str) -> str:
+    """The metric prefix of a design: none for :data:`TUNED`, ``"<design>_"`` otherwise."""
+    return "" if design == TUNED else f"{design}_"
+
+
+class Study(abc.ABC):
+    """One system's study: compute on an experiment, name the numbers, draw the figures.
+
+    The contract every system's study keeps (:mod:`mosd.systems.paper000` … ``paper003``,
+    and any new system):
+
+    ``compute(experiment, designs) -> data``
+        Simulate from the experiment's seed streams (the ``test`` stream, or ``estimator``
+        for training: never what the optimiser saw), estimate with the experiment's
+        estimator and decide with every detector of ``designs`` (``{name: detector}``;
+        ``"tuned"`` is the optimiser's choice, other names are reference designs such as
+        the paper's). Returns plain data (dicts, arrays, floats); it writes nothing.
+    ``metrics(data) -> {name: float}``
+        The study's numbers by name. A metric that the registry
+        (:mod:`mosd.metrics.registry`) defines keeps the registry's name and meaning
+        (``far``, ``mdr``, ``detection_rate``, ``isolation_rate``, ...); a design other than
+        ``"tuned"`` prefixes its metrics with ``"<design>_"`` (:func:`prefixed`). The class
+        docstring of a subclass defines every name it returns.
+    ``write_figures(data, out_dir) -> [Path]``
+        PNG (or CSV) files of the data in ``out_dir``, drawn with :func:`figure`.
+    ``run(experiment, result, out_dir) -> (metrics, files)``
+        The app's hook after the experiment (:mod:`mosd.app.run`): the tuned detector
+        (``result.detector``) beside :meth:`reference_designs`, then ``metrics`` and, with
+        ``figures``, ``write_figures``. The metrics land in ``summary.json`` and MLflow, the
+        files in the run directory. Subclasses rarely override it.
+
+    Subclasses set :attr:`system` (the name of the designs file and the figures' prefix),
+    validate their parameters in ``__init__`` with one-line :class:`ConfigError` s that name
+    the ``study.<key>`` and call ``super().__init__(figures=figures)``.
+
+    Parameters
+    ----------
+    figures : bool
+        Whether :meth:`run` writes the figures.
+    """
+
+    #: the system's name: ``mosd/systems/designs/<system>.json`` and the figures' file prefix
+    system: str = ""
+
+    def __init__(self, figures: bool = True):
+        self.figures = check_flag("study.figures", figures)
+
+    @abc.abstractmethod
+    def compute(self, experiment, designs: Mapping[str, Any]) -> dict:
+        """The study's data for each named detector design (class docstring)."""
+
+    @abc.abstractmethod
+    def metrics(self, data: dict) -> dict[str, float]:
+        """The study's numbers by name (class docstring)."""
+
+    def write_figures(self, data: dict, out_dir: Path) -> list[Path]:
+        """The study's figures in ``out_dir`` (none by default)."""
+        return []
+
+    def reference_designs(self, detector) -> dict[str, Any]:
+        """Designs scored beside the tuned one by :meth:`run`: the paper's recorded design, if any."""
+        paper = recorded_designs(self.system).get("paper") if self.system else None
+        return {"paper": detector.with_params(**paper)} if paper else {}
+
+    def run(self, experiment, result, out_dir) -> tuple[dict[str, float], list[Path]]:
+        """The app's hook: the study of ``result.detector`` beside :meth:`reference_designs`."""
+        designs = {TUNED: result.detector, **self.reference_designs(result.detector)}
+        data = self.compute(experiment, designs)
+        files = self.write_figures(data, Path(out_dir)) if self.figures else []
+        return self.metrics(data), files
