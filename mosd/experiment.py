@@ -19,7 +19,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from .metrics import DEFAULT_METRICS, DetectionReport, Estimate, check_objectives
-from .scenario import STREAMS, Scenario
+from .scenario import Scenario, training_rng
 from .types import Residuals, Subgroups
 from .validation import ConfigError, check_int
 
@@ -158,8 +158,7 @@ class Experiment:
         fault = self.fault if self.estimator.fit_on_faults else None
         trace = self.simulate(fault, self.budget.n_estimator, "estimator")
         # the training's own randomness (initial weights, shuffling) also comes from the estimator stream
-        rng = np.random.default_rng([self.seed, STREAMS["estimator"], 2**31])
-        self.estimator.fit(trace, self.model, rng)
+        self.estimator.fit(trace, self.model, training_rng(self.seed))
 
     def calibrate(self) -> Residuals:
         """Train the estimator (if it needs it), then fit the monitor on fault-free calibration runs."""

@@ -23,6 +23,17 @@ def replication_rngs(seed: int, stream: str | int, n_reps: int, first: int = 0) 
     return [np.random.default_rng([int(seed), sid, r]) for r in range(first, first + n_reps)]
 
 
+#: The replication of the ``estimator`` stream whose generator trains an estimator (its initial
+#: weights, shuffling, particles): far beyond any simulated training run of that stream.
+TRAINING_REPLICATION = 2**31
+
+
+def training_rng(seed: int) -> np.random.Generator:
+    """The generator an estimator's ``fit`` draws from: replication :data:`TRAINING_REPLICATION`
+    of the ``estimator`` stream of ``seed`` (the simulated training runs are replications 0, 1, …)."""
+    return replication_rngs(seed, "estimator", 1, first=TRAINING_REPLICATION)[0]
+
+
 class Scenario:
     """A plant with its noise and (optionally) a fault or a set of faults.
 
