@@ -359,12 +359,12 @@ def bench_filter(quick: bool = False) -> tuple[list, dict]:
 
 
 def _tuning_setup(n_jobs: int, a: float = 2.0, b: float = 2.0):
-    from .optim.problem import CandidateEvaluator, ChartTuningProblem
+    from .optim.problem import CandidateEvaluator, TuningProblem
 
     chart = _paper_chart()
     phase1, train, mask = paper_workload(a=a, b=b)
     evaluator = CandidateEvaluator(chart, chart.features(phase1), chart.features(train), mask)
-    return ChartTuningProblem(evaluator, bounds={"K": (0.0, 5.0)}, n_jobs=n_jobs)
+    return TuningProblem(evaluator, bounds={"K": (0.0, 5.0)}, n_jobs=n_jobs)
 
 
 def bench_parallel(quick: bool = False) -> tuple[list, dict]:

@@ -91,10 +91,6 @@ class ExperimentResult:
     timings: dict[str, float] = field(default_factory=dict)
     example: dict[str, Any] = field(default_factory=dict)
 
-    @property
-    def chart(self):  # the detector of a paper-000 run is a chart
-        return self.detector
-
     def summary(self) -> dict[str, Estimate]:
         return self.test.summary()
 
@@ -137,10 +133,6 @@ class Experiment:
         if getattr(estimator, "requires_fit", False) and getattr(estimator, "fit_on_faults", False) and fault.relative:
             raise ConfigError("estimator needs faulty training runs but the fault is in units of the calibration σ; "
                               "allowed: an absolute fault with this estimator")
-
-    @property
-    def chart(self):
-        return self.detector
 
     # -- stages -----------------------------------------------------------------------
     def simulate(self, fault, n_reps: int, stream: str, fault_scale: float = 1.0):

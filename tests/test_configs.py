@@ -161,10 +161,10 @@ def test_defaults_are_paper_scale(composer):
     assert exp.estimator.monitored == (0,)
     assert isinstance(exp.monitor, Monitor) and (exp.monitor.subgroup, exp.monitor.n, exp.monitor.channels,
                                                   exp.monitor.burn_in) == ("window", 5, (0,), 200)
-    assert isinstance(exp.chart, SSDEWMA) and exp.chart.limit == "phase1"
+    assert isinstance(exp.detector, SSDEWMA) and exp.detector.limit == "phase1"
     # the default is causal (no whole-series denoising); paper 000's wavelet is one option away
-    assert not isinstance(exp.chart.denoiser, WaveletDenoiser) and exp.chart.is_causal
-    paper = _build_module.build(composer("+fault=offset_var", "denoise=wavelet")).experiment.chart.denoiser
+    assert not isinstance(exp.detector.denoiser, WaveletDenoiser) and exp.detector.is_causal
+    paper = _build_module.build(composer("+fault=offset_var", "denoise=wavelet")).experiment.detector.denoiser
     assert isinstance(paper, WaveletDenoiser) and (paper.wavelet, paper.level) == ("db3", 3)
     assert exp.duration == 5.2 and exp.seed == 0
     assert exp.noise.process_cov.shape == (3, 3)  # n_x, n_y filled in from the plant
@@ -176,7 +176,7 @@ def test_defaults_are_paper_scale(composer):
 
 def test_chart_and_denoise_alternatives(composer):
     setup = _build_module.build(composer("+fault=offset", "detector=ewma", "denoise=none", "estimator=innovation"))
-    assert isinstance(setup.experiment.chart, EWMA) and isinstance(setup.experiment.chart.denoiser, NoDenoiser)
+    assert isinstance(setup.experiment.detector, EWMA) and isinstance(setup.experiment.detector.denoiser, NoDenoiser)
     assert isinstance(setup.experiment.estimator, InnovationResidual)
     assert set(setup.bounds) == {"lam", "L"}
 

@@ -319,20 +319,33 @@ def supports(detector, objectives) -> bool:
     return type(denoiser) is NoDenoiser or (type(denoiser) is WaveletDenoiser and plan(denoiser) is not None)
 
 
+def applies(detector, objectives) -> bool:
+    """Whether the compiled fused evaluation replaces the NumPy path: the one decision.
+
+    Kernels on (:func:`mosd.kernels.enabled`) and :func:`supports`. The tuning
+    problem's evaluator (``CandidateEvaluator.fused``), the choice of threads over
+    processes (``mosd.optim.problem.uses_threads``, ``TuningProblem.in_threads``)
+    and the experiment's early worker pool all ask this; :func:`fused_evaluation`
+    then checks the data.
+    """
+    from . import enabled
+
+    return enabled() and supports(detector, objectives)
+
+
 def fused_evaluation(detector, calibration_features, features, truth, objectives):
     """A :class:`FusedChartEvaluation` when the kernel reproduces this set-up exactly, else None.
 
-    Only a mean–variance chart with the Phase-I limit whose statistic, limit and
-    decision code is the base classes' own (no override in a subclass), no
-    denoiser or a whole-series wavelet the kernel supports, and objectives among
-    FAR and MDR.
+    :func:`applies` (kernels on; the detector and objectives :func:`supports`),
+    then the data: features (R, 2, K) of floats, a fault mask of the runs, a
+    wavelet plan that fits K points and finite features for a wavelet.
     """
     from ..denoisers.base import NoDenoiser
     from ..denoisers.wavelet import WaveletDenoiser
 
     from .wavelet import plan
 
-    if not supports(detector, objectives):
+    if not applies(detector, objectives):
         return None
     calibration_features = np.asarray(calibration_features)
     features = np.asarray(features)

@@ -9,11 +9,10 @@ from .selection import (RULES, Selection, SelectionWarning, choose, knee, max_ac
                         min_mdr_far_le, select)
 
 from .grid import constrained_grid_search, grid_objectives
-from .problem import CandidateEvaluator, ChartTuningProblem
+from .problem import CandidateEvaluator, TuningProblem
 
 __all__ = [
     "CandidateEvaluator",
-    "ChartTuningProblem",
     "constrained_grid_search",
     "grid_objectives",
     "MOPSO",
@@ -26,4 +25,5 @@ __all__ = [
     "max_accuracy",
     "min_mdr_far_le",
     "select",
+    "TuningProblem",
 ]

@@ -37,9 +37,9 @@ def _grid_values(name: str, values) -> np.ndarray:
 
 
 def _parameter_names(evaluator) -> tuple[str, str]:
-    names = list(evaluator.chart.tunable)
+    names = list(evaluator.detector.tunable)
     if len(names) != 2:
-        raise ConfigError(f"chart {type(evaluator.chart).__name__} tunes {names}; allowed: exactly two "
+        raise ConfigError(f"chart {type(evaluator.detector).__name__} tunes {names}; allowed: exactly two "
                           "parameters (smoothing, width)")
     return names[0], names[1]
 
@@ -50,7 +50,7 @@ def grid_objectives(evaluator, lam_values, width_values, chunk: int = DEFAULT_CH
     Parameters
     ----------
     evaluator : CandidateEvaluator
-        Maps parameter rows X (P, 2) — in the order of ``evaluator.chart.tunable``,
+        Maps parameter rows X (P, 2) — in the order of ``evaluator.detector.tunable``,
         smoothing first, width second — to (FAR, MDR) means over the training runs
         (eqs. 32–33).
     lam_values, width_values : array_like, strictly increasing
@@ -66,7 +66,7 @@ def grid_objectives(evaluator, lam_values, width_values, chunk: int = DEFAULT_CH
     lam_name, width_name = _parameter_names(evaluator)
     lam = _grid_values("lam_values", lam_values)
     width = _grid_values("width_values", width_values)
-    tunable = evaluator.chart.tunable
+    tunable = evaluator.detector.tunable
     for name, values in ((lam_name, lam), (width_name, width)):
         # both ends are checked: the grid is sorted, so every value is inside
         check_in(f"chart.{name}", float(values[0]), tunable[name])

@@ -74,10 +74,6 @@ class CandidateEvaluator:
         self.truth = as_truth(truth)
         self.objectives = tuple(objectives)
 
-    @property
-    def chart(self):
-        return self.detector
-
     def __call__(self, X: np.ndarray) -> np.ndarray:
         X = np.atleast_2d(np.asarray(X, float))
         if X.shape[0] == 0:
@@ -94,14 +90,16 @@ class CandidateEvaluator:
         return objective_values(self.objectives, decided.decision, self.truth)
 
     def fused(self):
-        """The compiled fused evaluation (:mod:`mosd.kernels.chart`) when it applies and kernels are on, else None."""
-        from .. import kernels
+        """The compiled fused evaluation (:func:`mosd.kernels.chart.fused_evaluation`) when it applies, else None.
 
-        if not kernels.enabled():
+        Whether it applies is asked on every call (kernels may be switched off
+        for a comparison); the plan on this evaluator's data is built once.
+        """
+        from ..kernels.chart import applies, fused_evaluation
+
+        if not applies(self.detector, self.objectives):
             return None
         if "_fused" not in self.__dict__:
-            from ..kernels.chart import fused_evaluation
-
             self.__dict__["_fused"] = fused_evaluation(self.detector, self.calibration_features, self.features,
                                                        self.truth, self.objectives)
         return self.__dict__["_fused"]
@@ -189,17 +187,17 @@ def _thread_pool(n_threads: int):
 def uses_threads(detector, objectives, n_jobs: int, backend: str = "loky") -> bool:
     """Whether a tuning of ``detector`` will evaluate on threads rather than loky processes.
 
-    What :attr:`TuningProblem.in_threads` will say, decided before the data
-    exist (the detector and objectives alone), so that a caller does not start
-    worker processes it will not use.
+    The loky backend with ``n_jobs > 1`` and the compiled fused evaluation
+    applying (:func:`mosd.kernels.chart.applies`, the one decision), known
+    before the data exist (the detector and objectives alone), so that a caller
+    does not start worker processes it will not use. :attr:`TuningProblem.in_threads`
+    is this, and the evaluator's data fitting the kernel.
     """
-    from .. import kernels
-
-    if backend != "loky" or n_jobs <= 1 or not kernels.enabled():
+    if backend != "loky" or n_jobs <= 1:
         return False
-    from ..kernels.chart import supports
+    from ..kernels.chart import applies
 
-    return supports(detector, objectives)
+    return applies(detector, objectives)
 
 
 class TuningProblem(Problem):
@@ -261,7 +259,8 @@ class TuningProblem(Problem):
         cached features to them.
         """
         fused = getattr(self.evaluator, "fused", None)
-        return self.backend == "loky" and self.n_jobs > 1 and fused is not None and fused() is not None
+        return (fused is not None and uses_threads(self.evaluator.detector, self.objectives, self.n_jobs, self.backend)
+                and fused() is not None)
 
     def round(self, X: np.ndarray) -> np.ndarray:
         """X with its integer columns rounded (and kept inside the box)."""
@@ -342,6 +341,3 @@ class TuningProblem(Problem):
                 pass
             self._payload = None
 
-
-#: The name of paper 000's problem (a chart's (λ, K) against FAR and MDR).
-ChartTuningProblem = TuningProblem
