@@ -18,8 +18,9 @@ from pymoo.util.nds.non_dominated_sorting import NonDominatedSorting
 
 from mosd.optim import MOPSO, GridArchive
 from mosd.optim.benchmarks import ShiftedZDT1
-from mosd.optim.mopso import (PAPER_PRESET, apply_bounds, constriction_coefficients, dominance_matrix,
-                              eq37_removal_counts, polynomial_mutation)
+from mosd.optim.archive import dominance_matrix, eq37_removal_counts
+from mosd.optim.mopso import (PAPER_PRESET, apply_bounds, constriction_coefficients, polynomial_mutation,
+                              restart_pymoo_run)
 from mosd.validation import ConfigError
 
 CONF = Path(__file__).resolve().parents[1] / "conf" / "optimizer"
@@ -413,6 +414,29 @@ def test_a_second_setup_starts_a_new_run(make):
     again = algorithm.setup(problem, termination=("n_gen", 10), seed=3).run()
     assert algorithm.planned_generations == 10 and algorithm.evaluator.n_eval - 500 == 200
     assert np.array_equal(again.F, fresh.F) and np.array_equal(again.X, fresh.X)
+
+
+def test_restart_adapter_matches_pymoo():
+    """The one place that resets pymoo's private run state: fails loudly if pymoo stops using it."""
+    calls = []
+
+    class Probe(MOPSO):
+        def _initialize_infill(self):
+            calls.append(self.n_iter)
+            return super()._initialize_infill()
+
+    algorithm = Probe(pop_size=10).setup(get_problem("zdt1", n_var=4), termination=("n_gen", 3), seed=1)
+    algorithm.run()
+    assert algorithm.is_initialized and len(calls) == 1
+    restart_pymoo_run(algorithm)
+    assert not algorithm.is_initialized
+    algorithm.next()
+    assert len(calls) == 2 and algorithm.n_iter == 2  # generation 1 again, then advanced
+
+    class Renamed:
+        pass
+    with pytest.raises(RuntimeError, match="is_initialized"):
+        restart_pymoo_run(Renamed())
 
 
 def test_result_is_the_archive_and_history_and_callback_work():

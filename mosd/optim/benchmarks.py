@@ -219,12 +219,6 @@ def benchmark_table(problems=PROBLEMS, algorithms=None, seeds=SEEDS, n_eval: int
     return rows
 
 
-def zdt_table(n_eval: int = N_EVAL, seeds=SEEDS, n_jobs: int = 1, variants=None,
-              problems=("zdt1", "zdt2", "zdt3")) -> list[dict]:
-    """:func:`benchmark_table` with the earlier signature (ZDT1–3 by default)."""
-    return benchmark_table(problems=problems, algorithms=variants, seeds=seeds, n_eval=n_eval, n_jobs=n_jobs)
-
-
 def format_table(rows: list[dict], igd: bool = False) -> str:
     """Markdown table: one line per algorithm, median HV (and IGD) per problem."""
     problems = list(dict.fromkeys(row["problem"] for row in rows))

@@ -25,13 +25,16 @@ One class, two presets:
   inside eq. 37; with the same seed it gives the same archive as this module did
   before the robust default.
 
+The archive (grid, eq. 37, leader choice) and the constrained dominance live in
+:mod:`mosd.optim.archive`; this module keeps the swarm.
+
 Where the paper and Coello 2004 leave a detail open, the choice is documented at the
 place that implements it:
 
 * order of eqs. 38/39 — :meth:`MOPSO._infill`;
-* how eq. 37 walks over the grid cells — :func:`eq37_removal_counts` and
-  :meth:`GridArchive._truncate`;
-* duplicates and constraints in the archive — :meth:`GridArchive.update`;
+* how eq. 37 walks over the grid cells — :func:`~mosd.optim.archive.eq37_removal_counts`
+  and :meth:`~mosd.optim.archive.GridArchive._truncate`;
+* duplicates and constraints in the archive — :meth:`~mosd.optim.archive.GridArchive.update`;
 * the run length that schedules and Coello's mutation refer to —
   :meth:`MOPSO._planned_generations`.
 
@@ -55,12 +58,14 @@ import numpy as np
 from pymoo.core.algorithm import Algorithm
 from pymoo.core.population import Population
 from pymoo.core.sampling import Sampling
+from pymoo.operators.repair.to_bound import set_to_bounds_if_outside
 from pymoo.operators.sampling.rnd import FloatRandomSampling
 from pymoo.termination.max_eval import MaximumFunctionCallTermination
 from pymoo.termination.max_gen import MaximumGenerationTermination
 from pymoo.util.display.multi import MultiObjectiveOutput
 
 from ..validation import ConfigError, Interval, check_choice, check_in, check_int
+from .archive import LEADER_RULES, REMOVAL_RULES, GridArchive, evaluated_arrays, pairwise_dominates
 
 #: φ = φ1 + φ2 of Clerc & Kennedy's constriction factor; paper 000 (below eq. 39) uses 4.1.
 CONSTRICTION_PHI = 4.1
@@ -71,18 +76,12 @@ COELLO_INERTIA = (0.4, 1.0, 1.0)
 SCHEDULED = ((0.6, 0.2), 1.0, (1.75, 1.0))
 #: Velocity variants: which (w, c1, c2) an unset coefficient takes.
 VELOCITIES = ("scheduled", "constriction", "inertia")
-#: Coello 2004's numerator x of the cell fitness x / occupancy used for leader selection.
-LEADER_FITNESS_NUMERATOR = 10.0
 #: Iterations M of paper 000's Table 2: the run length assumed when nothing else tells it.
 PAPER_MAX_ITERATIONS = 100
 #: Ways to treat a particle that leaves the box, see :func:`apply_bounds`.
 BOUNDARY_RULES = ("clip", "reflect", "absorb")
-#: Leader choice, see :meth:`GridArchive.select_leaders`.
-LEADER_RULES = ("roulette", "tournament")
 #: Personal-best update, see :meth:`MOPSO._update_personal_best`.
 PERSONAL_BEST_RULES = ("dominance", "coin")
-#: Which members of a crowded cell eq. 37 removes, see :meth:`GridArchive._truncate`.
-REMOVAL_RULES = ("crowding", "random")
 #: Mutation operators, see :meth:`MOPSO._infill`.
 MUTATIONS = ("polynomial", "coello")
 #: Exponent of Coello's mutation decay law (1 - t / (T p_m))^1.5 (see :meth:`MOPSO._coello_mutation`).
@@ -113,124 +112,6 @@ def constriction_coefficients(phi: float = CONSTRICTION_PHI) -> tuple[float, flo
     phi = check_in("optimizer.phi", phi, Interval(4.0, math.inf, open_low=True))
     w = 2.0 / (phi - 2.0 + math.sqrt(phi * phi - 4.0 * phi))
     return w, w * phi / 2.0, w * phi / 2.0
-
-
-def dominance_matrix(F: np.ndarray, CV: np.ndarray) -> np.ndarray:
-    """Constrained Pareto dominance between all pairs of points.
-
-    Feasibility first: a feasible point (CV <= 0) dominates an infeasible one; among
-    infeasible points the smaller constraint violation dominates; among feasible points
-    ordinary Pareto dominance (minimisation) applies.
-
-    Parameters
-    ----------
-    F : ndarray, shape (n, n_obj)
-        Objective values.
-    CV : ndarray, shape (n,)
-        Constraint violation, 0 for feasible points.
-
-    Returns
-    -------
-    ndarray of bool, shape (n, n)
-        Entry [i, j] is True when point i dominates point j.
-    """
-    F = np.asarray(F, dtype=float)
-    CV = np.asarray(CV, dtype=float).reshape(-1)
-    return _dominates(F[:, None, :], CV[:, None], F[None, :, :], CV[None, :])
-
-
-def pairwise_dominates(Fa, CVa, Fb, CVb) -> np.ndarray:
-    """Row-by-row constrained dominance: does a[i] dominate b[i]? (see :func:`dominance_matrix`)."""
-    return _dominates(np.asarray(Fa, float), np.asarray(CVa, float).reshape(-1),
-                      np.asarray(Fb, float), np.asarray(CVb, float).reshape(-1))
-
-
-def _all_objectives(compare, Fa, Fb, combine):
-    """compare(Fa[..., j], Fb[..., j]) combined over the objectives j by ``combine`` (np.logical_and / _or).
-
-    One elementwise pass per objective: NumPy's reductions over a last axis of
-    2 or 3 cost more than the comparisons themselves (this runs every generation).
-    """
-    result = compare(Fa[..., 0], Fb[..., 0])
-    for j in range(1, Fa.shape[-1]):
-        combine(result, compare(Fa[..., j], Fb[..., j]), out=result)
-    return result
-
-
-def _dominates(Fa, CVa, Fb, CVb):
-    feasible_a, feasible_b = CVa <= 0.0, CVb <= 0.0
-    pareto = (_all_objectives(np.less_equal, Fa, Fb, np.logical_and)
-              & _all_objectives(np.less, Fa, Fb, np.logical_or))
-    if feasible_a.all() and feasible_b.all():
-        return pareto
-    return ((feasible_a & ~feasible_b)
-            | (feasible_a & feasible_b & pareto)
-            | (~feasible_a & ~feasible_b & (CVa < CVb)))
-
-
-def eq37_removal_counts(occupancy, capacity: int, tie_break=None, removable=None,
-                        leftover: bool = True) -> np.ndarray:
-    """How many members eq. 37 removes from each grid cell of an over-full archive.
-
-    Paper 000, eq. 37: PN = Int((|A| − Z_ar) / |A| × Grid[q, 2] + 0.5), with |A| the
-    archive size before truncation, Z_ar the capacity and Grid[q, 2] the occupancy of
-    cell q. The paper does not say in which order the cells are visited nor what happens
-    when the rounded PN do not add up to the excess |A| − Z_ar; here:
-
-    1. cells are visited from the most to the least crowded (ties: larger ``tie_break``
-       first, then lower cell index), and cell q loses min(PN_q, excess still to
-       remove) members — so the proportional rule hits the crowded cells and never
-       removes more than the excess;
-    2. because Int(· + 0.5) rounds small shares down to 0 (e.g. one member too many in
-       an archive of 101 removes nothing from any cell holding fewer than 51), any
-       excess left is removed one member at a time from the currently most crowded
-       cell, which is Coello 2004's rule (same tie order). ``leftover=False`` skips
-       this step, for a caller that breaks those ties with information that changes as
-       members go (:meth:`GridArchive._truncate`).
-
-    Parameters
-    ----------
-    occupancy : array_like of int, shape (n_cells,)
-        Members per occupied cell.
-    capacity : int
-        Z_ar.
-    tie_break : array_like of float, shape (n_cells,), optional
-        Order among equally crowded cells, larger first; None: cell index order.
-    removable : array_like of int, shape (n_cells,), optional
-        At most this many members may leave each cell (protected members stay); None:
-        all. Ignored if the cells cannot give up the excess together.
-    leftover : bool
-        Whether to apply step 2.
-
-    Returns
-    -------
-    ndarray of int, shape (n_cells,)
-        Members to remove from each cell; with ``leftover`` the total is
-        max(0, |A| − Z_ar).
-    """
-    occupancy = np.asarray(occupancy, dtype=int)
-    size = int(occupancy.sum())
-    excess = size - int(capacity)
-    removed = np.zeros_like(occupancy)
-    if excess <= 0:
-        return removed
-    tie = np.zeros(len(occupancy)) if tie_break is None else np.asarray(tie_break, dtype=float)
-    cap = occupancy if removable is None else np.minimum(np.asarray(removable, dtype=int), occupancy)
-    if cap.sum() < excess:
-        cap = occupancy
-    order = np.lexsort((np.arange(len(occupancy)), -tie, -occupancy))
-    proportional = np.minimum(np.floor(excess / size * occupancy[order] + 0.5).astype(int), cap[order])
-    # cap the running total at the excess, most crowded cells first
-    before = np.cumsum(proportional) - proportional
-    removed[order] = np.clip(np.minimum(proportional, excess - before), 0, None)
-    if leftover:
-        rank = np.empty(len(order), dtype=int)
-        rank[np.lexsort((np.arange(len(order)), -tie))] = np.arange(len(order))
-        for _ in range(excess - int(removed.sum())):
-            crowd = np.where(removed < cap, occupancy - removed, -1)
-            tied = np.flatnonzero(crowd == crowd.max())
-            removed[tied[np.argmin(rank[tied])]] += 1
-    return removed
 
 
 def apply_bounds(X: np.ndarray, V: np.ndarray, xl: np.ndarray, xu: np.ndarray,
@@ -269,7 +150,21 @@ def apply_bounds(X: np.ndarray, V: np.ndarray, xl: np.ndarray, xu: np.ndarray,
         V = np.where(outside, 0.0, V)
     elif rule != "clip":
         raise ConfigError(f"optimizer.boundary={rule!r} is not allowed; allowed: {', '.join(BOUNDARY_RULES)}")
-    return np.clip(X, xl, xu), V
+    return set_to_bounds_if_outside(np.array(X, dtype=float), xl, xu), V
+
+
+def restart_pymoo_run(algorithm: Algorithm) -> None:
+    """Make pymoo's next ``algorithm.next()`` run the initialisation again (a new run).
+
+    pymoo 0.6 decides between ``_initialize_infill`` and ``_infill`` by the attribute
+    ``is_initialized``, set in ``Algorithm.__init__`` and never reset by ``setup``; this is
+    the one place that touches it (``tests/test_mopso.py::test_restart_adapter_matches_pymoo``
+    fails loudly if a pymoo upgrade renames or stops reading it).
+    """
+    if not hasattr(algorithm, "is_initialized"):
+        raise RuntimeError("pymoo's Algorithm no longer has is_initialized; "
+                           "mosd.optim.mopso.restart_pymoo_run needs updating for this pymoo version")
+    algorithm.is_initialized = False
 
 
 def round_integers(X: np.ndarray, is_integer: np.ndarray | None, xl: np.ndarray,
@@ -321,240 +216,6 @@ def polynomial_mutation(X: np.ndarray, xl: np.ndarray, xu: np.ndarray, probabili
     above = 2.0 * (1.0 - u) + 2.0 * (u - 0.5) * (1.0 - (xu - X) / safe) ** (eta + 1.0)
     step = np.where(u <= 0.5, below ** power - 1.0, 1.0 - above ** power)
     return np.where(hit, np.clip(X + step * span, xl, xu), X)
-
-
-def evaluated_arrays(population: Population, constrained: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """X (n, n_var), F (n, n_obj) and CV (n, 1) of an evaluated population.
-
-    The same arrays as ``population.get("X", "F", "CV")``, read through the
-    individuals' attributes: ``Population.get`` resolves every key of every
-    individual through ``Individual.get``'s generic lookup, which cost more per
-    generation than the whole archive update. ``constrained=False`` (a problem
-    without constraints, whose CV is 0 by definition) skips reading CV.
-    """
-    if len(population) == 0:
-        return population.get("X", "F", "CV")
-    X = np.array([ind.X for ind in population])
-    F = np.array([ind.F for ind in population])
-    CV = np.array([ind.CV for ind in population]) if constrained else np.zeros((len(population), 1))
-    return X, F, CV
-
-
-class GridArchive:
-    """External archive of non-dominated solutions on an adaptive hypercube grid.
-
-    Coello 2004 §III-B, paper 000 steps 3–5: the objective space spanned by the archive
-    is divided into ``n_divisions`` intervals per objective, so d objectives give
-    hypercubes of d dimensions; the grid is recomputed from the members' extremes
-    whenever a member lies outside it (i.e. when a newly inserted solution falls outside
-    the current bounds). Over capacity, eq. 37 removes members from crowded cells
-    (:meth:`_truncate`); leaders come from sparsely populated cells
-    (:meth:`select_leaders`). Nothing here depends on d: cells are the distinct rows of
-    the members' integer grid coordinates, and crowding inside and between cells is
-    measured by Euclidean distances in grid-normalised objective space.
-
-    Parameters
-    ----------
-    capacity : int
-        Z_ar, the maximum number of members.
-    n_divisions : int
-        Grid intervals per objective (Coello 2004 uses 30).
-    removal : {"crowding", "random"}
-        Which members of a cell eq. 37 removes: see :meth:`_truncate`.
-    keep_extremes : bool
-        Never remove the member with the smallest value of an objective (one per
-        objective) in truncation — they span the grid and the ends of the front.
-    """
-
-    def __init__(self, capacity: int = 100, n_divisions: int = 50, removal: str = "crowding",
-                 keep_extremes: bool = True):
-        self.capacity = check_int("optimizer.archive_size", capacity, 1)
-        self.n_divisions = check_int("optimizer.n_divisions", n_divisions, 1)
-        self.removal = check_choice("optimizer.removal", removal, REMOVAL_RULES)
-        self.keep_extremes = check_choice("optimizer.keep_extremes", keep_extremes, (True, False))
-        self.members = Population.empty()
-        self._X, self._F, self._CV = np.empty((0, 0)), np.empty((0, 0)), np.empty(0)
-        self.lower: np.ndarray | None = None
-        self.upper: np.ndarray | None = None
-
-    def __len__(self) -> int:
-        return len(self.members)
-
-    @property
-    def X(self) -> np.ndarray:
-        return self._X
-
-    @property
-    def F(self) -> np.ndarray:
-        return self._F
-
-    @property
-    def CV(self) -> np.ndarray:
-        """Constraint violation of each member, shape (n,)."""
-        return self._CV
-
-    def update(self, candidates: Population, random_state: np.random.Generator,
-               evaluated: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> None:
-        """Insert evaluated candidates (paper 000 steps 3–4).
-
-        A candidate enters when no member and no other candidate dominates it in the
-        constrained sense of :func:`dominance_matrix`; members it dominates leave. A
-        candidate equal to a member in F and CV is rejected (and of equal candidates only
-        the first enters) so that plateaus of a discrete objective such as FAR/MDR do
-        not fill the archive with copies of one point. Then the grid is recomputed if a
-        member lies outside it, and eq. 37 truncates an over-full archive.
-
-        Parameters
-        ----------
-        candidates : Population
-            Evaluated solutions (F and, if constrained, G/H set).
-        random_state : numpy.random.Generator
-            Breaks ties in truncation.
-        evaluated : (X, F, CV), optional
-            The candidates' arrays when the caller has them (:func:`evaluated_arrays`).
-        """
-        merged = Population.merge(self.members, candidates)
-        X, F, CV = evaluated_arrays(candidates) if evaluated is None else evaluated
-        if len(self.members):
-            X, F = np.concatenate([self._X, X]), np.concatenate([self._F, F])
-        CV = np.concatenate([self._CV, CV.reshape(-1)])
-        dominated = dominance_matrix(F, CV).any(axis=0)
-        same = _all_objectives(np.equal, F[:, None, :], F[None, :, :], np.logical_and) & (CV[:, None] == CV[None, :])
-        keep = ~dominated & ~np.triu(same, k=1).any(axis=0)
-        self._set_members(merged[keep], X[keep], F[keep], CV[keep])
-        if self.lower is None or self._outside_grid():
-            self._regrid()
-        if len(self.members) > self.capacity:
-            self._truncate(random_state)
-
-    def cell_coordinates(self, F: np.ndarray | None = None) -> np.ndarray:
-        """Integer grid coordinates (n, n_obj) of objective vectors (default: the members).
-
-        Interval i of objective j is [lower_j + i h_j, lower_j + (i + 1) h_j) with
-        h_j = (upper_j − lower_j) / n_divisions; the upper bound belongs to the last
-        interval, and an objective with zero spread puts every point in interval 0.
-        """
-        F = self.F if F is None else np.asarray(F, dtype=float)
-        width = (self.upper - self.lower) / self.n_divisions
-        safe = np.where(width > 0, width, 1.0)
-        scaled = np.where(width > 0, (F - self.lower) / safe, 0.0)
-        return np.clip(np.floor(scaled), 0, self.n_divisions - 1).astype(int)
-
-    def cells(self) -> tuple[np.ndarray, np.ndarray]:
-        """Cell label of each member (0 … n_cells − 1) and the occupancy of each cell."""
-        _, labels, occupancy = np.unique(self.cell_coordinates(), axis=0,
-                                         return_inverse=True, return_counts=True)
-        return labels.reshape(-1), occupancy
-
-    def select_leaders(self, n: int, random_state: np.random.Generator,
-                       rule: str = "roulette") -> np.ndarray:
-        """Indices of ``n`` leaders (gbest), one per particle (Coello 2004 §III-C).
-
-        Both rules prefer members of sparsely populated cells, through Coello's cell
-        fitness x / occupancy (x = 10):
-
-        * ``"roulette"`` — Coello's rule: a cell by roulette wheel on that fitness, i.e.
-          probability proportional to the inverse cell density (x cancels out in the
-          normalisation), then a member of that cell uniformly at random;
-        * ``"tournament"`` — a binary tournament, as SMPSO chooses leaders by crowding
-          distance: two members uniformly at random, the one in the less crowded cell
-          wins (a fair coin on equal occupancy).
-        """
-        labels, occupancy = self.cells()
-        if rule == "tournament":
-            a, b = random_state.integers(len(labels), size=(2, n))
-            first, second = occupancy[labels[a]], occupancy[labels[b]]
-            coin = random_state.random(n) < 0.5
-            return np.where((first < second) | ((first == second) & coin), a, b)
-        fitness = LEADER_FITNESS_NUMERATOR / occupancy
-        chosen = random_state.choice(len(occupancy), size=n, p=fitness / fitness.sum())
-        by_cell = np.argsort(labels, kind="stable")
-        first = np.cumsum(occupancy) - occupancy
-        offset = np.floor(random_state.random(n) * occupancy[chosen]).astype(int)
-        return by_cell[first[chosen] + offset]
-
-    def _set_members(self, members: Population, X: np.ndarray, F: np.ndarray, CV: np.ndarray) -> None:
-        # X, F and CV are kept as arrays too: Population.get walks every individual
-        self.members, self._X, self._F, self._CV = members, X, F, CV
-
-    def _outside_grid(self) -> bool:
-        return bool(np.any(self._F < self.lower) or np.any(self._F > self.upper))
-
-    def _regrid(self) -> None:
-        self.lower, self.upper = self._F.min(axis=0), self._F.max(axis=0)
-
-    def _truncate(self, random_state: np.random.Generator) -> None:
-        """Eq. 37 down to ``capacity`` members.
-
-        Eq. 37 (:func:`eq37_removal_counts`) says how many members each cell loses; the
-        paper does not say which. ``removal="random"`` takes them at random, with
-        equally crowded cells taken in cell order (the previous behaviour, kept for the
-        paper preset). ``removal="crowding"``
-        removes, one at a time, the member of the cell whose two nearest other members
-        (grid-normalised objectives, d dimensions) are closest, and when eq. 37's
-        rounding leaves an excess, takes it from the most crowded cells, the most
-        crowded member first — so equally crowded cells (in three or more objectives,
-        typically all cells hold one member) are told apart by distances rather than by
-        their index. ``keep_extremes`` protects the per-objective minima either way.
-        """
-        labels, occupancy = self.cells()
-        protected = np.zeros(len(labels), dtype=bool)
-        if self.keep_extremes:
-            protected[np.argmin(self._F, axis=0)] = True
-        removable = np.bincount(labels[~protected], minlength=len(occupancy))
-        excess = len(labels) - self.capacity
-        if removable.sum() < excess:
-            protected[:] = False
-            removable = occupancy.copy()
-        if self.removal == "random":
-            remove = eq37_removal_counts(occupancy, self.capacity, removable=removable)
-            # a random rank within each cell (protected members last); the lowest `remove[cell]` go
-            order = np.lexsort((random_state.random(len(labels)) + 2.0 * protected, labels))
-            first = np.cumsum(occupancy) - occupancy
-            rank = np.empty(len(labels), dtype=int)
-            rank[order] = np.arange(len(labels)) - first[labels[order]]
-            keep = rank >= remove[labels]
-        else:
-            keep = self._remove_crowded(labels, occupancy, protected, removable, excess, random_state)
-        self._set_members(self.members[keep], self._X[keep], self._F[keep], self._CV[keep])
-
-    def _remove_crowded(self, labels, occupancy, protected, removable, excess, random_state):
-        span = self.upper - self.lower
-        Z = (self._F - self.lower) / np.where(span > 0, span, 1.0)
-        D = np.sqrt(((Z[:, None, :] - Z[None, :, :]) ** 2).sum(axis=-1))
-        # a tiny random jitter turns exact distance ties into a random order
-        D += 1e-12 * random_state.random(D.shape)
-        np.fill_diagonal(D, np.inf)
-        alive = np.ones(len(D), dtype=bool)
-        neighbours = np.argpartition(D, 1, axis=1)[:, :2]
-        crowding = np.take_along_axis(D, neighbours, axis=1).sum(axis=1)
-        nearest_cells = np.full(len(occupancy), np.inf)
-        np.minimum.at(nearest_cells, labels[~protected], crowding[~protected])
-        remove = eq37_removal_counts(occupancy, self.capacity, tie_break=-nearest_cells,
-                                     removable=removable, leftover=False)
-        left, can_go = occupancy.copy(), removable.copy()
-
-        def drop(cells):
-            chosen = np.zeros(len(occupancy), dtype=bool)
-            chosen[cells] = True
-            candidates = np.flatnonzero(alive & ~protected & chosen[labels])
-            gone = candidates[np.argmin(crowding[candidates])]
-            alive[gone] = False
-            left[labels[gone]] -= 1
-            can_go[labels[gone]] -= 1
-            D[gone, :] = D[:, gone] = np.inf
-            # only members that had the removed one among their two nearest need a new score
-            stale = np.flatnonzero(alive & (neighbours == gone).any(axis=1))
-            neighbours[stale] = np.argpartition(D[stale], 1, axis=1)[:, :2]
-            crowding[stale] = np.take_along_axis(D[stale], neighbours[stale], axis=1).sum(axis=1)
-
-        for cell in np.flatnonzero(remove):
-            for _ in range(remove[cell]):
-                drop([cell])
-        for _ in range(excess - int(remove.sum())):
-            crowd = np.where(can_go > 0, left, -1)
-            drop(np.flatnonzero(crowd == crowd.max()))
-        return alive
 
 
 class MOPSO(Algorithm):
@@ -706,8 +367,7 @@ class MOPSO(Algorithm):
         self.particle_position = self.particle_velocity = None
         self.pbest_X = self.pbest_F = self.pbest_CV = None
         self.planned_generations = self._planned_generations()
-        # a second setup() starts a new run: pymoo would otherwise skip _initialize_infill
-        self.is_initialized = False
+        restart_pymoo_run(self)
 
     def _initialize_infill(self):
         X = self.sampling.do(self.problem, self.pop_size, algorithm=self,
@@ -769,7 +429,7 @@ class MOPSO(Algorithm):
         ``"dominance"`` (SMPSO): pbest ← the new position unless pbest dominates it.
         ``"coin"`` (Coello 2004): pbest ← the new position if it dominates pbest, pbest
         stays if it dominates the new one, otherwise a fair coin decides. Dominance is
-        feasibility-first (:func:`dominance_matrix`).
+        feasibility-first (:func:`~mosd.optim.archive.dominance_matrix`).
         """
         CV = CV.reshape(-1)
         self.particle_position = X
