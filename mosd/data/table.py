@@ -1,0 +1,289 @@
+"""Any labelled table (CSV or Parquet) as recorded data: a historian export, a lab log, a benchmark.
+
+The table has one row per sample, an optional time column, an optional label
+column (the fault id: 0, empty or missing = normal operation) and the tag
+columns to monitor. Splits are row ranges (fractions of the rows, or row
+numbers) taken in time order, one run per split.
+
+Historian error codes. Exports put strings such as ``Inp OutRange``, ``Bad``
+or ``Scan Timeout`` into numeric columns. With ``errors="strict"`` the first
+such cell stops the run with one line naming the file, the column, the row
+and the text. With ``errors="nan"`` (the default) every cell that is not a
+number becomes missing, and ``fill`` decides what happens next:
+
+* ``hold``: the last valid value is carried forward (a historian's own
+  convention; leading gaps take the first valid value);
+* ``interpolate``: linear in the row number between the valid neighbours
+  (held at the ends);
+* ``drop``: rows with any missing tag are removed;
+* ``none``: left missing (a PCA detector skips incomplete rows: no alarm there).
+
+A tag that is constant over the calibration rows (after filling) carries no
+information and would break the standardisation: it is dropped with a warning.
+Rows labelled faulty inside the calibration range are left out of it (the
+calibration is fault-free by definition).
+"""
+from __future__ import annotations
+
+import logging
+import warnings
+from pathlib import Path
+from typing import Mapping, Sequence
+
+import numpy as np
+
+from ..types import Trace
+from ..validation import ConfigError, check_choice
+from .base import SPLITS, RecordedData, Segment
+
+log = logging.getLogger("mosd.data")
+
+ERRORS = ("strict", "nan")
+FILLS = ("hold", "interpolate", "drop", "none")
+DEFAULT_SPLITS = {"calibration": [0.0, 0.5], "training": [0.5, 0.75], "test": [0.75, 1.0]}
+
+
+class Table(RecordedData):
+    """A CSV or Parquet table as calibration, training and test splits (module docstring).
+
+    Parameters
+    ----------
+    path : str
+        A ``.csv`` (or ``.csv.gz``) or ``.parquet`` file.
+    time_column : str or int, optional
+        The time column (name, or 0-based position); sets ``dt`` from the median step.
+        None: samples are numbered and ``dt`` is taken from ``dt``.
+    label_column : str, optional
+        The fault id per row (0, empty = normal); None: every row is normal operation.
+    tags : "all" or sequence of str
+        The columns to monitor ("all": every column but the time and label columns).
+    errors : {"nan", "strict"}
+        What a non-numeric cell in a tag column is (module docstring).
+    fill : {"hold", "interpolate", "drop", "none"}
+        What becomes of missing values (module docstring).
+    splits : mapping
+        ``{calibration: [start, stop], training: [...], test: [...]}``: fractions of the rows
+        (numbers in [0, 1]) or row numbers (stop exclusive); disjoint.
+    dt : float
+        Seconds per sample when there is no time column.
+    """
+
+    def __init__(self, path: str | None = None, time_column: str | int | None = None, label_column: str | None = None,
+                 tags: str | Sequence[str] = "all", errors: str = "nan", fill: str = "hold",
+                 splits: Mapping[str, Sequence[float]] | None = None, dt: float = 1.0):
+        if path is None or str(path) in ("", "???"):
+            raise ConfigError("data.path is not set; allowed: a .csv or .parquet file (data.path=FILE)")
+        self.path = str(path)
+        self.errors = check_choice("data.errors", errors, ERRORS)
+        self.fill = check_choice("data.fill", fill, FILLS)
+        self.time_column, self.label_column = time_column, label_column
+        frame = _read(Path(self.path).expanduser())
+        columns = [str(c) for c in frame.columns]
+        frame.columns = columns
+        time_name = self._column("data.time_column", time_column, columns) if time_column is not None else None
+        label_name = self._column("data.label_column", label_column, columns) if label_column is not None else None
+        reserved = {time_name, label_name}
+        if isinstance(tags, str):
+            if tags != "all":
+                raise ConfigError(f"data.tags={tags!r} is not allowed; allowed: all, or a list of column names")
+            names = [c for c in columns if c not in reserved]
+        else:
+            names = [self._column("data.tags", t, columns) for t in tags]
+            if len(set(names)) != len(names):
+                raise ConfigError("data.tags names a column twice; allowed: distinct column names")
+        if not names:
+            raise ConfigError(f"data.tags selects no column of {self.path}; allowed: column names besides the "
+                              "time and label columns")
+        values = np.column_stack([self._numeric(frame[name], name) for name in names])
+        labels = self._labels(frame[label_name], label_name) if label_name else np.zeros(len(frame), int)
+        self.dt = self._dt(frame[time_name], time_name) if time_name else _positive("data.dt", dt)
+        values, labels, kept = _fill(values, labels, self.fill)
+        self._rows = kept  # the file's data-row number of every row kept
+        self._ranges = self._split_ranges(splits or DEFAULT_SPLITS, len(values))
+        calibration = slice(*self._ranges["calibration"])
+        normal = labels[calibration] == 0
+        for split, (start, stop) in self._ranges.items():
+            if not np.any(labels[start:stop] == 0):
+                raise ConfigError(f"data.splits.{split}: rows {start}-{stop - 1} of {self.path} have no fault-free "
+                                  f"row (column {label_name!r}); allowed: a range with normal rows (label 0 or empty)")
+        spread = np.nanstd(values[calibration][normal], axis=0)
+        constant = ~(spread > 0)
+        if constant.all():
+            raise ConfigError(f"data.tags: every tag of {self.path} is constant over the calibration rows; "
+                              "allowed: tags that vary")
+        if constant.any():
+            dropped = [n for n, c in zip(names, constant) if c]
+            message = f"data: {len(dropped)} tags of {self.path} are constant over the calibration rows, dropped: " \
+                      + ", ".join(dropped)
+            warnings.warn(message, stacklevel=2)
+            log.warning(message)
+        self.dropped = tuple(n for n, c in zip(names, constant) if c)
+        self.output_names = tuple(n for n, c in zip(names, constant) if not c)
+        self._values = values[:, ~constant]
+        self._labels = labels
+        n_faults = int(labels.max()) if labels.size else 0
+        self.fault_names = tuple(f"label {i}" for i in range(1, n_faults + 1))
+        self.check_disjoint()
+
+    def __repr__(self) -> str:
+        return f"Table({self.path}, {len(self.output_names)} tags, {len(self._values)} rows)"
+
+    # -- reading ---------------------------------------------------------------------------
+    def _column(self, key: str, name, columns: list[str]) -> str:
+        if isinstance(name, int) and not isinstance(name, bool):
+            if not 0 <= name < len(columns):
+                raise ConfigError(f"{key}={name} is not a column position of {self.path}; allowed: 0..{len(columns) - 1}")
+            return columns[name]
+        if str(name) not in columns:
+            shown = ", ".join(columns[:8]) + (", ..." if len(columns) > 8 else "")
+            raise ConfigError(f"{key}: column {name!r} is not in {self.path}; allowed: {shown}")
+        return str(name)
+
+    def _numeric(self, column, name: str) -> np.ndarray:
+        import pandas as pd
+
+        if pd.api.types.is_numeric_dtype(column.dtype) and not pd.api.types.is_bool_dtype(column.dtype):
+            return column.to_numpy(dtype=float, na_value=np.nan)
+        numbers = pd.to_numeric(column, errors="coerce")
+        text = column.astype("string").str.strip()
+        bad = numbers.isna() & column.notna() & (text != "")
+        if bad.any() and self.errors == "strict":
+            row = int(np.flatnonzero(bad.to_numpy())[0])
+            raise ConfigError(f"{self.path}: column {name!r} row {row} holds {str(column.iloc[row])!r}, not a number; "
+                              "allowed: numbers (data.errors=nan reads historian error codes as missing values)")
+        return numbers.to_numpy(dtype=float, na_value=np.nan)
+
+    def _labels(self, column, name: str) -> np.ndarray:
+        import pandas as pd
+
+        numbers = pd.to_numeric(column, errors="coerce")
+        text = column.astype("string").str.strip()
+        bad = (numbers.isna() & column.notna() & (text != "")) | (numbers.notna() & (numbers % 1 != 0)) | (numbers < 0)
+        if bad.any():
+            row = int(np.flatnonzero(bad.to_numpy())[0])
+            raise ConfigError(f"{self.path}: column {name!r} row {row} holds {str(column.iloc[row])!r}, not a fault id; "
+                              "allowed: integers >= 0 (0 or empty = normal)")
+        return numbers.fillna(0).to_numpy(dtype=float).astype(int)
+
+    def _dt(self, column, name: str) -> float:
+        import pandas as pd
+
+        if pd.api.types.is_numeric_dtype(column.dtype):
+            seconds = column.to_numpy(dtype=float)
+        else:
+            try:
+                stamps = pd.to_datetime(column, errors="raise")
+            except (ValueError, TypeError) as exc:
+                raise ConfigError(f"{self.path}: column {name!r} is not a time column ({exc}); allowed: timestamps or "
+                                  "numbers (seconds)") from None
+            seconds = (stamps - stamps.iloc[0]).dt.total_seconds().to_numpy()
+        steps = np.diff(seconds)
+        steps = steps[np.isfinite(steps)]
+        if steps.size == 0 or not np.median(steps) > 0:
+            raise ConfigError(f"{self.path}: column {name!r} does not increase; allowed: a time column in sample order")
+        return float(np.median(steps))
+
+    def _split_ranges(self, splits: Mapping[str, Sequence[float]], n_rows: int) -> dict[str, tuple[int, int]]:
+        unknown = set(splits) - set(SPLITS)
+        if unknown:
+            raise ConfigError(f"data.splits.{sorted(unknown)[0]} is not a split; allowed: {', '.join(SPLITS)}")
+        ranges = {}
+        for split in SPLITS:
+            pair = splits.get(split)
+            if pair is None or len(pair) != 2:
+                raise ConfigError(f"data.splits.{split}={pair!r} is not a range; allowed: [start, stop] as fractions "
+                                  "of the rows or row numbers")
+            lo, hi = (float(v) for v in pair)
+            if 0.0 <= lo <= 1.0 and 0.0 <= hi <= 1.0 and not (lo.is_integer() and hi.is_integer() and hi > 1):
+                start, stop = int(round(lo * n_rows)), int(round(hi * n_rows))
+            else:
+                start, stop = int(lo), int(hi)
+            if not 0 <= start < stop <= n_rows:
+                raise ConfigError(f"data.splits.{split}={list(pair)} gives rows {start}-{stop - 1} of {n_rows}; "
+                                  f"allowed: a non-empty range within 0..{n_rows}")
+            ranges[split] = (start, stop)
+        return ranges
+
+    # -- the contract ----------------------------------------------------------------------
+    def values(self, source: str) -> np.ndarray:
+        return self._values
+
+    def segments(self, split: str) -> list[Segment]:
+        start, stop = self._ranges[split]
+        return [Segment(self.path, start, stop, labels=self._labels[start:stop])]
+
+    def trace(self, split: str) -> Trace:
+        """As :meth:`RecordedData.trace`; the calibration's labelled rows are left out (set missing)."""
+        from dataclasses import replace
+
+        trace = super().trace(split)
+        if split != "calibration" or not trace.fault_mask.any():
+            return trace
+        y = np.where(trace.fault_label[..., None] > 0, np.nan, trace.y)
+        labels = np.zeros_like(trace.fault_label)
+        return replace(trace, y=y, fault_mask=labels > 0, fault_label=labels)
+
+    def file_rows(self, split: str) -> tuple[int, int]:
+        """The first and last data row of the file a split covers (after ``fill="drop"``)."""
+        start, stop = self._ranges[split]
+        return int(self._rows[start]), int(self._rows[stop - 1])
+
+
+def _read(path: Path):
+    """A pandas DataFrame from a CSV or Parquet file (one-line errors)."""
+    try:
+        import pandas as pd
+    except ImportError:
+        raise ConfigError('data=table needs pandas: pip install ".[table]"') from None
+    if not path.is_file():
+        raise ConfigError(f"data.path={str(path)!r}: no such file; allowed: a .csv or .parquet file")
+    suffixes = "".join(path.suffixes[-2:]).lower()
+    try:
+        if path.suffix.lower() in (".parquet", ".pq"):
+            try:
+                import pyarrow  # noqa: F401
+            except ImportError:
+                raise ConfigError('data=table needs pyarrow for Parquet files: pip install ".[table]"') from None
+            return pd.read_parquet(path)
+        if path.suffix.lower() == ".csv" or suffixes.endswith((".csv.gz", ".csv.bz2", ".csv.zip")):
+            return pd.read_csv(path)
+    except ConfigError:
+        raise
+    except Exception as exc:
+        raise ConfigError(f"data.path={str(path)!r} cannot be read: {type(exc).__name__}: "
+                          f"{' '.join(str(exc).split())}") from None
+    raise ConfigError(f"data.path={str(path)!r} is neither CSV nor Parquet; allowed: .csv, .csv.gz, .parquet")
+
+
+def _fill(values: np.ndarray, labels: np.ndarray, fill: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Apply the missing-value policy; returns values, labels and the kept rows' numbers."""
+    rows = np.arange(len(values))
+    missing = ~np.isfinite(values)
+    if fill == "none" or not missing.any():
+        return values, labels, rows
+    if fill == "drop":
+        keep = ~missing.any(axis=1)
+        return values[keep], labels[keep], rows[keep]
+    out = values.copy()
+    for j in np.flatnonzero(missing.any(axis=0)):
+        good = ~missing[:, j]
+        if not good.any():
+            continue  # an empty column stays missing; it is constant-by-absence and dropped later
+        if fill == "hold":
+            # index of the last valid row at or before each row (the first valid one before any)
+            last = np.maximum.accumulate(np.where(good, rows, -1))
+            last = np.where(last < 0, np.flatnonzero(good)[0], last)
+            out[:, j] = values[last, j]
+        else:
+            out[:, j] = np.interp(rows, rows[good], values[good, j])
+    return out, labels, rows
+
+
+def _positive(key: str, value) -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        v = float("nan")
+    if not v > 0:
+        raise ConfigError(f"{key}={value!r} is not allowed; allowed: a number > 0 (seconds per sample)")
+    return v

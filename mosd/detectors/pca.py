@@ -1,0 +1,333 @@
+"""PCA monitoring: Hotelling's T² and the squared prediction error (SPE, Q) with their limits.
+
+The residual generator is :class:`PCAModel`: the calibration rows are
+standardised (mean and standard deviation with ddof = 1) and decomposed by
+SciPy's SVD, Z = U S Vᵀ, so that the loadings are P = V and the eigenvalues of
+the correlation matrix λ_j = s_j² / (n − 1). For a standardised row z and a
+components, with scores t = Pₐᵀ z:
+
+    T² = tᵀ Λₐ⁻¹ t = Σ_{j≤a} t_j² / λ_j                   (Hotelling)
+    SPE = ‖(I − Pₐ Pₐᵀ) z‖² = Σ_{j>a} t_j² (+ the part outside the rows' span)
+
+Limits at level α (Chiang, Russell & Braatz 2001, eqs. 4.11 and 4.22):
+
+    T²_α = a (n² − 1) / (n (n − a)) · F_α(a, n − a)
+    SPE_α = θ₁ [c_α √(2 θ₂ h₀²) / θ₁ + 1 + θ₂ h₀ (h₀ − 1) / θ₁²]^(1/h₀)   (Jackson & Mudholkar 1979)
+
+with θ_i = Σ_{j>a} λ_jⁱ, h₀ = 1 − 2 θ₁ θ₃ / (3 θ₂²) and c_α the standard normal
+(1 − α) quantile; or the empirical (1 − α) quantile of the statistic on
+held-back fault-free data. The combined rule alarms when T² or SPE is above
+its limit.
+
+:class:`PCADetector` makes this a tunable detector for any monitor whose points
+z (R, K, m) are the variables to monitor (recorded signals, or any estimator's
+residual channels): n_components (integer), α, an EWMA λ on both statistics
+(λ < 1 breaks the theoretical limits, so they are then recalibrated on the
+held-back calibration runs) and a persistence k (integer).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import linalg, special
+
+from ..validation import ConfigError, Interval, check_choice, check_in, check_int
+from .base import Decisions, Detector, persistent
+
+STATISTICS = ("combined", "t2", "spe")
+LIMITS = ("theoretical", "empirical")
+
+
+class PCAModel:
+    """Standardisation and principal components of fault-free rows (module docstring).
+
+    Parameters
+    ----------
+    X : ndarray, shape (n, m)
+        Calibration rows; rows with a non-finite value are left out.
+    names : sequence of str, optional
+        Variable names (for contributions and messages).
+    """
+
+    def __init__(self, X: np.ndarray, names=None):
+        X = np.asarray(X, float).reshape(-1, np.shape(X)[-1])
+        X = X[np.all(np.isfinite(X), axis=1)]
+        n, m = X.shape
+        self.names = tuple(names) if names is not None else tuple(f"x{i + 1}" for i in range(m))
+        if n < 3:
+            raise ConfigError(f"the PCA calibration has {n} complete rows; allowed: at least 3")
+        self.n, self.m = n, m
+        self.mean = X.mean(axis=0)
+        self.scale = X.std(axis=0, ddof=1)
+        flat = np.flatnonzero(~(self.scale > 1e-12 * np.maximum(1.0, np.abs(self.mean))))
+        if flat.size:
+            raise ConfigError(f"variable {self.names[flat[0]]} is constant over the PCA calibration rows; "
+                              "allowed: variables that vary (drop constant columns)")
+        Z = (X - self.mean) / self.scale
+        _, s, vt = linalg.svd(Z, full_matrices=False, lapack_driver="gesdd")
+        # a deterministic sign (largest loading positive): T² and SPE do not depend on it, the scores do
+        signs = np.sign(vt[np.arange(vt.shape[0]), np.argmax(np.abs(vt), axis=1)])
+        self.loadings = (vt * signs[:, None]).T          # (m, r), r = min(n, m)
+        self.eigenvalues = s**2 / (n - 1)                # (r,)
+
+    # -- one row at a time or many: every method takes (..., m) -------------------------------
+    def standardise(self, X: np.ndarray) -> np.ndarray:
+        return (np.asarray(X, float) - self.mean) / self.scale
+
+    def scores(self, X: np.ndarray, standardised: bool = False) -> np.ndarray:
+        """t = Pᵀ z on every component, shape (..., r)."""
+        Z = np.asarray(X, float) if standardised else self.standardise(X)
+        return Z @ self.loadings
+
+    def check_components(self, a: int, key: str = "detector.n_components") -> int:
+        a = int(a)
+        top = min(self.m, self.n) - 1
+        if not 1 <= a <= top:
+            raise ConfigError(f"{key}={a} is out of range for {self.m} variables and {self.n} calibration rows; "
+                              f"allowed: integers in [1, {top}]")
+        return a
+
+    def t2(self, X: np.ndarray, a: int, standardised: bool = False) -> np.ndarray:
+        """Hotelling's T² with a components, shape (...)."""
+        t = self.scores(X, standardised)[..., : self.check_components(a)]
+        return np.sum(t**2 / self.eigenvalues[:a], axis=-1)
+
+    def spe(self, X: np.ndarray, a: int, standardised: bool = False) -> np.ndarray:
+        """SPE (Q) with a components: the squared norm of the residual (I − Pₐ Pₐᵀ) z, shape (...)."""
+        Z = np.asarray(X, float) if standardised else self.standardise(X)
+        P = self.loadings[:, : self.check_components(a)]
+        residual = Z - (Z @ P) @ P.T
+        return np.sum(residual**2, axis=-1)
+
+    def contributions(self, X: np.ndarray, a: int, standardised: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """Per-variable contributions to T² and to SPE, each (..., m), summing to the statistics.
+
+        T²: c_i = z_i (Pₐ Λₐ⁻¹ Pₐᵀ z)_i (the complete decomposition, Alcala & Qin 2009);
+        SPE: c_i = e_i² with e = (I − Pₐ Pₐᵀ) z.
+        """
+        Z = np.asarray(X, float) if standardised else self.standardise(X)
+        P = self.loadings[:, : self.check_components(a)]
+        t = Z @ P
+        c_t2 = Z * ((t / self.eigenvalues[:a]) @ P.T)
+        c_spe = (Z - t @ P.T) ** 2
+        return c_t2, c_spe
+
+    def t2_limit(self, a: int, alpha: float) -> float:
+        return t2_limit(self.n, self.check_components(a), alpha)
+
+    def spe_limit(self, a: int, alpha: float) -> float:
+        return spe_limit(self.eigenvalues[self.check_components(a):], alpha)
+
+
+def t2_limit(n: int, a: int, alpha: float) -> float:
+    """T²_α = a (n² − 1) / (n (n − a)) · F_α(a, n − a) (module docstring)."""
+    quantile = float(special.fdtri(a, n - a, 1.0 - alpha))
+    return a * (n**2 - 1) / (n * (n - a)) * quantile
+
+
+def spe_limit(residual_eigenvalues: np.ndarray, alpha: float) -> float:
+    """Jackson–Mudholkar SPE_α from the eigenvalues left out of the model (module docstring)."""
+    lam = np.asarray(residual_eigenvalues, float)
+    theta1, theta2, theta3 = (float(np.sum(lam**i)) for i in (1, 2, 3))
+    if theta1 <= 0.0:
+        return 0.0
+    h0 = 1.0 - 2.0 * theta1 * theta3 / (3.0 * theta2**2)
+    c_alpha = float(special.ndtri(1.0 - alpha))
+    inner = c_alpha * math.sqrt(2.0 * theta2 * h0**2) / theta1 + 1.0 + theta2 * h0 * (h0 - 1.0) / theta1**2
+    return theta1 * inner ** (1.0 / h0)
+
+
+def empirical_limit(values: np.ndarray, alpha: float) -> float:
+    """The (1 − α) quantile of the finite values (NumPy's linear interpolation)."""
+    values = np.asarray(values, float)
+    values = values[np.isfinite(values)]
+    if values.size == 0:
+        raise ConfigError("no finite held-back calibration point for an empirical limit; allowed: calibration "
+                          "data with complete rows")
+    return float(np.quantile(values, 1.0 - alpha))
+
+
+def ewma_from(x: np.ndarray, lam: float, start: float) -> np.ndarray:
+    """E_k = λ x_k + (1 − λ) E_{k−1} along the last axis, from E_{−1} = ``start``.
+
+    A missing point (NaN) enters as ``start``, the in-control mean: what a
+    fault-free point adds on average.
+    """
+    x = np.where(np.isfinite(x), x, start)
+    if lam >= 1.0:
+        return x
+    # imported here: scipy.signal pulls in scipy.stats (ARCHITECTURE: not on every run's start)
+    from scipy.signal import lfilter
+
+    zi = np.full(x.shape[:-1] + (1,), (1.0 - lam) * start)
+    return lfilter([lam], [1.0, -(1.0 - lam)], x, axis=-1, zi=zi)[0]
+
+
+@dataclass
+class _Projected:
+    """T²(a) and SPE(a) of every point for every a, from cumulative sums over the scores."""
+
+    t2: np.ndarray      # (R, K, r): T² with a = 1..r components at index a - 1
+    spe: np.ndarray     # (R, K, r): SPE with a = 1..r components at index a - 1
+    finite: np.ndarray  # (R, K): complete rows
+
+    @classmethod
+    def of(cls, model: PCAModel, z: np.ndarray) -> "_Projected":
+        finite = np.all(np.isfinite(z), axis=-1)
+        Z = np.where(finite[..., None], model.standardise(z), 0.0)
+        t = Z @ model.loadings
+        t2 = np.cumsum(t**2 / model.eigenvalues, axis=-1)
+        # SPE(a) = Σ_{j>a} t_j² + what lies outside the loadings' span (0 when n > m): summed from
+        # the small end, so that a small SPE is not the difference of two large numbers
+        outside = np.maximum(np.sum(Z**2, axis=-1) - np.sum(t**2, axis=-1), 0.0)
+        tail = np.cumsum((t**2)[..., ::-1], axis=-1)[..., ::-1]
+        spe = np.concatenate([tail[..., 1:], np.zeros(t.shape[:-1] + (1,))], axis=-1) + outside[..., None]
+        nan = ~finite[..., None]
+        return cls(np.where(nan, np.nan, t2), np.where(nan, np.nan, spe), finite)
+
+
+class PCADetector(Detector):
+    """PCA T²/SPE monitoring with tunable components, α, EWMA λ and persistence (module docstring).
+
+    Parameters
+    ----------
+    n_components : int
+        Principal components a (tunable, integers in [1, max_components]).
+    alpha : float
+        Significance level of each limit, in (0, 0.5] (tunable).
+    lam : float
+        EWMA smoothing of T² and SPE, in (0, 1]; 1 = no smoothing (tunable).
+    k : int
+        Consecutive points above the limit before an alarm, in [1, k_max] (tunable).
+    statistic : {"combined", "t2", "spe"}
+        Alarm on T² or SPE (combined), or on one of them.
+    limits : {"theoretical", "empirical"}
+        F / Jackson–Mudholkar limits, or the (1 − α) quantiles on the held-back calibration
+        runs. With lam < 1 the limits are always empirical (smoothing changes the distributions).
+    fit_runs : int, optional
+        The first ``fit_runs`` calibration runs fit the PCA; the others are held back for the
+        empirical limits. None: all runs do both (the empirical limits are then in-sample).
+    max_components, k_max : int
+        Upper ends of the search ranges of n_components and k.
+    """
+
+    tunable = {"n_components": Interval(1, 20, integer=True), "alpha": Interval(0.0, 0.5, open_low=True),
+               "lam": Interval(0.0, 1.0, open_low=True), "k": Interval(1, 10, integer=True)}
+
+    def __init__(self, n_components: int = 9, alpha: float = 0.01, lam: float = 1.0, k: int = 1,
+                 statistic: str = "combined", limits: str = "theoretical", fit_runs: int | None = None,
+                 max_components: int = 20, k_max: int = 10):
+        max_components = check_int("detector.max_components", max_components, 1, 10_000)
+        k_max = check_int("detector.k_max", k_max, 1, 10_000)
+        self.tunable = {"n_components": Interval(1, max_components, integer=True),
+                        "alpha": Interval(0.0, 0.5, open_low=True), "lam": Interval(0.0, 1.0, open_low=True),
+                        "k": Interval(1, k_max, integer=True)}
+        self.max_components, self.k_max = max_components, k_max
+        self.n_components = check_in("detector.n_components", n_components, self.tunable["n_components"])
+        self.alpha = check_in("detector.alpha", alpha, self.tunable["alpha"])
+        self.lam = check_in("detector.lam", lam, self.tunable["lam"])
+        self.k = check_in("detector.k", k, self.tunable["k"])
+        self.statistic = check_choice("detector.statistic", statistic, STATISTICS)
+        self.limits = check_choice("detector.limits", limits, LIMITS)
+        self.fit_runs = None if fit_runs is None else check_int("detector.fit_runs", fit_runs, 1)
+        self._cache: dict = {}
+
+    # -- the fitted parts (parameter-free: cached per data set) --------------------------------
+    def _remember(self, key, refs, make):
+        """``make()`` cached under ``key`` while the arrays ``refs`` are the same objects (ids are reused)."""
+        hit = self._cache.get(key)
+        if hit is None or any(a is not b for a, b in zip(hit[0], refs)):
+            if len(self._cache) >= 8:  # a tuning needs two or three entries; a long session must not grow
+                self._cache.pop(next(iter(self._cache)))
+            hit = (refs, make())
+            self._cache[key] = hit
+        return hit[1]
+
+    def fit_rows(self, calibration_z: np.ndarray) -> np.ndarray:
+        return calibration_z if self.fit_runs is None else calibration_z[: self.fit_runs]
+
+    def held_back(self, calibration_z: np.ndarray) -> np.ndarray:
+        """The calibration runs the empirical limits come from (all runs when none is held back)."""
+        if self.fit_runs is None or calibration_z.shape[0] <= self.fit_runs:
+            return calibration_z
+        return calibration_z[self.fit_runs:]
+
+    def model(self, calibration_z: np.ndarray, names=None) -> PCAModel:
+        """The PCA of the fit runs of ``calibration_z`` (R, K, m) (cached while the array lives)."""
+        return self._remember(("model", id(calibration_z)), (calibration_z,),
+                              lambda: PCAModel(np.asarray(self.fit_rows(calibration_z), float), names))
+
+    def _calibration(self, calibration_z: np.ndarray):
+        """The model, its fit rows' and the held-back runs' projections."""
+        model = self.model(calibration_z)
+        return self._remember(("calibration", id(calibration_z)), (calibration_z, model), lambda: (
+            model, _Projected.of(model, np.asarray(self.fit_rows(calibration_z), float)),
+            _Projected.of(model, np.asarray(self.held_back(calibration_z), float))))
+
+    def _projected(self, model: PCAModel, z: np.ndarray) -> _Projected:
+        return self._remember(("projected", id(model), id(z)), (model, z),
+                              lambda: _Projected.of(model, np.asarray(z, float)))
+
+    def __getstate__(self):
+        state = dict(self.__dict__)
+        state["_cache"] = {}
+        return state
+
+    def _empirical(self, lam: float) -> bool:
+        return self.limits == "empirical" or lam < 1.0
+
+    def _design(self, calibration, proj: _Projected, a: int, alpha: float, lam: float, names=("t2", "spe")):
+        """{name: (statistic (R, K), limit)} of one design: what the decision and the figures share."""
+        model, fit_rows, held = calibration
+        a = model.check_components(a)
+        out = {}
+        for name in names:
+            start = float(np.nanmean(getattr(fit_rows, name)[..., a - 1]))  # the in-control mean
+            value = np.where(proj.finite, ewma_from(getattr(proj, name)[..., a - 1], lam, start), np.nan)
+            if self._empirical(lam):
+                held_values = np.where(held.finite, ewma_from(getattr(held, name)[..., a - 1], lam, start), np.nan)
+                limit = empirical_limit(held_values, alpha)
+            elif name == "t2":
+                limit = t2_limit(model.n, a, alpha)
+            else:
+                limit = spe_limit(model.eigenvalues[a:], alpha)
+            out[name] = (value, limit)
+        return out
+
+    # -- the decision -------------------------------------------------------------------
+    def features(self, z: np.ndarray) -> np.ndarray:
+        return np.asarray(z, float)
+
+    def statistics(self, calibration_z: np.ndarray, z: np.ndarray, design: dict | None = None) -> dict:
+        """T² and SPE of one design on z (smoothed when lam < 1) and their limits: what the figures plot.
+
+        Returns ``{"t2": (R, K), "t2_limit": float, "spe": (R, K), "spe_limit": float}``.
+        """
+        d = {**self.get_params(), **(design or {})}
+        calibration = self._calibration(calibration_z)
+        parts = self._design(calibration, self._projected(calibration[0], z), int(round(d["n_components"])),
+                             float(d["alpha"]), float(d["lam"]))
+        return {key: v for name, (value, limit) in parts.items()
+                for key, v in ((name, value), (f"{name}_limit", limit))}
+
+    def population(self, calibration_features: np.ndarray, features: np.ndarray, X: np.ndarray) -> Decisions:
+        """Decisions of every design in X (P, 4) = (n_components, alpha, lam, k).
+
+        The statistic is the ratio to the limit (the larger of T²/T²_α and SPE/SPE_α for the
+        combined rule), so the threshold is 1.
+        """
+        X = np.atleast_2d(np.asarray(X, float))
+        calibration = self._calibration(calibration_features)
+        proj = self._projected(calibration[0], features)
+        names = ("t2", "spe") if self.statistic == "combined" else (self.statistic,)
+        statistic = np.empty((X.shape[0],) + proj.finite.shape)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            for p, (a, alpha, lam, _) in enumerate(X):
+                parts = self._design(calibration, proj, int(round(a)), float(alpha), float(lam), names)
+                ratios = [value / limit for value, limit in parts.values()]
+                statistic[p] = ratios[0] if len(ratios) == 1 else np.fmax(ratios[0], ratios[1])
+            above = statistic > 1.0
+        alarm = persistent(above, np.maximum(np.rint(X[:, 3]), 1).astype(int))
+        return Decisions(statistic, np.ones((X.shape[0], 1, 1)), alarm.astype(np.int8))
