@@ -55,6 +55,11 @@ PRESETS = _preset_choices()
 
 def _fault_override(group, option):
     """The context an option is composed in: the paper-000 default, or the preset that uses the option."""
+    if group == "data":  # recorded data replace plant/noise/fault: the TE preset; a table needs a file
+        from mosd.data.tep import bibmon_directory
+
+        table = bibmon_directory().parent / "real_process_data" / "real_process_data.csv"
+        return ["+experiment=tep", *([f"data.path={table}"] if option == "table" else [])]
     if group in ("experiment", "denoise", "optimizer", "tracking"):
         return [] if group == "experiment" else ["+fault=offset_var"]
     for preset, choices in PRESETS.items():

@@ -10,7 +10,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "mosd"
 #: the science core: every component package, the pipeline and the paper reports
 CORE = ["mosd.types", "mosd.validation", "mosd.model", "mosd.scenario", "mosd.experiment", "mosd.plants", "mosd.noise",
         "mosd.faults", "mosd.estimators", "mosd.monitors", "mosd.detectors", "mosd.denoisers", "mosd.metrics",
-        "mosd.optim", "mosd.arl", "mosd.paper", "mosd.systems"]
+        "mosd.optim", "mosd.arl", "mosd.paper", "mosd.systems", "mosd.data", "mosd.recorded"]
 FORBIDDEN = ("hydra", "mlflow", "omegaconf")
 
 
@@ -60,7 +60,7 @@ def _imports(path: Path) -> set[str]:
 
 
 @pytest.mark.parametrize("kind", ["plants", "noise", "faults", "estimators", "monitors", "detectors", "denoisers",
-                                  "metrics"])
+                                  "metrics", "data"])
 def test_components_never_import_upwards(kind):
     """A component imports contracts and other components, never the pipeline, the optimisers or the app."""
     upward = ("mosd.experiment", "mosd.app", "mosd.optim", "mosd.paper", "mosd.systems", "mosd.bench")

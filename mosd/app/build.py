@@ -172,7 +172,12 @@ def _takes(target_path: str, name: str) -> bool:
 def build(cfg) -> Setup:
     """Validate a composed config and build every component (no simulation, no output)."""
     check_keys(cfg)
-    if cfg.get("fault") is None:
+    # recorded data (data=tep, data=table: mosd.data) take the place of plant, noise and fault
+    recorded = cfg.get("data") is not None
+    if recorded and cfg.get("fault") is not None:
+        raise ConfigError("a fault does not apply to recorded data (data=...): its faults are the recording's labels; "
+                          "allowed: no +fault")
+    if cfg.get("fault") is None and not recorded:
         raise UsageError(no_fault_message())
     # imported after the cheap checks so that a typo is reported without loading SciPy
     from pymoo.termination.max_gen import MaximumGenerationTermination
@@ -184,15 +189,19 @@ def build(cfg) -> Setup:
     from ..optim.selection import RULES, choose
     from .tracking import TrackingSettings
 
-    plant = instantiate_section("plant", cfg.plant)
-    noise_extra = {}
-    if _takes(cfg.noise.get("_target_"), "n_x"):
-        noise_extra = {"n_x": len(plant.state_names), "n_y": len(plant.output_names)}
-    noise = instantiate_section("noise", cfg.noise, **noise_extra)
-    fault = instantiate_section("fault", cfg.fault)
+    if recorded:
+        data = instantiate_section("data", cfg.data)
+    else:
+        plant = instantiate_section("plant", cfg.plant)
+        noise_extra = {}
+        if _takes(cfg.noise.get("_target_"), "n_x"):
+            noise_extra = {"n_x": len(plant.state_names), "n_y": len(plant.output_names)}
+        noise = instantiate_section("noise", cfg.noise, **noise_extra)
+        fault = instantiate_section("fault", cfg.fault)
     estimator = instantiate_section("estimator", cfg.estimator)
     monitor = instantiate_section("monitor", cfg.monitor)
-    _check_channels(plant, estimator, monitor)
+    if not recorded:
+        _check_channels(plant, estimator, monitor)
     denoiser = instantiate_section("denoise", cfg.denoise)
     detector_extra = {}
     if _takes(cfg.detector.get("_target_"), "denoiser"):
@@ -222,8 +231,14 @@ def build(cfg) -> Setup:
     if rule != "knee" and not {"far", "mdr"} <= set(objectives):
         raise ConfigError(f"selection.rule={rule} needs far and mdr among optimizer.objectives "
                           f"({', '.join(objectives)}); allowed: knee")
-    experiment = Experiment(plant, noise, fault, estimator, monitor, detector, duration=cfg.scenario.duration,
-                            budget=budget, seed=cfg.seed, objectives=objectives)
+    if recorded:
+        from ..recorded import RecordedExperiment
+
+        experiment = RecordedExperiment(data, estimator, monitor, detector, budget=budget, seed=cfg.seed,
+                                        objectives=objectives)
+    else:
+        experiment = Experiment(plant, noise, fault, estimator, monitor, detector, duration=cfg.scenario.duration,
+                                budget=budget, seed=cfg.seed, objectives=objectives)
     study = instantiate_section("study", cfg.study) if cfg.get("study") is not None else None
     return Setup(experiment=experiment, algorithm=algorithm, termination=MaximumGenerationTermination(n_gen),
                  n_gen=n_gen, n_jobs=n_jobs, bounds=bounds, choose=functools.partial(choose, rule=rule, alpha=alpha),

@@ -23,7 +23,7 @@ CONFIG_DIR = _find_config_dir()
 CONFIG_NAME = "config"
 
 #: Sections built with ``hydra.utils.instantiate`` (config group → constructor).
-COMPONENTS = ("plant", "noise", "fault", "estimator", "monitor", "denoise", "detector", "optimizer", "study")
+COMPONENTS = ("plant", "noise", "fault", "estimator", "monitor", "denoise", "detector", "optimizer", "study", "data")
 #: Keys of a component section that configure the run, not the constructor.
 RUN_KEYS = {"detector": ("bounds",), "optimizer": ("n_gen", "n_jobs", "objectives", "backend", "dask_address")}
 #: Plain sections and their keys.

@@ -113,6 +113,8 @@ def _composition_message(exc: BaseException, compose_group_only: Callable[[], An
 def _run_length(setup: Setup) -> str:
     """``scenario.duration=5.2 s at plant.dt=0.001 s`` — the derivation behind a bound."""
     exp = setup.experiment
+    if getattr(exp, "data", None) is not None:
+        return f"recorded data {exp.data!r}"
     return f"scenario.duration={exp.duration:g} s at plant.dt={exp.plant.dt:g} s"
 
 
@@ -171,6 +173,9 @@ def dry_run(setup: Setup) -> None:
     from ..experiment import Budget, Experiment
 
     exp = setup.experiment
+    if getattr(exp, "data", None) is not None:  # recorded data: the real splits (mosd.recorded)
+        exp.dry_run(_default_design(setup))
+        return
     if getattr(exp.estimator, "requires_fit", False):
         _check_burn_in(setup, int(round(exp.duration / exp.plant.dt)))
         return

@@ -167,6 +167,8 @@ def write_run_files(run_dir: Path, cfg, result, setup: Setup, labels: Mapping[st
         "train": dict(result.train_objectives),
         "test": {k: {"mean": v.mean, "ci95_half_width": v.half_width, "n": v.n} for k, v in summary.items()},
         "sigma": result.sigma,
+        # recorded data: which rows of which recording each split used (mosd.data)
+        **({"data": setup.experiment.describe()} if hasattr(setup.experiment, "describe") else {}),
         **({"study": dict(study)} if study else {}),
         "timings": result.timings,
     }, indent=2, allow_nan=True))
@@ -245,7 +247,8 @@ def header_line(labels: Mapping[str, str], setup: Setup) -> str:
     """``mosd  fault=…  detector=…  optimizer=… (pop × gen)  estimator=…  denoise=…``: the summary's first line."""
     pop = getattr(setup.algorithm, "pop_size", "?")
     preset = f"experiment={labels['experiment']}  " if labels.get("experiment") else ""
-    return (f"mosd  {preset}fault={labels.get('fault')}  detector={labels.get('detector')}  "
+    source = f"data={labels['data']}" if labels.get("data") else f"fault={labels.get('fault')}"
+    return (f"mosd  {preset}{source}  detector={labels.get('detector')}  "
             f"optimizer={labels.get('optimizer', '')} ({pop} × {setup.n_gen})  estimator={labels.get('estimator')}  "
             f"denoise={labels.get('denoise')}")
 

@@ -106,8 +106,13 @@ class Table(RecordedData):
             if not np.any(labels[start:stop] == 0):
                 raise ConfigError(f"data.splits.{split}: rows {start}-{stop - 1} of {self.path} have no fault-free "
                                   f"row (column {label_name!r}); allowed: a range with normal rows (label 0 or empty)")
-        spread = np.nanstd(values[calibration][normal], axis=0)
-        constant = ~(spread > 0)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # an all-missing column: NaN, constant-by-absence
+            reference = values[calibration][normal]
+            spread = np.nanstd(reference, axis=0, ddof=1)
+            level = np.nanmean(np.abs(reference), axis=0)
+        # relative: the std of a constant 0.0888 comes out as 1e-17, not 0
+        constant = ~(spread > 1e-12 * np.maximum(1.0, level))
         if constant.all():
             raise ConfigError(f"data.tags: every tag of {self.path} is constant over the calibration rows; "
                               "allowed: tags that vary")

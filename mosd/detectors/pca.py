@@ -27,6 +27,7 @@ held-back calibration runs) and a persistence k (integer).
 """
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass
 
@@ -66,7 +67,8 @@ class PCAModel:
             raise ConfigError(f"variable {self.names[flat[0]]} is constant over the PCA calibration rows; "
                               "allowed: variables that vary (drop constant columns)")
         Z = (X - self.mean) / self.scale
-        _, s, vt = linalg.svd(Z, full_matrices=False, lapack_driver="gesdd")
+        with _one_blas_thread():
+            _, s, vt = linalg.svd(Z, full_matrices=False, lapack_driver="gesdd")
         # a deterministic sign (largest loading positive): T² and SPE do not depend on it, the scores do
         signs = np.sign(vt[np.arange(vt.shape[0]), np.argmax(np.abs(vt), axis=1)])
         self.loadings = (vt * signs[:, None]).T          # (m, r), r = min(n, m)
@@ -119,6 +121,18 @@ class PCAModel:
 
     def spe_limit(self, a: int, alpha: float) -> float:
         return spe_limit(self.eigenvalues[self.check_components(a):], alpha)
+
+
+def _one_blas_thread():
+    """One BLAS thread for a small SVD: a multi-threaded LAPACK call on a 500 x 33 matrix took 0.5 s
+    instead of 1 ms on a loaded 2-core machine (threads spinning for cores other processes hold)."""
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:  # pragma: no cover - threadpoolctl comes with scikit-learn; without it, BLAS decides
+        import contextlib
+
+        return contextlib.nullcontext()
+    return threadpool_limits(limits=1, user_api="blas")
 
 
 def t2_limit(n: int, a: int, alpha: float) -> float:
@@ -234,13 +248,21 @@ class PCADetector(Detector):
         self.fit_runs = None if fit_runs is None else check_int("detector.fit_runs", fit_runs, 1)
         self._cache: dict = {}
 
+    def with_statistic(self, statistic: str) -> "PCADetector":
+        """A copy that alarms on ``statistic`` (combined, t2 or spe), the same design otherwise."""
+        new = copy.copy(self)
+        new.statistic = check_choice("detector.statistic", statistic, STATISTICS)
+        return new
+
     # -- the fitted parts (parameter-free: cached per data set) --------------------------------
     def _remember(self, key, refs, make):
         """``make()`` cached under ``key`` while the arrays ``refs`` are the same objects (ids are reused)."""
         hit = self._cache.get(key)
         if hit is None or any(a is not b for a, b in zip(hit[0], refs)):
-            if len(self._cache) >= 8:  # a tuning needs two or three entries; a long session must not grow
-                self._cache.pop(next(iter(self._cache)))
+            if len(self._cache) >= 16:  # a tuning needs three entries; a long session must not grow
+                # the oldest projection goes first: a model and its calibration cost an SVD
+                keys = [k for k in self._cache if k[0] == "projected"] or list(self._cache)
+                self._cache.pop(keys[0])
             hit = (refs, make())
             self._cache[key] = hit
         return hit[1]

@@ -1,0 +1,337 @@
+"""Tennessee Eastman: the classic per-fault PCA table, the literature's design beside the tuned one.
+
+The literature's design (Yin et al. 2012, section 4.1): the 33 variables
+XMEAS(1)-XMEAS(22) and XMV(1)-XMV(11), standardised with the mean and standard
+deviation (ddof = 1) of ``d00.dat``, 9 principal components, theoretical
+limits (F for T², Jackson–Mudholkar for SPE) at α = 0.01, a sample flagged
+when T² or SPE is above its limit, no smoothing, no persistence. The tuned
+design is the optimiser's (:mod:`mosd.detectors.pca`: components, α, EWMA λ
+with recalibrated limits, persistence k).
+
+Definitions (per sample, as in the literature):
+
+* ``fdr`` of fault N — the share of the 800 post-onset samples of ``dNN_te.dat``
+  (rows 160-959) that alarm: the fault detection rate, 1 − MDR;
+* ``far`` — the share of rows 160-959 of ``d00_te.dat`` that alarm.
+
+:class:`Study` computes both for every statistic (T², SPE, combined) and
+design; ``python -m mosd.systems.tep`` prints the table without the optimiser,
+with the recorded tuned design (``mosd/systems/designs/tep.json``) and the
+published numbers beside ours. ``--table FILE`` monitors any CSV/Parquet
+export instead: fit on its first half, the alarm rate on the rest and the tags
+that drive the alarms.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+from ..data.tep import ALL_FAULTS, DEFAULT_FAULTS, ONSET, TennesseeEastman
+from ..detectors.pca import PCADetector
+from ..validation import ConfigError, check_int
+from . import base, cli
+from .base import TUNED, figure, recorded_designs
+
+SYSTEM = "tep"
+STATISTICS = ("t2", "spe", "combined")
+#: the literature's design (module docstring)
+LITERATURE = {"n_components": 9, "alpha": 0.01, "lam": 1.0, "k": 1}
+LIT = "lit"
+
+#: Yin, Ding, Haghani, Hao & Zhang (2012), J. Process Control 22(9) 1567-1581, PCA with 9 components on the
+#: 33 variables: Table 4 (FDR in %, a sample flagged when T² or SPE exceeds its limit; faults 1-15 only) and
+#: Table 5 (FAR in %). Transcribed from the paper in the repository rajkhatri08/plant-health-rca-agent,
+#: eval/published/yin2012.yaml (docs/systems/tep.md: how they were found and checked).
+YIN2012_FDR_COMBINED = {1: 99.88, 2: 98.75, 3: 12.88, 4: 100.0, 5: 33.63, 6: 100.0, 7: 100.0, 8: 98.0, 9: 8.38,
+                        10: 60.5, 11: 78.88, 12: 99.13, 13: 95.38, 14: 100.0, 15: 14.13}
+YIN2012_FAR_COMBINED = 6.13
+
+
+def _z(experiment, trace) -> np.ndarray:
+    """The detector's points of a recorded trace: the experiment's estimator and monitor."""
+    return experiment.monitor.transform(experiment.estimator.estimate(trace, None)).z
+
+
+def _literature_source(data: TennesseeEastman) -> TennesseeEastman:
+    """The same files with the literature's 33 variables (``data`` itself when it has them)."""
+    if data.variables == "literature":
+        return data
+    return TennesseeEastman(directory=data.directory, variables="literature", faults=data.faults,
+                            test_faults=data.test_faults)
+
+
+def alarm_rates(detector: PCADetector, calibration_z: np.ndarray, test_z: np.ndarray) -> dict[str, np.ndarray]:
+    """Per test run, the share of points that alarm, for T², SPE and the combined rule (R,) each."""
+    return {stat: detector.with_statistic(stat).decide(calibration_z, test_z).decision.astype(bool).mean(axis=-1)
+            for stat in STATISTICS}
+
+
+class Study(base.Study):
+    """The TE per-fault table of the tuned design and of the literature's (module docstring).
+
+    Metrics (``summary.json`` under ``"study"``), for design D in {``lit``, ``tuned``} (the issue's
+    names: both designs are prefixed), statistic S in {``t2``, ``spe``, ``combined``} and fault N:
+
+    * ``D_fdr_S_idvN`` — fault N's detection rate on its 800 post-onset test samples (all three
+      statistics for ``lit``, the combined rule the design alarms on for ``tuned``);
+    * ``D_far_S`` — the false-alarm rate on ``d00_te.dat`` rows 160-959;
+    * ``D_mdr_combined_mean`` — 1 − the mean combined detection rate over the training faults
+      (``data.faults``, by default all but 3, 9 and 15): the MDR the optimiser minimised, on the test files.
+
+    Parameters
+    ----------
+    fault : int
+        The fault (IDV number) of the statistics and contribution figures.
+    top : int
+        Variables shown in the contribution figure.
+    figures : bool
+    """
+
+    system = SYSTEM
+
+    def __init__(self, fault: int = 10, top: int = 10, figures: bool = True):
+        super().__init__(figures=figures)
+        self.fault = check_int("study.fault", fault, 1, 21)
+        self.top = check_int("study.top", top, 1, 52)
+
+    def reference_designs(self, detector) -> dict[str, Any]:
+        """The literature's design (module docstring), fitted on d00.dat alone."""
+        return {LIT: PCADetector(**LITERATURE, statistic="combined", limits="theoretical", fit_runs=1)}
+
+    def compute(self, experiment, designs: Mapping[str, Any]) -> dict:
+        data = getattr(experiment, "data", None)
+        if not isinstance(data, TennesseeEastman):
+            raise ConfigError("study mosd.systems.tep.Study needs data=tep; allowed: +experiment=tep")
+        if self.fault not in data.test_faults:
+            raise ConfigError(f"study.fault={self.fault} is not among data.test_faults; allowed: "
+                              f"{', '.join(map(str, data.test_faults))}")
+        out: dict = {"fdr": {}, "far": {}, "params": {}, "faults": list(data.test_faults),
+                     "train_faults": list(data.faults), "figure_fault": self.fault}
+        for name, detector in designs.items():
+            source = _literature_source(data) if name == LIT else data
+            calibration = _z(experiment, source.trace("calibration"))
+            test = source.trace("test")
+            labels = test.fault_label.max(axis=1)
+            rates = alarm_rates(detector, calibration, _z(experiment, test))
+            out["fdr"][name] = {s: {int(n): float(r[labels == n][0]) for n in data.test_faults} for s, r in rates.items()}
+            out["far"][name] = {s: float(r[labels == 0][0]) for s, r in rates.items()}
+            out["params"][name] = {k: (int(v) if k in ("n_components", "k") else float(v))
+                                   for k, v in detector.get_params().items()}
+            out.setdefault("figure", {})[name] = self._figure_data(experiment, source, detector, calibration)
+        out["variables"] = {name: list((_literature_source(data) if name == LIT else data).output_names)
+                            for name in designs}
+        return out
+
+    def _figure_data(self, experiment, source: TennesseeEastman, detector: PCADetector, calibration: np.ndarray):
+        """T², SPE and their limits over the whole test file of the figure's fault, and the contributions."""
+        from dataclasses import replace
+
+        from ..data.tep import file_name
+
+        rows = source.values(file_name(self.fault, test=True))
+        trace = source.trace("test")
+        whole = replace(trace, y=rows[None], fault_mask=(np.arange(len(rows)) >= ONSET)[None],
+                        fault_label=np.where(np.arange(len(rows)) >= ONSET, self.fault, 0)[None],
+                        t=np.arange(len(rows)) * source.dt)
+        z = _z(experiment, whole)
+        stats = detector.statistics(calibration, z)
+        decision = detector.decide(calibration, z).decision[0].astype(bool)
+        model = detector.model(calibration)
+        c_t2, c_spe = model.contributions(z[0], int(detector.n_components))
+        alarmed = decision & (np.arange(len(rows)) >= ONSET)
+        pick = alarmed if alarmed.any() else np.arange(len(rows)) >= ONSET
+        return {"hours": np.arange(len(rows)) * source.dt / 3600.0, "t2": stats["t2"][0], "spe": stats["spe"][0],
+                "t2_limit": stats["t2_limit"], "spe_limit": stats["spe_limit"], "alarm": decision,
+                "contribution_t2": c_t2[pick].mean(axis=0), "contribution_spe": c_spe[pick].mean(axis=0),
+                "n_alarmed": int(alarmed.sum())}
+
+    def metrics(self, data: dict) -> dict[str, float]:
+        metrics: dict[str, float] = {}
+        train = [f for f in data["train_faults"] if f in data["faults"]]
+        for name in data["fdr"]:
+            prefix = f"{name}_"
+            # the tuned design alarms on the combined rule: its T²/SPE rates are in the table and figure only
+            for stat in STATISTICS if name == LIT else ("combined",):
+                for fault, rate in data["fdr"][name][stat].items():
+                    metrics[f"{prefix}fdr_{stat}_idv{fault}"] = rate
+            for stat in STATISTICS:
+                metrics[f"{prefix}far_{stat}"] = data["far"][name][stat]
+            combined = data["fdr"][name]["combined"]
+            metrics[f"{prefix}mdr_combined_mean"] = float(1.0 - np.mean([combined[f] for f in train]))
+        return metrics
+
+    def write_figures(self, data: dict, out_dir: Path) -> list[Path]:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        files = [self._rates_figure(data, out_dir / "tep_detection_rates.png"),
+                 self._statistics_figure(data, out_dir / "tep_statistics.png"),
+                 self._contributions_figure(data, out_dir / "tep_contributions.png")]
+        path = out_dir / "tep_table.csv"
+        path.write_text(format_table(data, csv=True))
+        return [*files, path]
+
+    def _rates_figure(self, data: dict, path: Path) -> Path:
+        designs = list(data["fdr"])
+        fig = figure(10, 2.6 * len(designs))
+        faults = data["faults"]
+        x = np.arange(len(faults))
+        for i, name in enumerate(designs):
+            ax = fig.add_subplot(len(designs), 1, i + 1)
+            for j, stat in enumerate(STATISTICS):
+                ax.bar(x + (j - 1) * 0.27, [data["fdr"][name][stat][f] for f in faults], 0.27,
+                       label={"t2": "T²", "spe": "SPE", "combined": "T² or SPE"}[stat])
+            ax.set_xticks(x, [str(f) for f in faults])
+            ax.set_ylim(0, 1.05)
+            ax.set_ylabel("detection rate")
+            far = data["far"][name]["combined"]
+            ax.set_title(f"{_label(name)} {_design_text(data['params'][name])}: FAR (combined) {far:.3f}")
+            if i == 0:
+                ax.legend(loc="lower left", ncols=3, fontsize=8)
+        ax.set_xlabel("fault IDV(N), test files rows 160-959")
+        fig.savefig(path, dpi=110)
+        return path
+
+    def _statistics_figure(self, data: dict, path: Path) -> Path:
+        designs = list(data["figure"])
+        fig = figure(10, 2.2 * 2 * len(designs))
+        row = 0
+        for name in designs:
+            f = data["figure"][name]
+            for stat, label in (("t2", "T²"), ("spe", "SPE")):
+                row += 1
+                ax = fig.add_subplot(2 * len(designs), 1, row)
+                ax.semilogy(f["hours"], np.maximum(f[stat], 1e-6), lw=0.8, label=label)
+                ax.axhline(f[f"{stat}_limit"], color="C3", lw=1.0, label=f"limit {f[f'{stat}_limit']:.3g}")
+                ax.axvline(ONSET * 0.05, color="k", ls=":", lw=0.8)
+                ax.set_ylabel(label)
+                ax.legend(loc="upper left", fontsize=8)
+                ax.set_title(f"{_label(name)} on d{data['figure_fault']:02d}_te.dat (fault from 8 h)", fontsize=9)
+        ax.set_xlabel("hours")
+        fig.savefig(path, dpi=110)
+        return path
+
+    def _contributions_figure(self, data: dict, path: Path) -> Path:
+        designs = list(data["figure"])
+        fig = figure(10, 3.0 * len(designs))
+        for i, name in enumerate(designs):
+            f = data["figure"][name]
+            names = data["variables"][name]
+            for k, (stat, label) in enumerate((("contribution_t2", "T²"), ("contribution_spe", "SPE"))):
+                ax = fig.add_subplot(len(designs), 2, 2 * i + 1 + k)
+                values = np.asarray(f[stat])
+                order = np.argsort(np.abs(values))[::-1][: self.top]
+                ax.barh(np.arange(len(order))[::-1], values[order], color="C0" if k == 0 else "C1")
+                ax.set_yticks(np.arange(len(order))[::-1], [names[j] for j in order], fontsize=7)
+                ax.set_title(f"{_label(name)}: contributions to {label}, mean over {f['n_alarmed']} alarms "
+                             f"(IDV({data['figure_fault']}))", fontsize=8)
+        fig.savefig(path, dpi=110)
+        return path
+
+
+def _label(name: str) -> str:
+    return {LIT: "literature design", TUNED: "tuned design"}.get(name, name)
+
+
+def _design_text(params: Mapping[str, float]) -> str:
+    return (f"(a = {params['n_components']}, α = {params['alpha']:.3g}, λ = {params['lam']:.3g}, "
+            f"k = {params['k']})")
+
+
+def format_table(data: dict, csv: bool = False) -> str:
+    """The classic table: per fault, T²/SPE/combined detection rates per design, the published rate, FAR last."""
+    designs = list(data["fdr"])
+    head = ["fault"] + [f"{n} {s}" for n in designs for s in STATISTICS] + ["Yin 2012 combined (%)"]
+    rows = []
+    for f in data["faults"]:
+        cells = [f"IDV({f})"] + [f"{100 * data['fdr'][n][s][f]:.2f}" for n in designs for s in STATISTICS]
+        cells.append(f"{YIN2012_FDR_COMBINED[f]:.2f}" if f in YIN2012_FDR_COMBINED else "")
+        rows.append(cells)
+    rows.append(["FAR d00_te"] + [f"{100 * data['far'][n][s]:.2f}" for n in designs for s in STATISTICS]
+                + [f"{YIN2012_FAR_COMBINED:.2f}"])
+    if csv:
+        return "\n".join(",".join(r) for r in [head, *rows]) + "\n"
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    lines += ["| " + " | ".join(r) + " |" for r in rows]
+    return "\n".join(lines)
+
+
+def monitor_table(table, detector: PCADetector, top: int = 10) -> dict:
+    """Monitor a recorded table: fit on its calibration split, alarm rate and top tags on the other rows.
+
+    Returns ``alarm_rate`` (share of the training and test rows that alarm), ``n_rows``, and
+    ``top_t2``/``top_spe``: the tags with the largest mean contribution to T² and SPE over
+    the alarms, as (tag, share of the statistic) pairs.
+    """
+    calibration = table.trace("calibration").y
+    rest = np.concatenate([table.trace("training").y, table.trace("test").y], axis=1)
+    decision = detector.decide(calibration, rest).decision[0].astype(bool)
+    model = detector.model(calibration, table.output_names)
+    c_t2, c_spe = model.contributions(rest[0], int(detector.n_components))
+    finite = np.all(np.isfinite(rest[0]), axis=-1)
+    pick = decision & finite
+    result = {"alarm_rate": float(decision.mean()), "n_rows": int(decision.size), "n_alarms": int(decision.sum())}
+    for name, c in (("top_t2", c_t2), ("top_spe", c_spe)):
+        mean = c[pick].mean(axis=0) if pick.any() else np.zeros(c.shape[-1])
+        share = mean / mean.sum() if mean.sum() > 0 else mean
+        order = np.argsort(share)[::-1][:top]
+        result[name] = [(table.output_names[j], float(share[j])) for j in order]
+    return result
+
+
+def main(argv=None) -> int:
+    """``python -m mosd.systems.tep [--directory DIR] [--out DIR] | --table FILE [--time-column C]``."""
+    recorded = recorded_designs(SYSTEM)
+    parser = cli.report_parser("python -m mosd.systems.tep", "Tennessee Eastman: the per-fault PCA table (T², SPE, "
+                               "combined) of the literature's design and of the tuned one, without the optimiser.",
+                               out="outputs/systems/tep", seed=False)
+    parser.add_argument("--directory", default=None, help="folder with d00.dat ... d21_te.dat (default: bibmon's)")
+    parser.add_argument("--fault", type=int, default=10, help="fault of the statistics/contribution figures")
+    parser.add_argument("--table", default=None, help="monitor a CSV/Parquet table instead (fit on its first half)")
+    parser.add_argument("--time-column", default=None, help="--table: the time column")
+    parser.add_argument("--label-column", default=None, help="--table: the fault-label column")
+
+    def table_body(args):
+        from ..data.table import Table
+
+        table = Table(args.table, time_column=args.time_column, label_column=args.label_column,
+                      splits={"calibration": [0.0, 0.5], "training": [0.5, 0.75], "test": [0.75, 1.0]})
+        a = min(LITERATURE["n_components"], len(table.output_names) - 1)
+        detector = PCADetector(**{**LITERATURE, "n_components": a})
+        result = monitor_table(table, detector)
+        print(f"{table!r}: fitted on rows {table.file_rows('calibration')[0]}-{table.file_rows('calibration')[1]} "
+              f"({a} components, alpha 0.01); alarm rate {result['alarm_rate']:.4f} on the other "
+              f"{result['n_rows']} rows ({result['n_alarms']} alarms)")
+        for name in ("top_t2", "top_spe"):
+            print(f"  {name[4:].upper():4s} " + ", ".join(f"{t} {s:.2f}" for t, s in result[name][:5]))
+        return [cli.write_json(Path(args.out) / "tep_table_monitor.json", result)]
+
+    def body(args):
+        if args.table:
+            return table_body(args)
+        overrides = [f"data.directory={args.directory}"] if args.directory else []
+        experiment = cli.preset(SYSTEM, overrides).experiment
+        study = Study(fault=args.fault)
+        designs = {TUNED: experiment.detector.with_params(**recorded[TUNED]),
+                   **study.reference_designs(experiment.detector)}
+        experiment.monitor.fit(experiment.estimator.estimate(experiment.data.trace("calibration"), None))
+        data = study.compute(experiment, designs)
+        metrics = study.metrics(data)
+        out = Path(args.out)
+        files = study.write_figures(data, out)
+        files.append(cli.write_json(out / "tep_study.json", {"metrics": metrics, "designs": data["params"]}))
+        print(f"## Tennessee Eastman, PCA: detection rates in % on the test files (rows 160-959), "
+              f"FAR on d00_te.dat rows 160-959\n")
+        for name in data["params"]:
+            print(f"- {_label(name)}: {_design_text(data['params'][name])}, {len(data['variables'][name])} variables")
+        print()
+        print(format_table(data))
+        print(f"\nmean MDR (combined) over the training faults {data['train_faults']}: "
+              + ", ".join(f"{_label(n)} {metrics[f'{n}_mdr_combined_mean']:.4f}" for n in data["params"]) + "\n")
+        return files
+
+    return cli.run_report(parser, argv, body)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

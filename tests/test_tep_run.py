@@ -1,0 +1,67 @@
+"""python -m mosd +experiment=tep end to end (small budget) and the report python -m mosd.systems.tep."""
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from mosd.systems.tep import YIN2012_FDR_COMBINED
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _env(tmp_path):
+    return {**os.environ, "PYTHONPATH": str(ROOT), "MOSD_OUTPUTS": str(tmp_path / "out")}
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    tmp_path = tmp_path_factory.mktemp("tep")
+    out = subprocess.run([sys.executable, "-m", "mosd", "+experiment=tep", "optimizer.pop_size=8",
+                          "optimizer.n_gen=2", "optimizer.n_jobs=1", "tracking=none", "progress=false"],
+                         capture_output=True, text=True, env=_env(tmp_path), timeout=900)
+    assert out.returncode == 0, out.stderr
+    run_dir = next((tmp_path / "out" / "runs").iterdir())
+    return out, run_dir, json.loads((run_dir / "summary.json").read_text())
+
+
+def test_summary_has_the_study_keys_and_the_splits(run):
+    out, run_dir, summary = run
+    assert out.stdout.splitlines()[0].startswith("mosd  experiment=tep  data=tep  detector=pca")
+    study = summary["study"]
+    for n in range(1, 22):
+        for stat in ("t2", "spe", "combined"):
+            assert 0.0 <= study[f"lit_fdr_{stat}_idv{n}"] <= 1.0
+        assert 0.0 <= study[f"tuned_fdr_combined_idv{n}"] <= 1.0
+    assert 0.0 <= study["tuned_far_combined"] <= 1.0
+    # the literature design's numbers are the published ones (tests/test_tep_pca.py explains the tolerance)
+    for n, published in YIN2012_FDR_COMBINED.items():
+        assert abs(100 * study[f"lit_fdr_combined_idv{n}"] - published) <= 0.13
+    assert abs(100 * study["lit_far_combined"] - 6.13) <= 0.13
+    splits = summary["data"]
+    assert splits["calibration"][0] == "d00.dat rows 0-499 (fault-free)"
+    assert splits["test"][0] == "d01_te.dat rows 160-959 (fault 1 from row 160)"
+    assert len(splits["training"]) == 3 * 18 + 11
+    # the pipeline's own test metrics are on the same test split: the FAR is the d00_te run's
+    assert summary["test"]["far"]["n"] == 1
+    for name in ("tep_detection_rates.png", "tep_statistics.png", "tep_contributions.png", "tep_table.csv"):
+        assert (run_dir / name).stat().st_size > 0
+
+
+def test_report_command_prints_the_classic_table(tmp_path):
+    out = subprocess.run([sys.executable, "-m", "mosd.systems.tep", "--out", str(tmp_path)], capture_output=True,
+                         text=True, env=_env(tmp_path), timeout=600)
+    assert out.returncode == 0, out.stderr
+    assert "| 99.25 | 99.88 | 99.88 | 99.88 |" in out.stdout  # IDV(1): lit T², SPE, combined, Yin 2012
+    assert "| FAR d00_te |" in out.stdout
+    study = json.loads((tmp_path / "tep_study.json").read_text())
+    assert set(study["designs"]) == {"tuned", "lit"}
+
+
+def test_report_command_bad_input_exits_2(tmp_path):
+    out = subprocess.run([sys.executable, "-m", "mosd.systems.tep", "--directory", str(tmp_path / "none"),
+                          "--out", str(tmp_path)], capture_output=True, text=True, env=_env(tmp_path), timeout=600)
+    assert out.returncode == 2
+    assert len(out.stderr.strip().splitlines()) == 1 and "is not a directory" in out.stderr
