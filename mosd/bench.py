@@ -32,7 +32,8 @@ otherwise, prints the table on stderr and one JSON object on stdout with
 ``filter_speedup_batched_vs_single``, ``imm_runs_per_s``, ``imm_numpy_runs_per_s``,
 ``imm_speedup_vs_numpy``, ``imm_speedup_batched_vs_single``, ``entropy_speedup_vs_numpy``, ``main_command_wall_s``,
 ``main_command_first_wall_s`` (of the sections run) and ``cpus``,
-``load_average_1min`` (other load on the machine skews every ratio), ``quick``.
+``load_average_1min`` (other load on the machine skews every ratio), ``quick``; ``tep`` (Tennessee Eastman,
+:func:`mosd.systems.tep.benchmark`) adds ``tep_candidates_per_s`` and ``tep_fit_score_s``.
 """
 from __future__ import annotations
 
@@ -44,10 +45,10 @@ import time
 
 import numpy as np
 
-SECTIONS = ("candidates", "filter", "parallel", "main", "tuning", "zdt")
+SECTIONS = ("candidates", "filter", "parallel", "main", "tuning", "zdt", "tep")
 DEFAULT_SECTIONS = ("candidates", "filter", "parallel", "tuning")
 #: what ``--json`` runs by default: every section that feeds a JSON key
-JSON_SECTIONS = ("candidates", "filter", "parallel", "main")
+JSON_SECTIONS = ("candidates", "filter", "parallel", "main", "tep")
 
 
 def benchmark_filter(
@@ -484,6 +485,20 @@ def bench_zdt(quick: bool = False) -> list[tuple[str, float, str]]:
                 rows.append((f"{problem} {DEFAULT_NAME} / {reference}",
                              hv[(problem, DEFAULT_NAME)] / hv[(problem, reference)], "ratio, same run"))
     return rows
+
+
+def bench_tep(quick: bool = False) -> tuple[list, dict]:
+    """PCA designs per second on the TE training split; fit + score of the 22 test files (mosd.systems.tep)."""
+    from .data.tep import bibmon_directory
+    from .systems.tep import benchmark
+
+    if bibmon_directory() is None:
+        return [("skipped: the TE files need pip install \".[te]\"", float("nan"), "")], {}
+    r = benchmark(quick)
+    return ([("PCA designs/s on the training split, in-process", r["candidates_per_s"],
+              f"{r['n_candidates']} designs, {r['training_points']} points each"),
+             ("fit on d00.dat + score all 22 test files, s", r["fit_score_s"], f"{r['test_points']} points")],
+            {"tep_candidates_per_s": r["candidates_per_s"], "tep_fit_score_s": r["fit_score_s"]})
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -335,3 +335,40 @@ def main(argv=None) -> int:
 
 if __name__ == "__main__":
     raise SystemExit(main())
+
+
+def benchmark(quick: bool = False, seed: int = 0) -> dict:
+    """Speed of the TE pipeline (``python -m mosd.bench --only tep``), best of a few repeats.
+
+    ``candidates_per_s``: PCA designs (a, α, λ, k drawn in the preset's box) evaluated per second on
+    the training split in-process (FAR and MDR: what one optimiser worker does);
+    ``fit_score_s``: fitting the literature design on d00.dat and scoring all 22 test files.
+    """
+    import time
+
+    from ..estimators.measured import MeasuredSignals
+    from ..monitors.outputs import OutputMonitor
+    from ..recorded import RecordedExperiment
+
+    te = TennesseeEastman()
+    experiment = RecordedExperiment(te, MeasuredSignals(), OutputMonitor(), PCADetector(fit_runs=1, max_components=25))
+    evaluator = experiment.evaluator(experiment.prepare())
+    rng = np.random.default_rng(seed)
+    n = 50 if quick else 200
+    X = np.column_stack([rng.integers(1, 26, n), rng.uniform(1e-4, 0.1, n), rng.uniform(0.01, 1.0, n),
+                         rng.integers(1, 11, n)]).astype(float)
+    evaluator(X[:2])  # imports (scipy.signal) and the cached projections
+    repeats = 2 if quick else 3
+
+    def best(fn):
+        times = []
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            fn()
+            times.append(time.perf_counter() - t0)
+        return min(times)
+
+    calibration, test = te.trace("calibration").y, te.trace("test").y
+    fit_score = best(lambda: PCADetector(**LITERATURE, fit_runs=1).decide(calibration, test))
+    return {"candidates_per_s": n / best(lambda: evaluator(X)), "fit_score_s": fit_score, "n_candidates": n,
+            "training_points": int(np.prod(evaluator.features.shape[:2])), "test_points": int(np.prod(test.shape[:2]))}
