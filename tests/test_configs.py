@@ -23,7 +23,8 @@ from mosd.noise import GaussianNoise
 from mosd.optim.mopso import MOPSO
 from mosd.plants import MouldOscillator
 from mosd.app.progress import Progress, hypervolume_2d
-from mosd.app.tracking import TrackingSettings, default_tracking_uri, flatten
+from mosd.app.mlflow_client import flatten
+from mosd.app.settings import TrackingSettings, default_tracking_uri
 from mosd.validation import ConfigError
 
 CONF = _config_module.CONFIG_DIR

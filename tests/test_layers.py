@@ -1,5 +1,6 @@
 """The layers of docs/ARCHITECTURE.md: the science core imports neither Hydra nor MLflow, data flows one way."""
 import ast
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -34,15 +35,30 @@ def test_science_core_loads_neither_hydra_nor_mlflow():
     assert out.stdout.strip() == "[]", out.stdout
 
 
-def test_report_command_does_not_load_hydra():
-    code = "import sys, mosd.app.report; print('hydra' in sys.modules or 'omegaconf' in sys.modules)"
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
-    assert out.stdout.strip() == "False"
+def test_report_command_does_not_load_hydra(tmp_path):
+    """``mosd report`` on a small store: the command's whole main path, not only the import of its module."""
+    pytest.importorskip("mlflow")
+    from mosd.app.mlflow_client import MlflowStore
+    from mosd.app.settings import TrackingSettings
+
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    store = MlflowStore(TrackingSettings(uri, (tmp_path / "art").as_uri(), "mosd"))
+    run_id = store.create_run("r", {"mosd.role": "job", "mosd.fault": "offset", "mosd.detector": "ss_dewma",
+                                    "mosd.optimizer": "mopso", "mosd.params": "lam"})
+    store.log(run_id, {"seed": "0"}, [("far", 0.01, 0), ("mdr", 0.1, 0), ("accuracy", 0.89, 0), ("lam", 0.5, 0)])
+    store.end(run_id)
+    code = ("import json, sys, mosd.app\n"
+            f"code = mosd.app.main(['report', '--tracking-uri', {uri!r}])\n"
+            f"print(json.dumps([code, sorted({{m.split('.')[0] for m in sys.modules}} & set({FORBIDDEN!r}) - {{'mlflow'}})]))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=tmp_path)
+    *table, last = out.stdout.strip().splitlines()
+    assert json.loads(last) == [0, []], out.stdout
+    assert any(run_id[:8] in line and "1.00" in line for line in table), out.stdout
 
 
 def _imports(path: Path) -> set[str]:
     """Absolute names of the mosd modules a file imports (relative imports resolved)."""
-    module = ".".join(path.relative_to(PACKAGE.parent).with_suffix("").parts)
+    module = ".".join(path.relative_to(PACKAGE.parent).with_suffix("").parts).removesuffix(".__init__")
     package = module if path.name == "__init__.py" else module.rpartition(".")[0]
     found = set()
     for node in ast.walk(ast.parse(path.read_text())):
@@ -52,7 +68,9 @@ def _imports(path: Path) -> set[str]:
                 name = ".".join(base + ([node.module] if node.module else []))
             else:
                 name = node.module or ""
-            if name.startswith("mosd"):
+            if name.startswith("mosd") and node.module is None:  # ``from . import module``: the module
+                found |= {f"{name}.{alias.name}" for alias in node.names}
+            elif name.startswith("mosd"):
                 found.add(name)
         elif isinstance(node, ast.Import):
             found |= {a.name for a in node.names if a.name.startswith("mosd")}
@@ -67,3 +85,36 @@ def test_components_never_import_upwards(kind):
     for path in sorted((PACKAGE / kind).glob("*.py")):
         bad = {name for name in _imports(path) if name.startswith(upward)}
         assert not bad, f"{path.name} imports {sorted(bad)}"
+
+
+def _module_graph() -> dict[str, set[str]]:
+    """Every mosd module -> the mosd modules it imports, at module level or inside a function."""
+    modules = {}
+    for path in PACKAGE.rglob("*.py"):
+        name = ".".join(path.relative_to(PACKAGE.parent).with_suffix("").parts).removesuffix(".__init__")
+        modules[name] = path
+    graph = {}
+    for name, path in modules.items():
+        # ``from module import function`` names the module
+        found = {imported if imported in modules else imported.rpartition(".")[0] for imported in _imports(path)}
+        graph[name] = {m for m in found if m in modules and m != name}
+    return graph
+
+
+def test_no_module_imports_itself_back():
+    """No import circle: a lazy import inside a function counts too (it hides a circle, it does not remove it)."""
+    graph = _module_graph()
+    assert {"mosd.app.run", "mosd.optim.problem", "mosd.kernels.wavelet"} <= set(graph)  # the walk sees the tree
+    circles = []
+    for start in sorted(graph):
+        stack = [(start, [start])]
+        seen = set()
+        while stack:
+            node, path = stack.pop()
+            for nxt in sorted(graph[node]):
+                if nxt == start:
+                    circles.append(" -> ".join(path + [start]))
+                elif nxt not in seen:
+                    seen.add(nxt)
+                    stack.append((nxt, path + [nxt]))
+    assert not circles, circles[:5]

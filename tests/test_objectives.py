@@ -8,7 +8,7 @@ from hydra import compose, initialize_config_dir
 from mosd.app import plots
 from mosd.app.build import build
 from mosd.app.config import CONFIG_DIR
-from mosd.app.run import on_bound
+from mosd.app.summary import on_bound
 from mosd.validation import ConfigError
 
 

@@ -24,7 +24,8 @@ import numpy as np
 import pytest
 
 from mosd.app import preflight as preflight_module
-from mosd.app import tracking
+from mosd.app import checks, mlflow_client, store
+from mosd.app.settings import TrackingSettings
 from mosd.app.config import UsageError
 from mosd.validation import ConfigError
 
@@ -68,47 +69,47 @@ def make_store(path: Path, *, tables=("experiments", "runs", "alembic_version"),
 # 1. the store: health, recovery of a killed creation, the lock
 # ---------------------------------------------------------------------------------------
 def test_sqlite_paths_follow_sqlalchemy():
-    assert tracking.sqlite_path("sqlite:////abs/outputs/mlflow.db") == Path("/abs/outputs/mlflow.db")
-    assert tracking.sqlite_path("sqlite:///relative/mlflow.db") == Path("relative/mlflow.db")
-    assert tracking.sqlite_path("sqlite://") is None and tracking.sqlite_path("http://127.0.0.1:5000") is None
+    assert store.sqlite_path("sqlite:////abs/outputs/mlflow.db") == Path("/abs/outputs/mlflow.db")
+    assert store.sqlite_path("sqlite:///relative/mlflow.db") == Path("relative/mlflow.db")
+    assert store.sqlite_path("sqlite://") is None and store.sqlite_path("http://127.0.0.1:5000") is None
 
 
 def test_store_state_tells_healthy_incomplete_and_corrupt_apart(tmp_path):
-    assert tracking.sqlite_store_state(tmp_path / "none.db").state == "missing"
+    assert store.sqlite_store_state(tmp_path / "none.db").state == "missing"
     (tmp_path / "empty.db").touch()
-    assert tracking.sqlite_store_state(tmp_path / "empty.db").state == "empty"
-    assert tracking.sqlite_store_state(make_store(tmp_path / "ok.db", n_runs=2)) == tracking.StoreState("ok", "", 2)
-    half = tracking.sqlite_store_state(make_store(tmp_path / "half.db", leftover=True))
+    assert store.sqlite_store_state(tmp_path / "empty.db").state == "empty"
+    assert store.sqlite_store_state(make_store(tmp_path / "ok.db", n_runs=2)) == store.StoreState("ok", "", 2)
+    half = store.sqlite_store_state(make_store(tmp_path / "half.db", leftover=True))
     assert half.state == "incomplete" and "_alembic_tmp_runs" in half.detail and half.n_runs == 0
-    no_version = tracking.sqlite_store_state(make_store(tmp_path / "nv.db", version=False, n_runs=1))
+    no_version = store.sqlite_store_state(make_store(tmp_path / "nv.db", version=False, n_runs=1))
     assert no_version.state == "incomplete" and no_version.n_runs == 1
     (tmp_path / "junk.db").write_bytes(np.random.default_rng(0).bytes(8192))
-    assert tracking.sqlite_store_state(tmp_path / "junk.db").state == "corrupt"
+    assert store.sqlite_store_state(tmp_path / "junk.db").state == "corrupt"
 
 
 def test_a_killed_creation_is_moved_aside_and_a_damaged_store_with_runs_refused(tmp_path):
     half = make_store(tmp_path / "mlflow.db", tables=("experiments",), leftover=True)
-    note = tracking._prepare_sqlite_store(half)
+    note = store.prepare_sqlite_store(half)
     assert "moved an unfinished store aside" in note and not half.exists()
     assert len(list(tmp_path.glob("mlflow.db.incomplete-*"))) == 1
     damaged = make_store(tmp_path / "mlflow.db", leftover=True, n_runs=3)
-    with pytest.raises(tracking.TrackingError, match=r"mlflow\.db is damaged .*_alembic_tmp_runs.*move the file aside"):
-        tracking._prepare_sqlite_store(damaged)
+    with pytest.raises(store.TrackingError, match=r"mlflow\.db is damaged .*_alembic_tmp_runs.*move the file aside"):
+        store.prepare_sqlite_store(damaged)
     assert damaged.exists()  # runs are never moved or deleted
 
 
 def test_store_lock_excludes_other_processes(tmp_path):
     uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
     holder = subprocess.Popen([sys.executable, "-c", (
-        "import sys, time; from mosd.app.tracking import store_lock\n"
+        "import sys, time; from mosd.app.store import store_lock\n"
         "with store_lock(sys.argv[1]) as held:\n    print(held, flush=True); time.sleep(3)"), uri],
-        stdout=subprocess.PIPE, text=True, env={**os.environ, "PYTHONPATH": str(Path(tracking.__file__).parents[2])})
+        stdout=subprocess.PIPE, text=True, env={**os.environ, "PYTHONPATH": str(Path(store.__file__).parents[2])})
     try:
         assert holder.stdout.readline().strip() == "True"
         t0 = time.monotonic()
-        with tracking.store_lock(uri, timeout=0.3) as held:
+        with store.store_lock(uri, timeout=0.3) as held:
             assert not held and time.monotonic() - t0 < 2
-        with tracking.store_lock(uri, timeout=10) as held:  # released when the holder ends
+        with store.store_lock(uri, timeout=10) as held:  # released when the holder ends
             assert held
     finally:
         holder.kill()
@@ -118,13 +119,13 @@ def test_store_lock_excludes_other_processes(tmp_path):
 def test_mlflow_store_recovers_a_store_a_killed_migration_left(tmp_path):
     pytest.importorskip("mlflow")
     db = make_store(tmp_path / "mlflow.db", tables=("experiments", "metrics"), leftover=True)
-    settings = tracking.TrackingSettings(f"sqlite:///{db}", (tmp_path / "art").as_uri(), "mosd")
-    store = tracking.MlflowStore(settings)
-    assert store.note and "moved an unfinished store aside" in store.note
-    run_id = store.create_run("r", {"mosd.role": "job"})
-    store.end(run_id)
-    assert tracking.sqlite_store_state(db).state == "ok"
-    assert store.client.get_run(run_id).info.status == "FINISHED"
+    settings = TrackingSettings(f"sqlite:///{db}", (tmp_path / "art").as_uri(), "mosd")
+    mlstore = mlflow_client.MlflowStore(settings)
+    assert mlstore.note and "moved an unfinished store aside" in mlstore.note
+    run_id = mlstore.create_run("r", {"mosd.role": "job"})
+    mlstore.end(run_id)
+    assert store.sqlite_store_state(db).state == "ok"
+    assert mlstore.client.get_run(run_id).info.status == "FINISHED"
 
 
 # ---------------------------------------------------------------------------------------
@@ -166,7 +167,7 @@ def test_read_only_outputs_root_fails_in_preflight(tmp_path):
     ro = tmp_path / "ro"
     ro.mkdir(mode=0o555)
     with pytest.raises(ConfigError, match="cannot be written"):
-        tracking.check_outputs(ro / "outputs")
+        checks.check_outputs(ro / "outputs")
 
 
 # ---------------------------------------------------------------------------------------
@@ -313,7 +314,7 @@ def test_six_concurrent_first_runs_give_six_finished_runs_and_a_healthy_store(tm
     outs = [p.communicate(timeout=600) for p in procs]
     assert [p.returncode for p in procs] == [0] * 6, [o[1][-1500:] for o in outs]
     db = tmp_path / "outputs" / "mlflow.db"
-    assert tracking.sqlite_store_state(db).state == "ok"
+    assert store.sqlite_store_state(db).state == "ok"
     client, runs = _runs(f"sqlite:///{db}")
     assert len(runs) == 6 and {r.info.status for r in runs} == {"FINISHED"}
     assert all(FINAL_METRICS <= set(r.data.metrics) for r in runs)
@@ -365,7 +366,7 @@ def _wait_until_optimising(proc: subprocess.Popen, db: Path, timeout: float = 24
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         assert proc.poll() is None, proc.communicate()[1][-3000:]
-        if db.exists() and tracking.sqlite_store_state(db).state == "ok":
+        if db.exists() and store.sqlite_store_state(db).state == "ok":
             con = sqlite3.connect(db)
             try:
                 running = con.execute("SELECT count(*) FROM runs WHERE status = 'RUNNING'").fetchone()[0]
@@ -433,18 +434,18 @@ def test_report_keeps_one_row_per_set_up_and_shows_what_differs(tmp_path):
     from mosd.app import report
 
     uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
-    store = tracking.MlflowStore(tracking.TrackingSettings(uri, (tmp_path / "art").as_uri(), "mosd"))
+    mlstore = mlflow_client.MlflowStore(TrackingSettings(uri, (tmp_path / "art").as_uri(), "mosd"))
 
     def job(estimator, n_test, far, seed=0, n_jobs=2):
         tags = {"mosd.role": "job", "mosd.fault": "offset", "mosd.detector": "ss_dewma", "mosd.optimizer": "mopso",
                 "mosd.estimator": estimator, "mosd.denoise": "none", "mosd.params": "lam,K", "mosd.online": "true"}
-        run_id = store.create_run("r", tags)
+        run_id = mlstore.create_run("r", tags)
         params = {"estimator._target_": f"mosd.estimators.{estimator}", "budget.n_test": str(n_test),
                   "seed": str(seed), "optimizer.n_jobs": str(n_jobs), "outputs_root": str(tmp_path)}
         metrics = [(k, v, 0) for k, v in {"far": far, "mdr": 0.1, "accuracy": 0.9 - far, "lam": 0.5, "K": 3.0,
                                           "n_test": float(n_test)}.items()]
-        store.log(run_id, params, metrics)
-        store.end(run_id)
+        mlstore.log(run_id, params, metrics)
+        mlstore.end(run_id)
         time.sleep(0.01)  # distinct start times: "latest" is well defined
         return run_id
 

@@ -3,16 +3,28 @@
 ``python -m mosd +fault=offset_var optimizer=mopso`` (or the ``mosd`` console
 script) runs one experiment; ``python -m mosd +experiment=NAME`` a paper's preset;
 ``-m`` sweeps, one MLflow child run per job under one parent run
-(:class:`mosd.app.tracking.SweepCallback`); ``mosd report`` prints the
+(:class:`mosd.app.sweep.SweepCallback`); ``mosd report`` prints the
 comparison table (:mod:`mosd.app.report`); ``mosd log RUN_DIR`` logs a run
-whose MLflow logging failed (:func:`mosd.app.tracking.log_main`).
+whose MLflow logging failed (:func:`mosd.app.pending.log_main`).
 
-Layers: :mod:`.config` (where the configs are, which keys exist), :mod:`.build`
-(config → validated components), :mod:`.preflight` (the whole command line
-checked before Hydra creates anything), :mod:`.run` (one job: experiment, run
-directory, MLflow), :mod:`.tracking`, :mod:`.report`, :mod:`.progress`,
-:mod:`.plots`. Hydra and MLflow live here only, imported when needed, so
-``import mosd.app`` is cheap.
+Modules by job (docs/ARCHITECTURE.md has their import graph):
+
+* the command line: :mod:`.config` (where the configs are, which keys exist),
+  :mod:`.preflight` (the whole command line checked before Hydra creates
+  anything), :mod:`.build` (config → validated components), :mod:`.compat`
+  (the only contact with Hydra's and the standard library's private parts);
+* one run: :mod:`.run` (the Hydra task), :mod:`.signals` (stop signals),
+  :mod:`.files` (the run directory), :mod:`.summary` (printed metrics),
+  :mod:`.progress`, :mod:`.plots` (the figure process);
+* tracking: :mod:`.settings` (the ``tracking`` section), :mod:`.store` (the sqlite
+  store's lock and health), :mod:`.checks` (preflight's checks of the outputs and
+  the store), :mod:`.mlflow_client` (the only code that talks to MLflow),
+  :mod:`.channel` (its side process), :mod:`.tracker` (one run's
+  :class:`~mosd.app.tracker.RunTracker`), :mod:`.pending` (``mosd log``),
+  :mod:`.sweep` (a sweep's parent run);
+* :mod:`.report` (``mosd report``).
+
+Hydra and MLflow live here only, imported when needed, so ``import mosd.app`` is cheap.
 """
 from __future__ import annotations
 
@@ -58,31 +70,27 @@ def _command(argv: list[str], from_command_line: bool) -> int:
 
         return report_main(argv[1:])
     if argv[:1] == ["log"]:
-        from .tracking import log_main
+        from .pending import log_main
 
         return log_main(argv[1:])
-    from .run import NOT_LOGGED, EXIT_NOT_LOGGED, install_signal_handlers
-
-    import signal
-
-    from .run import STOP_SIGNALS
+    from .pending import EXIT_NOT_LOGGED, NOT_LOGGED
+    from .signals import ignore_stop_signals, install_signal_handlers, name
 
     install_signal_handlers()
     try:
         return _main(argv, started) or (EXIT_NOT_LOGGED if NOT_LOGGED else 0)
     except KeyboardInterrupt as exc:  # Interrupted (a signal) or a Ctrl-C before the handlers were set
-        signum = getattr(exc, "signum", signal.SIGINT)
+        signum = getattr(exc, "signum", 2)  # SIGINT
         if not getattr(exc, "reported", False):
             where = ("runs that had started are marked KILLED, with status 'killed' in their summary.json"
                      if _LAUNCHED else "before any run started; nothing was written")
-            print(f"mosd: stopped by {signal.Signals(signum).name}: {where}", file=sys.stderr)
+            print(f"mosd: stopped by {name(signum)}: {where}", file=sys.stderr)
         return 128 + signum
     finally:
         if from_command_line:
             # the work is over: a late signal must not raise inside the interpreter's teardown
             # (joining the worker pool's threads), which prints a traceback for nothing
-            for sig in STOP_SIGNALS:
-                signal.signal(sig, signal.SIG_IGN)
+            ignore_stop_signals()
 
 
 def exit_now(code: int) -> None:
@@ -97,14 +105,14 @@ def exit_now(code: int) -> None:
     logging's flush, a sweep's parent run), the standard streams are flushed,
     then ``os._exit`` skips the rest.
     """
-    import atexit
     import os
 
-    run = sys.modules.get("mosd.app.run")
-    if run is not None:
-        run.shutdown_workers()
+    from .compat import run_exit_handlers
+    from .signals import shutdown_workers
+
+    shutdown_workers()
     try:
-        atexit._run_exitfuncs()
+        run_exit_handlers()
     finally:
         for stream in (sys.stdout, sys.stderr):
             try:

@@ -187,7 +187,7 @@ def build(cfg) -> Setup:
     from ..metrics.registry import check_objectives
     from ..optim.backends import check_backend
     from ..optim.selection import RULES, choose
-    from .tracking import TrackingSettings
+    from .settings import TrackingSettings
 
     if recorded:
         data = instantiate_section("data", cfg.data)

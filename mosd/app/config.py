@@ -68,3 +68,9 @@ def no_fault_message() -> str:
     return (f"no fault chosen: add +fault=NAME with NAME one of {', '.join(names)} "
             f"(e.g. python -m mosd +fault={'offset_var' if 'offset_var' in names else names[0]}), "
             f"or a preset +experiment=NAME with NAME one of {', '.join(options('experiment'))}")
+
+
+def described(exc: BaseException) -> str:
+    """``Type: message`` on one line (for errors whose type says what failed: sqlite's, MLflow's)."""
+    text = one_line(exc)
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__

@@ -10,7 +10,7 @@ Two more checks catch what used to fail only after the optimisation:
 * :func:`dry_run` — the pipeline on one replication per seed stream (shapes:
   burn-in against the run's length, the wavelet level against the chart's
   length, the fault onset against the duration), refused with the derived bound;
-* the outputs directory and the tracking store (:func:`mosd.app.tracking.check_tracking`):
+* the outputs directory and the tracking store (:func:`mosd.app.checks.check_tracking`):
   writable, healthy, reachable within a few seconds; likewise the Dask scheduler at
   ``optimizer.dask_address`` (:func:`mosd.optim.backends.check_scheduler`).
 """
@@ -24,6 +24,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from .build import Setup, build
+from .compat import composition_error, hydra_args_parser, sweep_jobs
 from .config import CONFIG_DIR, CONFIG_NAME, ConfigError, UsageError, default_groups, groups, one_line, options
 
 #: Sections that do not change the shapes a run goes through (a sweep over them shares one dry run).
@@ -31,9 +32,7 @@ _SHAPELESS = ("hydra", "optimizer", "selection", "budget", "tracking", "progress
 
 
 def _args_parser():
-    from hydra._internal.utils import get_args_parser
-
-    parser = get_args_parser()
+    parser = hydra_args_parser()
 
     def error(message: str):  # argparse would print usage on several lines and exit 2
         raise UsageError(message)
@@ -72,32 +71,25 @@ def _jobs(parsed, multirun: bool) -> list[list[str]]:
     """Override lists of the jobs a command will run (the basic sweeper's expansion)."""
     if not multirun:
         return [[o.input_line for o in parsed]]
-    from hydra._internal.core_plugins.basic_sweeper import BasicSweeper
-
     if any(o.key_or_group == "hydra/sweeper" for o in parsed):
         # another sweeper chooses its own points: check the fixed part only
         return [[o.input_line for o in parsed if not o.is_sweep_override()]]
     try:
-        return BasicSweeper.split_arguments(parsed, None)[0]
-    except Exception as exc:
+        return sweep_jobs(parsed)
+    except ValueError as exc:
         raise UsageError(one_line(exc)) from None
 
 
 def _composition_message(exc: BaseException, compose_group_only: Callable[[], Any]) -> str:
     """One line for a Hydra composition error; names the allowed keys or options."""
-    import re
-
     from omegaconf import OmegaConf
 
-    text = str(exc)
-    missing = re.search(r"Could not find '([^']+)/([^'/]+)'", text)
-    listed = re.search(r"Available options in '[^']+':\s*\n((?:\t.*\n?)+)", text)
-    if missing and listed:
-        allowed = ", ".join(line.strip() for line in listed.group(1).splitlines() if line.strip())
-        return f"{missing.group(1)}={missing.group(2)} is not an option; allowed: {allowed}"
-    bad_key = re.search(r"Could not override '([^']+)'", text)
-    if bad_key:
-        key = bad_key.group(1)
+    found = composition_error(exc)
+    if found is not None and found[0] == "option":
+        group, name, allowed = found[1]
+        return f"{group}={name} is not an option; allowed: {', '.join(allowed)}"
+    if found is not None and found[0] == "key":
+        key = found[1]
         parent = key.rpartition(".")[0]
         try:
             node = compose_group_only()
@@ -206,7 +198,8 @@ def check_job(cfg, setup: Setup, done: dict, multirun: bool = False) -> None:
     """Dry run, outputs directory and tracking store of one job (each distinct check once per command)."""
     from omegaconf import OmegaConf
 
-    from .tracking import TrackingSettings, check_outputs, check_tracking
+    from .checks import check_outputs, check_tracking
+    from .settings import TrackingSettings
 
     # the store and the outputs first: seconds at most, and no simulation for a server that is down
     job_dir = OmegaConf.select(cfg, "hydra.sweep.dir" if multirun else "hydra.run.dir", default=None)

@@ -158,7 +158,7 @@ def _parser(default_uri: str) -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from .tracking import default_tracking_uri
+    from .settings import default_tracking_uri
 
     parser = _parser(default_tracking_uri())
 
@@ -169,7 +169,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         args = parser.parse_args(list(sys.argv[1:] if argv is None else argv))
         if args.tracking_uri.startswith("sqlite:///"):
-            from .tracking import sqlite_path, sqlite_store_state
+            from .store import sqlite_path, sqlite_store_state
 
             db = sqlite_path(args.tracking_uri)
             if db is None or not db.is_file():

@@ -118,6 +118,15 @@ def select_threshold(coefficients, rule: str = "rigrsure") -> np.ndarray:
 _KERNEL_RULES = select_threshold
 
 
+def count_threshold(n: int, rule: str) -> float:
+    """The threshold of a rule that depends on the count only (sqtwolog, minimaxi) for n coefficients.
+
+    The constant the compiled kernel (:mod:`mosd.kernels.wavelet`) is given for such a rule:
+    :func:`select_threshold` itself, on n zeros.
+    """
+    return float(select_threshold(np.zeros((1, n)), rule)[0])
+
+
 def _sure_threshold(x: np.ndarray) -> np.ndarray:
     """rigrsure along the last axis (see :func:`select_threshold`, Notes)."""
     n = x.shape[-1]
@@ -232,6 +241,9 @@ class WaveletDenoiser:
     shortest series PyWavelets decomposes to ``level`` without warning that the
     coarsest details are all boundary effect (``pywt.dwt_max_level``).
     """
+
+    #: the count-only threshold rules, as the compiled kernel's plan takes them (:mod:`mosd.kernels.wavelet`)
+    count_threshold = staticmethod(count_threshold)
 
     def __init__(self, wavelet: str = "db3", level: int = 3, threshold: str = "rigrsure",
                  mode: str = "soft", scaling: str = "one", scope: str = "global",

@@ -331,6 +331,10 @@ class Plan:
     def __init__(self, denoiser):
         import pywt
 
+        # the count-only rules are the denoiser's own (mosd.denoisers.wavelet.count_threshold): passed
+        # in, not imported, so that the kernel does not import its component
+        self.count_threshold = denoiser.count_threshold
+
         wavelet = pywt.Wavelet(denoiser.wavelet)
         self.lo = np.asarray(wavelet.dec_lo, float)
         self.hi = np.asarray(wavelet.dec_hi, float)
@@ -355,9 +359,7 @@ class Plan:
         return all(length >= self.lo.size for length in self.lengths(n)[:-1])
 
     def fixed(self, n: int) -> np.ndarray:
-        """The count-only thresholds (sqtwolog, minimaxi) exactly as :func:`select_threshold` computes them."""
-        from ..denoisers.wavelet import select_threshold
-
+        """The count-only thresholds (sqtwolog, minimaxi) exactly as the denoiser's ``select_threshold`` computes them."""
         lengths = self.lengths(n)[1:]  # finest first
         if self.rule == RULE_SURE:
             return np.zeros(self.level)
@@ -366,7 +368,7 @@ class Plan:
         else:
             count = {SOURCE_COARSEST: lengths[-1], SOURCE_FINEST: lengths[0], SOURCE_ALL: sum(lengths)}[self.source]
             counts = [count] * self.level
-        return np.array([float(select_threshold(np.zeros((1, m)), self.threshold)[0]) for m in counts])
+        return np.array([self.count_threshold(m, self.threshold) for m in counts])
 
     def arguments(self, n: int) -> tuple:
         """The constant trailing arguments of :func:`denoise_row` for sequences of n."""
@@ -391,7 +393,9 @@ def plan(denoiser) -> Plan | None:
 
 
 def warm_up() -> None:
-    """Load (or compile) the kernels."""
-    from ..denoisers.wavelet import WaveletDenoiser
+    """Load (or compile) the kernels: the argument types of every :class:`Plan` (db3, three levels)."""
+    import pywt
 
-    plan(WaveletDenoiser())(np.zeros((2, 64)))
+    wavelet = pywt.Wavelet("db3")
+    filters = [np.asarray(f, float) for f in (wavelet.dec_lo, wavelet.dec_hi, wavelet.rec_lo, wavelet.rec_hi)]
+    denoise_rows(np.zeros((2, 64)), *filters, 3, False, SOURCE_COARSEST, RULE_SURE, np.zeros(3), False)

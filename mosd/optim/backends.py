@@ -104,11 +104,11 @@ def check_scheduler(address: str, timeout: float = 5.0) -> None:
 
 def _evaluate_scattered(evaluator, X: np.ndarray) -> np.ndarray:
     """A Dask task: the worker's copy of the scattered evaluator on one chunk of candidates."""
-    from .problem import _pin_threads
+    from .workers import pin_threads
 
     # the LocalCluster's nanny already sets OMP/MKL/OpenBLAS to one thread; a worker of a
     # remote cluster may not, and n workers each starting a core's worth of BLAS threads thrash
-    _pin_threads()
+    pin_threads()
     return evaluator(X)
 
 

@@ -47,6 +47,7 @@ from pymoo.core.problem import Problem
 from ..metrics.registry import as_truth, objective_values
 from ..validation import ConfigError, Interval, check_int
 from .backends import check_backend
+from .workers import memmapping_executor, pin_threads as _pin_threads
 
 _OPEN_BOUND_MARGIN = 1e-6
 
@@ -117,18 +118,6 @@ class CandidateEvaluator:
 _WORKER_CACHE: dict = {"path": None, "evaluator": None}
 
 
-def _pin_threads() -> None:
-    """One BLAS/OpenMP thread per worker: n_jobs workers on n_jobs cores must not each start a core's worth of threads."""
-    if not _WORKER_CACHE.get("pinned"):
-        try:
-            from threadpoolctl import threadpool_limits
-
-            threadpool_limits(limits=1)
-        except ImportError:  # pragma: no cover - threadpoolctl comes with joblib's dependencies (scikit-learn) or not
-            pass
-        _WORKER_CACHE["pinned"] = True
-
-
 def _warm_up(delay: float) -> int:
     """Prepare a worker before the first generation needs it: imports, compiled kernels, thread pinning."""
     from .. import denoisers, detectors, kernels, metrics  # noqa: F401
@@ -155,13 +144,8 @@ def worker_pool(n_jobs: int, warm: bool = False):
     loading the compiled kernels from the on-disk cache), without waiting for it,
     so that process start-up overlaps with the caller's own work (simulation).
     """
-    # joblib's own memmapping flavour of loky's reusable executor: joblib.Parallel (used elsewhere in
-    # the same process, e.g. the optimiser benchmarks) reuses or replaces this one; a plain loky
-    # executor in that global slot makes Parallel fail (no _temp_folder_manager)
-    from joblib.executor import get_memmapping_executor
-
     n_workers = max(1, n_jobs - 1)
-    executor = get_memmapping_executor(n_workers, timeout=600)
+    executor = memmapping_executor(n_workers, timeout=600)  # joblib's flavour: see mosd.optim.workers
     if warm:
         for _ in range(n_workers):
             executor.submit(_warm_up, 0.05)

@@ -1,0 +1,179 @@
+"""The channel between a run and MLflow: a side process that holds the MLflow client, or the same in-process.
+
+A background *thread* does not hide MLflow's import (it competes for the GIL
+with the simulation), so a run talks to MLflow through a small side process
+(:class:`SideProcess`, ``python -c '...channel._serve()'``): started when the
+run starts, it imports MLflow and creates the run on the second core while the
+first one simulates, and at the end receives everything in a few batched
+requests. When MLflow is already imported (a sweep under the basic launcher,
+whose callback imported it) the same requests run in this process
+(:class:`InProcess`). Requests and replies are JSON lines; :class:`Handler`
+executes them with :class:`mosd.app.mlflow_client.MlflowStore`.
+"""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from .config import described
+from .mlflow_client import HTTP_ENV_DEFAULTS, MlflowStore
+from .settings import TrackingSettings
+from .store import TrackingError
+
+
+class Handler:
+    """Executes tracking requests (in the side process or in-process)."""
+
+    def __init__(self):
+        self.store: MlflowStore | None = None
+        self.run_id: str | None = None
+        self.timings: dict[str, float] = {}
+
+    def __call__(self, request: dict) -> dict:
+        op = request["op"]
+        if op == "start":
+            t0 = time.perf_counter()
+            self.store = MlflowStore(TrackingSettings(**request["settings"]))
+            t1 = time.perf_counter()
+            self.run_id = self.store.create_run(request["run_name"], request["tags"], request.get("parent_run_id"))
+            self.timings = {"mlflow_import_s": t1 - t0, "mlflow_create_run_s": time.perf_counter() - t1}
+            return {"run_id": self.run_id, "timings": self.timings, "note": self.store.note}
+        if self.store is None or self.run_id is None:
+            raise TrackingError("the MLflow run was not created")
+        if op == "log":
+            # how long MLflow took to start, measured where it ran (overlapping the experiment)
+            metrics = [*request.get("metrics", ()), *((k, v, 0) for k, v in self.timings.items())]
+            self.timings = {}
+            self.store.log(self.run_id, request.get("params"), metrics, request.get("tags"),
+                           request.get("artifacts", ()))
+            return {}
+        if op == "end":
+            self.store.end(self.run_id, request["status"], request.get("error"))
+            self.store = None
+            return {}
+        raise TrackingError(f"unknown tracking request {op!r}")
+
+
+def _serve() -> None:
+    """Side-process main loop: JSON requests on stdin, one JSON reply per line on stdout."""
+    import signal
+
+    # the app decides how the run ends (KILLED on a signal) and closes stdin; a signal
+    # meant for the app must not end this process first and leave the run RUNNING
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    replies = os.fdopen(os.dup(1), "w", buffering=1)
+    os.dup2(2, 1)  # anything MLflow prints must not corrupt the reply channel
+    handler = Handler()
+    for line in sys.stdin:
+        if not line.strip():
+            continue
+        request = json.loads(line)
+        try:
+            reply = {"ok": True, **handler(request)}
+        except Exception as exc:  # reported to the app, which decides
+            reply = {"ok": False, "error": described(exc)}
+        try:
+            replies.write(json.dumps(reply) + "\n")
+            if request.get("op") == "end":
+                replies.flush()
+        except OSError:
+            pass  # the app stopped waiting (a signal): finish its requests all the same
+        if request.get("op") == "end":
+            # every call above has committed; skip the interpreter teardown with MLflow
+            # loaded (~1 s), which the app would otherwise wait for
+            os._exit(0)
+    # stdin closed before "end": the app died; do not leave the run RUNNING
+    if handler.store is not None and handler.run_id is not None:
+        handler.store.end(handler.run_id, "FAILED", "the mosd process ended before the run finished")
+
+
+class SideProcess:
+    """Requests go to ``python -c 'mosd.app.channel._serve()'``; replies are read lazily."""
+
+    def __init__(self):
+        package_parent = str(Path(__file__).resolve().parents[2])  # the directory holding mosd/
+        self._stderr = tempfile.TemporaryFile(mode="w+")
+        self._proc = subprocess.Popen(
+            [sys.executable, "-c", "import sys; sys.path.insert(0, sys.argv[1]); "
+             "from mosd.app.channel import _serve; _serve()", package_parent],
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self._stderr, text=True, bufsize=1,
+            # its own session: Ctrl-C or SIGTERM to the app's process group does not reach it
+            start_new_session=True, env={**HTTP_ENV_DEFAULTS, **os.environ},
+        )
+        self._pending = 0
+
+    def send(self, request: dict) -> None:
+        try:
+            self._proc.stdin.write(json.dumps(request) + "\n")
+            self._proc.stdin.flush()
+        except BrokenPipeError:
+            raise TrackingError(f"the tracking process ended: {self._stderr_tail()}") from None
+        self._pending += 1
+
+    def replies(self, timeout: float | None = None) -> list[dict]:
+        """Wait for the replies to every request sent so far (at most ``timeout`` s, else TimeoutError)."""
+        import select
+
+        deadline = None if timeout is None else time.monotonic() + timeout
+        out = []
+        while self._pending:
+            if deadline is not None:
+                ready, _, _ = select.select([self._proc.stdout], [], [], max(deadline - time.monotonic(), 0.0))
+                if not ready:
+                    raise TimeoutError(f"no answer from the tracking process within {timeout:g} s")
+            line = self._proc.stdout.readline()
+            if not line:
+                raise TrackingError(f"the tracking process ended: {self._stderr_tail()}")
+            out.append(json.loads(line))
+            self._pending -= 1
+        return out
+
+    def close(self, wait: bool = True) -> None:
+        """Close the request channel; ``wait=False`` leaves the process to finish its requests alone."""
+        if self._proc.stdin and not self._proc.stdin.closed:
+            try:
+                self._proc.stdin.close()
+            except OSError:
+                pass
+        if not wait:
+            self._proc.returncode = 0  # detached on purpose: no "still running" warning at exit
+            return
+        try:
+            self._proc.wait(timeout=60)
+        except subprocess.TimeoutExpired:
+            self._proc.kill()
+        self._stderr.close()
+
+    def _stderr_tail(self) -> str:
+        self._stderr.seek(0)
+        lines = [ln.strip() for ln in self._stderr.read().splitlines() if ln.strip()]
+        return lines[-1] if lines else f"exit code {self._proc.poll()}"
+
+
+class InProcess:
+    """Same interface as :class:`SideProcess`, executing at once."""
+
+    def __init__(self):
+        self._handler = Handler()
+        self._replies: list[dict] = []
+
+    def send(self, request: dict) -> None:
+        try:
+            self._replies.append({"ok": True, **self._handler(request)})
+        except Exception as exc:
+            self._replies.append({"ok": False, "error": described(exc)})
+
+    def replies(self, timeout: float | None = None) -> list[dict]:
+        out, self._replies = self._replies, []
+        return out
+
+    def close(self, wait: bool = True) -> None:
+        pass
+
+

@@ -1,0 +1,136 @@
+"""The run directory: resolved config, Pareto set and history (CSV), ``summary.json`` and the figures.
+
+The figures are the slow part: they are submitted first to the figure process
+(:class:`mosd.app.plots.FigureWriter`) and drawn there while this module writes
+the text files; MLflow takes the text files meanwhile (``on_text_files``). A run
+that does not finish leaves a ``summary.json`` that says so (:func:`write_status`).
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Callable, Mapping
+
+import numpy as np
+
+from .summary import on_bound
+
+if TYPE_CHECKING:
+    from .build import Setup
+
+
+def write_run_files(run_dir: Path, cfg, result, setup: Setup, labels: Mapping[str, str],
+                    study: Mapping[str, float] | None = None, figures=None,
+                    on_text_files: Callable[[list[Path]], None] | None = None) -> list[Path]:
+    """Resolved config, Pareto set and history as CSV, summary JSON and the PNG plots.
+
+    ``figures``: a :class:`mosd.app.plots.FigureWriter` (started with the run) that
+    draws the PNGs in its side process while this writes the other files; None
+    draws them here. ``on_text_files`` is called with the text files once they
+    are written, before the figures are waited for (MLflow takes them meanwhile).
+    """
+    from omegaconf import OmegaConf
+
+    from . import plots
+
+    run_dir.mkdir(parents=True, exist_ok=True)
+    F = result.archive_F
+    objectives = list(result.objectives)
+    # the figures first: they are the slow part, drawn while the text files are written
+    jobs = figure_jobs(run_dir, result, setup, labels)
+    if figures is not None:
+        figures.submit(jobs)
+    written = []
+    path = run_dir / "resolved_config.yaml"
+    path.write_text(OmegaConf.to_yaml(cfg, resolve=True))
+    written.append(path)
+
+    names = list(result.params)
+    order = np.argsort(F[:, 0], kind="stable")
+    columns = [result.archive_X[order], F[order]]
+    header = [*names, *objectives]
+    if objectives == ["far", "mdr"]:
+        columns.append(1.0 - F[order].sum(axis=1))
+        header.append("accuracy")
+    table = np.column_stack([*columns, (order == result.chosen_index).astype(float)])
+    path = run_dir / "pareto.csv"
+    np.savetxt(path, table, delimiter=",", header=",".join([*header, "chosen"]),
+               comments="", fmt=["%.10g"] * (table.shape[1] - 1) + ["%d"])
+    written.append(path)
+
+    if result.history:
+        keys = list(result.history[0])
+        path = run_dir / "history.csv"
+        np.savetxt(path, np.array([[r[k] for k in keys] for r in result.history], float), delimiter=",",
+                   header=",".join(keys), comments="", fmt="%.10g")
+        written.append(path)
+
+    summary = result.summary()
+    path = run_dir / "summary.json"
+    path.write_text(json.dumps({
+        "status": "finished",
+        "labels": dict(labels),
+        "params": result.params,
+        "online": bool(setup.experiment.detector.is_causal),
+        "on_bound": on_bound(result.params, setup),
+        "objectives": list(result.objectives),
+        "train": dict(result.train_objectives),
+        "test": {k: {"mean": v.mean, "ci95_half_width": v.half_width, "n": v.n} for k, v in summary.items()},
+        "sigma": result.sigma,
+        # recorded data: which rows of which recording each split used (mosd.data)
+        **({"data": setup.experiment.describe()} if hasattr(setup.experiment, "describe") else {}),
+        **({"study": dict(study)} if study else {}),
+        "timings": result.timings,
+    }, indent=2, allow_nan=True))
+    written.append(path)
+    if on_text_files is not None:
+        on_text_files(list(written))
+    written += figures.result() if figures is not None else plots.draw(jobs)
+    return written
+
+
+def figure_jobs(run_dir: Path, result, setup: Setup, labels: Mapping[str, str]) -> list[tuple[str, dict]]:
+    """The run's figures as ``(name in mosd.app.plots, keyword arguments)`` (plain arrays: picklable)."""
+    F = result.archive_F
+    objectives = tuple(result.objectives)
+    ex = result.example
+    monitor = setup.experiment.monitor
+    title = f"{labels.get('detector', '')} on {labels.get('fault', '')} fault: " + ", ".join(
+        f"{k} = {v:.4g}" for k, v in result.params.items())
+    archive_title = f"Archive of {labels.get('optimizer', '')} (training replications)"
+    jobs = [("pareto_front" if F.shape[1] == 2 else "pareto_pairs",
+             dict(path=run_dir / "pareto.png", F=F, chosen=result.chosen_index, title=archive_title,
+                  labels=objectives))]
+    t = ex["t"] if ex.get("t") is not None else np.arange(len(ex["statistic"])) * ex["seconds_per_point"]
+    jobs.append(("chart_trace", dict(path=run_dir / "chart.png", t=t, statistic=ex["statistic"], ucl=ex["ucl"],
+                                     fault_mask=ex["fault_mask"], title=title)))
+    channel = getattr(setup.experiment.fault, "channel", 0)
+    if ex.get("residual") is not None:
+        channels = getattr(monitor, "channels", ())
+        mean = float(monitor.mean_[channels.index(channel)]) if channel in channels and hasattr(monitor, "mean_") \
+            else 0.0
+        names = tuple(getattr(setup.experiment.plant, "output_names", ()))
+        jobs.append(("residual_trace", dict(path=run_dir / "residual.png", residual=ex["residual"],
+                                            fault_mask=ex["residual_fault_mask"], dt=ex["dt"], mean=mean,
+                                            sigma=result.sigma,
+                                            channel_name=names[channel] if channel < len(names) else "")))
+    if result.history:
+        n_eval = int(result.history[-1].get("n_eval", 0))
+        jobs.append(("optimisation_history", dict(
+            path=run_dir / "history.png", records=result.history,
+            title=f"{labels.get('optimizer', '')} on the {labels.get('fault', '')} fault: {len(result.history)} "
+                  f"generations, {n_eval} evaluations (training replications)")))
+    return jobs
+
+
+
+def write_status(run_dir: Path, status: str, labels: Mapping[str, str], error: str | None = None,
+                 **extra: Any) -> Path:
+    """``summary.json`` of a run that did not finish (``killed``, ``failed``): never a silent stub."""
+    run_dir.mkdir(parents=True, exist_ok=True)
+    path = run_dir / "summary.json"
+    path.write_text(json.dumps({"status": status, "labels": dict(labels), **({"error": error} if error else {}),
+                                **extra}, indent=2, allow_nan=True))
+    return path
+
+

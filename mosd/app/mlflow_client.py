@@ -1,0 +1,138 @@
+"""The only code that talks to MLflow: :class:`MlflowStore` (MLflow imported on construction).
+
+``import mlflow`` costs 1.5–3.5 s of pure-Python work, so a run reaches this
+class through the side process of :mod:`mosd.app.tracker`; a sweep's parent run
+(:mod:`mosd.app.sweep`) and ``mosd log`` (:mod:`mosd.app.pending`) use it
+directly. Every logging call commits (~20 ms), so per-generation metrics go in
+one ``log_batch`` (MLflow splits it into its own 1000-entry chunks). A sqlite
+store is created or opened under :func:`mosd.app.store.store_lock`.
+"""
+from __future__ import annotations
+
+import logging
+import os
+import subprocess
+import time
+from pathlib import Path
+from typing import Any, Iterable, Mapping
+
+from .settings import TrackingSettings
+from .store import LOCK_TIMEOUT_S, TrackingError, prepare_sqlite_store, sqlite_path, store_lock
+
+#: MLflow's HTTP retries for a run (its defaults, 7 retries with backoff 2, block ~250 s on a dead server).
+HTTP_ENV_DEFAULTS = {"MLFLOW_HTTP_REQUEST_MAX_RETRIES": "2", "MLFLOW_HTTP_REQUEST_BACKOFF_FACTOR": "1",
+                     "MLFLOW_HTTP_REQUEST_TIMEOUT": "30"}
+# MLflow limits: param values 6000 characters, tag values 8000.
+MAX_PARAM_LENGTH = 6000
+MAX_TAG_LENGTH = 8000
+
+
+def git_commit(path: str | os.PathLike | None = None) -> str | None:
+    """The commit of the git checkout containing ``path`` (default: this package), if any."""
+    where = Path(path) if path is not None else Path(__file__).resolve().parent.parent
+    if not (where / ".git").exists():
+        return None
+    try:
+        out = subprocess.run(["git", "-C", str(where), "rev-parse", "HEAD"], capture_output=True, text=True, timeout=5)
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return out.stdout.strip() or None if out.returncode == 0 else None
+
+
+def flatten(tree: Mapping[str, Any], prefix: str = "") -> dict[str, str]:
+    """Nested mapping → ``{"a.b.c": "value"}`` with string values (MLflow params)."""
+    flat: dict[str, str] = {}
+    for key, value in tree.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, Mapping):
+            flat.update(flatten(value, name + "."))
+        else:
+            flat[name] = str(value)[:MAX_PARAM_LENGTH]
+    return flat
+
+
+class MlflowStore:
+    """The only object that talks to MLflow (imported on construction).
+
+    Parameters
+    ----------
+    settings : TrackingSettings
+    """
+
+    def __init__(self, settings: TrackingSettings):
+        for key, value in HTTP_ENV_DEFAULTS.items():
+            os.environ.setdefault(key, value)
+        from mlflow.tracking import MlflowClient
+
+        # alembic prints its migration steps at INFO when a fresh sqlite DB is created
+        logging.getLogger("alembic").setLevel(logging.WARNING)
+        logging.getLogger("mlflow.store.db.utils").setLevel(logging.WARNING)
+        self.settings = settings
+        #: what happened to the store on the way in (e.g. an unfinished one moved aside), or None
+        self.note: str | None = None
+        self._experiment_id: str | None = None
+        db = sqlite_path(settings.uri)
+        if db is None:
+            self.client = MlflowClient(tracking_uri=settings.uri)
+            return
+        # create/migrate exactly once across processes (the client opens the store when it is
+        # constructed), and the experiment with it
+        with store_lock(settings.uri) as held:
+            if not held:
+                raise TrackingError(f"the tracking store {db} stayed locked for {LOCK_TIMEOUT_S:g} s "
+                                    f"(another process creating it?)")
+            self.note = prepare_sqlite_store(db)
+            self.client = MlflowClient(tracking_uri=settings.uri)
+            self._experiment_id = self.experiment_id()
+
+    def experiment_id(self) -> str:
+        """Id of the settings' experiment, created (with its artifact location) if new."""
+        if self._experiment_id is not None:
+            return self._experiment_id
+        name = self.settings.experiment
+        found = self.client.get_experiment_by_name(name)
+        if found is not None:
+            return found.experiment_id
+        location = f"{self.settings.artifact_root.rstrip('/')}/{name}"
+        try:
+            return self.client.create_experiment(name, artifact_location=location)
+        except Exception:
+            # another process created it in between
+            found = self.client.get_experiment_by_name(name)
+            if found is None:
+                raise
+            return found.experiment_id
+
+    def create_run(self, run_name: str, tags: Mapping[str, str], parent_run_id: str | None = None) -> str:
+        tags = {k: str(v)[:MAX_TAG_LENGTH] for k, v in tags.items()}
+        if parent_run_id:
+            tags["mlflow.parentRunId"] = parent_run_id
+        run = self.client.create_run(self.experiment_id(), run_name=run_name, tags=tags)
+        return run.info.run_id
+
+    def log(self, run_id: str, params: Mapping[str, str] | None = None,
+            metrics: Iterable[tuple[str, float, int]] = (), tags: Mapping[str, str] | None = None,
+            artifacts: Iterable[str] = ()) -> None:
+        """One batched call for params, metrics and tags, then the artifact files."""
+        from mlflow.entities import Metric, Param, RunTag
+
+        stamp = int(time.time() * 1000)
+        self.client.log_batch(
+            run_id,
+            metrics=[Metric(key, float(value), stamp, int(step)) for key, value, step in metrics],
+            params=[Param(k, str(v)[:MAX_PARAM_LENGTH]) for k, v in (params or {}).items()],
+            tags=[RunTag(k, str(v)[:MAX_TAG_LENGTH]) for k, v in (tags or {}).items()],
+        )
+        for path in artifacts:
+            p = Path(path)
+            if p.is_dir():
+                self.client.log_artifacts(run_id, str(p))
+            elif p.is_file():
+                self.client.log_artifact(run_id, str(p))
+
+    def end(self, run_id: str, status: str = "FINISHED", error: str | None = None) -> None:
+        if error:
+            self.client.set_tag(run_id, "error", error[:MAX_TAG_LENGTH])
+        self.client.set_terminated(run_id, status=status)
+
+

@@ -1,0 +1,66 @@
+"""Where runs are tracked: the ``tracking`` config section, validated, and the default store.
+
+The tracking URI is always explicit; the default is a sqlite file under the
+outputs root (an absolute path), artifacts next to it. Nothing here imports
+MLflow or Hydra (``mosd report`` and preflight read it).
+"""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Mapping
+from urllib.parse import urlparse
+
+from ..validation import ConfigError
+
+#: Store schemes accepted for ``tracking.uri`` (MLflow 3.17 refuses the plain file store).
+STORE_SCHEMES = ("sqlite", "postgresql", "mysql", "mssql", "http", "https", "databricks")
+#: Environment variable that overrides the default outputs root.
+OUTPUTS_ENV = "MOSD_OUTPUTS"
+TRACKING_KEYS = ("enabled", "uri", "artifact_root", "experiment")
+
+
+def default_outputs_root() -> Path:
+    """The outputs root: ``$MOSD_OUTPUTS`` or ``./outputs``, made absolute."""
+    return Path(os.environ.get(OUTPUTS_ENV) or "outputs").expanduser().resolve()
+
+
+def default_tracking_uri(outputs_root: str | os.PathLike | None = None) -> str:
+    """``sqlite:///<abs outputs root>/mlflow.db`` (the store ``mosd`` and ``mosd report`` use)."""
+    root = default_outputs_root() if outputs_root is None else Path(outputs_root).expanduser().resolve()
+    return f"sqlite:///{root / 'mlflow.db'}"
+
+
+@dataclass(frozen=True)
+class TrackingSettings:
+    """Where runs go: tracking URI, artifact root URI and experiment name."""
+
+    uri: str
+    artifact_root: str
+    experiment: str
+
+    @classmethod
+    def from_config(cls, tracking: Mapping[str, Any], outputs_root: str) -> "TrackingSettings | None":
+        """Validate the ``tracking`` config section; None when tracking is disabled."""
+        unknown = sorted(set(tracking) - set(TRACKING_KEYS))
+        if unknown:
+            raise ConfigError(f"tracking.{unknown[0]} is not a tracking key; allowed: {', '.join(TRACKING_KEYS)}")
+        enabled = tracking.get("enabled", True)
+        if not isinstance(enabled, bool):
+            raise ConfigError(f"tracking.enabled={enabled!r} is not allowed; allowed: true, false")
+        if not enabled:
+            return None
+        root = Path(str(outputs_root)).expanduser().resolve()
+        uri = tracking.get("uri") or default_tracking_uri(root)
+        scheme = urlparse(str(uri)).scheme.split("+")[0]
+        if scheme not in STORE_SCHEMES:
+            raise ConfigError(f"tracking.uri={uri!r} has no supported scheme; allowed: {', '.join(STORE_SCHEMES)} URIs")
+        artifact_root = tracking.get("artifact_root") or str(root / "mlartifacts")
+        if not urlparse(str(artifact_root)).scheme:
+            artifact_root = Path(str(artifact_root)).expanduser().resolve().as_uri()
+        experiment = tracking.get("experiment")
+        if not isinstance(experiment, str) or not experiment.strip():
+            raise ConfigError(f"tracking.experiment={experiment!r} is not allowed; allowed: a non-empty name")
+        return cls(uri=str(uri), artifact_root=str(artifact_root), experiment=experiment)
+

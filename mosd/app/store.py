@@ -1,0 +1,145 @@
+"""The sqlite tracking store: its file, an inter-process lock, its health (no MLflow import).
+
+Two processes creating a fresh sqlite DB at once crash in alembic (duplicate
+columns, ``_alembic_tmp_*`` tables) and leave it broken, so every process
+creates or opens a sqlite store under an exclusive lock on ``<db>.lock``
+(:func:`store_lock`): the first creates and migrates it, the others find it at
+the head revision. A store that a killed migration left half-built and that
+holds no run is moved aside and recreated (:func:`prepare_sqlite_store`); one that
+holds runs is refused with one line naming the file (:func:`sqlite_store_state`).
+What this module knows of MLflow's schema (table names) comes from
+:mod:`mosd.app.compat`.
+"""
+from __future__ import annotations
+
+import contextlib
+import fcntl
+import os
+import sqlite3
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from urllib.parse import urlparse
+
+from .compat import MLFLOW_CORE_TABLES, MLFLOW_MIGRATION_LEFTOVER, MLFLOW_RUNS_TABLE, MLFLOW_VERSION_TABLE
+from .config import described
+
+#: Seconds a process waits for another one creating or migrating the sqlite store.
+LOCK_TIMEOUT_S = 300.0
+#: Seconds a read of the store waits for a writer (preflight: a few seconds at most).
+READ_TIMEOUT_S = 3.0
+
+
+class TrackingError(RuntimeError):
+    """MLflow (or the store) refused a request (the message is one line)."""
+
+
+def sqlite_path(uri: str) -> Path | None:
+    """The DB file of a ``sqlite:///`` URI (None for other schemes and in-memory DBs)."""
+    parsed = urlparse(uri)
+    if parsed.scheme != "sqlite" or parsed.path in ("", "/", "/:memory:"):
+        return None
+    # SQLAlchemy: sqlite:///rel/path is relative to the working directory, sqlite:////abs/path absolute
+    return Path(parsed.path[1:])
+
+
+@contextlib.contextmanager
+def store_lock(uri: str, shared: bool = False, timeout: float = LOCK_TIMEOUT_S):
+    """Inter-process lock on ``<db>.lock`` for a sqlite store (a no-op for other stores).
+
+    ``flock`` locks die with their process, so a killed holder never leaves the
+    store locked. Yields True when the lock is held, False when ``timeout`` ran
+    out (the caller decides whether that matters).
+    """
+    path = sqlite_path(uri)
+    if path is None or (shared and not Path(f"{path}.lock").exists()):
+        # a reader writes nothing: without a lock file nobody has been creating the store
+        yield True
+        return
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd = os.open(f"{path}.lock", os.O_RDWR | os.O_CREAT, 0o666)
+    try:
+        deadline = time.monotonic() + timeout
+        held = False
+        while True:
+            try:
+                fcntl.flock(fd, (fcntl.LOCK_SH if shared else fcntl.LOCK_EX) | fcntl.LOCK_NB)
+                held = True
+                break
+            except BlockingIOError:
+                if time.monotonic() >= deadline:
+                    break
+                time.sleep(0.05)
+        yield held
+    finally:
+        os.close(fd)  # releases the lock
+
+
+@dataclass(frozen=True)
+class StoreState:
+    """What :func:`sqlite_store_state` found: ``missing``, ``empty``, ``ok``, ``incomplete`` or ``corrupt``."""
+
+    state: str
+    detail: str = ""
+    n_runs: int = 0
+
+
+def sqlite_store_state(path: str | os.PathLike) -> StoreState:
+    """Health of a sqlite MLflow store, read with the standard library only (fast, read-only).
+
+    ``incomplete``: some MLflow tables exist but the creation or a migration did
+    not finish (a killed process; ``_alembic_tmp_*`` tables, no version row).
+    """
+    path = Path(path)
+    if not path.exists():
+        return StoreState("missing")
+    if not path.is_file():
+        return StoreState("corrupt", "it is not a file")
+    if path.stat().st_size == 0:
+        return StoreState("empty")
+    try:
+        con = sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro", uri=True, timeout=READ_TIMEOUT_S)
+    except sqlite3.Error as exc:
+        return StoreState("corrupt", described(exc))
+    try:
+        check = con.execute("PRAGMA quick_check").fetchone()
+        if not check or check[0] != "ok":
+            return StoreState("corrupt", f"sqlite integrity check: {check[0] if check else 'no answer'}")
+        tables = {row[0] for row in con.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
+        if not tables:
+            return StoreState("empty")
+        n_runs = con.execute(f"SELECT count(*) FROM {MLFLOW_RUNS_TABLE}").fetchone()[0] \
+            if MLFLOW_RUNS_TABLE in tables else 0
+        leftovers = sorted(t for t in tables if t.startswith(MLFLOW_MIGRATION_LEFTOVER))
+        missing = [t for t in MLFLOW_CORE_TABLES if t not in tables]
+        if leftovers or missing:
+            what = f"left-over {leftovers[0]}" if leftovers else f"no table {missing[0]}"
+            return StoreState("incomplete", f"an interrupted creation or migration ({what})", n_runs)
+        if con.execute(f"SELECT count(*) FROM {MLFLOW_VERSION_TABLE}").fetchone()[0] != 1:
+            return StoreState("incomplete", "an interrupted creation or migration (no schema version)", n_runs)
+        return StoreState("ok", n_runs=n_runs)
+    except sqlite3.Error as exc:
+        return StoreState("corrupt", described(exc))
+    finally:
+        con.close()
+
+
+def refusal(path: Path, state: StoreState) -> str:
+    """The one line that refuses a damaged store, with what to do about it."""
+    return (f"tracking store {path} is damaged ({state.detail}); allowed: a healthy MLflow store: move the file "
+            f"aside (mosd then creates a new one), point tracking.uri elsewhere, or tracking=none")
+
+
+def prepare_sqlite_store(path: Path) -> str | None:
+    """Under the store lock: move aside a store a killed creation left without runs; refuse a damaged one.
+
+    Returns a note for the user when a store was moved aside.
+    """
+    state = sqlite_store_state(path)
+    if state.state in ("missing", "empty", "ok"):
+        return None
+    if state.state == "incomplete" and not state.n_runs:
+        aside = path.with_name(f"{path.name}.incomplete-{time.strftime('%Y%m%d-%H%M%S')}-{os.getpid()}")
+        path.rename(aside)
+        return f"moved an unfinished store aside ({state.detail}) to {aside} and created a new one"
+    raise TrackingError(refusal(path, state))

@@ -1,0 +1,77 @@
+"""A sweep in MLflow: one parent run per multirun, the jobs attach as children.
+
+:class:`SweepCallback` (a Hydra callback, named in ``conf/config.yaml``) creates
+the parent run in the launching process before any job starts; jobs find the
+parent run id in a file in the sweep directory (or an environment variable,
+:func:`parent_run_id`) and attach as children.
+"""
+from __future__ import annotations
+
+import atexit
+import os
+from pathlib import Path
+
+from hydra.experimental.callback import Callback
+
+from . import signals
+from .mlflow_client import MlflowStore, git_commit
+from .settings import TrackingSettings
+
+#: File in a sweep directory that carries the parent run id to the jobs.
+PARENT_RUN_FILE = "mlflow_parent_run_id.txt"
+#: Environment variable that carries the parent run id to jobs (same process tree).
+PARENT_RUN_ENV = "MOSD_MLFLOW_PARENT_RUN_ID"
+
+
+def parent_run_id(sweep_dir: str | os.PathLike | None) -> str | None:
+    """The sweep's parent run id for a job: from the sweep directory, else the environment."""
+    if sweep_dir is not None:
+        path = Path(sweep_dir) / PARENT_RUN_FILE
+        if path.is_file():
+            return path.read_text().strip() or None
+    return os.environ.get(PARENT_RUN_ENV) or None
+
+
+class SweepCallback(Callback):
+    """Hydra callback: one MLflow parent run per multirun, the jobs attach as children.
+
+    ``on_multirun_start`` runs in the launching process before any job: it creates
+    the store (a fresh sqlite DB is created here, once), the experiment and the
+    parent run, and writes the parent id to ``<sweep dir>/mlflow_parent_run_id.txt``
+    and ``$MOSD_MLFLOW_PARENT_RUN_ID``. ``on_multirun_end`` ends the parent run.
+    Hydra skips ``on_multirun_end`` when a job raised, so the parent is also ended
+    (FAILED) at interpreter exit if it is still open.
+    """
+
+    def __init__(self):
+        self._store: MlflowStore | None = None
+        self._run_id: str | None = None
+
+    def on_multirun_start(self, config, **kwargs) -> None:
+        settings = TrackingSettings.from_config(dict(config.tracking), config.outputs_root)
+        if settings is None:
+            return
+        sweep_dir = Path(str(config.hydra.sweep.dir))
+        sweep_dir.mkdir(parents=True, exist_ok=True)
+        tags = {"mosd.role": "sweep", "mosd.overrides": " ".join(config.hydra.overrides.task),
+                "mosd.sweep_dir": str(sweep_dir.resolve())}
+        commit = git_commit()
+        if commit:
+            tags["mlflow.source.git.commit"] = commit
+        self._store = MlflowStore(settings)
+        self._run_id = self._store.create_run(f"sweep {sweep_dir.name}", tags)
+        (sweep_dir / PARENT_RUN_FILE).write_text(self._run_id)
+        os.environ[PARENT_RUN_ENV] = self._run_id
+        atexit.register(self._close, "FAILED", "a job of the sweep failed (see its child run)")
+
+    def on_multirun_end(self, config, **kwargs) -> None:
+        self._close("FINISHED")
+
+    def _close(self, status: str, error: str | None = None) -> None:
+        if self._store is None or self._run_id is None:
+            return
+        if status != "FINISHED" and signals.RECEIVED:
+            status, error = "KILLED", f"the sweep was stopped by {signals.name(signals.RECEIVED[0])}"
+        run_id, self._run_id = self._run_id, None
+        os.environ.pop(PARENT_RUN_ENV, None)
+        self._store.end(run_id, status, error)

@@ -1,0 +1,63 @@
+"""The evaluation workers: their process pool and their thread pinning.
+
+This module is the only contact with joblib's and loky's private parts;
+``tests/test_compat.py`` checks each against the installed joblib, so that an
+upgrade that changes one fails there, by name:
+
+* :func:`memmapping_executor` — ``joblib.executor.get_memmapping_executor`` (not in
+  joblib's documented API): joblib's memmapping flavour of loky's reusable
+  executor. ``joblib.Parallel`` (used elsewhere in the same process, e.g. the
+  optimiser benchmarks) reuses or replaces it; a plain loky executor in that
+  global slot makes ``Parallel`` fail (no ``_temp_folder_manager``).
+* :func:`pool_pids`, :func:`shutdown_pool` — the reusable executor is loky's module
+  global ``_executor``, its workers the keys of its ``_processes``. Read without
+  taking any lock and without importing joblib: :func:`pool_pids` is called from a
+  signal handler, where the executor's own ``shutdown`` would take locks the
+  interrupted main thread may hold; no pool exists unless joblib was loaded.
+"""
+from __future__ import annotations
+
+import sys
+
+#: Where loky keeps the process-wide reusable executor.
+_LOKY_MODULE = "joblib.externals.loky.reusable_executor"
+_PINNED: dict = {"done": False}
+
+
+def pin_threads() -> None:
+    """One BLAS/OpenMP thread per worker: n_jobs workers on n_jobs cores must not each start a core's worth of threads."""
+    if not _PINNED["done"]:
+        try:
+            from threadpoolctl import threadpool_limits
+
+            threadpool_limits(limits=1)
+        except ImportError:  # pragma: no cover - threadpoolctl comes with joblib's dependencies (scikit-learn) or not
+            pass
+        _PINNED["done"] = True
+
+
+def memmapping_executor(n_workers: int, timeout: float):
+    """joblib's reusable memmapping executor with ``n_workers`` processes (started or resized on first use)."""
+    from joblib.executor import get_memmapping_executor
+
+    return get_memmapping_executor(n_workers, timeout=timeout)
+
+
+def _executor():
+    module = sys.modules.get(_LOKY_MODULE)
+    return getattr(module, "_executor", None) if module is not None else None
+
+
+def pool_pids() -> list[int]:
+    """The process ids of the reusable executor's workers (empty when there is none). Lock-free."""
+    return list(getattr(_executor(), "_processes", None) or {})
+
+
+def shutdown_pool() -> None:
+    """Shut the reusable executor down and reap its workers, if there is one (a broken pool is expected)."""
+    executor = _executor()
+    if executor is not None:
+        try:
+            executor.shutdown(wait=True, kill_workers=True)
+        except Exception:  # a broken pool is what a signal leaves behind
+            pass

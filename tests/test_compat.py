@@ -1,0 +1,122 @@
+"""Every private part of another library that mosd uses, checked against the installed version.
+
+Each is reached through one adapter (:mod:`mosd.app.compat`, :mod:`mosd.optim.workers`);
+these tests fail, naming the adapter, when an upgrade moves or changes what it relies on.
+"""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+
+from mosd.app import compat
+from mosd.app.config import CONFIG_DIR
+
+PACKAGE_PARENT = str(Path(compat.__file__).resolve().parents[2])
+
+
+def test_hydra_args_parser_reads_what_preflight_reads():
+    args = compat.hydra_args_parser().parse_args(["-m", "--config-dir", "extra", "-cn", "other", "a=1", "+b=2"])
+    assert args.multirun and args.config_dir == "extra" and args.config_name == "other"
+    assert args.overrides == ["a=1", "+b=2"]
+    for name in ("help", "hydra_help", "cfg", "info", "shell_completion", "experimental_rerun", "config_path"):
+        assert hasattr(args, name), f"Hydra's parser no longer sets {name!r} (mosd.app.compat.hydra_args_parser)"
+    assert compat.hydra_args_parser().parse_args(["--info"]).info == "all"
+
+
+@pytest.mark.parametrize("line", [
+    ["+fault=offset,variance", "optimizer=mopso,nsga2", "seed=1"],
+    ["seed=range(1,4)", "+fault=offset", "seed=5,6"],          # a later override of a key replaces it
+    ["+fault=offset_var", "detector.lam=0.1,0.2", "budget.n_test=3"],
+])
+def test_sweep_jobs_are_the_basic_sweepers_jobs(line):
+    from hydra._internal.core_plugins.basic_sweeper import BasicSweeper  # the oracle, in the test only
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    parsed = OverridesParser.create().parse_overrides(line)
+    assert compat.sweep_jobs(parsed) == BasicSweeper.split_arguments(parsed, None)[0]
+
+
+def test_an_interval_sweep_is_refused():
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    with pytest.raises(ValueError, match="interval"):
+        compat.sweep_jobs(OverridesParser.create().parse_overrides(["seed=interval(0,1)"]))
+
+
+def test_composition_errors_are_read_from_the_exceptions_attributes():
+    from hydra import compose, initialize_config_dir
+
+    found = []
+    with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3", job_name="compat"):
+        for overrides in (["+fault=nope"], ["+fault=offset", "plant.bogus=1"], ["+fault=offset", "seed=x${"]):
+            with pytest.raises(Exception) as info:
+                compose("config", overrides=overrides)
+            found.append(compat.composition_error(info.value))
+    option, key, other = found
+    assert option[0] == "option" and option[1][:2] == ("fault", "nope") and "offset_var" in option[1][2]
+    assert key == ("key", "plant.bogus")
+    assert other is None
+
+
+def test_exit_handlers_run_once_and_the_exit_code_stays():
+    code = textwrap.dedent("""
+        import atexit, os, sys
+        from mosd.app.compat import run_exit_handlers
+        atexit.register(lambda: print("handler", flush=True))
+        run_exit_handlers()
+        print("after", flush=True)
+        os._exit(7)
+    """)
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60,
+                         env={**os.environ, "PYTHONPATH": PACKAGE_PARENT})
+    assert (out.returncode, out.stdout.split()) == (7, ["handler", "after"]), out.stderr
+
+
+def test_the_store_reads_mlflows_own_schema(tmp_path):
+    """A store MLflow created is ``ok`` and holds the runs MLflow counts (table names of mosd.app.compat)."""
+    pytest.importorskip("mlflow")
+    import sqlite3
+
+    from mosd.app.mlflow_client import MlflowStore
+    from mosd.app.settings import TrackingSettings
+    from mosd.app.store import sqlite_store_state
+
+    db = tmp_path / "mlflow.db"
+    store = MlflowStore(TrackingSettings(f"sqlite:///{db}", (tmp_path / "art").as_uri(), "compat"))
+    for name in ("a", "b"):
+        store.end(store.create_run(name, {}))
+    n_runs = len(store.client.search_runs([store.experiment_id()]))
+    with sqlite3.connect(db) as con:
+        tables = {row[0] for row in con.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
+    assert set(compat.MLFLOW_CORE_TABLES) <= tables and compat.MLFLOW_RUNS_TABLE in tables
+    assert not any(t.startswith(compat.MLFLOW_MIGRATION_LEFTOVER) for t in tables)
+    state = sqlite_store_state(db)
+    assert (state.state, state.n_runs) == ("ok", n_runs) == ("ok", 2)
+
+
+def test_the_worker_pool_adapter_sees_and_stops_lokys_workers():
+    """joblib's memmapping executor, loky's module global and its worker table (mosd.optim.workers)."""
+    code = textwrap.dedent("""
+        import json, os
+        from mosd.optim import workers
+        executor = workers.memmapping_executor(2, timeout=60)
+        pids = sorted(executor.submit(os.getpid).result() for _ in range(4))
+        seen = workers.pool_pids()
+        workers.shutdown_pool()
+        import joblib  # joblib.Parallel still works after the pool it shares was shut down
+        total = sum(joblib.Parallel(n_jobs=2)(joblib.delayed(abs)(-i) for i in range(4)))
+        workers.shutdown_pool()
+        print(json.dumps({"ran_in": sorted(set(pids)), "seen": sorted(seen), "total": total}))
+    """)
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300,
+                         env={**os.environ, "PYTHONPATH": PACKAGE_PARENT})
+    assert out.returncode == 0, out.stderr[-2000:]
+    found = json.loads(out.stdout.strip().splitlines()[-1])
+    assert found["ran_in"] and set(found["ran_in"]) <= set(found["seen"]) and len(found["seen"]) == 2
+    assert os.getpid() not in found["seen"] and found["total"] == 6
