@@ -81,11 +81,13 @@ def test_splits_are_disjoint_and_shaped_as_documented():
     assert not cal.fault_mask.any()
     assert train.y.shape == (3 * len(DEFAULT_FAULTS) + 11, 160, 33)
     assert train.fault_mask[: 3 * len(DEFAULT_FAULTS)].all() and not train.fault_mask[3 * len(DEFAULT_FAULTS):].any()
-    assert test.y.shape == (22, 800, 33)
-    np.testing.assert_array_equal(test.fault_label.max(axis=1), list(range(1, 22)) + [0])
-    assert test.fault_mask[:21].all() and not test.fault_mask[21].any()
+    assert test.y.shape == (19, 800, 33)  # by default the training faults, then d00_te
+    np.testing.assert_array_equal(test.fault_label.max(axis=1), list(DEFAULT_FAULTS) + [0])
+    assert test.fault_mask[:18].all() and not test.fault_mask[18].any()
     # rows 160..959 of d05_te.dat, variables in the literature's order
-    np.testing.assert_array_equal(test.y[4], te.raw("d05_te.dat")[ONSET:][:, te._columns])
+    np.testing.assert_array_equal(test.y[3], te.raw("d05_te.dat")[ONSET:][:, te._columns])
+    every = TennesseeEastman(test_faults=range(1, 22)).trace("test")
+    np.testing.assert_array_equal(every.fault_label.max(axis=1), list(range(1, 22)) + [0])
     rows = {}
     for split, segments in te.describe().items():
         assert segments

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from mosd.data.tep import TennesseeEastman
+from mosd.data.tep import ALL_FAULTS, TennesseeEastman
 from mosd.detectors.pca import PCADetector, PCAModel, empirical_limit, ewma_from, spe_limit, t2_limit
 from mosd.systems.tep import LITERATURE, YIN2012_FAR_COMBINED, YIN2012_FDR_COMBINED, alarm_rates
 from mosd.validation import ConfigError
@@ -111,7 +111,7 @@ def test_population_matches_one_design_at_a_time_and_rounds_integers():
 
 @pytest.fixture(scope="module")
 def literature_rates():
-    te = TennesseeEastman()
+    te = TennesseeEastman(test_faults=ALL_FAULTS)
     detector = PCADetector(**LITERATURE, fit_runs=1)
     test = te.trace("test")
     return alarm_rates(detector, te.trace("calibration").y, test.y), test.fault_label.max(axis=1)

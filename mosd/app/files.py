@@ -95,7 +95,9 @@ def figure_jobs(run_dir: Path, result, setup: Setup, labels: Mapping[str, str]) 
     objectives = tuple(result.objectives)
     ex = result.example
     monitor = setup.experiment.monitor
-    title = f"{labels.get('detector', '')} on {labels.get('fault', '')} fault: " + ", ".join(
+    # recorded data (data=...) have no fault option: the data source names the run
+    subject = f"data={labels['data']}" if labels.get("data") else f"{labels.get('fault', '')} fault"
+    title = f"{labels.get('detector', '')} on {subject}: " + ", ".join(
         f"{k} = {v:.4g}" for k, v in result.params.items())
     archive_title = f"Archive of {labels.get('optimizer', '')} (training replications)"
     jobs = [("pareto_front" if F.shape[1] == 2 else "pareto_pairs",
@@ -118,7 +120,8 @@ def figure_jobs(run_dir: Path, result, setup: Setup, labels: Mapping[str, str]) 
         n_eval = int(result.history[-1].get("n_eval", 0))
         jobs.append(("optimisation_history", dict(
             path=run_dir / "history.png", records=result.history,
-            title=f"{labels.get('optimizer', '')} on the {labels.get('fault', '')} fault: {len(result.history)} "
+            title=f"{labels.get('optimizer', '')} on {'' if labels.get('data') else 'the '}{subject}: "
+                  f"{len(result.history)} "
                   f"generations, {n_eval} evaluations (training replications)")))
     return jobs
 

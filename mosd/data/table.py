@@ -137,7 +137,8 @@ class Table(RecordedData):
     def _column(self, key: str, name, columns: list[str]) -> str:
         if isinstance(name, int) and not isinstance(name, bool):
             if not 0 <= name < len(columns):
-                raise ConfigError(f"{key}={name} is not a column position of {self.path}; allowed: 0..{len(columns) - 1}")
+                raise ConfigError(f"{key}={name} is not a column position of {self.path}; "
+                                  f"allowed: 0..{len(columns) - 1}")
             return columns[name]
         if str(name) not in columns:
             shown = ", ".join(columns[:8]) + (", ..." if len(columns) > 8 else "")
@@ -166,8 +167,8 @@ class Table(RecordedData):
         bad = (numbers.isna() & column.notna() & (text != "")) | (numbers.notna() & (numbers % 1 != 0)) | (numbers < 0)
         if bad.any():
             row = int(np.flatnonzero(bad.to_numpy())[0])
-            raise ConfigError(f"{self.path}: column {name!r} row {row} holds {str(column.iloc[row])!r}, not a fault id; "
-                              "allowed: integers >= 0 (0 or empty = normal)")
+            raise ConfigError(f"{self.path}: column {name!r} row {row} holds {str(column.iloc[row])!r}, "
+                              "not a fault id; allowed: integers >= 0 (0 or empty = normal)")
         return numbers.fillna(0).to_numpy(dtype=float).astype(int)
 
     def _dt(self, column, name: str) -> float:

@@ -27,8 +27,8 @@ Splits (:mod:`mosd.data.base`), all runs 160 rows long except the PCA fit run:
   160 rows, and rows 0-159 of ``d01_te.dat``, ``d03_te.dat``, ..., ``d21_te.dat``
   (fault-free: the FAR the optimiser sees);
 * ``test``: rows 160-959 of ``dNN_te.dat`` for every fault in ``test_faults``
-  (800 faulty rows each), then rows 160-959 of ``d00_te.dat`` (the literature's
-  FAR). No test row is in any other split.
+  (800 faulty rows each; by default the training faults), then rows 160-959 of
+  ``d00_te.dat`` (the literature's FAR). No test row is in any other split.
 """
 from __future__ import annotations
 
@@ -122,15 +122,16 @@ class TennesseeEastman(RecordedData):
         ``["XMEAS(1)", "XMV(10)"]``.
     faults : sequence of int
         The faults of the training split (IDV numbers 1..21); default all but 3, 9 and 15.
-    test_faults : sequence of int
-        The faults of the test split; default all 21.
+    test_faults : sequence of int, optional
+        The faults of the test split; default (None) those of ``faults``, so that the run's test
+        metrics measure what was tuned. The TE study reports all 21 regardless (:mod:`mosd.systems.tep`).
     """
 
     dt = DT
     fault_names = tuple(f"IDV({i})" for i in ALL_FAULTS)
 
     def __init__(self, directory: str | None = None, variables: str | Sequence[str] = "literature",
-                 faults: Sequence[int] = DEFAULT_FAULTS, test_faults: Sequence[int] = ALL_FAULTS):
+                 faults: Sequence[int] = DEFAULT_FAULTS, test_faults: Sequence[int] | None = None):
         if isinstance(variables, str):
             if variables not in PRESETS:
                 raise ConfigError(f"data.variables={variables!r} is not a preset; allowed: {', '.join(PRESETS)} "
@@ -143,7 +144,7 @@ class TennesseeEastman(RecordedData):
         self.output_names = tuple(names)
         self._columns = np.array([VARIABLES.index(n) for n in names])
         self.faults = _check_faults("data.faults", faults)
-        self.test_faults = _check_faults("data.test_faults", test_faults)
+        self.test_faults = self.faults if test_faults is None else _check_faults("data.test_faults", test_faults)
         if directory is None:
             found = bibmon_directory()
             if found is None:

@@ -9,10 +9,10 @@ components, with scores t = Pₐᵀ z:
     T² = tᵀ Λₐ⁻¹ t = Σ_{j≤a} t_j² / λ_j                   (Hotelling)
     SPE = ‖(I − Pₐ Pₐᵀ) z‖² = Σ_{j>a} t_j² (+ the part outside the rows' span)
 
-Limits at level α (Chiang, Russell & Braatz 2001, eqs. 4.11 and 4.22):
+Limits at level α (as in Yin et al. 2012, J. Process Control 22; Jackson & Mudholkar 1979 for SPE):
 
     T²_α = a (n² − 1) / (n (n − a)) · F_α(a, n − a)
-    SPE_α = θ₁ [c_α √(2 θ₂ h₀²) / θ₁ + 1 + θ₂ h₀ (h₀ − 1) / θ₁²]^(1/h₀)   (Jackson & Mudholkar 1979)
+    SPE_α = θ₁ [c_α √(2 θ₂ h₀²) / θ₁ + 1 + θ₂ h₀ (h₀ − 1) / θ₁²]^(1/h₀)     (Jackson–Mudholkar)
 
 with θ_i = Σ_{j>a} λ_jⁱ, h₀ = 1 − 2 θ₁ θ₃ / (3 θ₂²) and c_α the standard normal
 (1 − α) quantile; or the empirical (1 − α) quantile of the statistic on
@@ -106,7 +106,7 @@ class PCAModel:
     def contributions(self, X: np.ndarray, a: int, standardised: bool = False) -> tuple[np.ndarray, np.ndarray]:
         """Per-variable contributions to T² and to SPE, each (..., m), summing to the statistics.
 
-        T²: c_i = z_i (Pₐ Λₐ⁻¹ Pₐᵀ z)_i (the complete decomposition, Alcala & Qin 2009);
+        T²: c_i = z_i (Pₐ Λₐ⁻¹ Pₐᵀ z)_i (a complete decomposition: the c_i sum to T²);
         SPE: c_i = e_i² with e = (I − Pₐ Pₐᵀ) z.
         """
         Z = np.asarray(X, float) if standardised else self.standardise(X)
