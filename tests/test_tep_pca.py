@@ -157,3 +157,21 @@ def test_pca_detector_runs_on_a_simulated_plants_residuals():
     assert data.train.z.shape[-1] >= 2
     F = setup.experiment.evaluator(data)(np.array([[1, 0.01, 1.0, 1], [1, 0.05, 0.2, 2]]))
     assert F.shape == (2, 2) and np.all((F >= 0) & (F <= 1))
+
+
+def test_pca_residual_generator_outputs_t2_spe_and_scores():
+    """The estimator's T² and SPE are the detector's at lam = 1 (same fit, same formulas), ‖r‖² = SPE."""
+    from mosd.estimators.pca import PCAResidual
+
+    te = TennesseeEastman()
+    calibration, test = te.trace("calibration"), te.trace("test")
+    estimator = PCAResidual(n_components=9, fit_runs=1).fit(calibration)
+    out = estimator.estimate(test)
+    assert out.r.shape == test.y.shape and out.extra["scores"].shape == test.y.shape[:2] + (9,)
+    assert out.channels == te.output_names
+    np.testing.assert_allclose(np.sum(out.r**2, axis=-1), out.extra["spe"], rtol=1e-12)
+    stats = PCADetector(**LITERATURE, fit_runs=1).statistics(calibration.y, test.y)
+    np.testing.assert_allclose(out.extra["t2"], stats["t2"], rtol=1e-10)
+    np.testing.assert_allclose(out.extra["spe"], stats["spe"], rtol=1e-9)
+    with pytest.raises(ConfigError, match="estimator.n_components=40 is out of range"):
+        PCAResidual(n_components=40, fit_runs=1).fit(calibration)
