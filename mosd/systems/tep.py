@@ -226,8 +226,8 @@ class Study(base.Study):
             ax.set_ylabel("detection rate")
             far = data["far"][name]["combined"]
             ax.set_title(f"{_label(name)} {_design_text(data['params'][name])}: FAR (combined) {far:.3f}")
-            if i == 0:
-                ax.legend(loc="lower left", ncols=3, fontsize=8)
+        handles, labels = ax.get_legend_handles_labels()
+        fig.legend(handles, labels, loc="outside upper center", ncols=3, fontsize=8)
         ax.set_xlabel("fault IDV(N), test files rows 160-959")
         fig.savefig(path, dpi=110)
         return path
