@@ -43,4 +43,5 @@ def test_a_design_on_the_search_box_is_flagged():
     setup = _setup("detector.bounds.K=[0.0,5.0]")
     assert on_bound({"lam": 0.4, "K": 5.0}, setup) == ["K = 5 in [0, 5]"]
     assert on_bound({"lam": 0.4, "K": 3.0}, setup) == []
-    assert json.dumps(on_bound({"lam": 0.4, "K": 0.0}, setup))  # serialisable for summary.json
+    # the lower bound too, and as summary.json stores it (a JSON list of strings, read back unchanged)
+    assert json.loads(json.dumps(on_bound({"lam": 0.4, "K": 0.0}, setup))) == ["K = 0 in [0, 5]"]

@@ -58,12 +58,31 @@ def test_far_matched_limit_gives_that_alarm_rate_on_fresh_in_control_data():
 
 
 def test_faulty_subgroups_inject_the_sensor_faults_of_the_plant():
-    base = np.random.default_rng(44).standard_normal((2, 10, 5))
-    np.testing.assert_allclose(oc.faulty_subgroups(base, "offset", 0.5, 1e-3), base + 0.5)
-    np.testing.assert_allclose(oc.faulty_subgroups(base, "variance", 1.5, 1e-3), 1.5 * base)
-    drift = oc.faulty_subgroups(base, "drift", 2.0, 1e-3) - base
-    # σ per second on the plant's time base: sample j (1-based) carries 2·0.001·j
-    assert drift[0, 0, 0] == pytest.approx(2e-3) and drift[1, 9, 4] == pytest.approx(2.0 * 1e-3 * 50)
+    """The study's faulty subgroups against the plant's own injection (mosd.faults.sensor_fault_signals).
+
+    The plant's samples after an onset at t = 0, in subgroups of n consecutive samples, σ = 1: the
+    offset and the drift are the plant's g sample for sample; the variance fault, whose extra noise the
+    plant draws itself, has the plant's spread (b·e and e + √(b² − 1)·e' agree in distribution).
+    """
+    from mosd.faults import SensorFault, sensor_fault_signals
+
+    dt, (R, T, n) = 1e-3, (2, 10, 5)
+    base = np.random.default_rng(44).standard_normal((R, T, n))
+    t = dt * np.arange(1, T * n + 1)
+    for kind, size in (("offset", 0.5), ("drift", 2.0)):
+        g, active = sensor_fault_signals(SensorFault(kind, onset=0.0, a=size), t,
+                                         [np.random.default_rng(r) for r in range(R)], n_outputs=1)
+        assert active.all()
+        np.testing.assert_allclose(oc.faulty_subgroups(base, kind, size, dt), base + g[..., 0].reshape(R, T, n),
+                                   rtol=1e-12, atol=1e-15, err_msg=kind)
+    wide = np.random.default_rng(45).standard_normal((4, 5000, n))
+    t = dt * np.arange(1, 5000 * n + 1)
+    g, _ = sensor_fault_signals(SensorFault("variance", onset=0.0, b=1.5), t,
+                                [np.random.default_rng(100 + r) for r in range(4)], n_outputs=1)
+    plant = (wide + g[..., 0].reshape(wide.shape)).std()
+    study = oc.faulty_subgroups(wide, "variance", 1.5, dt).std()
+    se = 1.5 / math.sqrt(2 * wide.size)  # standard error of a normal sample's standard deviation
+    assert abs(plant - study) < 5 * math.sqrt(2) * se and abs(plant - 1.5) < 5 * se, (plant, study)
 
 
 def test_charts_compared_are_labelled_causal_or_not():

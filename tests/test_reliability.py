@@ -174,9 +174,12 @@ def test_read_only_outputs_root_fails_in_preflight(tmp_path):
 # 4. values valid one by one but not together: refused in preflight with the derived bound
 # ---------------------------------------------------------------------------------------
 @pytest.mark.parametrize("overrides,pattern", [
-    (["plant.dt=0.1"], r"monitor\.burn_in=200 leaves no subgroup of a 52-point run \(scenario\.duration=5\.2 s at "
-                       r"plant\.dt=0\.1 s\); allowed: 0 <= monitor\.burn_in <= 47"),
-    (["monitor.burn_in=6000"], r"monitor\.burn_in=6000 leaves no subgroup of a 5200-point run .*<= 5195"),
+    (["plant.dt=0.1"], r"monitor\.burn_in=200 leaves fewer than 2 subgroups of a 52-point run \(scenario\.duration="
+                       r"5\.2 s at plant\.dt=0\.1 s\); allowed: 0 <= monitor\.burn_in <= 42"),
+    (["monitor.burn_in=6000"], r"monitor\.burn_in=6000 leaves fewer than 2 subgroups of a 5200-point run .*<= 5190"),
+    # one subgroup per run: the chart's Phase-I spread of the dry run would be NaN
+    (["monitor.burn_in=5195"], r"monitor\.burn_in=5195 leaves fewer than 2 subgroups .*allowed: 0 <= monitor\.burn_in "
+                               r"<= 5190"),
     (["denoise=wavelet", "denoise.level=12"], r"denoise\.level=12 needs at least 20480 chart points per run for db3; "
                                               r"the run has 1000 .*allowed: denoise\.level <= 7"),
     (["fault.onset=10"], r"fault\.onset=10 is past the end of the run \(scenario\.duration=5\.2\)"),
@@ -189,9 +192,25 @@ def test_values_that_do_not_fit_together_are_refused_with_the_bound(overrides, p
     assert "\n" not in message and re.search(pattern, message), message
 
 
-@pytest.mark.parametrize("overrides", [["fault.onset=0"], ["monitor.burn_in=5195"], ["denoise=wavelet"]])
-def test_values_at_the_bound_pass_the_dry_run(overrides):
+@pytest.mark.parametrize("overrides", [["fault.onset=0"], ["monitor.burn_in=5190"], ["denoise=wavelet"]])
+def test_values_at_the_bound_pass_the_dry_run(overrides, monkeypatch):
+    """At the bound the dry run runs to its end and scores the design with a finite limit and finite rates."""
+    from mosd.experiment import Experiment
+
+    scored = []
+    evaluate = Experiment.evaluate
+
+    def recording(self, *args, **kwargs):
+        scored.append(evaluate(self, *args, **kwargs))
+        return scored[-1]
+
+    monkeypatch.setattr(Experiment, "evaluate", recording)
     preflight_module.preflight(["+fault=offset_var", "tracking=none", *overrides])
+    assert len(scored) == 1, "the dry run did not score the design"
+    report, example = scored[0]
+    assert example["statistic"].size >= 2 and np.all(np.isfinite(example["ucl"])), example["ucl"]
+    # the dry run scores its one training run (FAR is NaN where the fault acts from its first subgroup)
+    assert 0.0 <= report.summary()["mdr"].mean <= 1.0, report.summary()
 
 
 def test_a_sweep_checks_each_distinct_shape_once(monkeypatch):

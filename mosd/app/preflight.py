@@ -116,10 +116,14 @@ def _check_burn_in(setup: Setup, n_points: int) -> None:
     burn_in = getattr(monitor, "burn_in", None)
     if burn_in is None:
         return
-    # a window subgroup needs n samples after the burn-in, every other monitor one point
-    need = int(getattr(monitor, "n", 1)) if getattr(monitor, "subgroup", "") == "window" else 1
+    # a window subgroup is n samples after the burn-in, every other monitor's point one sample; a run needs
+    # two: the detector's Phase-I spread (sd{l} of eq. 27) of one point per run is NaN in the one-replication
+    # dry run, and a chart of one point per run decides nothing over time
+    size = int(getattr(monitor, "n", 1)) if getattr(monitor, "subgroup", "") == "window" else 1
+    need = 2 * size
     if burn_in > n_points - need:
-        raise ConfigError(f"monitor.burn_in={burn_in} leaves no {'subgroup' if need > 1 else 'point'} of a "
+        unit = "subgroups" if size > 1 else "points"
+        raise ConfigError(f"monitor.burn_in={burn_in} leaves fewer than 2 {unit} of a "
                           f"{n_points}-point run ({_run_length(setup)}); "
                           f"allowed: 0 <= monitor.burn_in <= {max(n_points - need, 0)}, or a longer run")
 
