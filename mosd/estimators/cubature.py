@@ -63,8 +63,6 @@ __all__ = [
     "FilterResult",
     "CubatureKalmanFilter",
     "CESCKF",
-    "InnovationResidual",
-    "DedicatedObserverResidual",
 ]
 
 _DELTA1_RANGE = Interval(math.sqrt(0.5), math.inf, open_low=True)

@@ -1,9 +1,9 @@
 """Compiled (numba) kernels for the hot loops, with the NumPy code kept as the reference.
 
-Every kernel here but the two filters reproduces one NumPy routine of the science core operation for
-operation, in the same order of floating-point additions, so that its results are
-bit-identical to the reference (``tests/test_kernels.py`` checks equality, not a
-tolerance):
+The first four modules reproduce NumPy code of the science core operation for
+operation, in the same order of floating-point additions, so that their results are
+bit-identical to the reference (``tests/test_kernels.py`` and ``tests/test_plant.py``
+check equality, not a tolerance); the last three are close, not identical:
 
 * :mod:`mosd.kernels.ewma` — the population EWMA/DEWMA recursion of
   :func:`mosd.detectors.statistics.ewma_time_major`;
@@ -13,8 +13,11 @@ tolerance):
 * :mod:`mosd.kernels.chart` — the fused candidate evaluation of a mean–variance
   chart (recursion, denoising, Phase-I limit, alarm counts for FAR/MDR), which
   materialises no (P, R, K) array;
+* :mod:`mosd.kernels.plants` — the closed-loop simulation of the mould oscillator
+  (:class:`mosd.plants.MouldOscillator`) and the plants' physics at one point
+  (``TRANSITIONS``: what :mod:`mosd.kernels.cubature` dispatches on);
 * :mod:`mosd.kernels.cubature` — the CESCKF over a batch of replications, for
-  models that give a compiled form of f and h; not
+  models that give a compiled form of f and h (a ``PointwiseModel``); not
   bit-identical (LAPACK's QR sums in another order): ~1e-13 relative;
 * :mod:`mosd.kernels.imm` — paper 001's asynchronous IMM fusion filter
   (:class:`mosd.estimators.AsyncIMMFusion`, both fusion forms) over a batch of
