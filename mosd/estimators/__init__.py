@@ -12,6 +12,7 @@ _LAZY = {
     "FixedGainFilter": "entropy_filter",
     "MeasuredSignals": "measured",
     "MultiStepNeuralObserver": "neural_observer",
+    "PCAResidual": "pca",
 }
 __getattr__, __dir__, __all__ = lazy(__name__, _LAZY, [
     "CESCKF", "CubatureKalmanFilter", "DedicatedObserverResidual", "EmbeddedCubatureRule", "Estimator",
