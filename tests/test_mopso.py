@@ -19,8 +19,8 @@ from pymoo.util.nds.non_dominated_sorting import NonDominatedSorting
 from mosd.optim import MOPSO, GridArchive
 from mosd.optim.benchmarks import ShiftedZDT1
 from mosd.optim.archive import dominance_matrix, eq37_removal_counts
-from mosd.optim.mopso import (PAPER_PRESET, apply_bounds, constriction_coefficients, polynomial_mutation,
-                              restart_pymoo_run)
+from mosd.optim.mopso import (PAPER_PRESET, apply_bounds, constriction_coefficients, restart_pymoo_run,
+                              smpso_velocity)
 from mosd.validation import ConfigError
 
 CONF = Path(__file__).resolve().parents[1] / "conf" / "optimizer"
@@ -283,19 +283,19 @@ def test_positions_stay_in_bounds_and_the_bound_rule_holds(make):
     assert recorder.at_bound > 50 and recorder.rule_ok
 
 
-def test_polynomial_mutation_stays_in_bounds_and_makes_mostly_small_steps():
-    rng = np.random.default_rng(0)
-    X = rng.random((2000, 10))
-    xl, xu = np.zeros(10), np.ones(10)
-    Y = polynomial_mutation(X, xl, xu, 0.1, 20.0, rng)
+def test_polynomial_mutation_is_pymoos_on_a_share_of_the_swarm():
+    """With the velocity switched off (w = c1 = c2 = 0), a move changes exactly the mutated particles."""
+    problem = get_problem("zdt1", n_var=10)
+    algorithm = MOPSO(pop_size=2000, w=0.0, c1=0.0, c2=0.0, exploration=None, mutation_rate=0.3)
+    algorithm.setup(problem, termination=("n_gen", 2), seed=5)
+    algorithm.next()  # the initial swarm
+    X = algorithm.particle_position.copy()
+    Y = algorithm.infill().get("X")
     changed = Y != X
-    assert abs(changed.mean() - 0.1) < 0.01
-    assert np.all((Y >= 0) & (Y <= 1))
+    assert abs(changed.any(axis=1).mean() - 0.3 * (1 - 0.9 ** 10)) < 0.03  # share 0.3, 1/n_var per variable
+    assert abs(changed.mean() - 0.3 * 0.1) < 0.005 and np.all((Y >= 0) & (Y <= 1))
     steps = np.abs(Y - X)[changed]
-    assert np.median(steps) < 0.05 and steps.max() > 0.1
-    # larger eta, smaller steps
-    Z = polynomial_mutation(X, xl, xu, 0.1, 100.0, np.random.default_rng(0))
-    assert np.median(np.abs(Z - X)[Z != X]) < 0.5 * np.median(steps)
+    assert np.median(steps) < 0.05 and steps.max() > 0.1  # eta 20: mostly small steps
 
 
 def test_coello_mutation_schedule_decays_to_nothing_after_rate_times_the_run():
@@ -394,6 +394,28 @@ def test_same_seed_same_result_different_seed_different_result(make):
     other = minimize(problem, make(pop_size=20), ("n_gen", 15), seed=8)
     assert np.array_equal(first.F, again.F) and np.array_equal(first.X, again.X)
     assert not (first.F.shape == other.F.shape and np.array_equal(first.F, other.F))
+
+
+def test_smpso_velocity_is_repulsive_for_half_the_particles_and_clamped():
+    """SMPSO's published chi = 2 / (2 - phi - sqrt(phi^2 - 4 phi)) is negative for phi = c1 + c2 > 4."""
+    rng = np.random.default_rng(0)
+    n, xl, xu = 4000, np.zeros(3), np.ones(3)
+    X = np.full((n, 3), 0.2)
+    target = np.full((n, 3), 0.6)
+    V = smpso_velocity(X, np.zeros_like(X), target, target, xl, xu, rng)
+    towards = (V * (target - X)).sum(axis=1)
+    assert abs((towards < 0).mean() - 0.5) < 0.03  # P(c1 + c2 > 4) = 1/2 with c1, c2 ~ U[1.5, 2.5]
+    assert np.abs(V).max() <= 0.5 + 1e-12 and np.abs(V).max() == pytest.approx(0.5)  # clamp: half the range
+    assert np.all(V[:, 0] == V[:, 1])  # r1, r2 drawn once per particle (jMetal)
+
+
+def test_default_escapes_zdt4s_local_fronts_where_the_issue14_default_stalls():
+    """Issue 21: at 3,000 evaluations the default reaches ZDT4's front on every seed; without the
+    exploration moves (the issue-14 default) the swarm stalls on a local front (HV 0)."""
+    problem = get_problem("zdt4")
+    new = [HV2(minimize(problem, MOPSO(), ("n_eval", 3000), seed=s).F) for s in (1, 2, 3)]
+    old = [HV2(minimize(problem, MOPSO(exploration=None), ("n_eval", 3000), seed=s).F) for s in (1, 2, 3)]
+    assert min(new) > 0.5 and max(old) == 0.0
 
 
 def test_paper_preset_reproduces_the_archive_of_the_previous_default():

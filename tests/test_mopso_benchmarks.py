@@ -2,9 +2,10 @@
 import numpy as np
 import pytest
 
-from mosd.optim.benchmarks import (ABLATIONS, ALGORITHMS, DEFAULT_NAME, NSGA2_NAME, PAPER_NAME, SMPSO_NAME,
-                                   JMetalSMPSO, benchmark_table, format_ratios, format_table, main,
-                                   make_problem, smpso_available)
+from mosd.optim.benchmarks import (ABLATIONS, ALGORITHMS, DEFAULT_NAME, ISSUE14_NAME, NSGA2_NAME, NSGA3_NAME,
+                                   OPTIONAL, PAPER_NAME, SMPSO_NAME, JMetalSMPSO, benchmark_table, format_ratios,
+                                   format_table, format_targets, main, make_problem, normalisation, runs_on,
+                                   smpso_available, target_rows)
 from mosd.validation import ConfigError
 
 needs_jmetal = pytest.mark.skipif(not smpso_available(), reason="jMetalPy not installed")
@@ -40,7 +41,33 @@ def test_unknown_names_fail_listing_the_allowed_ones():
         benchmark_table(algorithms=["SPEA2"], n_eval=100)
     with pytest.raises(ConfigError, match="benchmark.problems='zdt5'.*allowed: zdt1"):
         make_problem("zdt5")
-    assert set(ABLATIONS).isdisjoint(ALGORITHMS)
+    assert set(ABLATIONS).isdisjoint(ALGORITHMS) and set(OPTIONAL).isdisjoint(ALGORITHMS)
+
+
+def test_normalisation_uses_the_true_fronts_ideal_and_nadir():
+    ideal, nadir, front = normalisation("osy")  # Deb 2001: f1 in [-274, -42], f2 in [4, 76]
+    assert np.allclose(ideal, [-274.0, 4.0], atol=0.5) and np.allclose(nadir, [-42.0, 76.0], atol=0.5)
+    ideal, nadir, _ = normalisation("dtlz7")  # f1, f2 up to 0.8594, f3 from 2.6138 to 6
+    assert np.allclose(ideal, [0.0, 0.0, 2.6138], atol=2e-3) and np.allclose(nadir, [0.8594, 0.8594, 6.0], atol=2e-3)
+    ideal, nadir, _ = normalisation("dtlz1")  # the simplex sum f = 0.5
+    assert np.allclose(ideal, 0.0) and np.allclose(nadir, 0.5)
+
+
+def test_peers_run_where_they_apply():
+    assert runs_on(NSGA3_NAME, make_problem("dtlz2")) and not runs_on(NSGA3_NAME, make_problem("zdt1"))
+    assert not runs_on(SMPSO_NAME, make_problem("osy")) and runs_on(NSGA2_NAME, make_problem("osy"))
+
+
+def test_targets_compare_with_the_named_reference():
+    rows = [{"problem": "ZDT4", "algorithm": DEFAULT_NAME, "hv_median": 0.86},
+            {"problem": "ZDT4", "algorithm": NSGA2_NAME, "hv_median": 0.50},
+            {"problem": "ZDT4", "algorithm": SMPSO_NAME, "hv_median": 0.87},
+            {"problem": "ZDT1", "algorithm": DEFAULT_NAME, "hv_median": 0.85},
+            {"problem": "ZDT1", "algorithm": ISSUE14_NAME, "hv_median": 0.87}]
+    zdt4, zdt1 = target_rows(rows)
+    assert zdt4["reference"] == SMPSO_NAME and zdt4["ratio"] == pytest.approx(0.86 / 0.87) and zdt4["met"]
+    assert zdt1["reference"] == ISSUE14_NAME and not zdt1["met"]  # 0.977 < 0.98
+    assert "| ZDT1 | 0.8500 | MOPSO (issue-14 default) | 0.8700 | 0.977 | ≥ 0.98 | **no** |" in format_targets(rows)
 
 
 @needs_jmetal
@@ -54,21 +81,30 @@ def test_smpso_runs_on_the_pymoo_problem_reproducibly():
     assert np.all((first[:, 0] >= 0) & (first[:, 0] <= 1))
 
 
-def test_main_prints_the_table_and_the_ratios(capsys):
-    assert main(["--problems", "zdt1", "--seeds", "1", "--n-eval", "200", "--n-jobs", "1"]) == 0
+def test_main_prints_the_table_the_ratios_and_the_targets(capsys):
+    assert main(["--problems", "zdt1", "--seeds", "1", "--n-eval", "200", "--n-jobs", "1", "--no-progress"]) == 0
     out = capsys.readouterr().out
-    assert "| algorithm | ZDT1 HV |" in out and f"| {DEFAULT_NAME} |" in out and f"| {PAPER_NAME} |" in out
-    assert f"| {DEFAULT_NAME} / {NSGA2_NAME} |" in out
+    assert "| algorithm | ZDT1 HV |" in out and f"| {DEFAULT_NAME} |" in out and f"| {ISSUE14_NAME} |" in out
+    assert f"| {DEFAULT_NAME} / {NSGA2_NAME} |" in out and f"| ZDT1 | " in out and "≥ 0.98" in out
+    assert NSGA3_NAME not in out.split("| ratio |")[0]  # two objectives: NSGA-III does not run
     assert (SMPSO_NAME in out) == smpso_available()
+    assert main(["--problems", "zdt1", "--seeds", "1", "--n-eval", "200", "--n-jobs", "1", "--no-progress",
+                 "--algorithms", PAPER_NAME]) == 0
+    assert f"| {PAPER_NAME} |" in capsys.readouterr().out
+
+
+def test_main_refuses_an_unknown_algorithm_in_one_line(capsys):
+    assert main(["--algorithms", "SPEA2", "--no-progress"]) == 2
+    assert capsys.readouterr().err.count("\n") == 1
 
 
 @pytest.mark.slow
 @needs_jmetal
 def test_default_meets_the_issue_targets():
     """Issue 14: median HV >= SMPSO's on ZDT1-3 and >= 0.95 x NSGA-II's on DTLZ2 (10,000 evaluations,
-    seeds 1-5). About 20 s on two idle cores."""
+    seeds 1-5, normalised hypervolume). About 30 s on two idle cores."""
     rows = benchmark_table(problems=("zdt1", "zdt2", "zdt3", "dtlz2"),
-                           algorithms=[DEFAULT_NAME, SMPSO_NAME, NSGA2_NAME], n_jobs=2)
+                           algorithms=[DEFAULT_NAME, SMPSO_NAME, NSGA2_NAME], n_eval=10_000, n_jobs=2)
     hv = {(r["problem"], r["algorithm"]): r["hv_median"] for r in rows}
     for problem in ("ZDT1", "ZDT2", "ZDT3"):
         assert hv[problem, DEFAULT_NAME] >= hv[problem, SMPSO_NAME], problem

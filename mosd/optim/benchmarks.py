@@ -1,47 +1,60 @@
-"""How good is the MOPSO? Median hypervolume on ZDT1–4, ZDT6 and DTLZ2 against other optimisers.
+"""How good is the MOPSO? Normalised hypervolume on the ZDT, DTLZ and WFG problems and OSY against its peers.
 
-``python -m mosd.optim.benchmarks`` prints the table; :func:`benchmark_table` returns it.
+``python -m mosd.optim.benchmarks`` runs the suite of issue 21 against the peers in one
+invocation and prints the table with ratios and targets; :func:`benchmark_table` returns
+the rows, :func:`preset_table` does the same on the presets' own tuning problems.
 
-Set-up (the issue's protocol):
+Set-up (issue 21's protocol):
 
-* problems — pymoo's ZDT1, ZDT2, ZDT3 (30 variables), ZDT4, ZDT6 (10 variables) and
-  DTLZ2 with 3 objectives and 12 variables; optionally ``"zdt1_shifted"``
-  (:class:`ShiftedZDT1`, ZDT1 with its optimum moved from the bound into the box);
-* budget — the same number of function evaluations for everyone, 10,000 by default
-  (100 particles / individuals × 100 generations), DTLZ2 included; one run per seed,
-  seeds 1–5, medians reported;
-* quality — hypervolume of the final non-dominated set with reference point
-  (1.1, 1.1) for ZDT and (1.1, 1.1, 1.1) for DTLZ2 (the true fronts score
-  ZDT1/ZDT4 0.876, ZDT2 0.543, ZDT3 1.332, ZDT6 0.508, DTLZ2 1.331 − π/6 = 0.807);
-  IGD against pymoo's ``pareto_front()`` is reported alongside;
-* algorithms (:data:`ALGORITHMS`) — this package's :class:`~mosd.optim.mopso.MOPSO`
-  with its defaults and with paper 000's Table 2 (:data:`~mosd.optim.mopso.PAPER_PRESET`),
-  pymoo's NSGA-II and MOPSO_CD (archive 100, like the others), and jMetalPy's SMPSO
-  (Nebro et al. 2009, swarm 100, crowding archive 100, polynomial mutation
-  p = 1/n, η = 20: jMetalPy's standard set-up) when jMetalPy is installed.
+* problems (:data:`PROBLEMS`) — pymoo's ZDT1, ZDT2, ZDT3 (30 variables), ZDT4, ZDT6
+  (10 variables); DTLZ1 (7 variables), DTLZ2, DTLZ3, DTLZ4 (12), DTLZ7 (22), all with
+  3 objectives; WFG1, WFG2, WFG4 with 2 objectives, k = 4 position and l = 20 distance
+  variables (Huband et al. 2006's set-up); OSY (6 variables, 6 constraints); optionally
+  ``"zdt1_shifted"`` (:class:`ShiftedZDT1`, ZDT1 with its optimum moved into the box);
+* budget — the same number of function evaluations for every algorithm: 50,000 on DTLZ1
+  and DTLZ3, 10,000 elsewhere (:data:`N_EVAL`, as the issue's comparison);
+  ``n_eval`` sets one budget for all; one run per seed, seeds 1–5, medians reported;
+* quality — hypervolume of the final feasible non-dominated set after normalising each
+  objective by the true front's ideal and nadir points, (f − ideal) / (nadir − ideal),
+  with reference point 1.1 in every objective (:func:`mosd.metrics.hypervolume`). For ZDT1,
+  ZDT2, ZDT4, ZDT6, DTLZ2–4 the front spans [0, 1] and this is the raw hypervolume with
+  reference 1.1; ZDT3, DTLZ1, DTLZ7, WFG and OSY are rescaled. The fronts: pymoo's
+  ``pareto_front()``, and for DTLZ7 and OSY (whose pymoo fronts are downloads) the
+  analytical ones (:func:`dtlz7_front`, :func:`osy_front`). IGD against the same front is
+  reported alongside;
+* algorithms (:data:`ALGORITHMS`) — this package's :class:`~mosd.optim.mopso.MOPSO` with
+  its defaults; the issue-14 default (``exploration=None``, what ``MOPSO()`` was before
+  issue 21) as the no-loss reference; pymoo's NSGA-II (100 individuals), NSGA-III (3
+  objectives only: 91 Das–Dennis directions, 12 partitions, 92 individuals); jMetalPy's
+  SMPSO (Nebro et al. 2009, swarm 100, crowding archive 100, polynomial mutation p = 1/n,
+  η = 20) on the unconstrained problems. Paper 000's Table 2 preset and pymoo's MOPSO_CD
+  run when named.
 
-The ZDT optima (and ZDT4's, ZDT6's) lie on the lower bound of x2…xn, so the rule for
-particles that leave the box (:func:`mosd.optim.mopso.apply_bounds`) decides much of a
-PSO's score there; ``"zdt1_shifted"`` and DTLZ2, whose optima lie inside the box, tell
-search ability from boundary effects. ``docs/MOPSO.md`` has the measured tables.
+``docs/MOPSO.md`` has the measured tables.
 """
 from __future__ import annotations
 
 import argparse
 import logging
+import sys
 import time
+from dataclasses import dataclass
+from functools import lru_cache
 from typing import Callable
 
 import numpy as np
 from joblib import Parallel, delayed
 from pymoo.algorithms.moo.mopso_cd import MOPSO_CD
 from pymoo.algorithms.moo.nsga2 import NSGA2
+from pymoo.algorithms.moo.nsga3 import NSGA3
 from pymoo.core.problem import Problem
-from pymoo.indicators.hv import HV
 from pymoo.indicators.igd import IGD
 from pymoo.optimize import minimize
 from pymoo.problems import get_problem
+from pymoo.util.nds.non_dominated_sorting import NonDominatedSorting
+from pymoo.util.ref_dirs import get_reference_directions
 
+from ..metrics import REFERENCE_VALUE, hypervolume
 from ..validation import ConfigError, Interval, check_in, check_int
 from .mopso import MOPSO, PAPER_PRESET
 
@@ -66,32 +79,124 @@ class ShiftedZDT1(Problem):
         return get_problem("zdt1").pareto_front(n_points)
 
 
-#: The issue's problems; ``"zdt1_shifted"`` may be added (:class:`ShiftedZDT1`).
-PROBLEMS = ("zdt1", "zdt2", "zdt3", "zdt4", "zdt6", "dtlz2")
-KNOWN_PROBLEMS = (*PROBLEMS, "zdt1_shifted")
-#: Function evaluations per run, every problem (DTLZ2 included).
+def dtlz7_front(n_grid: int = 301) -> np.ndarray:
+    """DTLZ7's 3-objective Pareto front: g = 1, f3 = 2 (3 − Σ f_i / 2 (1 + sin 3π f_i)), non-dominated part."""
+    axis = np.linspace(0.0, 1.0, n_grid)
+    f1, f2 = (v.ravel() for v in np.meshgrid(axis, axis))
+    h = 3.0 - (f1 / 2.0 * (1.0 + np.sin(3.0 * np.pi * f1)) + f2 / 2.0 * (1.0 + np.sin(3.0 * np.pi * f2)))
+    F = np.column_stack([f1, f2, 2.0 * h])
+    return F[NonDominatedSorting().do(F, only_non_dominated_front=True)]
+
+
+def osy_front(n_points: int = 200) -> np.ndarray:
+    """OSY's Pareto front from its five analytical regions (Deb 2001, §10.3), evaluated and filtered.
+
+    x4 = x6 = 0 throughout: (5, 1, x3, 0, 5, 0) and (5, 1, x3, 0, 1, 0) with x3 ∈ [1, 5];
+    (x1, (x1 − 2)/3, 1, 0, 1, 0) with x1 ∈ [4.056, 5]; (0, 2, x3, 0, 1, 0) with
+    x3 ∈ [1, 3.732]; (x1, 2 − x1, 1, 0, 1, 0) with x1 ∈ [0, 1]. Ideal (−274, 4),
+    nadir (−42, 76).
+    """
+    t = np.linspace(0.0, 1.0, n_points)
+    one, zero = np.ones_like(t), np.zeros_like(t)
+    x3 = 1.0 + 4.0 * t
+    x1_cd, x3_de, x1_ef = 4.056 + 0.944 * t, 1.0 + 2.732 * t, t
+    X = np.vstack([np.column_stack([5 * one, one, x3, zero, 5 * one, zero]),
+                   np.column_stack([5 * one, one, x3, zero, one, zero]),
+                   np.column_stack([x1_cd, (x1_cd - 2.0) / 3.0, one, zero, one, zero]),
+                   np.column_stack([zero, 2 * one, x3_de, zero, one, zero]),
+                   np.column_stack([x1_ef, 2.0 - x1_ef, one, zero, one, zero])])
+    F, G = get_problem("osy").evaluate(X, return_values_of=["F", "G"])
+    F = F[np.all(G <= 1e-9, axis=1)]
+    return F[NonDominatedSorting().do(F, only_non_dominated_front=True)]
+
+
+@dataclass(frozen=True)
+class Benchmark:
+    """A benchmark problem: how to build it, its default budget and its true front."""
+
+    make: Callable[[], Problem]
+    n_eval: int
+    front: Callable[[Problem], np.ndarray] = lambda problem: problem.pareto_front()
+
+
+def _wfg(name: str) -> Callable[[], Problem]:
+    return lambda: get_problem(name, n_var=24, n_obj=2, k=4, l=20)
+
+
+def _dtlz(name: str, n_var: int) -> Callable[[], Problem]:
+    return lambda: get_problem(name, n_var=n_var, n_obj=3)
+
+
+#: Issue 21's problems (name → :class:`Benchmark`); ``"zdt1_shifted"`` is extra (:data:`KNOWN_PROBLEMS`).
+PROBLEMS: dict[str, Benchmark] = {
+    "zdt1": Benchmark(lambda: get_problem("zdt1"), 10_000),
+    "zdt2": Benchmark(lambda: get_problem("zdt2"), 10_000),
+    "zdt3": Benchmark(lambda: get_problem("zdt3"), 10_000),
+    "zdt4": Benchmark(lambda: get_problem("zdt4"), 10_000),
+    "zdt6": Benchmark(lambda: get_problem("zdt6"), 10_000),
+    "dtlz1": Benchmark(_dtlz("dtlz1", 7), 50_000),
+    "dtlz2": Benchmark(_dtlz("dtlz2", 12), 10_000),
+    "dtlz3": Benchmark(_dtlz("dtlz3", 12), 50_000),
+    "dtlz4": Benchmark(_dtlz("dtlz4", 12), 10_000),
+    "dtlz7": Benchmark(_dtlz("dtlz7", 22), 10_000, lambda problem: dtlz7_front()),
+    "wfg1": Benchmark(_wfg("wfg1"), 10_000),
+    "wfg2": Benchmark(_wfg("wfg2"), 10_000),
+    "wfg4": Benchmark(_wfg("wfg4"), 10_000),
+    "osy": Benchmark(lambda: get_problem("osy"), 10_000, lambda problem: osy_front()),
+}
+EXTRA_PROBLEMS: dict[str, Benchmark] = {"zdt1_shifted": Benchmark(ShiftedZDT1, 10_000)}
+KNOWN_PROBLEMS = (*PROBLEMS, *EXTRA_PROBLEMS)
+#: Default budget per run where a problem sets none (``Benchmark.n_eval`` does for all).
 N_EVAL = 10_000
 SEEDS = (1, 2, 3, 4, 5)
-#: Hypervolume reference: 1.1 in every objective (ZDT: (1.1, 1.1); DTLZ2: (1.1, 1.1, 1.1)).
-REFERENCE_VALUE = 1.1
-#: Kept for callers of the two-objective table.
+#: Kept for callers of the two-objective table: the normalised reference point of a 2-objective problem.
 REFERENCE_POINT = (REFERENCE_VALUE, REFERENCE_VALUE)
 
-SMPSO_NAME = "SMPSO (jMetalPy)"
-NSGA2_NAME = "NSGA-II (pymoo)"
 DEFAULT_NAME = "MOPSO (default)"
+ISSUE14_NAME = "MOPSO (issue-14 default)"
 PAPER_NAME = "MOPSO paper (Table 2)"
+NSGA2_NAME = "NSGA-II (pymoo)"
+NSGA3_NAME = "NSGA-III (pymoo)"
+SMPSO_NAME = "SMPSO (jMetalPy)"
+MOPSO_CD_NAME = "MOPSO_CD (pymoo)"
+#: The peers of issue 21 (the "best peer" of a problem is the best of these that ran on it).
+PEERS = (NSGA2_NAME, NSGA3_NAME, SMPSO_NAME)
+
+#: Issue 21's targets: problem → (reference: a peer name, "best peer" or the issue-14 default, factor).
+TARGETS: dict[str, tuple[str, float]] = {
+    "ZDT4": ("best peer", 0.95), "DTLZ1": ("best peer", 0.95), "DTLZ3": ("best peer", 0.95),
+    "WFG4": (NSGA2_NAME, 0.95), "OSY": (NSGA2_NAME, 0.97),
+    **{name: (ISSUE14_NAME, 0.98) for name in ("ZDT1", "ZDT2", "ZDT3", "ZDT6", "DTLZ2", "DTLZ4", "DTLZ7",
+                                                 "WFG1", "WFG2")},
+}
 
 
 def make_problem(name: str) -> Problem:
     """A benchmark problem by name (:data:`KNOWN_PROBLEMS`)."""
-    if name not in KNOWN_PROBLEMS:
+    return _benchmark(name).make()
+
+
+def _benchmark(name: str) -> Benchmark:
+    known = {**PROBLEMS, **EXTRA_PROBLEMS}
+    if name not in known:
         raise ConfigError(f"benchmark.problems={name!r} is not allowed; allowed: {', '.join(KNOWN_PROBLEMS)}")
-    if name == "zdt1_shifted":
-        return ShiftedZDT1()
-    if name == "dtlz2":
-        return get_problem("dtlz2", n_var=12, n_obj=3)
-    return get_problem(name)
+    return known[name]
+
+
+@lru_cache(maxsize=None)
+def normalisation(name: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Ideal point, nadir point and the true front of problem ``name`` (computed once per process)."""
+    benchmark = _benchmark(name)
+    front = np.asarray(benchmark.front(benchmark.make()), dtype=float)
+    return front.min(axis=0), front.max(axis=0), front
+
+
+def normalised_hypervolume(F: np.ndarray, ideal: np.ndarray, nadir: np.ndarray) -> float:
+    """Hypervolume of (F − ideal) / (nadir − ideal) with reference 1.1 in every objective (module docstring)."""
+    F = np.atleast_2d(np.asarray(F, dtype=float))
+    if F.size == 0:
+        return 0.0
+    return hypervolume((F - ideal) / (nadir - ideal))
 
 
 class JMetalSMPSO:
@@ -100,7 +205,8 @@ class JMetalSMPSO:
     jMetalPy draws from Python's ``random`` and NumPy's global generator; both are
     seeded before each run (each run is one joblib task, so runs do not share them).
     The swarm is evaluated as one batch through the pymoo problem, so both libraries
-    see the same objective function.
+    see the same objective function. Constraints are not passed (it runs on the
+    unconstrained problems only).
     """
 
     def __init__(self, swarm_size: int = 100, archive_size: int = 100):
@@ -138,85 +244,177 @@ def smpso_available() -> bool:
     return True
 
 
-#: The comparison of the issue: name → factory of a fresh algorithm (100 particles / individuals).
-#: MOPSO_CD gets archive_size=100 like the others (its own default is 200).
+def _nsga3() -> NSGA3:
+    return NSGA3(get_reference_directions("das-dennis", 3, n_partitions=12), pop_size=92)
+
+
+#: name → factory of a fresh algorithm (100 particles / individuals; NSGA-III 92).
 ALGORITHMS: dict[str, Callable[[], object]] = {
     DEFAULT_NAME: lambda: MOPSO(),
-    PAPER_NAME: lambda: MOPSO(**PAPER_PRESET),
+    ISSUE14_NAME: lambda: MOPSO(exploration=None),
     NSGA2_NAME: lambda: NSGA2(pop_size=100),
+    NSGA3_NAME: _nsga3,
     SMPSO_NAME: lambda: JMetalSMPSO(),
-    "MOPSO_CD (pymoo)": lambda: MOPSO_CD(pop_size=100, archive_size=100),
+}
+#: Run only when named (MOPSO_CD gets archive_size=100 like the others; its own default is 200).
+OPTIONAL: dict[str, Callable[[], object]] = {
+    PAPER_NAME: lambda: MOPSO(**PAPER_PRESET),
+    MOPSO_CD_NAME: lambda: MOPSO_CD(pop_size=100, archive_size=100),
 }
 
-#: One change at a time from the default (or from the paper preset), for docs/MOPSO.md.
+#: One change at a time from the default, for docs/MOPSO.md.
 ABLATIONS: dict[str, Callable[[], object]] = {
+    "default, exploration=0.3": lambda: MOPSO(exploration=0.3),
+    "default, exploration=0.4": lambda: MOPSO(exploration=0.4),
+    "default, exploration=1.0": lambda: MOPSO(exploration=1.0),
+    "default, mutation_rate=0.3": lambda: MOPSO(mutation_rate=0.3),
     "default, boundary=reflect": lambda: MOPSO(boundary="reflect"),
-    "default, boundary=absorb": lambda: MOPSO(boundary="absorb"),
-    "default, velocity=constriction": lambda: MOPSO(velocity="constriction"),
-    "default, velocity=inertia": lambda: MOPSO(velocity="inertia"),
-    "default, constant w=0.4, c1=1, c2=1.5": lambda: MOPSO(w=0.4, c1=1.0, c2=1.5),
     "default, max_velocity=0.5": lambda: MOPSO(max_velocity=0.5),
-    "default, max_velocity=None": lambda: MOPSO(max_velocity=None),
-    "default, mutation=None": lambda: MOPSO(mutation=None),
-    "default, mutation=coello (p_m 0.5)": lambda: MOPSO(mutation="coello", mutation_rate=0.5),
     "default, leader=tournament": lambda: MOPSO(leader="tournament"),
-    "default, personal_best=coin": lambda: MOPSO(personal_best="coin"),
-    "default, removal=random, keep_extremes=False": lambda: MOPSO(removal="random", keep_extremes=False),
-    "default, n_divisions=30": lambda: MOPSO(n_divisions=30),
-    "paper, boundary=clip": lambda: MOPSO(**{**PAPER_PRESET, "boundary": "clip"}),
 }
 
 
-def benchmark_table(problems=PROBLEMS, algorithms=None, seeds=SEEDS, n_eval: int = N_EVAL,
-                    n_jobs: int = 2) -> list[dict]:
-    """Median hypervolume and IGD of each algorithm on each problem.
+def runs_on(algorithm: str, problem: Problem) -> bool:
+    """Whether ``algorithm`` runs on ``problem`` (NSGA-III: 3 objectives; SMPSO: unconstrained)."""
+    if algorithm == NSGA3_NAME:
+        return problem.n_obj == 3
+    if algorithm == SMPSO_NAME:
+        return not problem.has_constraints()
+    return True
+
+
+def benchmark_table(problems=tuple(PROBLEMS), algorithms=None, seeds=SEEDS, n_eval: int | None = None,
+                    n_jobs: int = 2, progress: bool = False) -> list[dict]:
+    """Median normalised hypervolume and IGD of each algorithm on each problem.
 
     Parameters
     ----------
     problems : sequence of str
         Names from :data:`KNOWN_PROBLEMS`.
     algorithms : None, sequence of str or dict
-        Names from :data:`ALGORITHMS` / :data:`ABLATIONS`, or a dict name → factory;
-        None means :data:`ALGORITHMS` (SMPSO left out when jMetalPy is missing).
+        Names from :data:`ALGORITHMS`, :data:`OPTIONAL` or :data:`ABLATIONS`, or a dict
+        name → factory; None means :data:`ALGORITHMS` (SMPSO left out when jMetalPy is
+        missing). An algorithm that does not run on a problem (:func:`runs_on`) has no row.
     seeds : sequence of int
         One run per seed, algorithm and problem.
-    n_eval : int
-        Function evaluations per run.
+    n_eval : int or None
+        Function evaluations per run; None: each problem's own (:data:`PROBLEMS`).
     n_jobs : int
-        joblib workers; one task per run (a run lasts 0.3–5 s, far above joblib's
-        per-task overhead).
+        joblib workers; one task per run.
+    progress : bool
+        A progress bar on stderr (tqdm).
 
     Returns
     -------
     list of dict
         One row per (problem, algorithm), problems outermost: ``problem`` (upper case),
         ``algorithm``, ``hv_median``, ``igd_median``, ``hv`` and ``igd`` (per seed, in
-        seed order), ``n_eval``, ``reference_point``, ``seconds_median`` (wall time).
+        seed order), ``n_eval``, ``reference_point`` (in normalised objectives),
+        ``seconds_median`` (wall time).
     """
-    n_eval = check_int("benchmark.n_eval", n_eval, 1)
+    if n_eval is not None:
+        n_eval = check_int("benchmark.n_eval", n_eval, 1)
     n_jobs = check_int("benchmark.n_jobs", n_jobs, -1)
     problems = tuple(problems)
-    for name in problems:
-        make_problem(name)
+    built = {name: make_problem(name) for name in problems}
     factories = _resolve(algorithms)
     seeds = tuple(int(seed) for seed in seeds)
     if not seeds:
         raise ConfigError("benchmark.seeds is empty; allowed: one or more integers")
-    tasks = [(problem, name, seed) for problem in problems for name in factories for seed in seeds]
-    outcomes = Parallel(n_jobs=n_jobs)(
-        delayed(_run)(problem, factories[name], seed, n_eval) for problem, name, seed in tasks)
+    budget = {name: n_eval or _benchmark(name).n_eval for name in problems}
+    tasks = [(problem, name, seed) for problem in problems for name in factories for seed in seeds
+             if runs_on(name, built[problem])]
+    # the longest runs first, so that the workers finish together
+    order = sorted(range(len(tasks)), key=lambda i: -budget[tasks[i][0]])
+    jobs = (delayed(_run)(i, tasks[i][0], factories[tasks[i][1]], tasks[i][2], budget[tasks[i][0]]) for i in order)
+    outcomes = [None] * len(tasks)
+    stream = Parallel(n_jobs=n_jobs, return_as="generator_unordered")(jobs)
+    for index, outcome in _progress(stream, len(tasks), progress):
+        outcomes[index] = outcome
     rows = []
     for problem in problems:
-        n_obj = make_problem(problem).n_obj
         for name in factories:
             runs = [out for (p, a, _), out in zip(tasks, outcomes) if p == problem and a == name]
+            if not runs:
+                continue
             hv, igd, seconds = (np.array(values) for values in zip(*runs))
             rows.append({"problem": problem.upper(), "algorithm": name,
                          "hv_median": float(np.median(hv)), "igd_median": float(np.median(igd)),
-                         "hv": hv.tolist(), "igd": igd.tolist(), "n_eval": n_eval,
-                         "reference_point": (REFERENCE_VALUE,) * n_obj,
+                         "hv": hv.tolist(), "igd": igd.tolist(), "n_eval": budget[problem],
+                         "reference_point": (REFERENCE_VALUE,) * built[problem].n_obj,
                          "seconds_median": float(np.median(seconds))})
     return rows
+
+
+#: The presets whose tuning problems :func:`preset_table` runs (paper 000's is the chart problem).
+PRESETS = ("paper000", "paper001", "paper002", "paper003")
+
+
+def preset_table(presets=PRESETS, algorithms=(DEFAULT_NAME, ISSUE14_NAME), seeds=(1, 2, 3),
+                 budget_scale: float = 1.0, n_jobs: int = 1, progress: bool = False) -> list[dict]:
+    """Median normalised hypervolume of MOPSO variants on the presets' own tuning problems.
+
+    Each preset (``conf/experiment/NAME.yaml``) is composed and built as ``python -m mosd
+    +experiment=NAME`` builds it (:func:`mosd.systems.cli.preset`, which imports Hydra
+    only when called), its training data prepared once, and each algorithm minimises its
+    objectives over the detector's parameters with the preset's swarm size and the
+    preset's number of generations × ``budget_scale``, one run per seed. The objectives
+    are normalised by the ideal and nadir points of all final archives of that preset
+    (every algorithm and seed together), reference 1.1.
+
+    Returns
+    -------
+    list of dict
+        Rows as :func:`benchmark_table`'s, ``problem`` the preset's name in upper case,
+        ``n_eval`` the evaluations per run; no IGD (the true fronts are unknown).
+    """
+    from pymoo.termination.max_gen import MaximumGenerationTermination
+
+    from ..systems.cli import preset
+    from .problem import TuningProblem
+
+    factories = _resolve(list(algorithms))
+    rows = []
+    for name in presets:
+        setup = preset(name)
+        pop_size = int(getattr(setup.algorithm, "pop_size", 100))
+        n_gen = max(2, int(round(setup.n_gen * budget_scale)))
+        data = setup.experiment.prepare()
+        problem = TuningProblem(setup.experiment.evaluator(data), bounds=setup.bounds, n_jobs=n_jobs)
+        fronts = {}
+        try:
+            tasks = [(algorithm, seed) for algorithm in factories for seed in seeds]
+            for algorithm, seed in _progress(iter(tasks), len(tasks), progress):
+                instance = factories[algorithm]()
+                instance.pop_size = pop_size
+                start = time.perf_counter()
+                result = minimize(problem, instance, MaximumGenerationTermination(n_gen), seed=seed)
+                fronts[algorithm, seed] = (np.atleast_2d(result.F), time.perf_counter() - start)
+        finally:
+            problem.close()
+        union = np.vstack([F for F, _ in fronts.values()])
+        ideal, nadir = union.min(axis=0), union.max(axis=0)
+        nadir = np.where(nadir > ideal, nadir, ideal + 1.0)
+        for algorithm in factories:
+            hv = np.array([normalised_hypervolume(fronts[algorithm, seed][0], ideal, nadir) for seed in seeds])
+            seconds = [fronts[algorithm, seed][1] for seed in seeds]
+            rows.append({"problem": name.upper(), "algorithm": algorithm, "hv_median": float(np.median(hv)),
+                         "igd_median": float("nan"), "hv": hv.tolist(), "igd": [], "n_eval": pop_size * n_gen,
+                         "reference_point": (REFERENCE_VALUE,) * union.shape[1],
+                         "seconds_median": float(np.median(seconds))})
+    return rows
+
+
+def _progress(stream, total: int, show: bool):
+    if not show:
+        yield from stream
+        return
+    from tqdm import tqdm
+
+    with tqdm(total=total, unit="run", file=sys.stderr, dynamic_ncols=True) as bar:
+        for item in stream:
+            bar.update()
+            yield item
 
 
 def format_table(rows: list[dict], igd: bool = False) -> str:
@@ -250,30 +448,117 @@ def format_ratios(rows: list[dict], algorithm: str = DEFAULT_NAME,
     return "\n".join(lines)
 
 
+def best_peer(rows: list[dict], problem: str) -> tuple[str, float] | None:
+    """The peer (:data:`PEERS`) with the highest median HV on ``problem``, and that HV."""
+    peers = [(row["hv_median"], row["algorithm"]) for row in rows
+             if row["problem"] == problem and row["algorithm"] in PEERS]
+    if not peers:
+        return None
+    hv, name = max(peers)
+    return name, hv
+
+
+def target_rows(rows: list[dict], algorithm: str = DEFAULT_NAME) -> list[dict]:
+    """Issue 21's target per problem (:data:`TARGETS`): ``problem``, ``hv``, ``reference`` (name),
+    ``reference_hv``, ``ratio``, ``factor``, ``met`` (None when a needed row is missing)."""
+    cell = {(row["problem"], row["algorithm"]): row["hv_median"] for row in rows}
+    out = []
+    for problem in dict.fromkeys(row["problem"] for row in rows):
+        if problem not in TARGETS or (problem, algorithm) not in cell:
+            continue
+        reference, factor = TARGETS[problem]
+        if reference == "best peer":
+            found = best_peer(rows, problem)
+            reference, theirs = found if found else (reference, None)
+        else:
+            theirs = cell.get((problem, reference))
+        mine = cell[(problem, algorithm)]
+        ratio = None if not theirs else mine / theirs
+        out.append({"problem": problem, "hv": mine, "reference": reference, "reference_hv": theirs,
+                    "ratio": ratio, "factor": factor, "met": None if ratio is None else ratio >= factor})
+    return out
+
+
+def format_targets(rows: list[dict], algorithm: str = DEFAULT_NAME) -> str:
+    """Markdown table of :func:`target_rows`."""
+    lines = [f"| problem | {algorithm} | reference | reference HV | ratio | target | met |",
+             "|---|---:|---|---:|---:|---:|---|"]
+    for t in target_rows(rows, algorithm):
+        theirs = "–" if t["reference_hv"] is None else f"{t['reference_hv']:.4f}"
+        ratio = "–" if t["ratio"] is None else f"{t['ratio']:.3f}"
+        met = "–" if t["met"] is None else ("yes" if t["met"] else "**no**")
+        lines.append(f"| {t['problem']} | {t['hv']:.4f} | {t['reference']} | {theirs} | {ratio} "
+                     f"| ≥ {t['factor']:.2f} | {met} |")
+    return "\n".join(lines)
+
+
 def main(argv=None) -> int:
-    """``python -m mosd.optim.benchmarks``: print the table (and the ratios) as Markdown."""
+    """``python -m mosd.optim.benchmarks``: print the table, the ratios and issue 21's targets as Markdown."""
     parser = argparse.ArgumentParser(prog="python -m mosd.optim.benchmarks", description=__doc__.splitlines()[0])
     parser.add_argument("--problems", nargs="+", default=list(PROBLEMS), choices=KNOWN_PROBLEMS)
+    parser.add_argument("--algorithms", nargs="+", default=None, metavar="NAME",
+                        help=f"default: {', '.join(ALGORITHMS)}; also {', '.join(OPTIONAL)}")
     parser.add_argument("--seeds", type=int, default=len(SEEDS), help="seeds 1..N (default 5)")
-    parser.add_argument("--n-eval", type=int, default=N_EVAL, help="evaluations per run (default 10,000)")
+    parser.add_argument("--n-eval", type=int, default=None,
+                        help="evaluations per run for every problem (default: 50,000 on DTLZ1/DTLZ3, else 10,000)")
     parser.add_argument("--n-jobs", type=int, default=2, help="joblib workers (default 2)")
     parser.add_argument("--ablations", action="store_true", help="also the one-change variants of the default")
     parser.add_argument("--igd", action="store_true", help="also print median IGD")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    parser.add_argument("--presets", nargs="*", default=None, choices=PRESETS, metavar="PRESET",
+                        help="instead: the presets' own tuning problems (default all of "
+                             f"{', '.join(PRESETS)}), MOPSO default against the issue-14 default")
+    parser.add_argument("--budget-scale", type=float, default=1.0,
+                        help="--presets: the preset's generations times this (default 1)")
     args = parser.parse_args(argv)
-    algorithms = dict(_resolve(None))
-    if args.ablations:
-        algorithms.update(ABLATIONS)
-    start = time.perf_counter()
-    rows = benchmark_table(args.problems, algorithms, tuple(range(1, args.seeds + 1)), args.n_eval, args.n_jobs)
+    if args.presets is not None:
+        return _main_presets(args)
+    try:
+        algorithms = dict(_resolve(args.algorithms))
+        if args.ablations:
+            algorithms.update(ABLATIONS)
+        start = time.perf_counter()
+        rows = benchmark_table(args.problems, algorithms, tuple(range(1, args.seeds + 1)), args.n_eval,
+                               args.n_jobs, progress=not args.no_progress)
+    except ConfigError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     seconds = time.perf_counter() - start
-    print(f"Median hypervolume over seeds 1-{args.seeds}, {args.n_eval:,} evaluations per run, "
-          f"reference point 1.1 in every objective\n")
+    budget = (f"{args.n_eval:,} evaluations per run" if args.n_eval else
+              "10,000 evaluations per run (DTLZ1, DTLZ3: 50,000)")
+    print(f"Median normalised hypervolume over seeds 1-{args.seeds}, {budget}, reference point 1.1 "
+          f"in every normalised objective\n")
     print(format_table(rows, igd=args.igd))
     print()
-    print(format_ratios(rows))
-    if SMPSO_NAME not in algorithms:
+    print(format_ratios(rows, references=[name for name in (*PEERS, ISSUE14_NAME) if name in algorithms]))
+    if DEFAULT_NAME in algorithms:
+        print()
+        print(format_targets(rows))
+    if args.algorithms is None and SMPSO_NAME not in algorithms:
         print("\nSMPSO left out: jMetalPy is not installed (pip install jmetalpy)")
-    print(f"\n{len(rows) * args.seeds} runs in {seconds:.0f} s with n_jobs={args.n_jobs}")
+    n_runs = sum(len(row["hv"]) for row in rows)
+    print(f"\n{n_runs} runs in {seconds:.0f} s with n_jobs={args.n_jobs}")
+    return 0
+
+
+def _main_presets(args) -> int:
+    try:
+        budget_scale = check_in("benchmark.budget_scale", args.budget_scale,
+                                Interval(0.0, 10.0, open_low=True))
+        start = time.perf_counter()
+        rows = preset_table(args.presets or PRESETS, args.algorithms or (DEFAULT_NAME, ISSUE14_NAME),
+                            tuple(range(1, args.seeds + 1)), budget_scale, progress=not args.no_progress)
+    except ConfigError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    budgets = ", ".join(f"{row['problem']} {row['n_eval']:,}" for row in rows if row["algorithm"] == rows[0]["algorithm"])
+    print(f"Median normalised hypervolume on the presets' tuning problems over seeds 1-{args.seeds} "
+          f"(evaluations per run: {budgets}); objectives normalised by all final archives of a preset\n")
+    print(format_table(rows))
+    print()
+    names = list(dict.fromkeys(row["algorithm"] for row in rows))
+    print(format_ratios(rows, algorithm=names[0], references=names[1:]))
+    print(f"\n{sum(len(row['hv']) for row in rows)} runs in {time.perf_counter() - start:.0f} s")
     return 0
 
 
@@ -283,26 +568,28 @@ def _resolve(algorithms) -> dict[str, Callable[[], object]]:
                 if name != SMPSO_NAME or smpso_available()}
     if isinstance(algorithms, dict):
         return dict(algorithms)
-    known = {**ALGORITHMS, **ABLATIONS}
+    known = {**ALGORITHMS, **OPTIONAL, **ABLATIONS}
     unknown = [name for name in algorithms if name not in known]
     if unknown:
         raise ConfigError(f"benchmark.algorithms={unknown!r} is not allowed; allowed: {', '.join(known)}")
     return {name: known[name] for name in algorithms}
 
 
-def _run(problem_name: str, factory: Callable[[], object], seed: int, n_eval: int):
+def _run(index: int, problem_name: str, factory: Callable[[], object], seed: int, n_eval: int):
     problem = make_problem(problem_name)
+    ideal, nadir, front = normalisation(problem_name)
     algorithm = factory()
     start = time.perf_counter()
     if hasattr(algorithm, "solve"):
-        F = algorithm.solve(problem, n_eval, seed)
+        F = np.atleast_2d(algorithm.solve(problem, n_eval, seed))
     else:
-        F = minimize(problem, algorithm, ("n_eval", n_eval), seed=seed).F
+        result = minimize(problem, algorithm, ("n_eval", n_eval), seed=seed)
+        F = np.empty((0, problem.n_obj)) if result.F is None else np.atleast_2d(result.F)
+        if problem.has_constraints() and len(F):
+            F = F[np.atleast_2d(result.CV).reshape(-1) <= 0.0]
     seconds = time.perf_counter() - start
-    F = np.atleast_2d(F)
-    hypervolume = HV(ref_point=np.full(problem.n_obj, REFERENCE_VALUE))(F)
-    igd = IGD(problem.pareto_front())(F)
-    return float(hypervolume), float(igd), seconds
+    igd = float(IGD(front)(F)) if len(F) else float("inf")
+    return index, (normalised_hypervolume(F, ideal, nadir), igd, seconds)
 
 
 def _jmetal_problem(problem: Problem):

@@ -18,7 +18,10 @@ One class, two presets:
   particle unless dominated, and, inside eq. 37, removal of the most crowded member
   of a cell rather than a random one — which in three or more objectives, where
   most cells hold one member, is what keeps the archive spread — with the archive's
-  extremes kept; velocities are clamped to each variable's range.
+  extremes kept; velocities are clamped to each variable's range. While the archive
+  is less than half full, particles make SMPSO's constricted, partly repulsive move
+  (``exploration``, :func:`smpso_velocity`): on multimodal landscapes (ZDT4, DTLZ1,
+  DTLZ3) the attraction-only swarm collapsed onto a local front (issue 21).
 * ``MOPSO(**PAPER_PRESET)`` (``MOPSO.paper()``, ``optimizer=mopso_paper``) — paper
   000's Table 2 literally: constriction w = 0.7298, c1 = c2 = 1.4962, velocities
   reflected at the bounds, roulette-wheel leaders, Coello's mutation, random removal
@@ -58,6 +61,7 @@ import numpy as np
 from pymoo.core.algorithm import Algorithm
 from pymoo.core.population import Population
 from pymoo.core.sampling import Sampling
+from pymoo.operators.mutation.pm import PolynomialMutation
 from pymoo.operators.repair.to_bound import set_to_bounds_if_outside
 from pymoo.operators.sampling.rnd import FloatRandomSampling
 from pymoo.termination.max_eval import MaximumFunctionCallTermination
@@ -84,6 +88,11 @@ BOUNDARY_RULES = ("clip", "reflect", "absorb")
 PERSONAL_BEST_RULES = ("dominance", "coin")
 #: Mutation operators, see :meth:`MOPSO._infill`.
 MUTATIONS = ("polynomial", "coello")
+#: SMPSO's move (Nebro et al. 2009): c1, c2 ~ U[1.5, 2.5] per particle and move, inertia 0.1,
+#: velocity clamp ±0.5 (xu − xl); see :func:`smpso_velocity`.
+SMPSO_C_RANGE = (1.5, 2.5)
+SMPSO_INERTIA = 0.1
+SMPSO_MAX_VELOCITY = 0.5
 #: Exponent of Coello's mutation decay law (1 - t / (T p_m))^1.5 (see :meth:`MOPSO._coello_mutation`).
 MUTATION_DECAY_EXPONENT = 1.5
 
@@ -91,7 +100,7 @@ MUTATION_DECAY_EXPONENT = 1.5
 PAPER_PRESET = dict(archive_size=100, n_divisions=30, velocity="constriction", w=None, c1=None,
                     c2=None, max_velocity=None, boundary="reflect", leader="roulette",
                     personal_best="coin", removal="random", keep_extremes=False, mutation="coello",
-                    mutation_rate=0.5)
+                    mutation_rate=0.5, exploration=None)
 
 
 def constriction_coefficients(phi: float = CONSTRICTION_PHI) -> tuple[float, float, float]:
@@ -112,6 +121,42 @@ def constriction_coefficients(phi: float = CONSTRICTION_PHI) -> tuple[float, flo
     phi = check_in("optimizer.phi", phi, Interval(4.0, math.inf, open_low=True))
     w = 2.0 / (phi - 2.0 + math.sqrt(phi * phi - 4.0 * phi))
     return w, w * phi / 2.0, w * phi / 2.0
+
+
+def smpso_velocity(X: np.ndarray, V: np.ndarray, personal: np.ndarray, leaders: np.ndarray,
+                   xl: np.ndarray, xu: np.ndarray, random_state: np.random.Generator) -> np.ndarray:
+    """SMPSO's constricted velocity (Nebro et al., MCDM 2009, eqs. 2–4), as published and as jMetal runs it.
+
+    v ← χ (0.1 v + c1 r1 (pbest − x) + c2 r2 (leader − x)), clamped to ±(xu − xl)/2 per
+    variable, with c1, c2 ~ U[1.5, 2.5] and r1, r2 ~ U(0, 1) drawn once per particle
+    (jMetal), φ = c1 + c2 and χ = 2 / (2 − φ − √(φ² − 4φ)) for φ > 4, else 1.
+
+    The published χ has no absolute value (Clerc's has): for φ > 4, half of the draws,
+    it is negative (−1 … −0.38), so about half the moves go *away* from pbest and the
+    leader by up to their distance. That is what keeps the swarm spread on Rastrigin-type
+    landscapes (docs/MOPSO.md, "Multimodal problems"): with Clerc's positive χ the same
+    rule collapses on ZDT4 like the attraction-only default did. Because the steps scale
+    with the distance to the attractors, they shrink as pbest and leaders converge.
+
+    Parameters
+    ----------
+    X, V, personal, leaders : ndarray, shape (n, n_var)
+        Positions, velocities, personal bests and each particle's leader.
+    xl, xu : ndarray, shape (n_var,)
+    random_state : numpy.random.Generator
+
+    Returns
+    -------
+    ndarray, shape (n, n_var)
+    """
+    n = len(X)
+    c1, c2 = random_state.uniform(*SMPSO_C_RANGE, size=(2, n, 1))
+    r1, r2 = random_state.random((2, n, 1))
+    phi = c1 + c2
+    chi = np.where(phi > 4.0, 2.0 / (2.0 - phi - np.sqrt(np.maximum(phi * phi - 4.0 * phi, 0.0))), 1.0)
+    velocity = chi * (SMPSO_INERTIA * V + c1 * r1 * (personal - X) + c2 * r2 * (leaders - X))
+    limit = SMPSO_MAX_VELOCITY * (xu - xl)
+    return np.clip(velocity, -limit, limit)
 
 
 def apply_bounds(X: np.ndarray, V: np.ndarray, xl: np.ndarray, xu: np.ndarray,
@@ -171,6 +216,9 @@ def round_integers(X: np.ndarray, is_integer: np.ndarray | None, xl: np.ndarray,
                    xu: np.ndarray) -> np.ndarray:
     """Integer coordinates rounded to the nearest integer inside [⌈xl⌉, ⌊xu⌋] (a new array).
 
+    The rounding is the integer :class:`~mosd.validation.Interval`'s (ties to even, clipped
+    into the box), the same the tuning problem and the detectors apply.
+
     Parameters
     ----------
     X : ndarray, shape (n, n_var)
@@ -181,41 +229,9 @@ def round_integers(X: np.ndarray, is_integer: np.ndarray | None, xl: np.ndarray,
     if is_integer is None or not is_integer.any():
         return X
     X = np.array(X, dtype=float)
-    X[:, is_integer] = np.clip(np.round(X[:, is_integer]), np.ceil(xl[is_integer]),
-                               np.floor(xu[is_integer]))
+    box = Interval(xl[is_integer], xu[is_integer], integer=True)
+    X[:, is_integer] = box.round(X[:, is_integer], clip=True)
     return X
-
-
-def polynomial_mutation(X: np.ndarray, xl: np.ndarray, xu: np.ndarray, probability: float,
-                        eta: float, random_state: np.random.Generator) -> np.ndarray:
-    """Deb & Agrawal's polynomial mutation with bounded perturbation (a new array).
-
-    Each coordinate changes with ``probability``: with u ~ U(0, 1), δ1 = (x − xl)/Δ,
-    δ2 = (xu − x)/Δ, the step is Δ [(2u + (1 − 2u)(1 − δ1)^(η+1))^(1/(η+1)) − 1] for
-    u ≤ 0.5 and Δ [1 − (2(1 − u) + 2(u − 0.5)(1 − δ2)^(η+1))^(1/(η+1))] otherwise, so
-    the result stays in [xl, xu] and small steps are likelier for larger η. SMPSO
-    (Nebro et al. 2009) applies it, with probability 1/n_var and η = 20, to one particle
-    in six.
-
-    Parameters
-    ----------
-    X : ndarray, shape (n, n_var)
-    xl, xu : ndarray, shape (n_var,)
-    probability : float
-        Per coordinate.
-    eta : float
-        Distribution index η >= 0.
-    random_state : numpy.random.Generator
-    """
-    span = xu - xl
-    hit = (random_state.random(X.shape) < probability) & (span > 0)
-    u = random_state.random(X.shape)
-    safe = np.where(span > 0, span, 1.0)
-    power = 1.0 / (eta + 1.0)
-    below = 2.0 * u + (1.0 - 2.0 * u) * (1.0 - (X - xl) / safe) ** (eta + 1.0)
-    above = 2.0 * (1.0 - u) + 2.0 * (u - 0.5) * (1.0 - (xu - X) / safe) ** (eta + 1.0)
-    step = np.where(u <= 0.5, below ** power - 1.0, 1.0 - above ** power)
-    return np.where(hit, np.clip(X + step * span, xl, xu), X)
 
 
 class MOPSO(Algorithm):
@@ -225,6 +241,7 @@ class MOPSO(Algorithm):
     :meth:`MOPSO.paper`) is paper 000's Table 2. Each move (eqs. 38–39, velocity first):
 
         v ← w v + c1 r1 (pbest − x) + c2 r2 (leader − x),  v clamped to ±max_velocity Δ,
+        (while the archive is small, SMPSO's move instead for some particles: ``exploration``)
         x ← x + v,  then the bound rule, mutation and integer rounding,
 
     with r1, r2 ~ U(0, 1) per particle and dimension, a leader per particle and move
@@ -272,7 +289,7 @@ class MOPSO(Algorithm):
     mutation : {"polynomial", "coello"} or None
         "polynomial": each move, a share ``mutation_rate`` of the particles (drawn at
         random) gets Deb's polynomial mutation with probability 1/n_var per variable and
-        distribution index ``mutation_eta`` (:func:`polynomial_mutation`; SMPSO: one
+        distribution index ``mutation_eta`` (pymoo's ``PolynomialMutation``; SMPSO: one
         particle in six, η = 20). "coello": Coello 2004's operator
         (:meth:`_coello_mutation`), active during the first ``mutation_rate`` of the run.
         None: no mutation (paper 000 does not mention one).
@@ -282,6 +299,13 @@ class MOPSO(Algorithm):
         (the pre-existing key's meaning).
     mutation_eta : float
         Distribution index of the polynomial mutation, >= 0.
+    exploration : float in (0, 1] or None
+        While the archive holds fewer than ``exploration`` × ``archive_size`` members,
+        the first ⌈s N⌉ particles, s = 1 − |A| / (``exploration`` × Z_ar)
+        (:meth:`_exploring_share`), make SMPSO's constricted move (:func:`smpso_velocity`)
+        instead of the velocity variant's. Default 0.5: what lets the swarm leave the local
+        fronts of ZDT4, DTLZ1 and DTLZ3 (issue 21, docs/MOPSO.md). None: never (the
+        issue-14 default and the paper preset).
     horizon : int or None
         Run length in generations (the initial swarm included) that scheduled
         coefficients and Coello's mutation refer to. None: taken from the termination if
@@ -310,7 +334,8 @@ class MOPSO(Algorithm):
                  leader: str = "roulette", personal_best: str = "dominance",
                  removal: str = "crowding", keep_extremes: bool = True,
                  mutation: str | None = "polynomial", mutation_rate: float | None = 0.15,
-                 mutation_eta: float = 20.0, horizon: int | None = None,
+                 mutation_eta: float = 20.0, exploration: float | None = 0.5,
+                 horizon: int | None = None,
                  sampling: Sampling | None = None, output=None, **kwargs):
         super().__init__(output=MultiObjectiveOutput() if output is None else output, **kwargs)
         self.pop_size = check_int("optimizer.pop_size", pop_size, 1)
@@ -335,6 +360,8 @@ class MOPSO(Algorithm):
                                        Interval(0.0, 1.0, open_low=True)))
         self.mutation_eta = check_in("optimizer.mutation_eta", mutation_eta,
                                      Interval(0.0, math.inf, open_high=True))
+        self.exploration = (None if exploration is None else
+                            check_in("optimizer.exploration", exploration, Interval(0.0, 1.0, open_low=True)))
         self.horizon = None if horizon is None else check_int("optimizer.horizon", horizon, 1)
         if sampling is not None and not isinstance(sampling, Sampling):
             raise ConfigError(f"optimizer.sampling={sampling!r} is not allowed; allowed: a pymoo Sampling")
@@ -402,13 +429,25 @@ class MOPSO(Algorithm):
         if self.max_velocity is not None:
             limit = self.max_velocity * (problem.xu - problem.xl)
             velocity = np.clip(velocity, -limit, limit)
+        share = self._exploring_share()
+        if share > 0.0:
+            # SMPSO's move for the first share × N particles, the same ones every move: the
+            # others keep contracting onto the leaders, fill the archive and so end the
+            # exploration (particles drawn afresh each move all kept being thrown off and
+            # DTLZ3 stalled on 2 seeds of 5, docs/MOPSO.md). No draw when share is 0, which
+            # keeps the paper preset's random stream as it was.
+            exploring = np.arange(len(X)) < share * len(X)
+            velocity[exploring] = smpso_velocity(X[exploring], self.particle_velocity[exploring],
+                                                 personal[exploring], leaders[exploring], problem.xl,
+                                                 problem.xu, rng)
         X_new, velocity = apply_bounds(X + velocity, velocity, problem.xl, problem.xu, self.boundary)
         if self.mutation_rate is not None and self.mutation == "coello":
             X_new = self._coello_mutation(X_new, move)
         elif self.mutation_rate is not None and self.mutation == "polynomial":
-            chosen = rng.random(len(X_new)) < self.mutation_rate
-            X_new[chosen] = polynomial_mutation(X_new[chosen], problem.xl, problem.xu,
-                                                1.0 / problem.n_var, self.mutation_eta, rng)
+            # pymoo's operator: a share mutation_rate of the particles, each variable with 1/n_var
+            operator = PolynomialMutation(prob=self.mutation_rate, prob_var=1.0 / problem.n_var,
+                                          eta=self.mutation_eta)
+            X_new = operator.do(problem, Population.new("X", X_new), random_state=rng).get("X")
         self.particle_velocity = velocity
         return Population.new("X", round_integers(X_new, self.is_integer, problem.xl, problem.xu))
 
@@ -441,6 +480,20 @@ class MOPSO(Algorithm):
         else:
             replace = ~old_wins
         self.pbest_X[replace], self.pbest_F[replace], self.pbest_CV[replace] = X[replace], F[replace], CV[replace]
+
+    def _exploring_share(self) -> float:
+        """Share of the swarm that makes SMPSO's move (:func:`smpso_velocity`) this move.
+
+        max(0, 1 − |A| / (``exploration`` × Z_ar)): 1 while the archive is empty, 0 once
+        it holds ``exploration`` × ``archive_size`` members. A small archive is what a
+        swarm stalled on a multimodal landscape shows (one local optimum dominates
+        everything found so far: ZDT4 kept 1–2 members for 45 generations, DTLZ3 7–14
+        for 300, docs/MOPSO.md), while on a front the swarm has reached the archive fills
+        within a few generations and the velocity variant contracts the swarm as before.
+        """
+        if not self.exploration:
+            return 0.0
+        return max(0.0, 1.0 - len(self.leader_archive) / (self.exploration * self.archive_size))
 
     def _scheduled(self, value, move: int) -> float:
         """A coefficient at move ``move``: a constant, or a pair [start, end] linear from the
