@@ -631,4 +631,7 @@ class _BatchEvaluator:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    # run the importable module's main, so that the joblib workers find its functions by name
+    from mosd.optim.benchmarks import main as _main
+
+    raise SystemExit(_main())
