@@ -3,7 +3,7 @@
 :class:`MOPSO` is the grid-archive particle swarm optimiser (a pymoo algorithm), its archive
 and dominance are in :mod:`mosd.optim.archive`;
 :mod:`mosd.optim.selection` picks one design from its archive; :mod:`mosd.optim.benchmarks`
-checks the optimiser on the ZDT problems against pymoo's algorithms.
+checks the optimiser on the ZDT, DTLZ, WFG problems and OSY against NSGA-II, NSGA-III and SMPSO.
 """
 from .archive import GridArchive
 from .mopso import MOPSO

@@ -487,9 +487,10 @@ class MOPSO(Algorithm):
         max(0, 1 − |A| / (``exploration`` × Z_ar)): 1 while the archive is empty, 0 once
         it holds ``exploration`` × ``archive_size`` members. A small archive is what a
         swarm stalled on a multimodal landscape shows (one local optimum dominates
-        everything found so far: ZDT4 kept 1–2 members for 45 generations, DTLZ3 7–14
-        for 300, docs/MOPSO.md), while on a front the swarm has reached the archive fills
-        within a few generations and the velocity variant contracts the swarm as before.
+        everything found so far: under the attraction-only update ZDT4's archive held one
+        or two members from generation 17 to 49, docs/MOPSO.md), while on a front the swarm
+        has reached the archive fills within a few generations and the velocity variant
+        contracts the swarm as before.
         """
         if not self.exploration:
             return 0.0
@@ -515,6 +516,10 @@ class MOPSO(Algorithm):
         both the share of mutated particles and the range shrink to 0 at t = T p_m. The
         paper gives the operator in words; the 1.5 decay exponent is that of the
         authors' C implementation. The velocity is left unchanged.
+
+        pymoo has no such operator; the paper preset's bit-identical archive depends on
+        this one's draws (one uniform per particle for the hit, one integer for the
+        dimension, one uniform for the value), so it stays here.
         """
         horizon = (self.planned_generations - 1) * self.mutation_rate
         if horizon <= 0 or move >= horizon:
