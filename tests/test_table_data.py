@@ -119,11 +119,13 @@ def test_pipeline_tunes_on_a_written_table(tmp_path):
     assert report.n_runs == 1
 
 
-def test_app_runs_on_a_written_csv(tmp_path):
+@pytest.mark.parametrize("suffix", ["csv", "parquet"])
+def test_app_runs_on_a_written_file(tmp_path, suffix):
     frame = labelled_frame()
-    frame.to_csv(tmp_path / "plant.csv", index=False)
+    path = tmp_path / f"plant.{suffix}"
+    frame.to_csv(path, index=False) if suffix == "csv" else frame.to_parquet(path)
     env = {**os.environ, "PYTHONPATH": str(ROOT), "MOSD_OUTPUTS": str(tmp_path / "out")}
-    out = subprocess.run([sys.executable, "-m", "mosd", "data=table", f"data.path={tmp_path / 'plant.csv'}",
+    out = subprocess.run([sys.executable, "-m", "mosd", "data=table", f"data.path={path}",
                           "data.time_column=time", "data.label_column=fault", "estimator=measured",
                           "monitor=signals", "detector=pca", "detector.n_components=3", "detector.max_components=6",
                           "optimizer.pop_size=6", "optimizer.n_gen=2", "optimizer.n_jobs=1", "tracking=none",
@@ -131,7 +133,7 @@ def test_app_runs_on_a_written_csv(tmp_path):
     assert out.returncode == 0, out.stderr
     summary = json.loads(next((tmp_path / "out" / "runs").glob("*/summary.json")).read_text())
     assert summary["status"] == "finished"
-    assert summary["data"]["calibration"] == [f"{tmp_path / 'plant.csv'} rows 0-599 (0 labelled faulty)"]
+    assert summary["data"]["calibration"] == [f"{path} rows 0-599 (0 labelled faulty)"]
     assert summary["test"]["mdr"]["mean"] < 0.5
 
 

@@ -75,7 +75,9 @@ def collect(tracking_uri: str, experiment: str | None = None, latest_only: bool 
         names = [n for n in tags.get("mosd.params", "").split(",") if n]
         design = " ".join(f"{n}={metrics[n]:.4g}" for n in names if n in metrics)
         rows.append({
-            "preset": choices["experiment"], "fault": tags.get("mosd.fault", "?"),
+            # recorded data (data=tep, data=table) have no fault option: the data source fills the column
+            "preset": choices["experiment"],
+            "fault": tags.get("mosd.fault") or (f"data={tags['mosd.data']}" if tags.get("mosd.data") else "?"),
             "detector": tags.get("mosd.detector", "?"), "optimizer": tags.get("mosd.optimizer", "?"),
             **{m: metrics.get(m, math.nan) for m in ("mdr", "mdr_ci", "far", "far_ci", "accuracy", "accuracy_ci",
                                                       "detection_rate")},
