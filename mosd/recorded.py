@@ -85,6 +85,16 @@ class RecordedExperiment(Experiment):
         test_res = self.residuals(None, 0, "test")
         return self.monitor.transform(test_res), test_res
 
+    def evaluate(self, detector, data: PreparedData, n_test: int | None = None, test: tuple | None = None):
+        """As :meth:`Experiment.evaluate`; the example carries no residual trace.
+
+        The "residual" of recorded data is a raw measured variable, without a fault channel
+        or a σ to draw bands with: the run's residual figure would mislead (the TE study draws
+        the statistics against their limits instead).
+        """
+        report, example = super().evaluate(detector, data, n_test=n_test, test=test)
+        return report, {**example, "residual": None}
+
     def describe(self) -> dict:
         """Which rows of which recording each split used (summary.json, MLflow)."""
         return self.data.describe()
