@@ -91,11 +91,15 @@ class MlflowStore:
             return self._experiment_id
         name = self.settings.experiment
         found = self.client.get_experiment_by_name(name)
+        # MLflow's UI opens an experiment on the tab its kind names: its training runs, not the GenAI overview
+        kind = {"mlflow.experimentKind": "custom_model_development"}
         if found is not None:
+            if "mlflow.experimentKind" not in found.tags:  # made before mosd set the kind
+                self.client.set_experiment_tag(found.experiment_id, *next(iter(kind.items())))
             return found.experiment_id
         location = f"{self.settings.artifact_root.rstrip('/')}/{name}"
         try:
-            return self.client.create_experiment(name, artifact_location=location)
+            return self.client.create_experiment(name, artifact_location=location, tags=kind)
         except Exception:
             # another process created it in between
             found = self.client.get_experiment_by_name(name)
