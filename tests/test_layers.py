@@ -17,8 +17,9 @@ FORBIDDEN = ("hydra", "mlflow", "omegaconf")
 
 def _submodules(package: str) -> list[str]:
     path = PACKAGE.parent / package.replace(".", "/")
-    if path.is_dir():
-        return [package] + [f"{package}.{p.stem}" for p in sorted(path.glob("*.py")) if p.stem != "__init__"]
+    if path.is_dir():  # every module below the package, subpackages included (mosd.systems.paper000)
+        return [package] + [".".join(p.relative_to(PACKAGE.parent).with_suffix("").parts)
+                            for p in sorted(path.rglob("*.py")) if p.stem not in ("__init__", "__main__")]
     return [package]
 
 

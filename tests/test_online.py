@@ -113,8 +113,12 @@ def test_paper_tables_label_online_and_count_missed_runs():
     assert causal[2].startswith("| offset | MO-SS-DEWMA | **no** |")
     assert causal[3].startswith(f"| offset | {paper.CAUSAL_OURS} | yes |")
     assert "| 25 | 0.00 | beyond horizon |" in causal[3]
-    assert paper.make_chart(paper.CAUSAL_OURS, {"lam": 0.3, "K": 3.0}).is_causal
-    assert not paper.make_chart("MO-SS-DEWMA", {"lam": 0.3, "K": 3.0}).is_causal  # the literal wavelet
+    from mosd.denoisers import WaveletDenoiser
+    from mosd.detectors import SSDEWMA
+
+    literal = SSDEWMA(denoiser=WaveletDenoiser(scaling="one", scope="global", global_source="coarsest"))
+    assert paper.make_chart(paper.CAUSAL_OURS, {"lam": 0.3, "K": 3.0}, literal).is_causal
+    assert not paper.make_chart("MO-SS-DEWMA", {"lam": 0.3, "K": 3.0}, literal).is_causal  # the literal wavelet
 
 
 @pytest.mark.slow

@@ -131,22 +131,44 @@ def test_ms_oewma_grid_tuning_detects_a_mean_shift_better_than_a_blind_choice():
 # the paper module
 # ------------------------------------------------------------------------------------
 def test_presets_and_faults_follow_table3():
-    assert paper.make_chart("M-DEWMA", paper.PAPER_PRESETS["M-DEWMA"]["variance"]).get_params() == {"lam": 0.3, "K": 0.2}
-    assert paper.make_chart("MS-OEWMA", paper.PAPER_PRESETS["MS-OEWMA"]["offset"]).get_params() == {
+    base = SSDEWMA(limit="phase1", denoiser=NoDenoiser())
+    assert paper.make_chart("M-DEWMA", paper.PAPER_PRESETS["M-DEWMA"]["variance"], base).get_params() == {
+        "lam": 0.3, "K": 0.2}
+    assert paper.make_chart("MS-OEWMA", paper.PAPER_PRESETS["MS-OEWMA"]["offset"], base).get_params() == {
         "lam": 0.3388, "L": 4.8621}
+    # the recorded designs (mosd/systems/designs/paper000.json) are the paper's Table 3 columns
     for method, by_fault in paper.PAPER_PRESETS.items():
         for fault, params in by_fault.items():
             lam, width = paper.PAPER_TABLE3[method][fault][2:]
             assert list(params.values()) == [lam, width]
-    offset, variance, both = (paper.make_fault(f) for f in ("offset", "variance", "offset_var"))
-    assert (offset.kind, offset.a) == ("offset", 2.0)
+    assert list(paper.PAPER_TABLE4_PARAMS.values()) == list(paper.PAPER_TABLE3["MO-SS-DEWMA"]["offset_var"][2:])
+    # §3.3's faults are conf/fault's, from the onset asked for
+    offset, variance, both = (paper.make_fault(f, onset=0.7) for f in ("offset", "variance", "offset_var"))
+    assert (offset.kind, offset.a, offset.b, offset.onset) == ("offset", 2.0, 1.0, 0.7)
     assert (variance.kind, variance.b) == ("variance", 2.0)
     assert (both.kind, both.a, both.b) == ("offset_var", 2.0, 2.0)
     assert [paper.paper_error_bound(f) for f in paper.FAULTS] == pytest.approx([0.002, 0.136, 0.14])
     with pytest.raises(ConfigError, match="method"):
-        paper.make_chart("CUSUM", {})
+        paper.make_chart("CUSUM", {}, base)
     with pytest.raises(ConfigError, match="budget"):
         paper.PaperSettings(budget="huge")
+
+
+def test_the_reproduction_runs_the_preset_with_the_settings_as_overrides(tiny_study):
+    from mosd.denoisers import WaveletDenoiser
+    from mosd.detectors import MDEWMA
+
+    exp = tiny_study.experiment
+    assert (exp.budget.n_calibration, exp.budget.n_train, exp.budget.n_test) == (2, 2, 3)
+    # the preset's denoiser is paper 000's literal MATLAB call (conf/denoise/wavelet.yaml)
+    assert exp.detector.denoiser.describe() == WaveletDenoiser(scaling="one", scope="global",
+                                                               global_source="coarsest").describe()
+    m_dewma = tiny_study.chart("M-DEWMA", {"lam": 0.4, "K": 1.5})
+    assert isinstance(m_dewma, MDEWMA) and m_dewma.denoiser is exp.detector.denoiser
+    assert not tiny_study.chart("MO-SS-DEWMA", {"lam": 0.4, "K": 1.5}).is_causal
+    assert tiny_study.chart(paper.CAUSAL_OURS, {"lam": 0.4, "K": 1.5}).is_causal
+    channels = paper.PaperSettings(budget="tiny", wavelet="none", subgroups="channels").overrides()
+    assert {"denoise=none", "monitor=channels", "scenario.duration=1.2", "fault.onset=0.7"} <= set(channels)
 
 
 def test_fig1_axes_cut_both_ranges_into_twenty_equal_parts():

@@ -42,14 +42,24 @@ def preset_setup(name: str, overrides: Sequence[str] = ()):
     return build(compose_preset(name, overrides))
 
 
-def optimizer(option: str, overrides: Sequence[str] = ()):
-    """A fresh optimiser of ``conf/optimizer/OPTION.yaml`` (its run keys dropped), e.g. ``pop_size=40``."""
+def component(group: str, option: str, overrides: Sequence[str] = ()):
+    """A fresh component of ``conf/GROUP/OPTION.yaml`` with ``overrides`` (e.g. ``pop_size=40``).
+
+    Run keys of the group (``optimizer.n_gen``, ``detector.bounds``, ...) are dropped: the
+    object is what the YAML's ``_target_`` builds.
+    """
     from hydra import compose, initialize_config_dir
+    from hydra.errors import HydraException
+    from omegaconf.errors import OmegaConfBaseException
 
     from .build import instantiate_section
-    from .config import RUN_KEYS
+    from .config import RUN_KEYS, groups
 
-    check_choice("optimizer", option, options("optimizer"))
-    with initialize_config_dir(config_dir=str(CONFIG_DIR / "optimizer"), version_base="1.3", job_name="mosd"):
-        cfg = compose(option, overrides=list(overrides))
-    return instantiate_section("optimizer", cfg, exclude=RUN_KEYS["optimizer"])
+    check_choice("group", group, groups())
+    check_choice(group, option, options(group))
+    with initialize_config_dir(config_dir=str(CONFIG_DIR / group), version_base="1.3", job_name="mosd"):
+        try:
+            cfg = compose(option, overrides=list(overrides))
+        except (HydraException, OmegaConfBaseException) as exc:
+            raise ConfigError(f"{group}={option} {' '.join(overrides)}: {one_line(exc)}") from None
+    return instantiate_section(group, cfg, exclude=RUN_KEYS.get(group, ()))

@@ -124,14 +124,18 @@ class Study(abc.ABC):
         """The study's figures in ``out_dir`` (none by default)."""
         return []
 
-    def reference_designs(self, detector) -> dict[str, Any]:
-        """Designs scored beside the tuned one by :meth:`run`: the paper's recorded design, if any."""
+    def reference_designs(self, experiment, detector) -> dict[str, Any]:
+        """Designs scored beside the tuned ``detector`` by :meth:`run`: the paper's recorded design, if any.
+
+        ``experiment`` is there for a system whose reference designs depend on the set-up (paper
+        000's Table 3 charts differ per fault).
+        """
         paper = recorded_designs(self.system).get("paper") if self.system else None
         return {"paper": detector.with_params(**paper)} if paper else {}
 
     def run(self, experiment, result, out_dir) -> tuple[dict[str, float], list[Path]]:
         """The app's hook: the study of ``result.detector`` beside :meth:`reference_designs`."""
-        designs = {TUNED: result.detector, **self.reference_designs(result.detector)}
+        designs = {TUNED: result.detector, **self.reference_designs(experiment, result.detector)}
         data = self.compute(experiment, designs)
         files = self.write_figures(data, Path(out_dir)) if self.figures else []
         return self.metrics(data), files

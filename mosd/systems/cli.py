@@ -58,11 +58,11 @@ def preset(name: str, overrides: Sequence[str] = ()):
     return preset_setup(name, overrides)
 
 
-def optimizer(option: str, overrides: Sequence[str] = ()):
-    """A fresh optimiser of ``conf/optimizer/OPTION.yaml`` with ``overrides`` (imports Hydra now)."""
-    from ..app.presets import optimizer as make
+def component(group: str, option: str, overrides: Sequence[str] = ()):
+    """A fresh component of ``conf/GROUP/OPTION.yaml`` with Hydra ``overrides`` (imports Hydra now)."""
+    from ..app.presets import component as make
 
-    return make(option, overrides)
+    return make(group, option, overrides)
 
 
 def write_json(path: Path, payload: Any) -> Path:

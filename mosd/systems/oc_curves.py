@@ -35,11 +35,9 @@ writes ``oc_<kind>.csv`` and ``oc_<kind>.png`` per fault kind and ``oc.md`` (the
 """
 from __future__ import annotations
 
-import argparse
 import csv
 import functools
 import math
-import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -47,15 +45,14 @@ from typing import Sequence
 
 import numpy as np
 
-from ..denoisers import NoDenoiser, WaveletDenoiser
+from ..denoisers import NoDenoiser
 from ..detectors import EWMA, MDEWMA, MSOEWMA, SSDEWMA, Chart
-from ..estimators import CESCKF, DedicatedObserverResidual
-from ..experiment import Budget, Experiment
-from ..faults import SensorFault
+from ..experiment import Experiment
 from ..metrics import DetectionReport, Estimate
-from ..noise import GaussianNoise
-from ..plants import MouldOscillator
 from ..validation import ConfigError, Interval, check_choice, check_in, check_int
+from . import cli
+from .base import figure
+from .paper000 import PAPER_PRESETS, make_prefilter, make_solver
 
 #: Fault sizes per kind: offset a and drift rate in σ (drift: σ per second), variance factor b.
 SIZES: dict[str, tuple[float, ...]] = {
@@ -67,14 +64,11 @@ KINDS = tuple(SIZES)
 #: paper 000's fault of each kind (the tuned design is tuned on it)
 PAPER_SIZE = {"offset": 2.0, "variance": 2.0, "drift": 2.0}
 #: Table 3's λ per kind (drift: the offset column); the widths are recalibrated, not taken
-PAPER_LAMBDA = {
-    "SS-DEWMA": {"offset": 0.4, "variance": 0.3, "drift": 0.4},
-    "M-DEWMA": {"offset": 0.4, "variance": 0.3, "drift": 0.4},
-    "MS-OEWMA": {"offset": 0.3388, "variance": 0.3388, "drift": 0.3388},
-}
+PAPER_LAMBDA = {method: {kind: PAPER_PRESETS[method]["offset" if kind == "drift" else kind]["lam"] for kind in SIZES}
+                for method in ("SS-DEWMA", "M-DEWMA", "MS-OEWMA")}
 EWMA_LAMBDA = 0.2
-CAUSAL_WINDOW = 128  # conf/denoise/wavelet_causal.yaml
-DURATION, ONSET, SUBGROUP_N, BURN_IN = 5.2, 2.7, 5, 200  # paper 000's layout (docs/DECISIONS.md §2)
+#: the experiment: paper 000's preset (docs/DECISIONS.md §2 layout) on the raw statistic, with the offset fault
+PRESET, PRESET_OVERRIDES = "paper000", ("denoise=none", "fault=offset")
 #: seed-stream id of the synthetic ARL runs, apart from mosd.scenario.STREAMS (0–3)
 ARL_STREAM = 15
 
@@ -148,26 +142,22 @@ class ChartSpec:
         return bool(self.chart.is_causal)
 
 
-def paper_wavelet(window: int | None = None) -> WaveletDenoiser:
-    """Paper 000's literal wavelet call (docs/DECISIONS.md §4), whole series or causal window."""
-    return WaveletDenoiser(scaling="one", scope="global", global_source="coarsest", window=window)
-
-
-def prefilter(window: int | None = None) -> WaveletDenoiser:
-    """MS-OEWMA's residual prefilter as :func:`mosd.paper.make_prefilter`, whole series or causal window."""
-    return WaveletDenoiser(scaling="sln", scope="global", global_source="all", window=window)
-
-
 def chart_specs(kind: str, tuned_lam: float | None) -> list[ChartSpec]:
-    """The charts compared on one fault kind (module docstring)."""
+    """The charts compared on one fault kind (module docstring).
+
+    The wavelets are paper 000's literal call, ``conf/denoise/wavelet.yaml`` (whole series) and
+    ``wavelet_causal.yaml`` (its sliding window); MS-OEWMA's prefilter is
+    :func:`mosd.systems.paper000.make_prefilter`, whole series or on the same window.
+    """
     ss, md, ms = (PAPER_LAMBDA[m][kind] for m in ("SS-DEWMA", "M-DEWMA", "MS-OEWMA"))
+    whole, causal = (cli.component("denoise", option) for option in ("wavelet", "wavelet_causal"))
     specs = [
         ChartSpec("SS-DEWMA", ss, SSDEWMA(lam=ss, denoiser=NoDenoiser())),
-        ChartSpec("SS-DEWMA + causal wavelet", ss, SSDEWMA(lam=ss, denoiser=paper_wavelet(CAUSAL_WINDOW))),
-        ChartSpec("SS-DEWMA + wavelet (whole series)", ss, SSDEWMA(lam=ss, denoiser=paper_wavelet())),
+        ChartSpec("SS-DEWMA + causal wavelet", ss, SSDEWMA(lam=ss, denoiser=causal)),
+        ChartSpec("SS-DEWMA + wavelet (whole series)", ss, SSDEWMA(lam=ss, denoiser=whole)),
         ChartSpec("M-DEWMA", md, MDEWMA(lam=md, denoiser=NoDenoiser())),
-        ChartSpec("MS-OEWMA (causal prefilter)", ms, MSOEWMA(lam=ms, prefilter=prefilter(CAUSAL_WINDOW))),
-        ChartSpec("MS-OEWMA (whole-series prefilter)", ms, MSOEWMA(lam=ms, prefilter=prefilter())),
+        ChartSpec("MS-OEWMA (causal prefilter)", ms, MSOEWMA(lam=ms, prefilter=make_prefilter(causal.window))),
+        ChartSpec("MS-OEWMA (whole-series prefilter)", ms, MSOEWMA(lam=ms, prefilter=make_prefilter())),
         ChartSpec("EWMA (mean only)", EWMA_LAMBDA, EWMA(lam=EWMA_LAMBDA, limit="phase1")),
     ]
     if tuned_lam is not None:
@@ -222,7 +212,11 @@ def faulty_subgroups(base: np.ndarray, kind: str, size: float, dt: float) -> np.
     """Standardised subgroups (R, T, n) of a fault present from the first sample, from N(0, 1) ``base``.
 
     offset: a + e; variance: b·e; drift: e + size·dt·j at sample j = 1, 2, ... (σ per second,
-    the plant's time base ``dt``), as :class:`mosd.faults.SensorFault` injects them.
+    the plant's time base ``dt``): in the standardised units, the faults
+    :func:`mosd.faults.sensor_fault_signals` injects on the plant. Not that function itself, on
+    purpose: the variance fault scales the *same* draws e (the plant adds independent extra noise
+    of variance b² − 1), so that every size and chart is scored on one set of random numbers
+    (paired ARLs).
     """
     check_choice("kind", kind, KINDS)
     if kind == "offset":
@@ -234,10 +228,10 @@ def faulty_subgroups(base: np.ndarray, kind: str, size: float, dt: float) -> np.
 
 
 def arl_curves(specs: Sequence[ChartSpec], kind: str, settings: OCSettings, dt: float,
-               rng: np.random.Generator) -> dict[str, dict]:
-    """ARL0-matched limits and ARL1 per size for the causal charts (module docstring)."""
+               rng: np.random.Generator, subgroup_n: int = 5) -> dict[str, dict]:
+    """ARL0-matched limits and ARL1 per size for the causal charts (module docstring), subgroups of ``subgroup_n``."""
     preset = settings.preset
-    base = rng.standard_normal((preset.arl_reps, preset.arl_horizon, SUBGROUP_N))
+    base = rng.standard_normal((preset.arl_reps, preset.arl_horizon, subgroup_n))
     out: dict[str, dict] = {}
     for spec in specs:
         if not spec.causal:
@@ -263,33 +257,27 @@ def _arl(rl: np.ndarray, horizon: int) -> dict[str, float]:
 # ------------------------------------------------------------------------------------------
 # the plant
 # ------------------------------------------------------------------------------------------
-def make_fault(kind: str, size: float) -> SensorFault:
-    """The sensor fault of one kind and size on x_p from the paper's onset."""
-    if kind == "variance":
-        return SensorFault("variance", channel=0, onset=ONSET, a=0.0, b=size)
-    return SensorFault(kind, channel=0, onset=ONSET, a=size, b=1.0)
+def make_fault(kind: str, size: float, onset: float):
+    """The sensor fault ``conf/fault/<kind>.yaml`` of one size (a, or b for variance) from ``onset`` (s)."""
+    size_key = "b" if check_choice("kind", kind, KINDS) == "variance" else "a"
+    return cli.component("fault", kind, [f"{size_key}={float(size)!r}", f"onset={float(onset)!r}"])
 
 
-def make_experiment(settings: OCSettings, kind: str = "offset") -> Experiment:
-    """Paper 000's pipeline (mosd.paper's set-up, window subgroups) with this study's budget."""
-    from ..paper import make_monitor
-
+def make_setup(settings: OCSettings):
+    """Paper 000's preset on the raw statistic (:data:`PRESET_OVERRIDES`) with this study's budget and seed."""
     preset = settings.preset
-    return Experiment(MouldOscillator(), GaussianNoise(), make_fault(kind, PAPER_SIZE[kind]),
-                      DedicatedObserverResidual(CESCKF(), monitored=[0]), make_monitor("window"),
-                      SSDEWMA(lam=0.3, K=3.0, denoiser=NoDenoiser()), duration=DURATION, seed=settings.seed,
-                      budget=Budget(n_calibration=preset.n_calibration, n_train=preset.n_train,
-                                    n_test=preset.n_test))
+    return cli.preset(PRESET, [*PRESET_OVERRIDES, f"seed={settings.seed}",
+                               f"budget.n_calibration={preset.n_calibration}", f"budget.n_train={preset.n_train}",
+                               f"budget.n_test={preset.n_test}"])
 
 
-def tune_lambda(experiment: Experiment, prepared, settings: OCSettings) -> dict[str, float]:
+def tune_lambda(experiment: Experiment, prepared, settings: OCSettings, bounds: dict) -> dict[str, float]:
     """MOPSO (Table 2, literal) on the training runs of the paper-size fault: the main command's choice."""
     from ..optim.selection import choose
-    from ..paper import PAPER_BOUNDS, make_solver
 
     preset = settings.preset
     tuned = experiment.tune(prepared, make_solver("mopso", preset.pop_size), ("n_gen", preset.n_gen),
-                            n_jobs=settings.n_jobs, bounds=PAPER_BOUNDS,
+                            n_jobs=settings.n_jobs, bounds=bounds,
                             choose=functools.partial(choose, rule="max_accuracy"))
     return dict(tuned.params)
 
@@ -323,24 +311,26 @@ class KindResult:
     seconds: float
 
 
-def run_kind(experiment: Experiment, calibration, kind: str, settings: OCSettings) -> KindResult:
+def run_kind(setup, calibration, kind: str, settings: OCSettings) -> KindResult:
     """Tune, simulate the test runs of every size (same seeds: paired), score every chart."""
     t0 = time.perf_counter()
-    prepared = experiment.prepare(calibration=calibration, fault=make_fault(kind, PAPER_SIZE[kind]))
-    tuned = tune_lambda(experiment, prepared, settings)
+    experiment = setup.experiment
+    onset = experiment.fault.onset
+    prepared = experiment.prepare(calibration=calibration, fault=make_fault(kind, PAPER_SIZE[kind], onset))
+    tuned = tune_lambda(experiment, prepared, settings, setup.bounds)
     specs = chart_specs(kind, tuned["lam"])
-    tests = {size: experiment.test_data(prepared, fault=make_fault(kind, size))[0] for size in SIZES[kind]}
+    tests = {size: experiment.test_data(prepared, fault=make_fault(kind, size, onset))[0] for size in SIZES[kind]}
     plant = plant_curves(specs, prepared.phase1.z, tests, settings)
     rng = np.random.default_rng([settings.seed, ARL_STREAM, KINDS.index(kind)])
-    arl = arl_curves(specs, kind, settings, experiment.plant.dt, rng)
+    arl = arl_curves(specs, kind, settings, experiment.plant.dt, rng, experiment.monitor.n)
     return KindResult(kind, specs, tuned, plant, arl, time.perf_counter() - t0)
 
 
 def run(settings: OCSettings) -> list[KindResult]:
     """Calibrate once (the calibration stream is fault-free), then every fault kind."""
-    experiment = make_experiment(settings)
-    calibration = experiment.calibrate()
-    return [run_kind(experiment, calibration, kind, settings) for kind in settings.kinds]
+    setup = make_setup(settings)
+    calibration = setup.experiment.calibrate()
+    return [run_kind(setup, calibration, kind, settings) for kind in settings.kinds]
 
 
 # ------------------------------------------------------------------------------------------
@@ -386,11 +376,7 @@ _SIZE_LABEL = {"offset": "offset a (σ)", "variance": "variance factor b", "drif
 
 def write_plot(result: KindResult, settings: OCSettings, out: Path) -> Path:
     """MDR, mean delay over detected runs, FAR and ARL1 against the fault size, one line per chart."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(11.0, 7.2), layout="constrained")
-    FigureCanvasAgg(fig)
+    fig = figure(11.0, 7.2)
     axes = fig.subplots(2, 2)
     sizes = SIZES[result.kind]
     for index, spec in enumerate(result.specs):
@@ -453,26 +439,24 @@ def format_kind(result: KindResult, settings: OCSettings) -> str:
     return "\n".join(lines)
 
 
-def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="python -m mosd.systems.oc_curves", description=__doc__.split("\n\n")[0])
+def _parser():
+    parser = cli.report_parser("python -m mosd.systems.oc_curves", __doc__.split("\n\n")[0], out="outputs/oc")
     parser.add_argument("--budget", default="paper", help=f"one of {', '.join(BUDGETS)} (default paper)")
     parser.add_argument("--far", type=float, default=0.01, help="matched in-control point alarm rate on the plant")
     parser.add_argument("--arl0", type=float, default=200.0, help="matched in-control ARL0 (i.i.d. subgroups)")
     parser.add_argument("--kinds", default=",".join(KINDS), help="comma-separated fault kinds")
-    parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--n-jobs", type=int, default=2)
-    parser.add_argument("--out", default="outputs/oc", help="output directory")
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    args = _parser().parse_args(argv)
-    try:
-        settings = OCSettings(budget=args.budget, far=args.far, arl0=args.arl0, seed=args.seed, n_jobs=args.n_jobs,
-                              kinds=tuple(k.strip() for k in args.kinds.split(",") if k.strip()))
-    except ConfigError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+    """``python -m mosd.systems.oc_curves [options]`` (module docstring)."""
+    return cli.run_report(_parser(), argv, _run)
+
+
+def _run(args) -> list[Path]:
+    settings = OCSettings(budget=args.budget, far=args.far, arl0=args.arl0, seed=args.seed, n_jobs=args.n_jobs,
+                          kinds=tuple(k.strip() for k in args.kinds.split(",") if k.strip()))
     t0 = time.perf_counter()
     results = run(settings)
     out = Path(args.out)
@@ -487,9 +471,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     print(text)
     print(f"settings: budget={settings.budget} far={settings.far:g} arl0={settings.arl0:g} seed={settings.seed}; "
           f"{time.perf_counter() - t0:.1f} s ({', '.join(f'{r.kind} {r.seconds:.1f} s' for r in results)})")
-    print("wrote: " + ", ".join(str(p) for p in written))
-    return 0
+    return written
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    raise SystemExit(main())

@@ -241,7 +241,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         study = Study(n_runs=args.n_runs)
         experiment = cli.preset(SYSTEM, [f"seed={args.seed}", f"budget.n_test={args.n_runs}"]).experiment
         designs = {TUNED: experiment.detector.with_params(mu_T=args.mu_T, L=args.L),
-                   **study.reference_designs(experiment.detector)}
+                   **study.reference_designs(experiment, experiment.detector)}
         out = Path(args.out)
         data = study.compute(experiment, designs)
         metrics, files = study.metrics(data), study.write_figures(data, out)

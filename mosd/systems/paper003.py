@@ -32,6 +32,7 @@ import numpy as np
 
 from ..estimators.neural_observer import MultiStepNeuralObserver
 from ..faults.ramp import RampFault
+from ..faults.sensor import sensor_fault_signals
 from ..scenario import STREAMS
 from ..validation import ConfigError, Interval, check_in, check_int
 from . import base, cli
@@ -80,18 +81,19 @@ def with_window(estimator: MultiStepNeuralObserver, window: int) -> MultiStepNeu
 
 
 def with_fault(trace, fault):
-    """A fault-free flight log with ``fault`` added to its channel (the plant injects a log fault the same way).
+    """A fault-free flight log with ``fault`` added to its channel, as the plant injects a log fault.
 
-    The flapping-wing plant adds a sensor fault to the log after the flight, so
-    every ramp rate can replay the same flights (common random numbers) without
-    simulating them again; ``tests/test_studies.py`` checks this equals
-    simulating the plant with the fault.
+    The flapping-wing plant adds a sensor fault to the log after the flight
+    (:func:`mosd.faults.sensor_fault_signals`, called here too), so every ramp
+    rate can replay the same flights (common random numbers) without simulating
+    them again; ``tests/test_studies.py`` checks this equals simulating the
+    plant with the fault. The replications' own generators are gone by now: a
+    fault whose signal draws random numbers (a variance fault) would get fresh
+    ones, so the ramp faults of this study (which draw nothing) are what it replays.
     """
-    y = np.array(trace.y, copy=True)
-    rng = np.random.default_rng(0)  # RampFault.signal draws nothing
-    y[..., fault.channel] += np.stack([fault.signal(trace.t, 1.0, rng) for _ in range(y.shape[0])])
-    mask = np.broadcast_to(fault.active(trace.t), trace.fault_mask.shape).copy()
-    return replace(trace, y=y, fault_mask=mask)
+    rngs = [np.random.default_rng([0, r]) for r in range(trace.y.shape[0])]
+    g, mask = sensor_fault_signals(fault, trace.t, rngs, trace.y.shape[-1])
+    return replace(trace, y=trace.y + g, fault_mask=mask)
 
 
 class Study(base.Study):
@@ -392,7 +394,7 @@ def main(argv=None) -> int:
         study = Study(windows=windows, n_runs=args.n_runs)
         experiment = cli.preset(SYSTEM, [f"seed={args.seed}"]).experiment
         designs = {TUNED: experiment.detector.with_params(alpha=args.alpha, a=args.a, b=args.b),
-                   **study.reference_designs(experiment.detector)}
+                   **study.reference_designs(experiment, experiment.detector)}
         out = Path(args.out)
         data = study.compute(experiment, designs)
         metrics, files = study.metrics(data), study.write_figures(data, out)
