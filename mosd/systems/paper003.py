@@ -33,7 +33,7 @@ import numpy as np
 from ..estimators.neural_observer import MultiStepNeuralObserver
 from ..faults.ramp import RampFault
 from ..faults.sensor import sensor_fault_signals
-from ..scenario import STREAMS
+from ..scenario import training_rng
 from ..validation import ConfigError, Interval, check_in, check_int
 from . import base, cli
 from .base import TUNED, figure, prefixed, recorded_designs
@@ -184,8 +184,7 @@ class Study(base.Study):
             if getattr(estimator, "window", None) != window or not hasattr(estimator, "params_"):
                 estimator = with_window(experiment.estimator, window)
                 # the experiment's generator: the experiment's own window is the same network (a cache hit)
-                estimator.fit(training, experiment.model, np.random.default_rng([experiment.seed, STREAMS["estimator"],
-                                                                                 2**31]))
+                estimator.fit(training, experiment.model, training_rng(experiment.seed))
             loss[window] = {k: np.asarray(v, float) for k, v in estimator.history_.items()}
             sigma[window] = float(estimator.residual_std_)
             free = estimator.estimate(clean, experiment.model)
