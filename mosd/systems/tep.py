@@ -100,7 +100,7 @@ class Study(base.Study):
         self.fault = check_int("study.fault", fault, 1, 21)
         self.top = check_int("study.top", top, 1, 52)
 
-    def reference_designs(self, detector) -> dict[str, Any]:
+    def reference_designs(self, experiment, detector) -> dict[str, Any]:
         """The literature's design (module docstring), fitted on d00.dat alone."""
         return {LIT: PCADetector(**LITERATURE, statistic="combined", limits="theoretical", fit_runs=1)}
 
@@ -362,7 +362,7 @@ def main(argv=None) -> int:
         experiment = cli.preset(SYSTEM, overrides).experiment
         study = Study(fault=args.fault)
         designs = {TUNED: experiment.detector.with_params(**recorded[TUNED]),
-                   **study.reference_designs(experiment.detector)}
+                   **study.reference_designs(experiment, experiment.detector)}
         experiment.monitor.fit(experiment.estimator.estimate(experiment.data.trace("calibration"), None))
         data = study.compute(experiment, designs)
         metrics = study.metrics(data)

@@ -17,12 +17,11 @@ from .tables import GridScan, run_fig1, run_pareto, run_table3, run_table4
 
 COMMANDS = ("table3", "table4", "fig1", "pareto", "all")
 PROG = "python -m mosd.paper"
+DESCRIPTION = "Paper 000's comparison on our simulation: Table 3, Table 4, Fig. 1 and the Pareto fronts."
 
 
 def _parser() -> cli.ReportParser:
-    from . import __doc__ as package_doc
-
-    parser = cli.report_parser(PROG, package_doc.split("\n\n")[0], out="outputs/paper")
+    parser = cli.report_parser(PROG, DESCRIPTION, out="outputs/paper")
     parser.add_argument("command", choices=COMMANDS)
     parser.add_argument("--budget", choices=tuple(BUDGETS), default="paper")
     parser.add_argument("--wavelet", choices=tuple(WAVELETS), default="paper",
