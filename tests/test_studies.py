@@ -285,3 +285,17 @@ def test_the_wheel_ships_every_systems_package_and_designs_file():
     # one designs file per system: each names a module or package of mosd/systems
     modules = {p.stem for p in systems.glob("*.py")} | {p.parent.name for p in systems.glob("*/__init__.py")}
     assert {Path(d).stem for d in designs} <= modules and "paper000" in {Path(d).stem for d in designs}
+
+
+def test_paper001_report_command_writes_the_recorded_designs_study(tmp_path, capsys):
+    import json
+
+    assert paper001.main(["--n-runs", "20", "--seed", "3", "--out", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert "### Scientific bars, tuned design" in out and "### Scientific bars, paper design" in out
+    record = json.loads((tmp_path / "paper001_study.json").read_text())
+    assert record["designs"] == {name: {k: float(v) for k, v in d.items()}
+                                 for name, d in base.recorded_designs("paper001").items()}
+    assert (record["n_runs"], record["seed"]) == (20, 3)
+    assert record["metrics"]["paper_far"] >= record["metrics"]["far"]  # μ_T 0.5 < the tuned 0.78: more alarms
+    assert len(list(tmp_path.glob("paper001_*.png"))) == 4

@@ -44,6 +44,25 @@ def figure(width: float, height: float):
     return fig
 
 
+def decorate(ax, xlabel: str | None = None, ylabel: str | None = None, title: str | None = None,
+             title_size: float = 10, legend_size: float | None = 8, legend_loc: str | None = None) -> None:
+    """The finish every study panel shares: axis labels, a title, a light grid and a legend (``None``: none)."""
+    if xlabel is not None:
+        ax.set_xlabel(xlabel)
+    if ylabel is not None:
+        ax.set_ylabel(ylabel)
+    if title is not None:
+        ax.set_title(title, fontsize=title_size)
+    ax.grid(alpha=0.3)
+    if legend_size is not None:
+        ax.legend(fontsize=legend_size, **({"loc": legend_loc} if legend_loc else {}))
+
+
+def design_params(detector) -> dict[str, float]:
+    """A detector design's tunable parameters as plain floats (what a study records beside its numbers)."""
+    return {k: float(getattr(detector, k)) for k in detector.tunable}
+
+
 @lru_cache(maxsize=None)
 def _designs_text(system: str) -> str:
     try:
@@ -81,7 +100,8 @@ class Study(abc.ABC):
         for training: never what the optimiser saw), estimate with the experiment's
         estimator and decide with every detector of ``designs`` (``{name: detector}``;
         ``"tuned"`` is the optimiser's choice, other names are reference designs such as
-        the paper's). Returns plain data (dicts, arrays, floats); it writes nothing.
+        the paper's). Returns plain data (dicts, arrays, floats) with ``data["params"]``, the
+        designs' parameters by name (:func:`design_params`); it writes nothing.
     ``metrics(data) -> {name: float}``
         The study's numbers by name. A metric that the registry
         (:mod:`mosd.metrics.registry`) defines keeps the registry's name and meaning
@@ -89,7 +109,8 @@ class Study(abc.ABC):
         ``"tuned"`` prefixes its metrics with ``"<design>_"`` (:func:`prefixed`). The class
         docstring of a subclass defines every name it returns.
     ``write_figures(data, out_dir) -> [Path]``
-        PNG (or CSV) files of the data in ``out_dir``, drawn with :func:`figure`.
+        PNG (or CSV) files of the data in ``out_dir``, drawn with :func:`figure` (panels
+        finished with :func:`decorate`), named ``<system>_*.png``.
     ``run(experiment, result, out_dir) -> (metrics, files)``
         The app's hook after the experiment (:mod:`mosd.app.run`): the tuned detector
         (``result.detector``) beside :meth:`reference_designs`, then ``metrics`` and, with

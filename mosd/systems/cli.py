@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any, Callable, Iterable, Sequence
 
 from ..validation import ConfigError
+from .base import TUNED, recorded_designs
 
 
 class ReportParser(argparse.ArgumentParser):
@@ -31,6 +32,26 @@ def report_parser(prog: str, description: str, out: str, seed: bool = True) -> R
         parser.add_argument("--seed", type=int, default=0, help="root seed; the test stream is reported (default 0)")
     parser.add_argument("--out", default=out, help=f"directory of the figures and files (default {out})")
     return parser
+
+
+def design_options(parser: argparse.ArgumentParser, system: str) -> None:
+    """One option per parameter of the system's recorded tuned design, defaulting to it (``mu_T`` → ``--mu-T``)."""
+    for name, value in recorded_designs(system)[TUNED].items():
+        parser.add_argument("--" + name.replace("_", "-"), dest=name, type=type(value), default=value,
+                            help=f"tuned {name} (default {value:g}: the recorded design, "
+                                 f"mosd/systems/designs/{system}.json)")
+
+
+def tuned_design(args: argparse.Namespace, system: str) -> dict[str, Any]:
+    """The tuned design the command line asked for (:func:`design_options`)."""
+    return {name: getattr(args, name) for name in recorded_designs(system)[TUNED]}
+
+
+def markdown_table(header: Sequence[str], rows: Iterable[Sequence[Any]]) -> str:
+    """A markdown table of already formatted cells."""
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(str(c) for c in row) + " |" for row in rows]
+    return "\n".join(lines)
 
 
 def run_report(parser: argparse.ArgumentParser, argv: Sequence[str] | None,
@@ -63,6 +84,21 @@ def component(group: str, option: str, overrides: Sequence[str] = ()):
     from ..app.presets import component as make
 
     return make(group, option, overrides)
+
+
+def score(study, experiment, designs: dict, out: Path, **record) -> tuple[dict, dict[str, float], list[Path]]:
+    """What a report command does with its designs: the study's data, metrics and figures in ``out``.
+
+    Also writes ``<system>_study.json`` with the metrics, the designs' parameters
+    (``data["params"]``) and ``record`` (the command's settings; a callable value is applied to
+    the data, for tables computed by the study). Returns (data, metrics, files).
+    """
+    data = study.compute(experiment, designs)
+    metrics, files = study.metrics(data), study.write_figures(data, out)
+    record = {k: v(data) if callable(v) else v for k, v in record.items()}
+    files.append(write_json(out / f"{study.system}_study.json",
+                            {"metrics": metrics, "designs": data["params"], **record}))
+    return data, metrics, files
 
 
 def write_json(path: Path, payload: Any) -> Path:

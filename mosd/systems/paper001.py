@@ -25,7 +25,7 @@ from ..metrics.estimation import rmse_over_runs
 from ..metrics.registry import per_run
 from ..validation import check_int
 from . import base, cli
-from .base import TUNED, figure, prefixed, recorded_designs
+from .base import TUNED, decorate, design_params, figure, prefixed
 
 SYSTEM = "paper001"
 SENSOR_FILTERS = ("s1", "s2", "s3")
@@ -101,11 +101,11 @@ class Study(base.Study):
             d = detector.decide(clean_points.z, points.z).decision
             d0 = detector.decide(clean_points.z, clean_points.z).decision
             decisions[name] = self._score(detector, d, d0, points, clean_points, float(np.median(np.diff(fused.t))))
-            decisions[name]["params"] = {k: float(getattr(detector, k)) for k in detector.tunable}
         return {"t": faulty.t, "onset_index": onset_index, "onset_s": float(experiment.fault.onset),
                 "true_amplitude": faulty.x[0, :, 2:], "curves": curves,
                 "mode_probabilities_mean": fused.extra["mode_probabilities"].mean(axis=0),
-                "decisions": decisions, "n_runs": self.n_runs}
+                "decisions": decisions, "params": {name: design_params(d) for name, d in designs.items()},
+                "n_runs": self.n_runs}
 
     @staticmethod
     def _score(detector, d, d0, points, clean_points, period: float) -> dict:
@@ -133,7 +133,7 @@ class Study(base.Study):
         for name, curve in data["curves"].items():
             out[f"rmse_amplitude_{name}"] = float(curve["amplitude"][k0:].mean())
         for design, scores in data["decisions"].items():
-            out.update({prefixed(design) + k: float(v) for k, v in scores.items() if k != "params"})
+            out.update({prefixed(design) + k: float(v) for k, v in scores.items()})
         return out
 
     # -- figures --------------------------------------------------------------------------
@@ -148,11 +148,7 @@ class Study(base.Study):
 
         def finish(ax, ylabel, title):
             ax.axvline(onset, color="grey", lw=0.8, ls=":")
-            ax.set_xlabel("t (s)")
-            ax.set_ylabel(ylabel)
-            ax.set_title(title, fontsize=10)
-            ax.grid(alpha=0.3)
-            ax.legend(fontsize=8)
+            decorate(ax, "t (s)", ylabel, title)
 
         fig = figure(6.0, 3.4)
         ax = fig.add_subplot()
@@ -228,33 +224,27 @@ def bars(metrics: dict[str, float], prefix: str = "") -> list[tuple[str, bool, s
 
 def main(argv: Sequence[str] | None = None) -> int:
     """``python -m mosd.systems.paper001 [--n-runs 500] [--seed 0] [--mu-T M] [--L L] [--out DIR]``."""
-    recorded = recorded_designs(SYSTEM)
     parser = cli.report_parser("python -m mosd.systems.paper001", "Paper 001's Monte Carlo study (Figs. 2-5, "
                                "decision rule) without the optimiser: the tuned design beside the paper's.",
                                out="outputs/systems/paper001")
     parser.add_argument("--n-runs", type=int, default=500, help="faulty and fault-free runs each (default 500)")
-    parser.add_argument("--mu-T", type=float, default=recorded[TUNED]["mu_T"],
-                        help="tuned μ_T (default: the recorded design, mosd/systems/designs/paper001.json)")
-    parser.add_argument("--L", type=int, default=recorded[TUNED]["L"], help="tuned persistence L")
+    cli.design_options(parser, SYSTEM)  # --mu-T, --L
 
     def body(args):
         study = Study(n_runs=args.n_runs)
         experiment = cli.preset(SYSTEM, [f"seed={args.seed}", f"budget.n_test={args.n_runs}"]).experiment
-        designs = {TUNED: experiment.detector.with_params(mu_T=args.mu_T, L=args.L),
+        designs = {TUNED: experiment.detector.with_params(**cli.tuned_design(args, SYSTEM)),
                    **study.reference_designs(experiment, experiment.detector)}
-        out = Path(args.out)
-        data = study.compute(experiment, designs)
-        metrics, files = study.metrics(data), study.write_figures(data, out)
-        params = {k: v["params"] for k, v in data["decisions"].items()}
-        files.append(cli.write_json(out / "paper001_study.json", {"metrics": metrics, "designs": params,
-                                                                  "n_runs": args.n_runs, "seed": args.seed}))
+        data, metrics, files = cli.score(study, experiment, designs, Path(args.out), n_runs=args.n_runs,
+                                         seed=args.seed)
+        params = data["params"]
         print(f"## Paper 001: {args.n_runs} faulty + {args.n_runs} fault-free runs, seed {args.seed} (test stream)\n")
         print(format_report(metrics, params) + "\n")
         for design in params:
-            print(f"### Scientific bars, {design} design\n\n| bar | met | numbers |\n|---|---|---|")
-            for name, met, numbers in bars(metrics, prefixed(design)):
-                print(f"| {name} | {'met' if met else '**not met**'} | {numbers} |")
-            print()
+            rows = [(name, "met" if met else "**not met**", numbers)
+                    for name, met, numbers in bars(metrics, prefixed(design))]
+            print(f"### Scientific bars, {design} design\n\n" + cli.markdown_table(("bar", "met", "numbers"), rows)
+                  + "\n")
         return files
 
     return cli.run_report(parser, argv, body)

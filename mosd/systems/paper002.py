@@ -24,7 +24,7 @@ from ..metrics import Estimate, detection
 from ..scenario import Scenario
 from ..validation import ConfigError, Interval, check_in, check_int
 from . import base, cli
-from .base import TUNED, figure, prefixed, recorded_designs
+from .base import TUNED, decorate, design_params, figure, prefixed, recorded_designs
 
 SYSTEM = "paper002"
 MISSING_RATES = (0.0, 0.05, 0.10, 0.20)
@@ -120,8 +120,8 @@ class Study(base.Study):
         out = {"rates": self.missing_rates, "dt": dt, "n_runs": self.n_runs, "curves": {},
                "gain": np.asarray(getattr(experiment.estimator, "gain_", np.full(1, np.nan))),
                "baseline_gain": self.baseline_gain,
-               "designs": {name: {"params": {k: float(getattr(d, k)) for k in d.tunable}, "results": {}, "roc": {}}
-                           for name, d in designs.items()}}
+               "params": {name: design_params(d) for name, d in designs.items()},
+               "designs": {name: {"results": {}, "roc": {}} for name in designs}}
         for rate in self.missing_rates:
             plant = copy.copy(experiment.plant)
             plant.missing_rate = check_in("study.missing_rates", rate, Interval(0.0, 0.9))
@@ -225,8 +225,9 @@ class Study(base.Study):
         prefix = f"{self.system}_"
         files = []
         t, onset, rates = data["t"], data["onset_s"], data["rates"]
-        shown = data["designs"].get(TUNED) or next(iter(data["designs"].values()))
-        threshold = shown["params"].get("threshold", math.nan)
+        name = TUNED if TUNED in data["designs"] else next(iter(data["designs"]))
+        shown, params = data["designs"][name], data["params"][name]
+        threshold = params.get("threshold", math.nan)
         fig = figure(9.0, 2.2 * len(rates))
         axes = fig.subplots(len(rates), 2, sharex=True, sharey=True, squeeze=False)
         for i, rate in enumerate(rates):
@@ -258,11 +259,7 @@ class Study(base.Study):
         ax.step(t[: gain.size], gain, where="post", label="entropy-optimal U_k (R1 = 1, R2 = 20)")
         ax.axhline(data["baseline_gain"], color="tab:orange", ls="--", label=f"fixed gain {data['baseline_gain']:g}")
         ax.axvline(onset, color="grey", ls=":", lw=0.8)
-        ax.set_xlabel("t (s)")
-        ax.set_ylabel("gain U")
-        ax.set_title("Gain schedule: entropy-optimal vs fixed", fontsize=10)
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=8)
+        decorate(ax, "t (s)", "gain U", "Gain schedule: entropy-optimal vs fixed")
         files.append(out_dir / f"{prefix}gain.png")
         fig.savefig(files[-1], dpi=110)
 
@@ -279,18 +276,11 @@ class Study(base.Study):
         ax.axvline(tuned["false_alarm_nuisance"], color="r", ls="--", lw=0.8, label="tuned design's nuisance FA")
         ax.set_xscale("symlog", linthresh=1e-3)
         ax.set_xlim(0.0, 1.0)
-        ax.set_xlabel("nuisance points alarmed")
-        ax.set_ylabel("target points detected")
-        ax.set_title(f"Separation, complete data, L = {int(shown['params'].get('L', 1))}", fontsize=10)
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=8)
+        decorate(ax, "nuisance points alarmed", "target points detected",
+                 f"Separation, complete data, L = {int(params.get('L', 1))}")
         paper = [(100 * r, PAPER["target_delay"][r]) for r in rates if r in PAPER["target_delay"]]
         bx.plot([p[0] for p in paper], [p[1] for p in paper], "k^", label="paper (target; fails at 20 %)")
-        bx.set_xlabel("missing outputs (%)")
-        bx.set_ylabel("target isolation delay (s)")
-        bx.set_title("Delay over the missing rate (tuned design)", fontsize=10)
-        bx.grid(alpha=0.3)
-        bx.legend(fontsize=8)
+        decorate(bx, "missing outputs (%)", "target isolation delay (s)", "Delay over the missing rate (tuned design)")
         files.append(out_dir / f"{prefix}separation_delay.png")
         fig.savefig(files[-1], dpi=110)
         return files
@@ -346,23 +336,18 @@ def main(argv=None) -> int:
                                "1-2, Figs. 3-10) without the optimiser: the tuned design beside the "
                                "reconstruction's fixed one (midway threshold, L = 3).", out="outputs/systems/paper002")
     parser.add_argument("--n-runs", type=int, default=200, help="target and nuisance runs each, per rate (default 200)")
-    parser.add_argument("--threshold", type=float, default=recorded[TUNED]["threshold"],
-                        help="tuned threshold (default: the recorded design, mosd/systems/designs/paper002.json)")
-    parser.add_argument("--L", type=int, default=recorded[TUNED]["L"], help="tuned persistence L")
+    cli.design_options(parser, SYSTEM)  # --threshold, --L
 
     def body(args):
         study = Study(n_runs=args.n_runs)
         experiment = cli.preset(SYSTEM, [f"seed={args.seed}"]).experiment
-        tuned = experiment.detector.with_params(threshold=args.threshold, L=args.L)
+        tuned = experiment.detector.with_params(**cli.tuned_design(args, SYSTEM))
         experiment.fit_estimator()
         midway = experiment.detector.with_params(threshold=midway_threshold(experiment, args.n_runs),
                                                  **recorded["midway"])
-        out = Path(args.out)
-        data = study.compute(experiment, {TUNED: tuned, "midway": midway})
-        metrics, files = study.metrics(data), study.write_figures(data, out)
-        params = {name: d["params"] for name, d in data["designs"].items()}
-        files.append(cli.write_json(out / "paper002_study.json", {"metrics": metrics, "designs": params,
-                                                                  "n_runs": args.n_runs, "seed": args.seed}))
+        data, metrics, files = cli.score(study, experiment, {TUNED: tuned, "midway": midway}, Path(args.out),
+                                         n_runs=args.n_runs, seed=args.seed)
+        params = data["params"]
         print(f"## Paper 002: {args.n_runs} target + {args.n_runs} nuisance runs per missing rate, seed {args.seed} "
               f"(test stream)\n")
         print(format_report(params, metrics) + "\n")

@@ -36,7 +36,7 @@ from ..faults.sensor import sensor_fault_signals
 from ..scenario import training_rng
 from ..validation import ConfigError, Interval, check_in, check_int
 from . import base, cli
-from .base import TUNED, figure, prefixed, recorded_designs
+from .base import TUNED, decorate, design_params, figure, prefixed
 
 SYSTEM = "paper003"
 STATISTICS = ("observer_chi2", "chi2")
@@ -212,7 +212,7 @@ class Study(base.Study):
         return {"windows": self.windows, "rates": self.rates, "n_runs": self.n_runs, "onset_step": onset_step,
                 "dt": dt, "statistic": statistic, "table": table, "far": far, "traces": traces, "loss": loss,
                 "sigma": sigma, "trace_rate": self.trace_rate,
-                "params": {n: {k: float(getattr(d, k)) for k in d.tunable} for n, d in designs.items()}}
+                "params": {name: design_params(d) for name, d in designs.items()}}
 
     @staticmethod
     def _over_rates(values: np.ndarray) -> np.ndarray:
@@ -324,11 +324,8 @@ class Study(base.Study):
             ax.plot(curves["train_loss"], color=color, label=f"N = {window}, training")
             ax.plot(curves["validation_loss"], color=color, ls="--", label=f"N = {window}, validation")
         ax.set_yscale("log")
-        ax.set_xlabel("epoch")
-        ax.set_ylabel("weighted multi-step loss (standardised)")
-        ax.set_title("Fig. 6: training loss (early stopping, patience 10)", fontsize=10)
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=7)
+        decorate(ax, "epoch", "weighted multi-step loss (standardised)",
+                 "Fig. 6: training loss (early stopping, patience 10)", legend_size=7)
         files.append(out_dir / f"{prefix}training_loss.png")
         fig.savefig(files[-1], dpi=110)
         return files
@@ -376,40 +373,31 @@ def parse_windows(text: str) -> tuple[int, ...]:
 
 def main(argv=None) -> int:
     """``python -m mosd.systems.paper003 [--n-runs 20] [--windows 1-15] [--seed 0] [--out DIR]``."""
-    recorded = recorded_designs(SYSTEM)
     parser = cli.report_parser("python -m mosd.systems.paper003", "Paper 003's Table 2 and Figs. 6-8 at full scale "
                                "without the optimiser: the tuned design beside the paper's (alpha 0.01, a = b = 1).",
                                out="outputs/systems/paper003")
     parser.add_argument("--n-runs", type=int, default=20, help="test flights per ramp rate (default 20)")
     parser.add_argument("--windows", default="1-15",
                         help="observer windows: 'A-B' or a comma list including 1 (default 1-15; trains one each)")
-    parser.add_argument("--alpha", type=float, default=recorded[TUNED]["alpha"],
-                        help="tuned alpha (default: the recorded design, mosd/systems/designs/paper003.json)")
-    parser.add_argument("--a", type=float, default=recorded[TUNED]["a"], help="tuned a")
-    parser.add_argument("--b", type=float, default=recorded[TUNED]["b"], help="tuned b")
+    cli.design_options(parser, SYSTEM)  # --alpha, --a, --b
 
     def body(args):
         windows = parse_windows(args.windows)
         study = Study(windows=windows, n_runs=args.n_runs)
         experiment = cli.preset(SYSTEM, [f"seed={args.seed}"]).experiment
-        designs = {TUNED: experiment.detector.with_params(alpha=args.alpha, a=args.a, b=args.b),
+        designs = {TUNED: experiment.detector.with_params(**cli.tuned_design(args, SYSTEM)),
                    **study.reference_designs(experiment, experiment.detector)}
-        out = Path(args.out)
-        data = study.compute(experiment, designs)
-        metrics, files = study.metrics(data), study.write_figures(data, out)
-        files.append(cli.write_json(out / "paper003_study.json", {
-            "metrics": metrics, "designs": data["params"], "windows": list(windows), "rates": list(study.rates),
-            "n_runs": args.n_runs, "seed": args.seed, "observer_sigma": data["sigma"],
-            "table": {d: {s: {k: v.tolist() for k, v in t.items()} for s, t in by_s.items()}
-                      for d, by_s in data["table"].items()},
-            "far": {d: {s: v.tolist() for s, v in by_s.items()} for d, by_s in data["far"].items()}}))
+        data, metrics, files = cli.score(study, experiment, designs, Path(args.out), windows=list(windows),
+                                         rates=list(study.rates), n_runs=args.n_runs, seed=args.seed,
+                                         observer_sigma=lambda d: d["sigma"], table=lambda d: {
+                                             design: {s: {k: v.tolist() for k, v in t.items()} for s, t in by_s.items()}
+                                             for design, by_s in d["table"].items()},
+                                         far=lambda d: {design: {s: v.tolist() for s, v in by_s.items()}
+                                                        for design, by_s in d["far"].items()})
         print(f"## Paper 003: windows {windows[0]}..{windows[-1]}, rates {study.rates[0]:g}..{study.rates[-1]:g} m/s, "
               f"{args.n_runs} flights each, seed {args.seed}\n")
         print(format_report(data))
-        print("| metric | value |\n|---|---|")
-        for k, v in metrics.items():
-            print(f"| {k} | {v:.4g} |")
-        print()
+        print(cli.markdown_table(("metric", "value"), ((k, f"{v:.4g}") for k, v in metrics.items())) + "\n")
         return files
 
     return cli.run_report(parser, argv, body)
