@@ -10,6 +10,8 @@ is one of them.
 
 Chromium, chromedriver and selenium are test dependencies (``.ci/run`` installs the first two
 with apt, the ``test`` extra brings selenium): when one is missing the test fails, it does not skip.
+The browser test is marked slow like the other real-server tests (about 45 s: the sweep, the
+server's start, the browser).
 """
 from __future__ import annotations
 
@@ -67,3 +69,237 @@ def test_an_experiment_made_before_gets_the_kind_and_a_chosen_kind_is_kept(tmp_p
     client.set_experiment_tag(client.create_experiment("chosen"), KIND_TAG, "genai_development")
     MlflowStore(other).experiment_id()
     assert client.get_experiment_by_name("chosen").tags[KIND_TAG] == "genai_development"
+
+
+# ---------------------------------------------------------------------------------------
+# the browser
+# ---------------------------------------------------------------------------------------
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _env(outputs: Path) -> dict:
+    from test_app import PACKAGE_PARENT
+
+    env = {k: v for k, v in os.environ.items() if not k.startswith("MOSD_") and k != "HYDRA_FULL_ERROR"}
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (PACKAGE_PARENT, env.get("PYTHONPATH")) if p)
+    env["MOSD_OUTPUTS"] = str(outputs)
+    return env
+
+
+def _serve(store: Path, log: Path) -> tuple[subprocess.Popen, str]:
+    """``mlflow server --workers 1`` on a free loopback port, once it answers /health."""
+    mlflow_cli = shutil.which("mlflow", path=str(Path(sys.executable).parent)) or shutil.which("mlflow")
+    assert mlflow_cli is not None, "the mlflow command is not installed"
+    port = _free_port()
+    server = subprocess.Popen([mlflow_cli, "server", "--workers", "1", "--host", "127.0.0.1", "--port", str(port),
+                               "--backend-store-uri", f"sqlite:///{store}"], stdout=log.open("w"),
+                              stderr=subprocess.STDOUT, start_new_session=True,
+                              env={**os.environ, "MLFLOW_SERVER_ENABLE_JOB_EXECUTION": "false"})  # README
+    url = f"http://127.0.0.1:{port}"
+    deadline = time.monotonic() + 180
+    while True:
+        assert server.poll() is None, log.read_text()[-3000:]
+        try:
+            with urllib.request.urlopen(f"{url}/health", timeout=2):
+                return server, url
+        except OSError:
+            if time.monotonic() > deadline:
+                _stop(server)
+                raise AssertionError(f"mlflow server did not answer within 180 s:\n{log.read_text()[-3000:]}")
+            time.sleep(0.5)
+
+
+def _stop(process: subprocess.Popen) -> None:
+    os.killpg(process.pid, signal.SIGTERM)
+    try:
+        process.wait(timeout=20)
+    except subprocess.TimeoutExpired:
+        os.killpg(process.pid, signal.SIGKILL)
+        process.wait()
+
+
+def _browser(profile: Path):
+    for path in (CHROMIUM, CHROMEDRIVER):
+        assert Path(path).exists(), f"{path} is missing: apt-get install chromium chromium-driver (.ci/run does)"
+    from selenium import webdriver
+    from selenium.webdriver.chrome.service import Service
+
+    options = webdriver.ChromeOptions()
+    options.binary_location = CHROMIUM
+    for flag in (*CHROMIUM_FLAGS, f"--user-data-dir={profile}"):
+        options.add_argument(flag)
+    # the Debian driver by its path: Selenium's own driver manager would try to download one
+    return webdriver.Chrome(options=options, service=Service(CHROMEDRIVER))
+
+
+class Page:
+    """A browser tab on the MLflow UI: navigate, wait for text, screenshot."""
+
+    def __init__(self, driver, base: str, shots: Path):
+        self.driver, self.base, self.shots = driver, base, shots
+
+    def open(self, fragment: str) -> None:
+        self.driver.get(f"{self.base}/#{fragment}")
+
+    def text(self) -> str:
+        return self.driver.find_element("tag name", "body").text
+
+    def wait_for(self, *needles: str, timeout: float = 90.0) -> str:
+        """The page's text once every needle is in it (the UI renders after its API calls)."""
+        deadline = time.monotonic() + timeout
+        while True:
+            text = self.text()
+            if all(n in text for n in needles):
+                return text
+            if time.monotonic() > deadline:
+                self.shot("timeout")
+                missing = [n for n in needles if n not in text]
+                raise AssertionError(f"{missing} not shown at {self.driver.current_url}; the page says:\n{text[:2000]}")
+            time.sleep(0.5)
+
+    def click_text(self, text: str) -> None:
+        from selenium.webdriver.common.by import By
+
+        self.driver.find_element(By.XPATH, f"//*[normalize-space(text())={text!r}]").click()
+
+    def shot(self, name: str) -> Path:
+        path = self.shots / f"{name}.png"
+        self.driver.save_screenshot(str(path))
+        return path
+
+
+@pytest.fixture(scope="module")
+def served_sweep(tmp_path_factory):
+    """A store with one 4-job sweep made by the command line, served by ``mlflow server``."""
+    root = tmp_path_factory.mktemp("ui")
+    out = subprocess.run([sys.executable, "-m", "mosd", *SWEEP], cwd=root, env=_env(root / "outputs"),
+                         capture_output=True, text=True, timeout=900)
+    assert out.returncode == 0, out.stderr[-3000:]
+    server, url = _serve(root / "outputs" / "mlflow.db", root / "server.log")
+    try:
+        yield root, url
+    finally:
+        _stop(server)
+
+
+@pytest.fixture
+def page(served_sweep, tmp_path):
+    root, url = served_sweep
+    shots = Path(os.environ.get("MOSD_UI_SHOTS") or tmp_path)
+    shots.mkdir(parents=True, exist_ok=True)
+    driver = _browser(Path(tempfile.mkdtemp(dir=tmp_path, prefix="chromium-")))
+    driver.set_page_load_timeout(120)
+    try:
+        yield Page(driver, url, shots)
+    finally:
+        driver.quit()
+
+
+def _runs(uri: str):
+    from mlflow.tracking import MlflowClient
+
+    client = MlflowClient(tracking_uri=uri)
+    experiment = client.get_experiment_by_name("mosd")
+    runs = client.search_runs([experiment.experiment_id], max_results=100)
+    parent = next(r for r in runs if r.data.tags.get("mosd.role") == "sweep")
+    children = [r for r in runs if r.data.tags.get("mlflow.parentRunId") == parent.info.run_id]
+    return client, experiment, parent, children
+
+
+def _choose(page: Page, label: str, values: list[str]) -> None:
+    """Set the compare view's plot selector after ``label`` ("Parameters:"/"Metrics:") to ``values``."""
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.common.keys import Keys
+
+    box = page.driver.find_element(By.XPATH, f"//*[normalize-space(text())={label!r}]/following::input[1]")
+    for value in values:
+        box.click()
+        box.send_keys(value)
+        time.sleep(0.5)
+        box.send_keys(Keys.ENTER)
+    box.send_keys(Keys.ESCAPE)
+
+
+def _link_in_virtual_table(page: Page, text: str):
+    """The link ``text`` of the compare view's metric table, which renders only the rows in view: scroll to it."""
+    from selenium.webdriver.common.by import By
+
+    for _ in range(60):
+        found = page.driver.find_elements(By.XPATH, f"//a[normalize-space(text())={text!r}]")
+        if found:
+            page.driver.execute_script("arguments[0].scrollIntoView({block: 'center'});", found[0])
+            return found[0]
+        page.driver.execute_script("document.querySelectorAll('.ReactVirtualized__Grid')"
+                                   ".forEach(grid => { grid.scrollTop += 60; });")
+        time.sleep(0.3)
+    raise AssertionError(f"no link {text!r} in the compare view's tables")
+
+
+@pytest.mark.slow
+def test_the_ui_shows_the_sweep_its_children_their_comparison_and_the_hypervolume(page, served_sweep):
+    from selenium.webdriver.common.by import By
+
+    _, url = served_sweep
+    client, experiment, parent, children = _runs(url)
+    assert len(children) == 4
+    assert {c.info.status for c in children} == {"FINISHED"}
+    assert experiment.tags.get(KIND_TAG) == TRAINING_KIND
+    eid, driver = experiment.experiment_id, page.driver
+
+    # the experiment's runs, at the README's address: the training runs, not the GenAI overview
+    page.open(f"/experiments/{eid}?workflowType=machine_learning")
+    text = page.wait_for(parent.info.run_name, "5 matching runs")
+    assert "/runs" in driver.current_url and "Token Usage" not in text
+    for close in driver.find_elements(By.CSS_SELECTOR, "button[aria-label='Close']"):  # the assistant's panel
+        close.click()
+    page.shot("runs")
+
+    # the sweep's parent row opens onto its four children
+    names = [c.info.run_name for c in children]
+    assert not any(name in page.text() for name in names)  # folded under the parent until opened
+    row = f"//div[@role='row' and @row-id='{parent.info.run_id}']"
+    driver.find_element(By.XPATH, f"{row}//button[contains(@data-component-id,'runnamecellrenderer')]").click()
+    page.wait_for(*names)
+    page.shot("runs-sweep-expanded")
+
+    # select the children, Compare: the swept params (those that differ) and FAR/MDR of each
+    for child in children:
+        driver.find_element(By.XPATH, f"//div[@role='row' and @row-id='{child.info.run_id}']"
+                                      f"//input[contains(@class,'ag-checkbox-input')]").click()
+    next(b for b in driver.find_elements(By.TAG_NAME, "button") if b.text.strip() == "Compare").click()
+    swept = sorted(k for k in children[0].data.params
+                   if len({c.data.params.get(k) for c in children}) > 1 and not k.startswith(("tracking.", "outputs")))
+    assert {"fault.kind", "optimizer._target_"} <= set(swept)
+    text = page.wait_for("Comparing 4 Runs", *names, *swept)
+    lines = text.splitlines()
+    for key in swept:  # the params table: one line per param, a value per run
+        line = next(line for line in lines if line.startswith(f"{key} "))
+        assert sorted(line.split()[1:]) == sorted(c.data.params[key] for c in children), line
+    # the parallel-coordinates plot on the swept choices and the two rates: each axis spans the runs' values
+    driver.find_element(By.XPATH, "//button[normalize-space(.)='Clear All']").click()
+    _choose(page, "Parameters:", ["fault.kind", "optimizer._target_"])
+    _choose(page, "Metrics:", ["far", "mdr"])
+    for close in driver.find_elements(By.CSS_SELECTOR, "button[aria-label='Close']"):
+        close.click()
+    bounds = [f"{f(c.data.metrics[key] for c in children):.5f}" for key in ("far", "mdr") for f in (min, max)]
+    text = page.wait_for("fault.kind", "optimizer._target_", *bounds)
+    plot = text[text.index("Clear All"):text.index("Run details")]
+    assert {"far", "mdr", "offset", "variance"} <= set(plot.split()), plot
+    page.shot("compare")
+
+    # the hypervolume per generation, for the four children on one chart (the metric's link)
+    _link_in_virtual_table(page, "hypervolume").click()
+    n_gen = int(children[0].data.params["optimizer.n_gen"])
+    latest = []
+    for child in children:
+        history = sorted(client.get_metric_history(child.info.run_id, "hypervolume"), key=lambda m: m.step)
+        assert [m.step for m in history] == list(range(1, n_gen + 1))
+        latest.append(f"{history[-1].value!r} (step={n_gen})")  # the table under the chart: latest value per run
+    page.wait_for("Step", *names, *latest)
+    assert "/metric" in driver.current_url
+    page.shot("hypervolume")
