@@ -213,6 +213,27 @@ def test_values_at_the_bound_pass_the_dry_run(overrides, monkeypatch):
     assert 0.0 <= report.summary()["mdr"].mean <= 1.0, report.summary()
 
 
+def test_the_dry_run_leaves_the_components_as_built():
+    """Preflight hands the run its components as built: the dry run works on copies (no fitted monitor or limit)."""
+    import pickle
+
+    from hydra import compose, initialize_config_dir
+
+    from mosd.app.build import build
+    from mosd.app.config import CONFIG_DIR
+
+    overrides = ["+fault=offset_var", "tracking=none", "denoise=wavelet", *SMALL]
+    checked = preflight_module.preflight(overrides)
+    with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3", job_name="mosd"):
+        cfg = compose("config", overrides=overrides, return_hydra_config=True)
+    taken, fresh = checked.take(cfg), build(cfg)
+    assert taken is not None and checked.take(cfg) is None  # one job, handed out once
+    for kind in ("plant", "noise", "fault", "estimator", "monitor", "detector"):
+        assert pickle.dumps(vars(getattr(taken.experiment, kind))) == \
+            pickle.dumps(vars(getattr(fresh.experiment, kind))), kind
+    assert not hasattr(taken.experiment.monitor, "mean_")
+
+
 def test_a_sweep_checks_each_distinct_shape_once(monkeypatch):
     calls = []
     real = preflight_module.dry_run

@@ -87,6 +87,32 @@ def test_a_run_keeps_mlflow_and_matplotlib_out_of_the_main_process(tmp_path):
     assert lines[1].startswith("chosen") and any(line.startswith("wall time") for line in lines)
 
 
+# the number of times a command builds the components, printed as the last line of stdout
+_COUNTING_BUILDS = """
+import json, sys
+import mosd.app, mosd.app.build as build_module, mosd.app.preflight as preflight_module, mosd.app.run as run_module
+built = []
+real = build_module.build
+def counting(cfg):
+    built.append(1)
+    return real(cfg)
+preflight_module.build = run_module.build = counting
+code = mosd.app.main(sys.argv[1:])
+print()
+print(json.dumps({"code": code, "builds": len(built)}))
+"""
+
+
+@pytest.mark.parametrize("sweep", [False, True])
+def test_the_components_are_built_once_per_job(tmp_path, sweep):
+    """Preflight builds each job's components; the job run in the same process takes them (no second build)."""
+    args = ["-m", "+fault=offset,offset_var"] if sweep else ["+fault=offset_var"]
+    probe = _python(_COUNTING_BUILDS, tmp_path, *args, *REDUCED, "tracking=none", timeout=300)
+    assert probe.returncode == 0, probe.stderr[-3000:]
+    state = json.loads(probe.stdout.strip().splitlines()[-1])
+    assert state == {"code": 0, "builds": 2 if sweep else 1}, state
+
+
 def test_the_first_line_comes_before_the_end_of_the_run_off_a_terminal(tmp_path):
     # a run far longer than the test waits for: its first line must arrive while it is still running
     args = ["+fault=offset_var", "optimizer.pop_size=6", "optimizer.n_gen=100000", "budget.n_test=2",

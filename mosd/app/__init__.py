@@ -153,7 +153,8 @@ def _main(argv: list[str], started: float) -> int:
     try:
         from .preflight import preflight
 
-        preflight(argv)
+        # the components of every job, built once: a job run in this process takes its own
+        checked = preflight(argv)
     except (UsageError, ConfigError) as exc:
         if checking:
             _transient(None)
@@ -172,7 +173,7 @@ def _main(argv: list[str], started: float) -> int:
     def task(cfg):
         from .run import run
 
-        run(cfg, started=started)
+        run(cfg, started=started, checked=checked)
 
     global _LAUNCHED
     saved = sys.argv

@@ -16,6 +16,8 @@ Two more checks catch what used to fail only after the optimisation:
 """
 from __future__ import annotations
 
+import copy
+import dataclasses
 import json
 import math
 from pathlib import Path
@@ -164,10 +166,12 @@ def dry_run(setup: Setup) -> None:
     together (a burn-in longer than the run, a wavelet level deeper than the
     chart, a fault that never starts). Estimators that must be trained first
     (a neural observer) are not simulated: their output length is taken as the
-    trace's.
+    trace's. Works on copies of the components: the run uses them as built
+    (a fitted monitor, a detector's fitted limit stay out of it).
     """
     from ..experiment import Budget, Experiment
 
+    setup = dataclasses.replace(setup, experiment=copy.deepcopy(setup.experiment))
     exp = setup.experiment
     if getattr(exp, "data", None) is not None:  # recorded data: the real splits (mosd.recorded)
         exp.dry_run(_default_design(setup))
@@ -232,11 +236,52 @@ def check_job(cfg, setup: Setup, done: dict, multirun: bool = False) -> None:
         done[key] = True
 
 
-def preflight(argv: Sequence[str]) -> None:
-    """Compose and build every job of a command line; raise UsageError/ConfigError on a mistake."""
+def job_key(cfg) -> str | None:
+    """A job's config without the ``hydra`` section, resolved, as text; None when it does not resolve here.
+
+    The same for preflight's composition (``return_hydra_config=True``) and the
+    config Hydra hands to the job, so that the job finds the components preflight built.
+    """
+    from omegaconf import OmegaConf
+
+    try:
+        tree = {str(k): OmegaConf.to_container(v, resolve=True) if OmegaConf.is_config(v) else v
+                for k, v in cfg.items() if k != "hydra"}
+    except Exception:  # an interpolation that only resolves inside a job (${hydra:...})
+        return None
+    return json.dumps(tree, sort_keys=True, default=str)
+
+
+class Checked:
+    """The components preflight built, by job config (:func:`job_key`): each is handed to one job, once."""
+
+    def __init__(self):
+        self._setups: dict[str, list[Setup]] = {}
+
+    def add(self, cfg, setup: Setup) -> None:
+        key = job_key(cfg)
+        if key is not None:
+            self._setups.setdefault(key, []).append(setup)
+
+    def take(self, cfg) -> Setup | None:
+        """The setup built for a job with this config (removed: a second job with the same config builds its own)."""
+        found = self._setups.get(job_key(cfg) or "")
+        return found.pop(0) if found else None
+
+    def __len__(self) -> int:
+        return sum(len(v) for v in self._setups.values())
+
+
+def preflight(argv: Sequence[str]) -> Checked:
+    """Compose and build every job of a command line; raise UsageError/ConfigError on a mistake.
+
+    Returns the built components of every job (:class:`Checked`), so that a job
+    run in this process does not build them again (:func:`mosd.app.run.run`).
+    """
+    checked = Checked()
     args = _args_parser().parse_args(list(argv))
     if args.help or args.hydra_help or args.cfg or args.info or args.shell_completion or args.experimental_rerun:
-        return  # Hydra's own informational modes
+        return checked  # Hydra's own informational modes
     from hydra import compose, initialize_config_dir
     from hydra.core.global_hydra import GlobalHydra
     from hydra.core.override_parser.overrides_parser import OverridesParser
@@ -266,5 +311,7 @@ def preflight(argv: Sequence[str]) -> None:
             except OmegaConfBaseException as exc:
                 raise UsageError(one_line(exc)) from None
             check_job(cfg, setup, done, multirun=bool(args.multirun))
+            checked.add(cfg, setup)
+    return checked
 
 

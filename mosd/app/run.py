@@ -67,7 +67,7 @@ def _start_tracking(cfg, hc, labels: Mapping[str, str], n_jobs: int, run_dir: Pa
     return RunTracker(settings, name, tags, parent_run_id(hc.sweep.dir if multirun else None)).start()
 
 
-def run(cfg, started: float | None = None):
+def run(cfg, started: float | None = None, checked=None):
     """The Hydra task: one experiment, its files and its MLflow run.
 
     Parameters
@@ -76,6 +76,9 @@ def run(cfg, started: float | None = None):
         The job's composed config (validated by :func:`preflight` beforehand).
     started : float, optional
         ``time.perf_counter()`` at process start (single runs), for the wall time.
+    checked : mosd.app.preflight.Checked, optional
+        The components preflight built for the command's jobs: this job takes its
+        own instead of building them again (a job in another process builds them).
     """
     from hydra.core.hydra_config import HydraConfig
     from hydra.types import RunMode
@@ -94,7 +97,7 @@ def run(cfg, started: float | None = None):
     run_dir = Path(hc.runtime.output_dir)
     choices = {k: v for k, v in hc.runtime.choices.items() if not k.startswith("hydra/") and v is not None}
     labels = {group: str(choices.get(group, "")) for group in (*COMPONENTS, "tracking", "experiment")}
-    setup = build(cfg)
+    setup = (checked.take(cfg) if checked is not None else None) or build(cfg)
     labels["online"] = "true" if setup.experiment.detector.is_causal else "false"
     n_jobs = setup.n_jobs
     if n_jobs > 1 and _under_joblib_launcher(hc):
@@ -105,7 +108,7 @@ def run(cfg, started: float | None = None):
     tracker = _start_tracking(cfg, hc, labels, n_jobs, run_dir, tuple(setup.experiment.detector.tunable))
     position = int(hc.job.num) if multirun and _under_joblib_launcher(hc) else 0
     progress = Progress(setup.n_gen, enabled=cfg.progress, position=position,
-                        description=f"job {hc.job.num}" if multirun else "")
+                        description=f"job {hc.job.num}" if multirun else "", objectives=setup.experiment.objectives)
     timings = {"startup_s": task_start - started}
     figures = None
     try:
@@ -140,7 +143,8 @@ def run(cfg, started: float | None = None):
                 return
             params = flatten(OmegaConf.to_container(cfg, resolve=True))
             logged.extend((key, record[key], record["generation"]) for record in result.history
-                          for key in ("hypervolume", "archive_size", "best_accuracy", "n_eval")
+                          for key in ("hypervolume", "archive_size", "best_accuracy", "n_eval",
+                                      *(f"best_{name}" for name in result.objectives))
                           if np.isfinite(record[key]))
             logged.extend((k, v, 0) for k, v in metrics.items())
             sent.extend([*text_files, *study_files])
