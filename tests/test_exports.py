@@ -11,8 +11,9 @@ import pytest
 import mosd
 
 PACKAGE = Path(mosd.__file__).resolve().parent
+#: every module but the ``__main__`` scripts (``python -m ...``: importing one runs the command)
 MODULES = sorted(".".join(p.relative_to(PACKAGE.parent).with_suffix("").parts).removesuffix(".__init__")
-                 for p in PACKAGE.rglob("*.py"))
+                 for p in PACKAGE.rglob("*.py") if p.name != "__main__.py")
 #: a kind's package -> the contract its components implement
 KINDS = {"plants": "Plant", "noise": "NoiseModel", "faults": "Fault", "estimators": "Estimator",
          "monitors": "Monitor", "detectors": "Detector", "denoisers": "Denoiser", "data": "RecordedData"}
