@@ -91,7 +91,8 @@ class MlflowStore:
             return self._experiment_id
         name = self.settings.experiment
         found = self.client.get_experiment_by_name(name)
-        # MLflow's UI opens an experiment on the tab its kind names: its training runs, not the GenAI overview
+        # the kind of a training-runs experiment: MLflow UIs that read it open it on its runs, not the GenAI
+        # overview (3.17 follows its Model training switch instead: README, "The MLflow UI")
         kind = {"mlflow.experimentKind": "custom_model_development"}
         if found is not None:
             if "mlflow.experimentKind" not in found.tags:  # made before mosd set the kind
