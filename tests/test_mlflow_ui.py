@@ -220,8 +220,13 @@ def _choose(page: Page, label: str, values: list[str]) -> None:
     for value in values:
         box.click()
         box.send_keys(value)
-        time.sleep(0.5)
-        box.send_keys(Keys.ENTER)
+        # the option named exactly so (typing "far" also offers "best_far")
+        option = f"//*[@role='option' or contains(@class,'select-item-option')][@title={value!r} or normalize-space(.)={value!r}]"
+        deadline = time.monotonic() + 30
+        while not (found := [o for o in page.driver.find_elements(By.XPATH, option) if o.is_displayed()]):
+            assert time.monotonic() < deadline, f"{value!r} is not offered under {label!r}"
+            time.sleep(0.3)
+        found[0].click()
     box.send_keys(Keys.ESCAPE)
 
 
