@@ -49,6 +49,8 @@ def test_normalisation_uses_the_true_fronts_ideal_and_nadir():
     assert np.allclose(ideal, [-274.0, 4.0], atol=0.5) and np.allclose(nadir, [-42.0, 76.0], atol=0.5)
     ideal, nadir, _ = normalisation("dtlz7")  # f1, f2 up to 0.8594, f3 from 2.6138 to 6
     assert np.allclose(ideal, [0.0, 0.0, 2.6138], atol=2e-3) and np.allclose(nadir, [0.8594, 0.8594, 6.0], atol=2e-3)
+    ideal, nadir, _ = normalisation("wfg4")  # the quarter ellipse with S = (2, 4)
+    assert np.allclose(ideal, 0.0) and np.allclose(nadir, [2.0, 4.0])
     ideal, nadir, _ = normalisation("dtlz1")  # the simplex sum f = 0.5
     assert np.allclose(ideal, 0.0) and np.allclose(nadir, 0.5)
 

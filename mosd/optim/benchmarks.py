@@ -20,7 +20,8 @@ Set-up (issue 21's protocol):
   ZDT2, ZDT4, ZDT6, DTLZ2–4 the front spans [0, 1] and this is the raw hypervolume with
   reference 1.1; ZDT3, DTLZ1, DTLZ7, WFG and OSY are rescaled. The fronts: pymoo's
   ``pareto_front()``, and for DTLZ7 and OSY (whose pymoo fronts are downloads) the
-  analytical ones (:func:`dtlz7_front`, :func:`osy_front`). IGD against the same front is
+  analytical ones (:func:`dtlz7_front`, :func:`osy_front`), WFG4's too (:func:`wfg4_front`:
+  pymoo's sample differs between processes). IGD against the same front is
   reported alongside;
 * algorithms (:data:`ALGORITHMS`) — this package's :class:`~mosd.optim.mopso.MOPSO` with
   its defaults; the issue-14 default (``exploration=None``, what ``MOPSO()`` was before
@@ -110,6 +111,16 @@ def osy_front(n_points: int = 200) -> np.ndarray:
     return F[NonDominatedSorting().do(F, only_non_dominated_front=True)]
 
 
+def wfg4_front(n_points: int = 1000) -> np.ndarray:
+    """WFG4's 2-objective Pareto front, the quarter ellipse (2 sin φ, 4 cos φ), φ ∈ [0, π/2].
+
+    pymoo builds it from reference directions whose sample differs between processes (its
+    smallest f1 came out 0.068 in one and 0.095 in another), which moved the normalisation.
+    """
+    phi = np.linspace(0.0, np.pi / 2.0, n_points)
+    return np.column_stack([2.0 * np.sin(phi), 4.0 * np.cos(phi)])
+
+
 @dataclass(frozen=True)
 class Benchmark:
     """A benchmark problem: how to build it, its default budget and its true front."""
@@ -141,7 +152,7 @@ PROBLEMS: dict[str, Benchmark] = {
     "dtlz7": Benchmark(_dtlz("dtlz7", 22), 10_000, lambda problem: dtlz7_front()),
     "wfg1": Benchmark(_wfg("wfg1"), 10_000),
     "wfg2": Benchmark(_wfg("wfg2"), 10_000),
-    "wfg4": Benchmark(_wfg("wfg4"), 10_000),
+    "wfg4": Benchmark(_wfg("wfg4"), 10_000, lambda problem: wfg4_front()),
     "osy": Benchmark(lambda: get_problem("osy"), 10_000, lambda problem: osy_front()),
 }
 EXTRA_PROBLEMS: dict[str, Benchmark] = {"zdt1_shifted": Benchmark(ShiftedZDT1, 10_000)}
