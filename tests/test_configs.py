@@ -160,7 +160,7 @@ def test_defaults_are_paper_scale(composer):
     assert isinstance(setup.algorithm, MOPSO) and setup.algorithm.pop_size == 100 and setup.n_gen == 100
     budget = setup.experiment.budget
     assert (budget.n_calibration, budget.n_train, budget.n_test) == (10, 10, 100)
-    assert setup.bounds == {"lam": (0.0, 1.0), "K": (0.0, 10.0)}  # Fig. 1's range; paper000 keeps 5
+    assert setup.bounds == {"K": (0.0, 10.0)}  # Fig. 1's range (lam: its allowed range); paper000 keeps 5
     exp = setup.experiment
     assert isinstance(exp.plant, MouldOscillator) and isinstance(exp.noise, GaussianNoise)
     assert isinstance(exp.estimator, DedicatedObserverResidual) and isinstance(exp.estimator.filter, CESCKF)
@@ -184,7 +184,7 @@ def test_chart_and_denoise_alternatives(composer):
     setup = _build_module.build(composer("+fault=offset", "detector=ewma", "denoise=none", "estimator=innovation"))
     assert isinstance(setup.experiment.detector, EWMA) and isinstance(setup.experiment.detector.denoiser, NoDenoiser)
     assert isinstance(setup.experiment.estimator, InnovationResidual)
-    assert set(setup.bounds) == {"lam", "L"}
+    assert set(setup.bounds) == {"L"}  # lam: searched over its allowed range
 
 
 def test_choose_uses_the_selection_section(composer):

@@ -20,34 +20,34 @@ Z = _points([0.9, 0.05, 0.05], [0.4, 0.1, 0.5], [0.3, 0.1, 0.6], [0.2, 0.1, 0.7]
 
 
 def test_single_step_rule_declares_the_model_above_the_threshold():
-    d = ModeProbabilityDetector(mu_T=0.5, L=1).decide(Z, Z)
+    d = ModeProbabilityDetector(mu_T=0.5, persistence=1).decide(Z, Z)
     np.testing.assert_array_equal(d.decision[0], [0, 0, 2, 2, 0, 1, 1])  # 0.5 is not > 0.5
     np.testing.assert_allclose(d.statistic[0], [0.05, 0.5, 0.6, 0.7, 0.3, 0.6, 0.7])
     assert np.all(np.asarray(d.threshold) == 0.5)
 
 
 def test_persistence_needs_l_consecutive_steps_of_the_same_model():
-    np.testing.assert_array_equal(ModeProbabilityDetector(mu_T=0.45, L=2).decide(Z, Z).decision[0],
+    np.testing.assert_array_equal(ModeProbabilityDetector(mu_T=0.45, persistence=2).decide(Z, Z).decision[0],
                                   [0, 0, 2, 2, 0, 0, 1])
-    np.testing.assert_array_equal(ModeProbabilityDetector(mu_T=0.45, L=3).decide(Z, Z).decision[0],
+    np.testing.assert_array_equal(ModeProbabilityDetector(mu_T=0.45, persistence=3).decide(Z, Z).decision[0],
                                   [0, 0, 0, 2, 0, 0, 0])
     # model 1 then model 2 above the threshold is not two steps of one fault
     switch = _points([0.2, 0.7, 0.1], [0.2, 0.1, 0.7])
-    assert not ModeProbabilityDetector(mu_T=0.5, L=2).decide(switch, switch).decision.any()
+    assert not ModeProbabilityDetector(mu_T=0.5, persistence=2).decide(switch, switch).decision.any()
 
 
 def test_with_a_low_threshold_the_most_probable_qualifying_model_wins():
     z = _points([0.2, 0.35, 0.45], [0.1, 0.5, 0.4])
-    np.testing.assert_array_equal(ModeProbabilityDetector(mu_T=0.3, L=1).decide(z, z).decision[0], [2, 1])
-    np.testing.assert_array_equal(ModeProbabilityDetector(mu_T=0.3, L=2).decide(z, z).decision[0], [0, 1])
+    np.testing.assert_array_equal(ModeProbabilityDetector(mu_T=0.3, persistence=1).decide(z, z).decision[0], [2, 1])
+    np.testing.assert_array_equal(ModeProbabilityDetector(mu_T=0.3, persistence=2).decide(z, z).decision[0], [0, 1])
 
 
 def test_labels_rename_the_declared_fault():
-    d = ModeProbabilityDetector(mu_T=0.5, L=1, labels=[7, 3]).decide(Z, Z)
+    d = ModeProbabilityDetector(mu_T=0.5, persistence=1, labels=[7, 3]).decide(Z, Z)
     np.testing.assert_array_equal(d.decision[0], [0, 0, 3, 3, 0, 7, 7])
 
 
-def test_population_equals_one_design_at_a_time_and_integer_l_is_rounded():
+def test_population_equals_one_design_at_a_time_and_integer_persistence_is_rounded():
     rng = np.random.default_rng(0)
     z = rng.dirichlet([3.0, 1.0, 1.0], size=(4, 30))
     detector = ModeProbabilityDetector()
@@ -56,14 +56,14 @@ def test_population_equals_one_design_at_a_time_and_integer_l_is_rounded():
     assert decisions.decision.shape == (4, 4, 30) and decisions.statistic.shape == (4, 4, 30)
     for p, design in enumerate(detector.candidates(X)):
         np.testing.assert_array_equal(decisions.decision[p], design.decide(z, z).decision)
-    assert detector.candidates(X)[1].L == 2
+    assert detector.candidates(X)[1].persistence == 2
 
 
 def test_decisions_score_with_the_metric_registry():
     z = np.concatenate([Z, Z[:, ::-1, [0, 2, 1]]])  # run 2: decisions [2, 2, 0, 1, 1, 0, 0]
     mask = np.array([[False, False, True, True, True, True, True]] * 2)
     truth = Subgroups(z=z, fault_mask=mask, fault_label=np.where(mask, 2, 0), fault_roles=("target",))
-    decision = ModeProbabilityDetector(mu_T=0.5, L=1).decide(z, z).decision
+    decision = ModeProbabilityDetector(mu_T=0.5, persistence=1).decide(z, z).decision
     np.testing.assert_array_equal(decision[1], [2, 2, 0, 1, 1, 0, 0])
     np.testing.assert_array_equal(per_run("delay", decision, truth), [0.0, 1.0])
     np.testing.assert_array_equal(per_run("isolation_rate", decision, truth), [1.0, 0.0])
@@ -74,8 +74,8 @@ def test_decisions_score_with_the_metric_registry():
 @pytest.mark.parametrize("kwargs, message", [
     ({"mu_T": 0.0}, r"detector.mu_T=0.0 is out of range; allowed: \(0, 1\]"),
     ({"mu_T": 1.5}, "detector.mu_T"),
-    ({"L": 0}, r"detector.L=0 is out of range; allowed: integers in \[1, 20\]"),
-    ({"L": 1.5}, "detector.L=1.5 is not an integer"),
+    ({"persistence": 0}, r"detector.persistence=0 is out of range; allowed: integers in \[1, 20\]"),
+    ({"persistence": 1.5}, "detector.persistence=1.5 is not an integer"),
     ({"labels": [1, 0]}, "detector.labels=0 is out of range"),
     ({"labels": []}, "detector.labels"),
 ])

@@ -249,7 +249,7 @@ def test_paper_findings_fused_beats_every_sensor_and_the_actuator_2_model_takes_
         amplitude[name] = rmse_over_runs(res.extra["fault_estimate"], trace.x[..., 2:])[1:].mean()
         points = OutputMonitor(outputs=["mode_probabilities"]).transform(res)
         # the scenario's only fault (label 1) is the model set's fault 2
-        decision = ModeProbabilityDetector(mu_T=0.5, L=1, labels=[2, 1]).decide(points.z, points.z).decision
+        decision = ModeProbabilityDetector(mu_T=0.5, persistence=1, labels=[2, 1]).decide(points.z, points.z).decision
         delay[name] = np.nanmean(per_run("delay", decision, points))
         if name == "fused":
             mu = res.extra["mode_probabilities"].mean(axis=0)

@@ -9,7 +9,7 @@ from mosd.systems import cli, paper001
 def test_designs_on_the_same_runs_obey_the_persistence_rule():
     experiment = cli.preset("paper001", ["seed=1", "budget.n_test=30"]).experiment
     grid = {(0.5, 1): "tuned", (0.5, 2): "l2", (0.5, 3): "l3", (0.7, 1): "high"}
-    designs = {name: experiment.detector.with_params(mu_T=mu, L=L) for (mu, L), name in grid.items()}
+    designs = {name: experiment.detector.with_params(mu_T=mu, persistence=L) for (mu, L), name in grid.items()}
     study = paper001.Study(n_runs=30, figures=False)
     data = study.compute(experiment, designs)
     metrics = study.metrics(data)

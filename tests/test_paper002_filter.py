@@ -148,7 +148,7 @@ def test_filter_validation_and_fit_before_estimate(designed):
 
 def test_threshold_detector_persistence_known_answer():
     z = np.array([0.0, 2.0, -2.0, 0.0, 2.0, 2.0, 2.0])[None, :, None]
-    det = ThresholdDetector(threshold=1.0, L=1)
+    det = ThresholdDetector(threshold=1.0, persistence=1)
     X = np.array([[1.0, 1], [1.0, 2], [1.0, 3], [2.5, 1]])
     d = det.population(det.features(z), det.features(z), X)
     assert d.statistic.shape == d.decision.shape == (4, 1, 7)
@@ -161,13 +161,13 @@ def test_threshold_detector_persistence_known_answer():
 
 
 def test_threshold_detector_parameters():
-    det = ThresholdDetector(threshold=0.8, L=3, threshold_max=2.0)
+    det = ThresholdDetector(threshold=0.8, persistence=3, threshold_max=2.0)
     assert det.tunable["threshold"].high == 2.0
     np.testing.assert_array_equal(det.design(), [[0.8, 3.0]])
-    assert [c.L for c in det.candidates(np.array([[0.5, 2.4], [1.5, 5.0]]))] == [2, 5]
+    assert [c.persistence for c in det.candidates(np.array([[0.5, 2.4], [1.5, 5.0]]))] == [2, 5]
     with pytest.raises(ConfigError, match="detector.threshold"):
         ThresholdDetector(threshold=0.0)
-    with pytest.raises(ConfigError, match="detector.L"):
-        ThresholdDetector(L=1.5)
+    with pytest.raises(ConfigError, match="detector.persistence=1.5 is not an integer"):
+        ThresholdDetector(persistence=1.5)
     with pytest.raises(ConfigError, match="detector.threshold"):
         det.with_params(threshold=3.0)

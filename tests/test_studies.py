@@ -105,7 +105,7 @@ def paper002_setup():
 
 
 def test_paper002_study_names_and_figures(paper002_setup, tmp_path):
-    detector = paper002_setup.detector.with_params(threshold=0.67, L=1)
+    detector = paper002_setup.detector.with_params(threshold=0.67, persistence=1)
     study = paper002.Study(n_runs=10, missing_rates=[0.0, 0.1])
     metrics, files = study.run(paper002_setup, _result(detector), tmp_path)
     assert not any(k.startswith("paper_") for k in metrics)  # the paper's threshold is lost: no reference design
@@ -115,7 +115,7 @@ def test_paper002_study_names_and_figures(paper002_setup, tmp_path):
 
 
 def test_paper002_separation_paths_agree_and_target_error_dominates(paper002_setup):
-    detector = paper002_setup.detector.with_params(threshold=0.67, L=2)
+    detector = paper002_setup.detector.with_params(threshold=0.67, persistence=2)
     study = paper002.Study(n_runs=40, missing_rates=[0.0, 0.2], figures=False)
     data = study.compute(paper002_setup, {"tuned": detector})
     metrics = study.metrics(data)
@@ -221,7 +221,7 @@ def test_report_experiment_is_the_preset_with_the_command_line_overrides():
 
 
 def test_recorded_designs_come_from_the_package_data():
-    assert base.recorded_designs("paper001")["paper"] == {"mu_T": 0.5, "L": 1}
+    assert base.recorded_designs("paper001")["paper"] == {"mu_T": 0.5, "persistence": 1}
     assert set(base.recorded_designs("paper002")) == {"tuned", "midway"}
     assert all(not k.startswith("_") for k in base.recorded_designs("paper003"))
     with pytest.raises(ConfigError, match="paper999"):

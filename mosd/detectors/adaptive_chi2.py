@@ -17,44 +17,27 @@ The threshold comes from α alone, so calibration data are not used.
 """
 from __future__ import annotations
 
-from typing import ClassVar
-
 import numpy as np
 from scipy import stats
 
-from ..validation import ConfigError, Interval, check_in, check_int
+from ..validation import ConfigError, Interval, Param
 from .base import Decisions, Detector, persistent
 
 
 class AdaptiveChi2Detector(Detector):
-    """λ_k > a·T_D(α) + b·E_k (module docstring; reconstruction of paper 003 §1.2).
+    """λ_k > a·T_D(α) + b·E_k (module docstring; reconstruction of paper 003 §1.2)."""
 
-    Parameters
-    ----------
-    alpha : float
-        Tolerated false-alarm probability per point of the χ² test, (0, 0.5).
-    a : float
-        Weight of the χ² threshold T_D, [0, 5] (paper: 1).
-    b : float
-        Weight of the observer residual E_k, [0, 20] (paper: 1).
-    dof : int
-        Degrees of freedom of λ_k (the residual's dimension), 1..100.
-    persistence : int
-        Consecutive exceedances before an alarm, 1..1000 (paper: 1).
-    """
-
-    tunable: ClassVar[dict[str, Interval]] = {
-        "alpha": Interval(0.0, 0.5, open_low=True, open_high=True),
-        "a": Interval(0.0, 5.0),
-        "b": Interval(0.0, 20.0),
+    params = {
+        "alpha": Param(Interval(0.0, 0.5, open_low=True, open_high=True), "Tolerated false-alarm probability per "
+                       "point of the χ² test.", tunable=True),
+        "a": Param(Interval(0.0, 5.0), "Weight of the χ² threshold T_D (paper: 1).", tunable=True),
+        "b": Param(Interval(0.0, 20.0), "Weight of the observer residual E_k (paper: 1).", tunable=True),
+        "dof": Param(Interval(1, 100, integer=True), "Degrees of freedom of λ_k (the residual's dimension)."),
+        "persistence": Param(Interval(1, 1000, integer=True), "Consecutive exceedances before an alarm (paper: 1)."),
     }
 
     def __init__(self, alpha: float = 0.01, a: float = 1.0, b: float = 1.0, dof: int = 1, persistence: int = 1):
-        self.alpha = check_in("detector.alpha", alpha, self.tunable["alpha"])
-        self.a = check_in("detector.a", a, self.tunable["a"])
-        self.b = check_in("detector.b", b, self.tunable["b"])
-        self.dof = check_int("detector.dof", dof, 1, 100)
-        self.persistence = check_int("detector.persistence", persistence, 1, 1000)
+        self._assign(locals())
 
     def chi2_threshold(self, alpha: np.ndarray | float) -> np.ndarray:
         """T_D = F⁻¹_{χ²(dof)}(1 − α)."""

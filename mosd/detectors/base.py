@@ -7,7 +7,8 @@ threshold that may depend on calibration data or on the data themselves, and
 persistence rules — so that an optimiser, the final evaluation and the reports
 all score exactly the same thing.
 
-The parameters an optimiser may tune are declared once, in ``tunable`` (name ->
+Parameters are declared once, in ``params`` (:class:`mosd.validation.Param`);
+those an optimiser may tune (``tunable=True``) form ``tunable`` (name ->
 :class:`mosd.validation.Interval`, ``integer=True`` for integer parameters). A
 population of designs is a matrix X (P, d) with columns in the order of
 ``tunable``. :meth:`Detector.features` computes what does not depend on the
@@ -17,13 +18,11 @@ for all P designs at once, given the features of fault-free calibration data
 """
 from __future__ import annotations
 
-import copy
 from dataclasses import dataclass
-from typing import ClassVar
 
 import numpy as np
 
-from ..validation import ConfigError, Interval, check_in
+from ..validation import Component
 
 
 @dataclass(frozen=True)
@@ -50,38 +49,21 @@ class Decisions:
         return Decisions(self.statistic[index], threshold[index], self.decision[index])
 
 
-class Detector:
+class Detector(Component):
     """Base class of every detector (module docstring).
 
-    Subclasses set ``tunable``, store each tunable parameter as an attribute of
-    the same name in ``__init__`` (validated) and implement :meth:`population`;
+    Subclasses declare their parameters in ``params`` (those with
+    ``tunable=True`` form ``tunable``), start ``__init__`` with
+    ``self._assign(locals())`` and implement :meth:`population`;
     :meth:`features` defaults to the points themselves.
     """
 
-    tunable: ClassVar[dict[str, Interval]] = {}
+    config_group = "detector"
 
-    # -- parameters (scikit-learn style) --------------------------------------------
     @property
     def is_causal(self) -> bool:
         """True when the decision at point k uses points 1..k only (an online detector)."""
         return True
-
-    def get_params(self) -> dict:
-        return {name: getattr(self, name) for name in self.tunable}
-
-    def with_params(self, **params) -> "Detector":
-        """A copy with some tunable parameters replaced (validated); fitted state dropped."""
-        unknown = set(params) - set(self.tunable)
-        if unknown:
-            raise ConfigError(f"detector parameter {sorted(unknown)[0]!r} is unknown; "
-                              f"allowed: {', '.join(self.tunable)}")
-        new = copy.copy(self)
-        for key in [k for k in new.__dict__ if k.endswith("_") and not k.startswith("_")]:
-            del new.__dict__[key]
-        for name, value in params.items():
-            interval = self.tunable[name]
-            setattr(new, name, check_in(f"detector.{name}", interval.round(value), interval))
-        return new
 
     def candidates(self, X: np.ndarray) -> list["Detector"]:
         """One validated copy per row of X (P, d), columns in the order of ``tunable``."""
@@ -89,8 +71,9 @@ class Detector:
         return [self.with_params(**dict(zip(names, x))) for x in np.atleast_2d(X)]
 
     def design(self) -> np.ndarray:
-        """This detector's own parameters as a population of one, shape (1, d)."""
-        return np.array([[float(v) for v in self.get_params().values()]]).reshape(1, len(self.tunable))
+        """This detector's own tunable parameters as a population of one, shape (1, d)."""
+        names = list(self.tunable)
+        return np.array([[float(getattr(self, name)) for name in names]]).reshape(1, len(names))
 
     # -- the decision -------------------------------------------------------------------
     def features(self, z: np.ndarray) -> np.ndarray:
@@ -115,13 +98,13 @@ class Detector:
 
 
 def persistent(condition: np.ndarray, length: np.ndarray | int) -> np.ndarray:
-    """True at k where ``condition`` held at k, k−1, ..., k−L+1 (L consecutive points).
+    """True at k where ``condition`` held at k, k−1, ..., k−L+1 (L = ``length`` consecutive points).
 
     Parameters
     ----------
     condition : ndarray of bool, shape (P, ..., K)
     length : int or ndarray of int, shape (P,)
-        L >= 1 per design (a persistence rule against isolated false alarms).
+        The persistence L >= 1 per design (a rule against isolated false alarms).
     """
     condition = np.asarray(condition, bool)
     lengths = np.broadcast_to(np.asarray(length, int), condition.shape[:1])

@@ -6,8 +6,8 @@ Every chart follows the same lifecycle::
     chart.fit(phase1_subgroups.z)            # limit from fault-free Phase-I data (eq. 27)
     alarms = chart.alarms(subgroups.z)       # bool (R, K)
 
-and declares the parameters an optimiser may tune in ``tunable`` (name ->
-bounds). The statistic is split so that tuning is cheap: :meth:`Chart.features`
+and declares its parameters once in ``params`` (:class:`~mosd.validation.Param`;
+those an optimiser may tune form ``tunable``). The statistic is split so that tuning is cheap: :meth:`Chart.features`
 computes what does not depend on the tunable parameters once (U_k, V_k of
 eqs. 19–20), :meth:`Chart.raw_statistic` the part that does (the EWMA
 recursions), and the denoiser runs on a whole population of candidates at once
@@ -44,29 +44,34 @@ from typing import ClassVar
 import numpy as np
 
 from ..denoisers.base import NoDenoiser
-from ..validation import ConfigError, Interval, check_choice
+from ..validation import ConfigError, Param, check_choice
 from .base import Decisions, Detector
 
 
+def _denoiser(key: str, value, owner):
+    """None -> the identity; otherwise anything with ``denoise(x)``."""
+    if value is None:
+        return NoDenoiser()
+    if not callable(getattr(value, "denoise", None)):
+        raise ConfigError(f"{key}={value!r} is not a denoiser; allowed: an object with denoise(x), e.g. denoise=wavelet")
+    return value
+
+
 class Chart(Detector):
-    """Base class: subclasses define ``tunable``, ``features`` and ``raw_statistic``.
+    """Base class: subclasses declare their tunable ``params`` and define ``features`` and ``raw_statistic``."""
 
-    Parameters common to every chart
-    --------------------------------
-    limit : str
-        One of the chart's ``limits``.
-    denoiser : object with ``denoise(x)``, optional
-        Applied along the time axis to the raw statistic (paper 000 §3.2).
-    """
-
-    tunable: ClassVar[dict[str, Interval]] = {}
+    params = {
+        "limit": Param(lambda key, value, chart: check_choice(key, value, chart.limits),
+                       "The control limit, one of the chart's ``limits`` (module docstring).", kind="str"),
+        "denoiser": Param(_denoiser, "Applied along the time axis to the raw statistic (paper 000 §3.2); "
+                          "None: none.", kind="Denoiser"),
+    }
     limits: ClassVar[tuple[str, ...]] = ("phase1",)
     #: limits derived from the in-control law of the raw statistic: valid without denoising only
     model_limits: ClassVar[tuple[str, ...]] = ()
 
     def __init__(self, limit: str = "phase1", denoiser=None):
-        self.limit = check_choice("detector.limit", limit, self.limits)
-        self.denoiser = NoDenoiser() if denoiser is None else denoiser
+        self._assign(locals())
         self._check_model_limit("denoise", self.denoiser)
 
     def _check_model_limit(self, key: str, filter_) -> None:
@@ -82,7 +87,6 @@ class Chart(Detector):
                 f"detector.limit={self.limit} is the in-control law of the raw statistic and does not hold with "
                 f"{key}={type(filter_).__name__}; allowed: detector.limit={allowed} with {key}, or {key}={identity}")
 
-    # -- sklearn-style parameter handling -------------------------------------------
     @property
     def is_causal(self) -> bool:
         """True when l_k depends on subgroups 1..k only (needed for run lengths)."""

@@ -5,11 +5,20 @@ import math
 
 import numpy as np
 
-from ..validation import Interval, check_in
+from ..validation import ConfigError, Interval, Param
 from .chart import Chart
 from .statistics import ewma, ewma_variance, subgroup_mean_statistic
 
-_HALF_OPEN_UNIT = Interval(0.0, 1.0, open_low=True)
+
+def _prefilter(key: str, value, chart):
+    """None -> the default wavelet prefilter (db3, level 3, rigrsure, sln scaling over all details)."""
+    if value is None:
+        from ..denoisers.wavelet import WaveletDenoiser
+
+        return WaveletDenoiser(scaling="sln", global_source="all")
+    if not callable(getattr(value, "denoise", None)):
+        raise ConfigError(f"{key}={value!r} is not a denoiser; allowed: an object with denoise(x)")
+    return value
 
 
 class EWMA(Chart):
@@ -18,23 +27,20 @@ class EWMA(Chart):
     E_k = (1−λ)E_{k−1} + λU_k, E_0 = 0; plotted |E_k| (after optional denoising).
     Limits: ``"asymptotic"`` L·sqrt(λ/(2−λ)), ``"time_varying"`` L·σ_{E_k} (eq. 29),
     ``"phase1"`` E{|E|} + L·sd{|E|} from fault-free data.
-
-    Parameters
-    ----------
-    lam : float in (0, 1]
-        Smoothing parameter λ (λ = 1 is the Shewhart chart).
-    L : float in (0, 10]
-        Limit width in standard deviations of E_k.
     """
 
-    tunable = {"lam": _HALF_OPEN_UNIT, "L": Interval(0.0, 10.0, open_low=True)}
+    params = {
+        "lam": Param(Interval(0.0, 1.0, open_low=True), "Smoothing parameter λ (λ = 1 is the Shewhart chart).",
+                     tunable=True),
+        "L": Param(Interval(0.0, 10.0, open_low=True), "Limit width in standard deviations of E_k (the SPC "
+                   "texts' L; not a persistence).", tunable=True),
+    }
     limits = ("asymptotic", "time_varying", "phase1")
     model_limits = ("asymptotic", "time_varying")
 
     def __init__(self, lam: float = 0.2, L: float = 3.0, limit: str = "asymptotic", denoiser=None):
         super().__init__(limit=limit, denoiser=denoiser)
-        self.lam = check_in("detector.lam", lam, self.tunable["lam"])
-        self.L = check_in("detector.L", L, self.tunable["L"])
+        self._assign(locals())
 
     def features(self, z: np.ndarray) -> np.ndarray:
         return subgroup_mean_statistic(z)[..., None, :]
@@ -72,16 +78,14 @@ class MSOEWMA(EWMA):
     (``NoDenoiser``), where MS-OEWMA is the EWMA chart.
     """
 
+    params = {"prefilter": Param(_prefilter, "The multiscale filter of the residual sequence (step 1); None: "
+                                             "the default wavelet.", kind="Denoiser")}
     limits = ("phase1", "asymptotic", "time_varying")
 
     def __init__(self, lam: float = 0.3388, L: float = 4.8621, limit: str = "phase1", prefilter=None, denoiser=None):
         super().__init__(lam=lam, L=L, limit=limit, denoiser=denoiser)
-        if prefilter is None:
-            from ..denoisers.wavelet import WaveletDenoiser
-
-            prefilter = WaveletDenoiser(scaling="sln", global_source="all")
-        self._check_model_limit("detector.prefilter", prefilter)
-        self.prefilter = prefilter
+        self._assign({"prefilter": prefilter})
+        self._check_model_limit("detector.prefilter", self.prefilter)
 
     @property
     def is_causal(self) -> bool:

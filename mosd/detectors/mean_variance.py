@@ -7,11 +7,10 @@ from typing import ClassVar
 import numpy as np
 from scipy import special
 
-from ..validation import Interval, check_in
+from ..validation import Interval, Param
 from .chart import Chart
 from .statistics import dewma_variance, ewma, ewma_time_major, ewma_variance, subgroup_mean_statistic, subgroup_variance_statistic
 
-_OPEN_UNIT = Interval(0.0, 1.0, open_low=True, open_high=True)
 
 
 def max_abs_normal_moments() -> tuple[float, float]:
@@ -45,14 +44,16 @@ class _MeanVarianceChart(Chart):
 
     order: ClassVar[int] = 2
     combine: ClassVar[str] = "ss"
-    tunable = {"lam": _OPEN_UNIT, "K": Interval(0.0, 10.0)}
+    params = {
+        "lam": Param(Interval(0.0, 1.0, open_low=True, open_high=True), "Smoothing parameter λ.", tunable=True),
+        "K": Param(Interval(0.0, 10.0), "Control width K_SD (eq. 27 or 35).", tunable=True),
+    }
     limits = ("phase1", "theoretical", "normalised")
     model_limits = ("theoretical",)
 
     def __init__(self, lam: float = 0.3, K: float = 3.0, limit: str = "phase1", denoiser=None):
         super().__init__(limit=limit, denoiser=denoiser)
-        self.lam = check_in("detector.lam", lam, self.tunable["lam"])
-        self.K = check_in("detector.K", K, self.tunable["K"])
+        self._assign(locals())
 
     def smoothed_variance(self, n_points: int) -> np.ndarray:
         """In-control variance of the smoothed statistics at k = 1..n_points (eq. 29 or 31)."""
@@ -114,16 +115,6 @@ class SSDEWMA(_MeanVarianceChart):
     L_k = W_k² + Q_k² (eq. 25), W and Q the double EWMAs of U_k and V_k; the
     plotted l_k is L_k after denoising (§3.2), or L_k/σ²_{W_k} before denoising
     for ``limit="normalised"``.
-
-    Parameters
-    ----------
-    lam : float in (0, 1)
-        Smoothing parameter λ.
-    K : float in [0, 10]
-        Control width K_SD.
-    limit : {"phase1", "theoretical", "normalised"}
-    denoiser : optional
-        E.g. :class:`mosd.denoisers.WaveletDenoiser`.
     """
 
     order, combine = 2, "ss"

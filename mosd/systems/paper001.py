@@ -192,7 +192,7 @@ def format_report(metrics: dict[str, float], designs: dict[str, dict]) -> str:
               "| fault-free runs declaring no fault |", "|---|---|---|---|---|---|---|---|---|---|"]
     for design, p in designs.items():
         prefix = prefixed(design)
-        lines.append(f"| {design} | {p['mu_T']:.4g} | {int(p['L'])} | {metrics[prefix + 'isolation_rate']:.3f} "
+        lines.append(f"| {design} | {p['mu_T']:.4g} | {int(p['persistence'])} | {metrics[prefix + 'isolation_rate']:.3f} "
                      f"| {metrics[prefix + 'false_isolation_rate']:.3f} | {metrics[prefix + 'detection_rate']:.3f} "
                      f"| {metrics[prefix + 'delay_s']:.3f} | {metrics[prefix + 'far']:.4f} "
                      f"| {metrics[prefix + 'mdr']:.4f} | {metrics[prefix + 'no_fault_declared_rate']:.3f} |")
@@ -223,12 +223,12 @@ def bars(metrics: dict[str, float], prefix: str = "") -> list[tuple[str, bool, s
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m mosd.systems.paper001 [--n-runs 500] [--seed 0] [--mu-T M] [--L L] [--out DIR]``."""
+    """``python -m mosd.systems.paper001 [--n-runs 500] [--seed 0] [--mu-T M] [--persistence L] [--out DIR]``."""
     parser = cli.report_parser("python -m mosd.systems.paper001", "Paper 001's Monte Carlo study (Figs. 2-5, "
                                "decision rule) without the optimiser: the tuned design beside the paper's.",
                                out="outputs/systems/paper001")
     parser.add_argument("--n-runs", type=int, default=500, help="faulty and fault-free runs each (default 500)")
-    cli.design_options(parser, SYSTEM)  # --mu-T, --L
+    cli.design_options(parser, SYSTEM)  # --mu-T, --persistence
 
     def body(args):
         study = Study(n_runs=args.n_runs)

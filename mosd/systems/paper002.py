@@ -178,7 +178,7 @@ class Study(base.Study):
 
     def _roc(self, detector, points) -> dict:
         """Target point detection against nuisance point false alarms over the threshold sweep (tuned L)."""
-        X = np.column_stack([THRESHOLD_GRID, np.full(THRESHOLD_GRID.size, float(getattr(detector, "L", 1)))])
+        X = np.column_stack([THRESHOLD_GRID, np.full(THRESHOLD_GRID.size, float(getattr(detector, "persistence", 1)))])
         d = detector.population(None, detector.features(points.z), X).decision != 0   # (P, R, K)
         is_target = self._roles(points.fault_label, points.fault_roles)
         active = points.fault_label > 0
@@ -277,7 +277,7 @@ class Study(base.Study):
         ax.set_xscale("symlog", linthresh=1e-3)
         ax.set_xlim(0.0, 1.0)
         decorate(ax, "nuisance points alarmed", "target points detected",
-                 f"Separation, complete data, L = {int(params.get('L', 1))}")
+                 f"Separation, complete data, L = {int(params.get('persistence', 1))}")
         paper = [(100 * r, PAPER["target_delay"][r]) for r in rates if r in PAPER["target_delay"]]
         bx.plot([p[0] for p in paper], [p[1] for p in paper], "k^", label="paper (target; fails at 20 %)")
         decorate(bx, "missing outputs (%)", "target isolation delay (s)", "Delay over the missing rate (tuned design)")
@@ -313,7 +313,7 @@ def format_report(designs: dict[str, dict], metrics: dict[str, float]) -> str:
                 paper = PAPER["target_delay"].get(rate, "–")
                 paper = "fails" if isinstance(paper, float) and math.isnan(paper) else paper
                 lines.append(
-                    f"| {design} (threshold {p['threshold']:.3g}, L {int(p['L'])}) | {name} | {100 * rate:g} % "
+                    f"| {design} (threshold {p['threshold']:.3g}, L {int(p['persistence'])}) | {name} | {100 * rate:g} % "
                     f"| {metrics[f'{prefix}detection_rate_target_{tag}']:.3f} "
                     f"| {metrics[f'{prefix}delay_target_s_{tag}']:.3f} | {paper} "
                     f"| {metrics[f'{prefix}false_alarm_nuisance_{tag}']:.4f} "
@@ -330,13 +330,13 @@ def format_report(designs: dict[str, dict], metrics: dict[str, float]) -> str:
 
 
 def main(argv=None) -> int:
-    """``python -m mosd.systems.paper002 [--n-runs 200] [--seed 0] [--threshold T] [--L L] [--out DIR]``."""
+    """``python -m mosd.systems.paper002 [--n-runs 200] [--seed 0] [--threshold T] [--persistence L] [--out DIR]``."""
     recorded = recorded_designs(SYSTEM)
     parser = cli.report_parser("python -m mosd.systems.paper002", "Paper 002's study over missing rates (Tables "
                                "1-2, Figs. 3-10) without the optimiser: the tuned design beside the "
                                "reconstruction's fixed one (midway threshold, L = 3).", out="outputs/systems/paper002")
     parser.add_argument("--n-runs", type=int, default=200, help="target and nuisance runs each, per rate (default 200)")
-    cli.design_options(parser, SYSTEM)  # --threshold, --L
+    cli.design_options(parser, SYSTEM)  # --threshold, --persistence
 
     def body(args):
         study = Study(n_runs=args.n_runs)
