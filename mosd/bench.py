@@ -84,7 +84,7 @@ def benchmark_filter(
     n_reps = check_int("n_reps", n_reps, 1)
     n_steps = check_int("n_steps", n_steps, 2)
     single_reps = check_int("single_reps", single_reps, 1)
-    flt = _check_filter(filter)
+    flt = _check_filter("estimator.filter", filter, None)
     plant = MouldOscillator()
     noise = GaussianNoise()
     trace = Scenario(plant, noise, fault=None, duration=n_steps * plant.dt).simulate(seed, n_reps, stream="calibration")

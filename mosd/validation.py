@@ -10,6 +10,7 @@ import copy
 from dataclasses import dataclass
 import math
 import re
+import textwrap
 from typing import Any, ClassVar, Iterable
 
 import numpy as np
@@ -232,7 +233,8 @@ class Param:
         if self.sequence:
             kind = f"sequence of {kind}"
         flags = "".join([", optional" if self.optional else "", ", tunable" if self.tunable else ""])
-        return f"{name} : {kind}{flags}\n    {self.doc}"
+        return f"{name} : {kind}{flags}\n" + textwrap.fill(self.doc, 96, initial_indent="    ",
+                                                           subsequent_indent="    ")
 
 
 class _TunableView:
@@ -322,4 +324,9 @@ def _with_parameters_section(doc: str, params: dict[str, Param]) -> str:
     pad = " " * (min(indents) if indents else 0)
     body = "\n".join(pad + row if row else row
                      for p in params for row in params[p].describe(p).splitlines())
-    return f"{doc.rstrip()}\n\n{pad}Parameters\n{pad}----------\n{body}\n{pad}"
+    section = f"{pad}Parameters\n{pad}----------\n{body}\n"
+    # NumPy order: Parameters before any later section (Notes, Examples, ...)
+    later = re.search(r"^[ \t]*(Returns|Raises|See Also|Notes|References|Examples)\n[ \t]*-{3,}", doc, re.M)
+    if later:
+        return f"{doc[:later.start()]}{section}\n{doc[later.start():]}"
+    return f"{doc.rstrip()}\n\n{section}{pad}"

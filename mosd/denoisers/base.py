@@ -11,6 +11,8 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
+from ..validation import Component
+
 
 @runtime_checkable
 class Denoiser(Protocol):
@@ -24,9 +26,10 @@ class Denoiser(Protocol):
     def denoise(self, x) -> np.ndarray: ...
 
 
-class NoDenoiser:
-    """Identity "denoiser": lets a chart run on the raw statistic {L_k}."""
+class NoDenoiser(Component):
+    """Identity "denoiser": lets a chart run on the raw statistic {L_k} (no parameters)."""
 
+    config_group = "denoise"
     window = None
 
     @property

@@ -26,13 +26,14 @@ which one a result used.
 """
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
 import pywt
 from numpy.lib.stride_tricks import sliding_window_view
 
-from ..validation import check_choice, check_int
+from ..validation import Component, Interval, Param, check_choice
 
 #: Threshold selection rules of MATLAB's ``thselect``.
 THRESHOLD_RULES = ("rigrsure", "heursure", "sqtwolog", "minimaxi")
@@ -180,60 +181,18 @@ def threshold_coefficients(coefficients, threshold, mode: str = "soft") -> np.nd
     return shrunk
 
 
-class WaveletDenoiser:
+class WaveletDenoiser(Component):
     """Wavelet-threshold denoising of chart statistics (paper 000, §3.2).
 
-    Parameters
-    ----------
-    wavelet : str
-        A discrete wavelet known to PyWavelets (``pywt.wavelist(kind="discrete")``).
-        Paper 000: ``'db3'``.
-    level : int
-        Decomposition depth (paper 000: 3).
-    threshold : {'rigrsure', 'heursure', 'sqtwolog', 'minimaxi'}
-        Threshold selection rule, see :func:`select_threshold`. Paper 000: ``'rigrsure'``.
-    mode : {'soft', 'hard'}
-        Shrinkage function (``wdencmp``'s SORH), see :func:`threshold_coefficients`.
-    scaling : {'one', 'sln', 'mln'}
-        Noise rescaling (``wden``'s SCAL); default ``'one'``, the paper's literal call. The rules assume unit noise; ``'sln'``
-        divides all details by σ̂ = median|cD₁|/0.6745 before selecting and
-        multiplies the threshold back, ``'mln'`` does so with one σ̂ per level,
-        ``'one'`` uses the coefficients as they are (the paper's literal
-        ``thselect`` call). Where σ̂ is negligible (≤ √eps · max|d| of its level,
-        a guard like ``wden``'s) or zero, that level's threshold is 0 and its
-        details are kept.
-    scope : {'global', 'level'}
-        ``'global'``: one threshold (in units of σ̂) for all detail levels, as
-        ``wdencmp('gbl', ...)``; ``'level'``: one threshold per level from that
-        level's coefficients, as ``wden``/``wdencmp('lvd', ...)``. With
-        ``scaling='mln'`` a global threshold is one value in units of each
-        level's σ̂, so in absolute terms it differs between levels.
-    global_source : {'all', 'finest', 'coarsest'}
-        Which (σ̂-normalised) details a global threshold is selected from.
-        ``'all'`` concatenates every detail level: the SURE it
-        minimises is then the estimated risk of exactly the operation applied
-        (one threshold on all details). ``'coarsest'`` is the paper's literal
-        call: MATLAB ``detcoef(C, L)`` without a level returns the coarsest
-        details cD_level. ``'finest'`` uses cD₁, where the noise dominates.
-        Ignored when ``scope='level'``. Rules that depend on n only
-        (sqtwolog, minimaxi) use the number of coefficients in the source set
-        (``wden`` would use the length of the whole decomposition instead).
-        The defaults are the paper's literal setting: ``scaling='one',
-        scope='global', global_source='coarsest'``. Measured on the SS-DEWMA
-        statistic (λ = 0.3, in control, L ≈ 0.18 ± 0.18): with ``'one'`` no detail
-        survives (l_k is the level-3 approximation, a low-pass of L_k), while
-        ``'sln'`` keeps ~64 % of the details (corr(l, L) = 0.995) because the
-        finest details of a twice-smoothed statistic are tiny — so it is the
-        unscaled rule, not ``'sln'``, that "keeps only the approximation"
-        (correcting docs/DECISIONS.md §4). Under a fault L is large and details
-        survive the unscaled rule too.
-    window : int or None
-        ``None``: whole-series denoising — non-causal, l_k depends on future
-        samples. An integer w ≥ :attr:`min_length`: causal sliding mode — l_k is
-        the last value of the denoised window x[k−w+1 .. k]. For k < w − 1 the
-        available prefix x[0 .. k] is denoised instead, and for the first
-        ``min_length − 1`` samples (too short for a ``level``-deep
-        decomposition) x_k is passed through unchanged.
+    The defaults are the paper's literal setting: ``scaling='one', scope='global',
+    global_source='coarsest'``. Measured on the SS-DEWMA statistic (λ = 0.3, in
+    control, L ≈ 0.18 ± 0.18): with ``'one'`` no detail survives (l_k is the
+    level-3 approximation, a low-pass of L_k), while ``'sln'`` keeps ~64 % of
+    the details (corr(l, L) = 0.995) because the finest details of a
+    twice-smoothed statistic are tiny — so it is the unscaled rule, not
+    ``'sln'``, that "keeps only the approximation" (correcting
+    docs/DECISIONS.md §4). Under a fault L is large and details survive the
+    unscaled rule too.
 
     Notes
     -----
@@ -245,19 +204,50 @@ class WaveletDenoiser:
     #: the count-only threshold rules, as the compiled kernel's plan takes them (:mod:`mosd.kernels.wavelet`)
     count_threshold = staticmethod(count_threshold)
 
+    config_group = "denoise"
+    params = {
+        "wavelet": Param(lambda key, value, d: check_choice(key, value, pywt.wavelist(kind="discrete")),
+                         "A discrete wavelet known to PyWavelets (``pywt.wavelist(kind=\"discrete\")``); paper 000: "
+                         "db3.", kind="str"),
+        "level": Param(Interval(1, 12, integer=True), "Decomposition depth (paper 000: 3)."),
+        "threshold": Param(THRESHOLD_RULES, "Threshold selection rule, see :func:`select_threshold` (paper 000: "
+                           "rigrsure)."),
+        "mode": Param(THRESHOLD_MODES, "Shrinkage function (``wdencmp``'s SORH), see :func:`threshold_coefficients`."),
+        "scaling": Param(SCALINGS, "Noise rescaling (``wden``'s SCAL). The rules assume unit noise; sln divides all "
+                         "details by σ̂ = median|cD₁|/0.6745 before selecting and multiplies the threshold back, mln "
+                         "does so with one σ̂ per level, one uses the coefficients as they are (the paper's literal "
+                         "``thselect`` call). Where σ̂ is negligible (≤ √eps · max|d| of its level, a guard like "
+                         "``wden``'s) or zero, that level's threshold is 0 and its details are kept."),
+        "scope": Param(SCOPES, "global: one threshold (in units of σ̂) for all detail levels, as "
+                       "``wdencmp('gbl', ...)``; level: one threshold per level from that level's coefficients, as "
+                       "``wden``/``wdencmp('lvd', ...)``. With scaling=mln a global threshold is one value in units "
+                       "of each level's σ̂, so in absolute terms it differs between levels."),
+        "global_source": Param(GLOBAL_SOURCES, "Which (σ̂-normalised) details a global threshold is selected from: "
+                               "all concatenates every detail level (the SURE it minimises is then the estimated "
+                               "risk of exactly the operation applied); coarsest is the paper's literal call (MATLAB "
+                               "``detcoef(C, L)`` without a level returns cD_level); finest uses cD₁, where the noise "
+                               "dominates. Ignored when scope=level. Rules that depend on n only (sqtwolog, minimaxi) "
+                               "use the number of coefficients in the source set."),
+        "window": Param(Interval("min_length", math.inf, integer=True), "None: whole-series denoising — non-causal, "
+                        "l_k depends on future samples. An integer w: causal sliding mode — l_k is the last value of "
+                        "the denoised window x[k−w+1 .. k]; for k < w − 1 the available prefix x[0 .. k] is denoised "
+                        "instead, and the first ``min_length − 1`` samples (too short for a level-deep "
+                        "decomposition) pass through unchanged.", optional=True),
+    }
+
     def __init__(self, wavelet: str = "db3", level: int = 3, threshold: str = "rigrsure",
                  mode: str = "soft", scaling: str = "one", scope: str = "global",
                  global_source: str = "coarsest", window: int | None = None):
-        self.wavelet = check_choice("denoise.wavelet", wavelet, pywt.wavelist(kind="discrete"))
-        self.level = check_int("denoise.level", level, 1, 12)
-        self.threshold = check_choice("denoise.threshold", threshold, THRESHOLD_RULES)
-        self.mode = check_choice("denoise.mode", mode, THRESHOLD_MODES)
-        self.scaling = check_choice("denoise.scaling", scaling, SCALINGS)
-        self.scope = check_choice("denoise.scope", scope, SCOPES)
-        self.global_source = check_choice("denoise.global_source", global_source, GLOBAL_SOURCES)
-        self._wavelet = pywt.Wavelet(self.wavelet)
-        self.min_length = (self._wavelet.dec_len - 1) * 2 ** self.level
-        self.window = None if window is None else check_int("denoise.window", window, self.min_length)
+        self._assign(locals())
+
+    @functools.cached_property
+    def _wavelet(self) -> pywt.Wavelet:
+        return pywt.Wavelet(self.wavelet)
+
+    @property
+    def min_length(self) -> int:
+        """(dec_len − 1)·2**level: the shortest series decomposed to ``level`` (Notes); the window's lower bound."""
+        return (self._wavelet.dec_len - 1) * 2 ** self.level
 
     @property
     def is_causal(self) -> bool:

@@ -48,12 +48,41 @@ from typing import Sequence
 import numpy as np
 
 from ..types import Residuals, Trace
-from ..validation import ConfigError, Interval, check_choice, check_in
+from ..validation import ConfigError, Interval, Param, check_in
 from .base import Estimator
 
 FUSION_RULES = ("equivalent_measurement", "sequential")
 _LOG_2PI = math.log(2.0 * math.pi)
 _SAME_INSTANT = 1e-9  # s
+
+
+# -- validation -------------------------------------------------------------------------
+def _check_transition(value) -> np.ndarray:
+    arr = np.asarray(value, float) if not isinstance(value, str) else np.array(np.nan)
+    if arr.ndim == 0:
+        return np.asarray(check_in("estimator.transition", value, Interval(0.0, 1.0, open_low=True)))
+    ok = arr.ndim == 2 and arr.shape[0] == arr.shape[1] >= 2 and np.all((arr >= 0) & (arr <= 1))
+    if not ok or not np.allclose(arr.sum(axis=1), 1.0, atol=1e-9):
+        raise ConfigError(f"estimator.transition={value!r} is not allowed; allowed: a float in (0, 1] or a square "
+                          f"matrix with entries in [0, 1] and rows summing to 1")
+    return arr
+
+
+def _check_initial(value) -> np.ndarray:
+    arr = np.asarray(value, float) if not isinstance(value, str) else np.array(np.nan)
+    if arr.ndim == 0:
+        return np.asarray(check_in("estimator.initial_probabilities", value, Interval(0.0, 1.0, True, True)))
+    if arr.ndim != 1 or arr.size < 2 or np.any(arr < 0) or not np.isclose(arr.sum(), 1.0, atol=1e-9):
+        raise ConfigError(f"estimator.initial_probabilities={value!r} is not allowed; allowed: a float in (0, 1) "
+                          f"or one probability per model (>= 0, summing to 1)")
+    return arr
+
+
+def _check_sensors(key: str, value, estimator) -> tuple[str, ...]:
+    sensors = (value,) if isinstance(value, str) else tuple(str(s) for s in value)
+    if not sensors:
+        raise ConfigError(f"{key}=[] is empty; allowed: null (all sensors) or sensor names")
+    return sensors
 
 
 class AsyncIMMFusion(Estimator):
@@ -74,40 +103,28 @@ class AsyncIMMFusion(Estimator):
     * ``n_measurements`` (R, N): packets used in each interval.
 
     ``Residuals.r`` has no channels: the detector reads mode probabilities.
-
-    Parameters
-    ----------
-    transition : float or matrix
-        Λ with λ_{i,m} = P(model i at t_{k−1} → model m at t_k), rows summing
-        to 1; a float p in (0, 1] means p on the diagonal and (1 − p)/(M − 1)
-        elsewhere (reconstruction: 0.95).
-    initial_probabilities : float or sequence
-        μ at t_0: a float p in (0, 1) gives the normal model p and the fault
-        models (1 − p)/d_f each (reconstruction: 0.9); or all M values (>= 0, sum 1).
-    fault_intensity : float
-        Intensity q_f >= 0 of the random walk of f (slowly varying amplitude; 1e-4).
-    fault_variance : float
-        Prior variance of f at t_0, > 0 (1).
-    sensors : sequence of str, optional
-        Sensors to fuse (default all); one name gives a single-sensor filter.
-    fusion : {"equivalent_measurement", "sequential"}
-        Theorem 1's batch update (the paper) or measurement-by-measurement updates.
     """
+
+    params = {
+        "transition": Param(lambda key, value, est: _check_transition(value), "Λ with λ_{i,m} = P(model i at t_{k−1} "
+                            "→ model m at t_k), rows summing to 1; a float p in (0, 1] means p on the diagonal and "
+                            "(1 − p)/(M − 1) elsewhere (reconstruction: 0.95).", kind="float or matrix"),
+        "initial_probabilities": Param(lambda key, value, est: _check_initial(value), "μ at t_0: a float p in (0, 1) "
+                                       "gives the normal model p and the fault models (1 − p)/d_f each "
+                                       "(reconstruction: 0.9); or all M values (>= 0, sum 1).",
+                                       kind="float or sequence"),
+        "fault_intensity": Param(Interval(0.0, 1e6), "Intensity q_f of the random walk of f (slowly varying "
+                                 "amplitude; 1e-4)."),
+        "fault_variance": Param(Interval(0.0, 1e12, open_low=True), "Prior variance of f at t_0 (1)."),
+        "sensors": Param(_check_sensors, "Sensors to fuse (None: all); one name gives a single-sensor filter.",
+                         optional=True, kind="sequence of str"),
+        "fusion": Param(FUSION_RULES, "Theorem 1's batch update (the paper) or measurement-by-measurement updates."),
+    }
 
     def __init__(self, transition=0.95, initial_probabilities=0.9, fault_intensity: float = 1e-4,
                  fault_variance: float = 1.0, sensors: Sequence[str] | None = None,
                  fusion: str = "equivalent_measurement"):
-        self.transition = _check_transition(transition)
-        self.initial_probabilities = _check_initial(initial_probabilities)
-        self.fault_intensity = check_in("estimator.fault_intensity", fault_intensity, Interval(0.0, 1e6))
-        self.fault_variance = check_in("estimator.fault_variance", fault_variance,
-                                       Interval(0.0, 1e12, open_low=True))
-        if sensors is not None:
-            sensors = (sensors,) if isinstance(sensors, str) else tuple(str(s) for s in sensors)
-            if not sensors:
-                raise ConfigError("estimator.sensors=[] is empty; allowed: null (all sensors) or sensor names")
-        self.sensors = sensors
-        self.fusion = check_choice("estimator.fusion", fusion, FUSION_RULES)
+        self._assign(locals())
 
     def __repr__(self) -> str:
         return (f"AsyncIMMFusion(fusion={self.fusion!r}, sensors={self.sensors!r}, "
@@ -396,23 +413,3 @@ def fuse(mu: np.ndarray, x: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.n
     return fused, cov
 
 
-# -- validation -------------------------------------------------------------------------
-def _check_transition(value) -> np.ndarray:
-    arr = np.asarray(value, float) if not isinstance(value, str) else np.array(np.nan)
-    if arr.ndim == 0:
-        return np.asarray(check_in("estimator.transition", value, Interval(0.0, 1.0, open_low=True)))
-    ok = arr.ndim == 2 and arr.shape[0] == arr.shape[1] >= 2 and np.all((arr >= 0) & (arr <= 1))
-    if not ok or not np.allclose(arr.sum(axis=1), 1.0, atol=1e-9):
-        raise ConfigError(f"estimator.transition={value!r} is not allowed; allowed: a float in (0, 1] or a square "
-                          f"matrix with entries in [0, 1] and rows summing to 1")
-    return arr
-
-
-def _check_initial(value) -> np.ndarray:
-    arr = np.asarray(value, float) if not isinstance(value, str) else np.array(np.nan)
-    if arr.ndim == 0:
-        return np.asarray(check_in("estimator.initial_probabilities", value, Interval(0.0, 1.0, True, True)))
-    if arr.ndim != 1 or arr.size < 2 or np.any(arr < 0) or not np.isclose(arr.sum(), 1.0, atol=1e-9):
-        raise ConfigError(f"estimator.initial_probabilities={value!r} is not allowed; allowed: a float in (0, 1) "
-                          f"or one probability per model (>= 0, summing to 1)")
-    return arr

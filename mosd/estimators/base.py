@@ -15,11 +15,13 @@ from typing import Any, ClassVar
 import numpy as np
 
 from ..types import Residuals, Trace
+from ..validation import Component
 
 
-class Estimator:
+class Estimator(Component):
     """Base class of every estimator (module docstring)."""
 
+    config_group = "estimator"
     #: True when :meth:`fit` must run before :meth:`estimate`.
     requires_fit: ClassVar[bool] = False
     #: Fault-free (False) or faulty (True) training runs for :meth:`fit`.

@@ -55,7 +55,7 @@ import math
 import numpy as np
 
 from ..model import StateSpaceModel
-from ..validation import ConfigError, Interval, check_in, check_int
+from ..validation import Component, ConfigError, Interval, Param, check_in, check_int
 
 __all__ = [
     "EmbeddedCubatureRule",
@@ -66,6 +66,7 @@ __all__ = [
 ]
 
 _DELTA1_RANGE = Interval(math.sqrt(0.5), math.inf, open_low=True)
+RULES = ("embedded", "spherical_radial")
 
 
 # ----------------------------------------------------------------------------------
@@ -185,7 +186,7 @@ class FilterResult:
 # ----------------------------------------------------------------------------------
 # filters
 # ----------------------------------------------------------------------------------
-class _CubatureFilterBase:
+class _CubatureFilterBase(Component):
     """The batched time loop shared by both filters; subclasses supply one step.
 
     Internal layout (for speed, not for the reader's convenience): a state's
@@ -194,6 +195,12 @@ class _CubatureFilterBase:
     that means and centring over the points are single matrix products on a
     contiguous (n_pts, R·n) block instead of many tiny broadcasts.
     """
+
+    config_group = "estimator"  # a filter is configured under estimator.filter; its messages keep estimator.<key>
+    params = {
+        "delta1": Param(_DELTA1_RANGE, "δ₁ of the embedded rule (eq. 3), δ₁² > 1/2 (used with rule=embedded)."),
+        "rule": Param(RULES, "Point set: embedded (the paper's) or spherical_radial (the third-degree CKF set)."),
+    }
 
     #: True when ``_update`` returns the upper root of the innovation covariance, False for the matrix.
     _returns_root = True
@@ -346,13 +353,7 @@ def _moments(ctx: dict, values: np.ndarray, bottom_t: np.ndarray | None = None) 
 class CESCKF(_CubatureFilterBase):
     """Composite embedded square-root cubature Kalman filter (paper 000, eqs. 2–18).
 
-    Parameters
-    ----------
-    delta1 : float
-        δ₁ of the embedded rule (eq. 3), δ₁² > 1/2.
-    rule : {"embedded", "spherical_radial"}
-        Point set; "embedded" is the paper's. "spherical_radial" gives the
-        ordinary square-root CKF.
+    ``rule="spherical_radial"`` gives the ordinary square-root CKF.
 
     Notes
     -----
@@ -374,9 +375,8 @@ class CESCKF(_CubatureFilterBase):
     """
 
     def __init__(self, delta1: float = 1.0, rule: str = "embedded"):
-        self.delta1 = check_in("estimator.delta1", delta1, _DELTA1_RANGE)
-        self.rule = rule
-        self._rule = _make_rule(rule, self.delta1)
+        self._assign(locals())
+        self._rule = _make_rule(self.rule, self.delta1)
 
     def __repr__(self) -> str:
         return f"CESCKF(delta1={self.delta1}, rule={self.rule!r})"
@@ -460,22 +460,14 @@ class CubatureKalmanFilter(_CubatureFilterBase):
     drawn at every step for the points (re-drawn after the prediction as in
     eq. 8). Cheaper per step, but the subtraction can lose positive
     definiteness when Q is nearly singular; the square-root :class:`CESCKF`
-    cannot.
-
-    Parameters
-    ----------
-    rule : {"spherical_radial", "embedded"}
-        Point set (default: the standard third-degree CKF set).
-    delta1 : float
-        δ₁ when ``rule="embedded"``.
+    cannot. Default point set: the standard third-degree CKF set.
     """
 
     _returns_root = False
 
     def __init__(self, rule: str = "spherical_radial", delta1: float = 1.0):
-        self.delta1 = check_in("estimator.delta1", delta1, _DELTA1_RANGE)
-        self.rule = rule
-        self._rule = _make_rule(rule, self.delta1)
+        self._assign(locals())
+        self._rule = _make_rule(self.rule, self.delta1)
 
     def __repr__(self) -> str:
         return f"CubatureKalmanFilter(rule={self.rule!r}, delta1={self.delta1})"

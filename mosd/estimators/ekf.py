@@ -27,26 +27,22 @@ from typing import Any
 import numpy as np
 
 from ..types import Residuals, Trace
-from ..validation import Interval, check_in, check_int
+from ..validation import Interval, Param
 from .base import Estimator
 
 
 class AltitudeKalmanFilter(Estimator):
-    """Kalman filter of GPS altitude with down-velocity input (module docstring; reconstruction).
+    """Kalman filter of GPS altitude with down-velocity input (module docstring; reconstruction)."""
 
-    Parameters
-    ----------
-    model_error : float
-        σ_m (m per step) of what the trapezoidal integration of the sampled
-        down velocity misses (the flapping oscillation between samples), >= 0.
-    altitude_channel, velocity_channel : int
-        Output channels of the GPS altitude (m) and the down velocity (m/s), >= 0.
-    """
+    params = {
+        "model_error": Param(Interval(0.0, math.inf), "σ_m (m per step) of what the trapezoidal integration of the "
+                             "sampled down velocity misses (the flapping oscillation between samples)."),
+        "altitude_channel": Param(Interval(0, math.inf, integer=True), "Output channel of the GPS altitude (m)."),
+        "velocity_channel": Param(Interval(0, math.inf, integer=True), "Output channel of the down velocity (m/s)."),
+    }
 
     def __init__(self, model_error: float = 0.04, altitude_channel: int = 0, velocity_channel: int = 1):
-        self.model_error = check_in("estimator.model_error", model_error, Interval(0.0, math.inf))
-        self.altitude_channel = check_int("estimator.altitude_channel", altitude_channel, 0)
-        self.velocity_channel = check_int("estimator.velocity_channel", velocity_channel, 0)
+        self._assign(locals())
 
     def process_variance(self, model: Any) -> float:
         """Var ε_k of the module docstring."""

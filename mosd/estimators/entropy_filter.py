@@ -46,9 +46,9 @@ import numpy as np
 
 from ..faults.random_amplitude import RandomAmplitudeFault
 from ..types import Residuals, Trace
-from ..validation import ConfigError, Interval, check_choice, check_in, check_int
+from ..validation import ConfigError, Interval, Param
 from .base import Estimator
-from .imputation import EMImputer
+from .imputation import HALF_WIDTHS, EMImputer
 
 MISSING = ("em", "skip")
 _BACKTRACKS = 12  # halvings of a step that does not lower J before the gain is kept
@@ -99,12 +99,31 @@ def renyi_quadratic(a: np.ndarray, b: np.ndarray, gain: float, s: float):
     return -math.log(V), -dV / V, -(d2V * V - dV**2) / V**2
 
 
+_GAINS = Interval(-2.0, 2.0)  # the gains U a filter may use
+
+
+def _design_fault(law: str, role: str):
+    """A ``Param`` validator: a RandomAmplitudeFault, None giving the paper's ``law`` with ``role``."""
+    def check(key, value, estimator):
+        if value is None:
+            return RandomAmplitudeFault(law, role=role)
+        if not isinstance(value, RandomAmplitudeFault):
+            raise ConfigError(f"{key}={value!r} is not allowed; allowed: a RandomAmplitudeFault")
+        return value
+    return check
+
+
 class _GainFilter(Estimator):
     """x̂_{k+1} = f(x̂_k) + U_k (ỹ_k − h(x̂_k)) on EM-filled outputs ỹ, vectorised over runs."""
 
+    params = {
+        "missing": Param(MISSING, "Fill missing outputs by EM on lag windows (em), or skip the correction there."),
+        "em_half_width": Param(HALF_WIDTHS, "Half-width h of the EM lag windows."),
+    }
+
     def __init__(self, missing: str = "em", em_half_width: int = 1):
-        self.missing = check_choice("estimator.missing", missing, MISSING)
-        self.imputer = EMImputer(half_width=em_half_width) if self.missing == "em" else None
+        self._assign(locals())
+        self.imputer = EMImputer(half_width=self.em_half_width) if self.missing == "em" else None
 
     def _gains(self, n_samples: int) -> np.ndarray:
         raise NotImplementedError
@@ -135,21 +154,13 @@ class _GainFilter(Estimator):
 
 
 class FixedGainFilter(_GainFilter):
-    """The baseline: the same filter with a constant gain U (paper 002's comparison; reconstruction).
+    """The baseline: the same filter with a constant gain U (paper 002's comparison; reconstruction)."""
 
-    Parameters
-    ----------
-    gain : float
-        U, in [−2, 2].
-    missing : {"em", "skip"}
-        Fill missing outputs by EM on lag windows, or skip the correction there.
-    em_half_width : int
-        Half-width h of the EM lag windows, in [1, 5].
-    """
+    params = {"gain": Param(_GAINS, "U, the constant gain.")}
 
     def __init__(self, gain: float = 0.27, missing: str = "em", em_half_width: int = 1):
         super().__init__(missing, em_half_width)
-        self.gain = check_in("estimator.gain", gain, Interval(-2.0, 2.0))
+        self._assign(locals())
 
     def _gains(self, n_samples: int) -> np.ndarray:
         return np.full(n_samples, self.gain)
@@ -159,35 +170,29 @@ class FixedGainFilter(_GainFilter):
 
 
 class EntropyIsolationFilter(_GainFilter):
-    """The entropy-optimal isolation filter (module docstring; a reconstruction of paper 002).
+    """The entropy-optimal isolation filter (module docstring; a reconstruction of paper 002)."""
 
-    Parameters
-    ----------
-    n_particles : int
-        N, particles per design ensemble, in [50, 5000] (cost ∝ N² per step).
-    R1, R2 : float
-        Weights of the target-error entropy (maximised) and the nuisance-error
-        entropy (minimised), >= 0, not both 0 (paper: 1 and 20).
-    initial_gain : float
-        U_{−1}, the starting point of the first Newton step (paper: U_0 = 0).
-    gain_low, gain_high : float
-        The box U_k is clipped to, −2 <= gain_low < gain_high <= 2.
-    gradient_step : float
-        Size of the signed gradient step taken where J″ <= 0, in (0, 1].
-    max_step : float
-        Trust region: no step moves U by more than this, in (0, 4]; a step that
-        does not lower J is halved (up to 12 times) and else not taken.
-    newton_steps : int
-        Newton iterations per time step, in [1, 20] (paper: one Taylor step).
-    target, nuisance : RandomAmplitudeFault, optional
-        The fault laws and onsets of the two design ensembles (default: the
-        paper's sine law on [0.5, 1.5] and ramp law on [0, 0.6], per run, from
-        5 s). Give them onset 0 for a design that does not know the onset.
-    missing : {"em", "skip"}
-    em_half_width : int
-        As in :class:`FixedGainFilter`.
-    """
-
+    params = {
+        "n_particles": Param(Interval(50, 5000, integer=True), "N, particles per design ensemble (cost ∝ N² per "
+                             "step)."),
+        "R1": Param(Interval(0.0, 1e6), "Weight of the target-error entropy (maximised; paper: 1); R1 + R2 > 0."),
+        "R2": Param(Interval(0.0, 1e6), "Weight of the nuisance-error entropy (minimised; paper: 20)."),
+        "gain_low": Param(_GAINS, "Lower end of the box U_k is clipped to."),
+        "gain_high": Param(Interval("gain_low", _GAINS.high, open_low=True), "Upper end of that box."),
+        "initial_gain": Param(Interval("gain_low", "gain_high"), "U_{−1}, the starting point of the first Newton "
+                              "step (paper: U_0 = 0)."),
+        "gradient_step": Param(Interval(0.0, 1.0, open_low=True), "Size of the signed gradient step taken where "
+                               "J″ <= 0."),
+        "max_step": Param(Interval(0.0, 4.0, open_low=True), "Trust region: no step moves U by more than this; a "
+                          "step that does not lower J is halved (up to 12 times) and else not taken."),
+        "newton_steps": Param(Interval(1, 20, integer=True), "Newton iterations per time step (paper: one Taylor "
+                              "step)."),
+        "target": Param(_design_fault("sine", "target"), "The target fault law and onset of the design ensembles "
+                        "(None: the paper's sine law on [0.5, 1.5], per run, from 5 s; onset 0 for a design that "
+                        "does not know the onset).", kind="RandomAmplitudeFault"),
+        "nuisance": Param(_design_fault("ramp", "nuisance"), "The nuisance fault law and onset (None: the paper's "
+                          "ramp law on [0, 0.6], per run, from 5 s).", kind="RandomAmplitudeFault"),
+    }
     requires_fit = True
 
     def __init__(self, n_particles: int = 500, R1: float = 1.0, R2: float = 20.0, initial_gain: float = 0.0,
@@ -196,25 +201,9 @@ class EntropyIsolationFilter(_GainFilter):
                  target: RandomAmplitudeFault | None = None, nuisance: RandomAmplitudeFault | None = None,
                  missing: str = "em", em_half_width: int = 1):
         super().__init__(missing, em_half_width)
-        self.n_particles = check_int("estimator.n_particles", n_particles, 50, 5000)
-        self.R1 = check_in("estimator.R1", R1, Interval(0.0, 1e6))
-        self.R2 = check_in("estimator.R2", R2, Interval(0.0, 1e6))
+        self._assign(locals())
         if self.R1 == 0.0 and self.R2 == 0.0:
             raise ConfigError("estimator.R1=0 and estimator.R2=0 leave no cost; allowed: R1 + R2 > 0")
-        self.gain_low = check_in("estimator.gain_low", gain_low, Interval(-2.0, 2.0))
-        self.gain_high = check_in("estimator.gain_high", gain_high, Interval(-2.0, 2.0))
-        if self.gain_high <= self.gain_low:
-            raise ConfigError(f"estimator.gain_high={gain_high!r} is not above estimator.gain_low={gain_low!r}; "
-                              "allowed: gain_low < gain_high")
-        self.initial_gain = check_in("estimator.initial_gain", initial_gain, Interval(self.gain_low, self.gain_high))
-        self.gradient_step = check_in("estimator.gradient_step", gradient_step, Interval(0.0, 1.0, open_low=True))
-        self.max_step = check_in("estimator.max_step", max_step, Interval(0.0, 4.0, open_low=True))
-        self.newton_steps = check_int("estimator.newton_steps", newton_steps, 1, 20)
-        self.target = target if target is not None else RandomAmplitudeFault("sine", role="target")
-        self.nuisance = nuisance if nuisance is not None else RandomAmplitudeFault("ramp", role="nuisance")
-        for key, fault in (("target", self.target), ("nuisance", self.nuisance)):
-            if not isinstance(fault, RandomAmplitudeFault):
-                raise ConfigError(f"estimator.{key}={fault!r} is not allowed; allowed: a RandomAmplitudeFault")
 
     def cost(self, a1, b1, a2, b2, gain: float, s1: float, s2: float):
         """J = R₂ H₂(e²) − R₁ H₂(e¹) and its first two derivatives in U.

@@ -124,6 +124,10 @@ def lag_windows(y: np.ndarray, width: int) -> np.ndarray:
     return np.lib.stride_tricks.sliding_window_view(np.asarray(y, float), width, axis=-1)
 
 
+#: the EM lag windows' allowed half-widths h
+HALF_WIDTHS = Interval(1, 5, integer=True)
+
+
 class EMImputer:
     """Fill missing outputs with EM on lag windows (module docstring; a reconstruction of paper 002).
 
@@ -139,7 +143,7 @@ class EMImputer:
     """
 
     def __init__(self, half_width: int = 1, max_iter: int = 500, tol: float = 1e-10):
-        self.half_width = check_int("estimator.imputer.half_width", half_width, 1, 5)
+        self.half_width = check_int("estimator.imputer.half_width", half_width, HALF_WIDTHS.low, HALF_WIDTHS.high)
         self.max_iter = check_int("estimator.imputer.max_iter", max_iter, 1, 10000)
         self.tol = check_in("estimator.imputer.tol", tol, Interval(0.0, 1.0, open_low=True))
 

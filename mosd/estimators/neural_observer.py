@@ -49,13 +49,21 @@ from typing import Any
 import numpy as np
 
 from ..types import Residuals, Trace
-from ..validation import ConfigError, Interval, check_choice, check_in, check_int
+from ..validation import ConfigError, Interval, Param
 from .base import Estimator
 from .ekf import AltitudeKalmanFilter
 
 WEIGHTINGS = ("linear", "uniform")
 _LAYERS = ("w1", "b1", "w2", "b2", "w3", "b3")
 DEFAULT_CACHE = "~/.cache/mosd/observers"
+
+
+def _ekf(key: str, value, estimator):
+    if value is None:
+        return AltitudeKalmanFilter(altitude_channel=estimator.altitude_channel)
+    if not isinstance(value, AltitudeKalmanFilter):
+        raise ConfigError(f"{key}={value!r} is not allowed; allowed: an AltitudeKalmanFilter or null")
+    return value
 
 
 class MultiStepNeuralObserver(Estimator):
@@ -66,39 +74,33 @@ class MultiStepNeuralObserver(Estimator):
     ``observer_residual`` (E_k, m), ``observer_chi2`` (E_k standardised by
     the observer's validation error: ((h_k − ĥ_k − μ)/σ)²), ``h_hat`` (ĥ_k)
     and ``h_filtered``. The first N points have no prediction (NaN).
-
-    Parameters
-    ----------
-    window : int
-        N, steps of the rollout, 1..100 (paper: 1 … 15, best 12; 1 = classic observer).
-    hidden, fusion : int
-        Widths of the hidden (paper: 10) and fusion layers, 1..1000.
-    epochs : int
-        Most training epochs, 1..100000 (the paper stopped at epoch 294).
-    learning_rate : float
-        Adam's initial rate, (0, 1] (paper: 1e-3).
-    lr_step : int
-        Epochs between divisions of the rate, >= 1 (paper: 100).
-    lr_decay : float
-        Factor applied every ``lr_step`` epochs, (0, 1] (paper: 0.1).
-    patience : int
-        Epochs without improvement of the validation loss before stopping, >= 1 (paper: 10).
-    validation_fraction : float
-        Trailing share of every training run held out, (0, 0.9] (paper: 0.3).
-    batch_size : int
-        Windows per gradient step, >= 1.
-    weighting : {"linear", "uniform"}
-        Loss weights of the N steps: linear w_j ∝ N + 1 − j, or equal.
-    altitude_channel : int
-        Output channel of the monitored altitude, >= 0; every other channel is an input C_k.
-    ekf : AltitudeKalmanFilter, optional
-        The χ² filter (default: ``AltitudeKalmanFilter()``).
-    cache_dir : str or None
-        Where trained weights are kept (default ``~/.cache/mosd/observers``);
-        None or "" disables the cache.
-    progress : bool
-        Show a progress bar while training (only when stderr is a terminal).
     """
+
+    params = {
+        "window": Param(Interval(1, 100, integer=True), "N, steps of the rollout (paper: 1 … 15, best 12; 1 = the "
+                        "classic observer)."),
+        "hidden": Param(Interval(1, 1000, integer=True), "Width of the hidden layer (paper: 10)."),
+        "fusion": Param(Interval(1, 1000, integer=True), "Width of the fusion layer."),
+        "epochs": Param(Interval(1, 100000, integer=True), "Most training epochs (the paper stopped at epoch 294)."),
+        "learning_rate": Param(Interval(0.0, 1.0, open_low=True), "Adam's initial rate (paper: 1e-3)."),
+        "lr_step": Param(Interval(1, math.inf, integer=True), "Epochs between divisions of the rate (paper: 100)."),
+        "lr_decay": Param(Interval(0.0, 1.0, open_low=True), "Factor applied every lr_step epochs (paper: 0.1)."),
+        "patience": Param(Interval(1, math.inf, integer=True), "Epochs without improvement of the validation loss "
+                          "before stopping (paper: 10)."),
+        "validation_fraction": Param(Interval(0.0, 0.9, open_low=True), "Trailing share of every training run held "
+                                     "out (paper: 0.3)."),
+        "batch_size": Param(Interval(1, math.inf, integer=True), "Windows per gradient step."),
+        "weighting": Param(WEIGHTINGS, "Loss weights of the N steps: linear w_j ∝ N + 1 − j, or equal."),
+        "altitude_channel": Param(Interval(0, math.inf, integer=True), "Output channel of the monitored altitude; "
+                                  "every other channel is an input C_k."),
+        "ekf": Param(_ekf, "The χ² filter (None: AltitudeKalmanFilter on altitude_channel).",
+                     kind="AltitudeKalmanFilter"),
+        "cache_dir": Param(lambda key, value, est: str(value) if value else None, "Where trained weights are kept "
+                           "(default ~/.cache/mosd/observers); None or an empty string disables the cache.",
+                           kind="str"),
+        "progress": Param(lambda key, value, est: bool(value), "Show a progress bar while training (only when "
+                          "stderr is a terminal).", kind="bool"),
+    }
 
     requires_fit = True
     fit_on_faults = False
@@ -112,24 +114,7 @@ class MultiStepNeuralObserver(Estimator):
             # found now, before any simulation, rather than as a traceback when training starts
             raise ConfigError("estimator=neural_observer needs PyTorch, which is not installed; allowed: "
                               "pip install \".[nn]\" (on Linux the CPU wheel first: README, section PyTorch)")
-        self.window = check_int("estimator.window", window, 1, 100)
-        self.hidden = check_int("estimator.hidden", hidden, 1, 1000)
-        self.fusion = check_int("estimator.fusion", fusion, 1, 1000)
-        self.epochs = check_int("estimator.epochs", epochs, 1, 100000)
-        self.learning_rate = check_in("estimator.learning_rate", learning_rate, Interval(0.0, 1.0, open_low=True))
-        self.lr_step = check_int("estimator.lr_step", lr_step, 1)
-        self.lr_decay = check_in("estimator.lr_decay", lr_decay, Interval(0.0, 1.0, open_low=True))
-        self.patience = check_int("estimator.patience", patience, 1)
-        self.validation_fraction = check_in("estimator.validation_fraction", validation_fraction,
-                                            Interval(0.0, 0.9, open_low=True))
-        self.batch_size = check_int("estimator.batch_size", batch_size, 1)
-        self.weighting = check_choice("estimator.weighting", weighting, WEIGHTINGS)
-        self.altitude_channel = check_int("estimator.altitude_channel", altitude_channel, 0)
-        if ekf is not None and not isinstance(ekf, AltitudeKalmanFilter):
-            raise ConfigError(f"estimator.ekf={ekf!r} is not allowed; allowed: an AltitudeKalmanFilter or null")
-        self.ekf = ekf if ekf is not None else AltitudeKalmanFilter(altitude_channel=self.altitude_channel)
-        self.cache_dir = str(cache_dir) if cache_dir else None
-        self.progress = bool(progress)
+        self._assign(locals())
 
     # -- configuration -----------------------------------------------------------------
     def config(self) -> dict:

@@ -11,17 +11,35 @@ import numpy as np
 
 from ..model import StateSpaceModel
 from ..types import Residuals, Trace
-from ..validation import ConfigError, check_int
+from ..validation import ConfigError, Param, check_int
 from .base import Estimator
 from .cubature import CESCKF, FilterResult, _CubatureFilterBase
 
 
-def _check_filter(flt):
+def _check_filter(key: str, flt, estimator):
     if flt is None:
         return CESCKF()
     if not isinstance(flt, _CubatureFilterBase):
-        raise ConfigError(f"estimator.filter={flt!r} is not a filter; allowed: CESCKF, CubatureKalmanFilter")
+        raise ConfigError(f"{key}={flt!r} is not a filter; allowed: CESCKF, CubatureKalmanFilter")
     return flt
+
+
+def _check_monitored(key: str, monitored, estimator) -> tuple[int, ...]:
+    if isinstance(monitored, (int, np.integer)):
+        monitored = (monitored,)
+    try:
+        monitored = tuple(monitored)
+    except TypeError:
+        raise ConfigError(f"{key}={monitored!r} is not a list of channels; allowed: e.g. [0]") from None
+    if not monitored:
+        raise ConfigError(f"{key}=() is empty; allowed: at least one output channel")
+    channels = tuple(check_int(key, m, 0) for m in monitored)
+    if len(set(channels)) != len(channels):
+        raise ConfigError(f"{key}={monitored!r} repeats a channel; allowed: distinct channels")
+    return channels
+
+
+_FILTER = Param(_check_filter, "The filter (None: CESCKF()).", kind="CESCKF or CubatureKalmanFilter")
 
 
 def _check_trace(trace: Trace, model: StateSpaceModel) -> None:
@@ -30,16 +48,12 @@ def _check_trace(trace: Trace, model: StateSpaceModel) -> None:
 
 
 class InnovationResidual(Estimator):
-    """The paper's residual: the innovation r_k = y_k − ŷ_{k|k−1} of a filter using every sensor (eq. 7).
+    """The paper's residual: the innovation r_k = y_k − ŷ_{k|k−1} of a filter using every sensor (eq. 7)."""
 
-    Parameters
-    ----------
-    filter : CESCKF or CubatureKalmanFilter, optional
-        Default: ``CESCKF()``.
-    """
+    params = {"filter": _FILTER}
 
     def __init__(self, filter=None):  # noqa: A002 - the config key is "filter"
-        self.filter = _check_filter(filter)
+        self._assign(locals())
 
     def estimate(self, trace: Trace, model: StateSpaceModel) -> Residuals:
         """Filter the trace and return the innovations of all channels with their predicted covariance."""
@@ -64,13 +78,6 @@ class DedicatedObserverResidual(Estimator):
     mould oscillator. Because y_m is never used in an update, a sensor bias is
     not absorbed by the state estimate.
 
-    Parameters
-    ----------
-    filter : CESCKF or CubatureKalmanFilter, optional
-        Default: ``CESCKF()``.
-    monitored : sequence of int
-        Output channels left out of the update (paper 000: the x_p sensor, 0).
-
     Notes
     -----
     The output has all n_y channels in the model's order: monitored channels
@@ -80,21 +87,12 @@ class DedicatedObserverResidual(Estimator):
     y − ŷ_{k|k−1} at that one prediction, so cov is exact for the cross terms too.
     """
 
+    params = {"filter": _FILTER,
+              "monitored": Param(_check_monitored, "Output channels left out of the update (paper 000: the x_p "
+                                 "sensor, 0).", kind="sequence of int >= 0")}
+
     def __init__(self, filter=None, monitored=(0,)):  # noqa: A002
-        self.filter = _check_filter(filter)
-        if isinstance(monitored, (int, np.integer)):
-            monitored = (monitored,)
-        try:
-            monitored = tuple(monitored)
-        except TypeError:
-            raise ConfigError(
-                f"estimator.monitored={monitored!r} is not a list of channels; allowed: e.g. [0]"
-            ) from None
-        if not monitored:
-            raise ConfigError("estimator.monitored=() is empty; allowed: at least one output channel")
-        self.monitored = tuple(check_int("estimator.monitored", m, 0) for m in monitored)
-        if len(set(self.monitored)) != len(self.monitored):
-            raise ConfigError(f"estimator.monitored={monitored!r} repeats a channel; allowed: distinct channels")
+        self._assign(locals())
 
     def estimate(self, trace: Trace, model: StateSpaceModel) -> Residuals:
         """Filter with the unmonitored sensors and return the residuals of all channels."""

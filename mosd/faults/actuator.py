@@ -7,35 +7,30 @@ input; the estimator does not know f and estimates it as an augmented state.
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
-from ..validation import ConfigError, Interval, check_in, check_int
+from ..validation import ConfigError, Interval, Param
 from .base import Fault
 
 
 class ActuatorFault(Fault):
-    """A constant additive fault of amplitude f on one actuator from ``onset`` on.
+    """A constant additive fault of amplitude f on one actuator from ``onset`` on (paper: 16.5 s)."""
 
-    Parameters
-    ----------
-    actuator : int
-        Which actuator fails, numbered from 1 as in the paper (its example:
-        actuator 2). A detector that isolates declares fault i for actuator i.
-    amplitude : float
-        f, in the units of the input (paper: 2), non-zero.
-    onset : float
-        Time (s) from which the fault acts (paper: 16.5).
-    role : {"target", "nuisance"}
-    """
-
+    params = {
+        "actuator": Param(Interval(1, math.inf, integer=True), "Which actuator fails, numbered from 1 as in the "
+                          "paper (its example: 2); a detector that isolates declares fault i for actuator i."),
+        "amplitude": Param(Interval(-1e6, 1e6), "f, in the units of the input (paper: 2), non-zero."),
+    }
     relative = False  # amplitudes are in input units, not in residual σ
 
     def __init__(self, actuator: int = 2, amplitude: float = 2.0, onset: float = 16.5, role: str = "target"):
         super().__init__(onset=onset, role=role)
-        self.actuator = check_int("fault.actuator", actuator, 1)
-        self.amplitude = check_in("fault.amplitude", amplitude, Interval(-1e6, 1e6))
+        self._assign(locals())
         if self.amplitude == 0.0:
-            raise ConfigError("fault.amplitude=0 makes the fault empty; allowed: a non-zero number in [-1e6, 1e6]")
+            raise ConfigError(f"fault.amplitude=0 makes the fault empty; allowed: a non-zero number in "
+                              f"{self.params['amplitude'].domain}")
 
     def __repr__(self) -> str:
         return f"ActuatorFault(actuator={self.actuator}, amplitude={self.amplitude}, onset={self.onset})"

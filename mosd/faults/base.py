@@ -22,24 +22,21 @@ from typing import Sequence
 import numpy as np
 
 from ..types import ROLES
-from ..validation import ConfigError, Interval, check_choice, check_in
+from ..validation import Component, ConfigError, Interval, Param
 
 
-class Fault:
-    """Base class of every fault (module docstring).
+class Fault(Component):
+    """Base class of every fault (module docstring)."""
 
-    Parameters
-    ----------
-    onset : float
-        Time (s) from which the fault is active, >= 0.
-    role : {"target", "nuisance"}
-    """
-
+    config_group = "fault"
+    params = {
+        "onset": Param(Interval(0.0, math.inf), "Time (s) from which the fault is active."),
+        "role": Param(ROLES, "target: to be detected; nuisance: an alarm on it is a false alarm."),
+    }
     relative: bool = False
 
     def __init__(self, onset: float = 0.0, role: str = "target"):
-        self.onset = check_in("fault.onset", onset, Interval(0.0, math.inf))
-        self.role = check_choice("fault.role", role, ROLES)
+        self._assign(locals())
 
     def active(self, t: np.ndarray) -> np.ndarray:
         """Boolean mask of the samples at which the fault is present."""
@@ -51,22 +48,25 @@ class Fault:
         return (self,)
 
 
-class FaultSet(Fault):
-    """Several faults, one per replication in turn (module docstring).
+def _faults(key: str, value, owner) -> tuple:
+    faults = tuple(value) if hasattr(value, "__iter__") and not isinstance(value, (str, bytes)) else (value,)
+    if not faults or not all(isinstance(f, Fault) for f in faults):
+        raise ConfigError(f"{key}={list(faults)!r} is not allowed; allowed: a non-empty list of faults")
+    if all(f.role != "target" for f in faults):
+        raise ConfigError(f"{key} has no fault with role=target; allowed: at least one target fault")
+    return faults
 
-    Parameters
-    ----------
-    faults : sequence of Fault
-        At least one; at least one of them must have the role ``"target"``.
-    """
+
+class FaultSet(Fault):
+    """Several faults, one per replication in turn (module docstring); onset and role are the members'."""
+
+    params = {"onset": None, "role": None,
+              "faults": Param(_faults, "The faults, at least one of them with the role target.",
+                              kind="sequence of Fault")}
 
     def __init__(self, faults: Sequence[Fault]):
-        faults = tuple(faults)
-        if not faults or not all(isinstance(f, Fault) for f in faults):
-            raise ConfigError(f"fault.faults={list(faults)!r} is not allowed; allowed: a non-empty list of faults")
-        if all(f.role != "target" for f in faults):
-            raise ConfigError("fault.faults has no fault with role=target; allowed: at least one target fault")
-        self.faults = faults
+        self._assign(locals())
+        faults = self.faults
         self.onset = min(f.onset for f in faults)
         self.role = "target"
         self.relative = any(f.relative for f in faults)

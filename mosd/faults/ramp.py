@@ -8,35 +8,31 @@ units per second, so the fault does not depend on any calibration.
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
-from ..validation import ConfigError, Interval, check_in, check_int
+from ..validation import ConfigError, Interval, Param
 from .base import Fault
 
 
 class RampFault(Fault):
-    """g(t) = rate · (t − onset) on one output channel from ``onset`` on.
+    """g(t) = rate · (t − onset) on one output channel from ``onset`` on (paper 003: 100 s = step 500)."""
 
-    Parameters
-    ----------
-    rate : float
-        Slope in the channel's units per second (m/s for the GPS altitude),
-        non-zero in [-100, 100]; paper 003: 0.1 … 1.0.
-    channel : int
-        Index of the faulty output channel, >= 0 (flapping-wing plant: 0, the GPS altitude).
-    onset : float
-        Time (s) from which the ramp grows, >= 0 (paper 003: 100 s = step 500).
-    role : {"target", "nuisance"}
-    """
-
+    params = {
+        "rate": Param(Interval(-100.0, 100.0), "Slope in the channel's units per second (m/s for the GPS "
+                      "altitude), non-zero; paper 003: 0.1 … 1.0."),
+        "channel": Param(Interval(0, math.inf, integer=True), "Index of the faulty output channel "
+                         "(flapping-wing plant: 0, the GPS altitude)."),
+    }
     relative = False  # the rate is in absolute units
 
     def __init__(self, rate: float = 0.5, channel: int = 0, onset: float = 100.0, role: str = "target"):
         super().__init__(onset=onset, role=role)
-        self.rate = check_in("fault.rate", rate, Interval(-100.0, 100.0))
+        self._assign(locals())
         if self.rate == 0.0:
-            raise ConfigError("fault.rate=0 makes the ramp empty; allowed: a non-zero slope in [-100, 100]")
-        self.channel = check_int("fault.channel", channel, 0)
+            raise ConfigError(f"fault.rate=0 makes the ramp empty; allowed: a non-zero slope in "
+                              f"{self.params['rate'].domain}")
 
     def __repr__(self) -> str:
         return f"RampFault(rate={self.rate}, channel={self.channel}, onset={self.onset}, role={self.role!r})"

@@ -23,19 +23,23 @@ import math
 import numpy as np
 
 from ..noise.bounded import BoundedLaw
-from ..validation import Interval, check_choice, check_in
+from ..validation import Interval, Param, check_in
 from .base import Fault
 
 LAWS = ("sine", "ramp")
 DRAWS = ("per_run", "per_step")
 
 
+#: the support's parameters (shared by the laws and RandomAmplitudeFault's declaration)
+_SUPPORT = {"low": Interval(-1e6, 1e6), "width": Interval(0.0, 1e6, open_low=True)}
+
+
 class _IntervalLaw(BoundedLaw):
     """A law on [low, low + width]: the fault laws share their support's parametrisation."""
 
     def __init__(self, low: float, width: float):
-        self.low = check_in("fault.low", low, Interval(-1e6, 1e6))
-        self.width = check_in("fault.width", width, Interval(0.0, 1e6, open_low=True))
+        self.low = check_in("fault.low", low, _SUPPORT["low"])
+        self.width = check_in("fault.width", width, _SUPPORT["width"])
         self.high = self.low + self.width
 
     def __repr__(self) -> str:
@@ -89,41 +93,33 @@ class RampLaw(_IntervalLaw):
 
 
 class RandomAmplitudeFault(Fault):
-    """An additive state fault whose amplitude has a known bounded density (module docstring).
+    """An additive state fault whose amplitude has a known bounded density (module docstring; paper: onset 5 s).
 
-    Parameters
-    ----------
-    law : {"sine", "ramp"}
-        Shape of the density: :class:`SineLaw` (paper 002's target fault) or
-        :class:`RampLaw` (its nuisance fault).
-    low : float, optional
-        Lower end a of the support (default: 0.5 for sine, 0 for ramp).
-    width : float, optional
-        Width w of the support, > 0 (default: 1 for sine, 0.6 for ramp).
-    draw : {"per_run", "per_step"}
-        One amplitude per run held from the onset, or a new one at every step.
-    onset : float
-        Time (s) from which the fault is active, >= 0 (paper: step 50 of 0.1 s = 5 s).
-    role : {"target", "nuisance"}
+    ``density`` is the law object (:class:`SineLaw` or :class:`RampLaw`) built from ``law``, ``low``, ``width``.
     """
 
+    params = {
+        "law": Param(LAWS, "Shape of the density: sine (paper 002's target fault) or ramp (its nuisance fault)."),
+        "low": Param(_SUPPORT["low"], "Lower end a of the support (None: 0.5 for sine, 0 for ramp).", optional=True),
+        "width": Param(_SUPPORT["width"], "Width w of the support (None: 1 for sine, 0.6 for ramp).", optional=True),
+        "draw": Param(DRAWS, "One amplitude per run held from the onset, or a new one at every step."),
+    }
     relative = False  # amplitudes are in the state's own units
 
     def __init__(self, law: str = "sine", low: float | None = None, width: float | None = None,
                  draw: str = "per_run", onset: float = 5.0, role: str = "target"):
         super().__init__(onset=onset, role=role)
-        self.law_name = check_choice("fault.law", law, LAWS)
-        if self.law_name == "sine":
-            self.law = SineLaw(0.5 if low is None else low, 1.0 if width is None else width)
+        self._assign(locals())
+        if self.law == "sine":
+            self.density = SineLaw(0.5 if low is None else low, 1.0 if width is None else width)
         else:
-            self.law = RampLaw(0.0 if low is None else low, 0.6 if width is None else width)
-        self.draw = check_choice("fault.draw", draw, DRAWS)
+            self.density = RampLaw(0.0 if low is None else low, 0.6 if width is None else width)
 
     def amplitudes(self, rng: np.random.Generator, n_runs: int, n_samples: int) -> np.ndarray:
         """Amplitudes (n_runs, n_samples) ignoring the onset: one per run, or one per run and step."""
         if self.draw == "per_run":
-            return np.repeat(self.law.sample(rng, (n_runs, 1)), n_samples, axis=1)
-        return self.law.sample(rng, (n_runs, n_samples))
+            return np.repeat(self.density.sample(rng, (n_runs, 1)), n_samples, axis=1)
+        return self.density.sample(rng, (n_runs, n_samples))
 
     def signal(self, t: np.ndarray, scale: float, rng: np.random.Generator) -> np.ndarray:
         """The fault input (N,) of one run: the amplitude where active, 0 before the onset.
@@ -134,5 +130,5 @@ class RandomAmplitudeFault(Fault):
         return np.where(self.active(t), self.amplitudes(rng, 1, t.shape[0])[0], 0.0)
 
     def __repr__(self) -> str:
-        return (f"RandomAmplitudeFault(law={self.law!r}, draw={self.draw!r}, onset={self.onset:g}, "
+        return (f"RandomAmplitudeFault(law={self.density!r}, draw={self.draw!r}, onset={self.onset:g}, "
                 f"role={self.role!r})")

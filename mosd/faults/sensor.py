@@ -14,7 +14,7 @@ from typing import Sequence
 
 import numpy as np
 
-from ..validation import ConfigError, Interval, check_choice, check_in, check_int
+from ..validation import ConfigError, Interval, Param
 from .base import Fault
 
 FAULT_KINDS = ("offset", "variance", "offset_var", "drift")
@@ -61,33 +61,22 @@ def sensor_fault_signals(fault, t: np.ndarray, rngs: Sequence[np.random.Generato
 
 
 class SensorFault(Fault):
-    """An additive sensor fault on one output channel.
+    """An additive sensor fault on one output channel."""
 
-    Parameters
-    ----------
-    kind : {"offset", "variance", "offset_var", "drift"}
-        offset: g = aσ; variance: extra noise so the std becomes bσ; offset_var:
-        both; drift: g = aσ (t − t_onset) per second (a ramp).
-    channel : int
-        Index of the faulty output channel (paper 000: 0, the displacement x_p).
-    onset : float
-        Time (s) from which the fault is active.
-    a : float
-        Offset in σ (drift: σ per second).
-    b : float
-        Standard-deviation factor, b >= 1.
-    role : {"target", "nuisance"}
-    """
-
+    params = {
+        "kind": Param(FAULT_KINDS, "offset: g = aσ; variance: extra noise so the std becomes bσ; offset_var: both; "
+                      "drift: g = aσ (t − t_onset) per second (a ramp)."),
+        "channel": Param(Interval(0, math.inf, integer=True), "Index of the faulty output channel (paper 000: 0, "
+                         "the displacement x_p)."),
+        "a": Param(Interval(-1e6, 1e6), "Offset in σ (drift: σ per second)."),
+        "b": Param(Interval(1.0, 1e6), "Standard-deviation factor."),
+    }
     relative = True  # magnitudes in units of the channel's in-control residual σ
 
     def __init__(self, kind: str = "offset", channel: int = 0, onset: float = 2.7, a: float = 2.0, b: float = 1.0,
                  role: str = "target"):
         super().__init__(onset=onset, role=role)
-        self.kind = check_choice("fault.kind", kind, FAULT_KINDS)
-        self.channel = check_int("fault.channel", channel, 0)
-        self.a = check_in("fault.a", a, Interval(-1e6, 1e6))
-        self.b = check_in("fault.b", b, Interval(1.0, 1e6))
+        self._assign(locals())
         if self.kind in ("offset", "offset_var", "drift") and self.a == 0.0:
             raise ConfigError(f"fault.a=0 makes the {kind} fault empty; allowed: a != 0")
         if self.kind in ("variance", "offset_var") and self.b == 1.0:

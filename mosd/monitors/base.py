@@ -11,12 +11,13 @@ from __future__ import annotations
 import numpy as np
 
 from ..types import Residuals, Subgroups
-from ..validation import ConfigError
+from ..validation import Component, ConfigError
 
 
-class Monitor:
+class Monitor(Component):
     """Base class of every monitor (module docstring)."""
 
+    config_group = "monitor"
     burn_in: int = 0
 
     def fit(self, calibration: Residuals) -> "Monitor":

@@ -8,33 +8,34 @@ estimator's ``extra`` (or ``"residual"`` for r itself), of shape (R, N) or
 """
 from __future__ import annotations
 
+import math
 from typing import Sequence
 
 import numpy as np
 
 from ..types import Residuals, Subgroups
-from ..validation import ConfigError, check_int
+from ..validation import ConfigError, Interval, Param
 from .base import Monitor, _grid
 
 
-class OutputMonitor(Monitor):
-    """Select outputs by name (module docstring).
+def _outputs(key: str, value, monitor) -> tuple[str, ...]:
+    names = (value,) if isinstance(value, str) else tuple(str(o) for o in value)
+    if not names:
+        raise ConfigError(f"{key}=[] is empty; allowed: names of estimator outputs, e.g. [residual]")
+    return names
 
-    Parameters
-    ----------
-    outputs : sequence of str
-        Names in the estimator's ``extra``, or ``"residual"``.
-    burn_in : int
-        Points dropped at the start of every run, >= 0.
-    """
+
+class OutputMonitor(Monitor):
+    """Select outputs by name (module docstring)."""
+
+    params = {
+        "outputs": Param(_outputs, "Names in the estimator's ``extra``, or ``\"residual\"``.",
+                         kind="sequence of str"),
+        "burn_in": Param(Interval(0, math.inf, integer=True), "Points dropped at the start of every run."),
+    }
 
     def __init__(self, outputs: Sequence[str] = ("residual",), burn_in: int = 0):
-        if isinstance(outputs, str):
-            outputs = (outputs,)
-        self.outputs = tuple(str(o) for o in outputs)
-        if not self.outputs:
-            raise ConfigError("monitor.outputs=[] is empty; allowed: names of estimator outputs, e.g. [residual]")
-        self.burn_in = check_int("monitor.burn_in", burn_in, 0)
+        self._assign(locals())
 
     def _select(self, outputs: Residuals) -> np.ndarray:
         parts = []

@@ -13,34 +13,29 @@ Two subgrouping modes feed the n-sample statistics of eqs. 19–20:
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from ..types import Residuals, Subgroups
-from ..validation import ConfigError, check_choice, check_int
+from ..validation import ConfigError, Interval, Param
 from .base import Monitor, _grid
 
 
 class SubgroupMonitor(Monitor):
-    """Standardise residuals with Phase-I statistics and cut them into subgroups.
+    """Standardise residuals with Phase-I statistics and cut them into subgroups."""
 
-    Parameters
-    ----------
-    subgroup : {"window", "channels"}
-        Subgrouping mode (module docstring).
-    n : int
-        Subgroup size for ``"window"`` (n >= 2, needed for S_k² in eq. 20).
-    channels : sequence of int
-        Monitored residual channels: exactly one for ``"window"``, at least two
-        for ``"channels"``.
-    burn_in : int
-        Samples dropped at the start of every run (filter start-up transient).
-    """
+    params = {
+        "subgroup": Param(("window", "channels"), "Subgrouping mode (module docstring)."),
+        "n": Param(Interval(2, math.inf, integer=True), "Subgroup size for window (n >= 2 for S_k² in eq. 20)."),
+        "channels": Param(Interval(0, math.inf, integer=True), "Monitored residual channels: exactly one for "
+                          "window, at least two for channels.", sequence=True),
+        "burn_in": Param(Interval(0, math.inf, integer=True), "Samples dropped at the start of every run (filter "
+                         "start-up transient)."),
+    }
 
     def __init__(self, subgroup: str = "window", n: int = 5, channels=(0,), burn_in: int = 200):
-        self.subgroup = check_choice("monitor.subgroup", subgroup, ("window", "channels"))
-        self.n = check_int("monitor.n", n, 2)
-        self.channels = tuple(check_int("monitor.channels", c, 0) for c in channels)
-        self.burn_in = check_int("monitor.burn_in", burn_in, 0)
+        self._assign(locals())
         if self.subgroup == "window" and len(self.channels) != 1:
             raise ConfigError(f"monitor.channels={list(self.channels)} must name one channel; allowed: one index with subgroup=window")
         if self.subgroup == "channels" and len(self.channels) < 2:

@@ -17,8 +17,11 @@ import math
 
 import numpy as np
 
-from ..validation import Interval, check_in
+from ..validation import Interval, Param, check_in
 from .base import NoiseModel
+
+
+_HALF_WIDTH = Interval(0.0, 1e6, open_low=True)  # c of the Epanechnikov law
 
 
 class BoundedLaw:
@@ -56,7 +59,7 @@ class EpanechnikovLaw(BoundedLaw):
     """
 
     def __init__(self, c: float = 0.1, name: str = "noise.c"):
-        self.c = check_in(name, c, Interval(0.0, 1e6, open_low=True))
+        self.c = check_in(name, c, _HALF_WIDTH)
         self.low, self.high = -self.c, self.c
 
     def sample(self, rng: np.random.Generator, size) -> np.ndarray:
@@ -82,19 +85,17 @@ class BoundedNoise(NoiseModel):
 
     x_{k+1} = f(x_k) + δ_k + η_k + ω_k, y_k = x_k + σ_v v_k with ω_k ~ γ_ω
     (:class:`EpanechnikovLaw`) and v_k ~ N(0, 1), all independent.
-
-    Parameters
-    ----------
-    c : float
-        Half-width of the process-noise support, > 0 (paper reconstruction: 0.1).
-    measurement_std : float
-        σ_v, the gain on the N(0, 1) measurement noise, >= 0 (reconstruction: 0.2).
     """
 
+    params = {
+        "c": Param(_HALF_WIDTH, "Half-width of the process-noise support (paper reconstruction: 0.1)."),
+        "measurement_std": Param(Interval(0.0, 1e6), "σ_v, the gain on the N(0, 1) measurement noise "
+                                 "(reconstruction: 0.2)."),
+    }
+
     def __init__(self, c: float = 0.1, measurement_std: float = 0.2):
-        self.process_law = EpanechnikovLaw(c, name="noise.c")
-        self.c = self.process_law.c
-        self.measurement_std = check_in("noise.measurement_std", measurement_std, Interval(0.0, 1e6))
+        self._assign(locals())
+        self.process_law = EpanechnikovLaw(self.c, name="noise.c")
 
     def pdf(self, tau) -> np.ndarray:
         """The process-noise density γ_ω(τ)."""

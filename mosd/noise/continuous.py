@@ -12,8 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..validation import check_matrix
-from .base import NoiseModel
+from ..validation import Param
+from .base import DIMENSIONS, NoiseModel, covariance
 
 
 class ContinuousWhiteNoise(NoiseModel):
@@ -22,22 +22,18 @@ class ContinuousWhiteNoise(NoiseModel):
     Paper 001's matrices were lost in extraction; the defaults are the
     reconstruction of ``docs/systems/paper001.md`` (Q_c = 0.01·I₂, R = 0.25·I₂ for
     every sensor).
-
-    Parameters
-    ----------
-    process_intensity : float, sequence or matrix
-        Q_c (units² per second): a scalar (times I), the diagonal, or the
-        matrix; symmetric positive semi-definite, n_x × n_x.
-    measurement_cov : float, sequence or matrix
-        R of one sensor sample (the same for every sensor), n_y × n_y.
-    n_x, n_y : int
-        State and per-sensor output dimensions (the app fills these in from the plant).
     """
 
+    params = {
+        **DIMENSIONS,
+        "process_intensity": Param(covariance("n_x"), "Q_c (units² per second): a scalar (times I), the diagonal or "
+                                   "the symmetric positive semi-definite matrix.", kind="float, sequence or matrix"),
+        "measurement_cov": Param(covariance("n_y"), "R of one sensor sample (the same for every sensor).",
+                                 kind="float, sequence or matrix"),
+    }
+
     def __init__(self, process_intensity=0.01, measurement_cov=0.25, n_x: int = 2, n_y: int = 2):
-        self.process_intensity = check_matrix("noise.process_intensity", process_intensity, (n_x, n_x))
-        self.measurement_cov = check_matrix("noise.measurement_cov", measurement_cov, (n_y, n_y))
-        self.n_x, self.n_y = n_x, n_y
+        self._assign(locals())
 
     def draw(self, rng: np.random.Generator, n_samples: int) -> tuple[np.ndarray, np.ndarray]:
         """Process noise integrated over unit intervals without dynamics (N(0, Q_c)) and sensor noise (N(0, R)).

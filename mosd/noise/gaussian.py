@@ -7,33 +7,31 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..validation import check_matrix
-from .base import NoiseModel
+from ..validation import Param
+from .base import DIMENSIONS, NoiseModel, covariance
 
 
 class GaussianNoise(NoiseModel):
     """Additive white Gaussian process and measurement noise.
 
-    Parameters
-    ----------
-    process_cov : float, sequence or matrix
-        Covariance Ξ_ω of w_k per sample (a scalar, the diagonal, or the matrix).
-        Paper 000 uses diag(0.01, 0.01, 0.01) (``noise=paper``). The default
-        diag(0, 1e-8, 1e-2) keeps x_p tied to θ by the eccentric (x_p = A sin θ,
-        no process noise of its own), allows θ a little model mismatch and keeps
-        the paper's value on the speed n: with 0.01 on x_p and θ the
-        dedicated-observer residual of x_p wanders by several σ (docs/DECISIONS.md
-        decision 1; the table is in docs/DECISIONS.md).
-    measurement_cov : float, sequence or matrix
-        Covariance Ξ_ν of v_k.
-    n_x, n_y : int
-        State and output dimensions (the app fills these in from the plant).
+    Paper 000 uses Ξ_ω = diag(0.01, 0.01, 0.01) (``noise=paper``). The default
+    diag(0, 1e-8, 1e-2) keeps x_p tied to θ by the eccentric (x_p = A sin θ,
+    no process noise of its own), allows θ a little model mismatch and keeps
+    the paper's value on the speed n: with 0.01 on x_p and θ the
+    dedicated-observer residual of x_p wanders by several σ (docs/DECISIONS.md
+    decision 1; the table is in docs/DECISIONS.md).
     """
 
+    params = {
+        **DIMENSIONS,
+        "process_cov": Param(covariance("n_x"), "Covariance Ξ_ω of w_k per sample: a scalar, the diagonal or the "
+                             "symmetric positive semi-definite matrix.", kind="float, sequence or matrix"),
+        "measurement_cov": Param(covariance("n_y"), "Covariance Ξ_ν of v_k (same forms).",
+                                 kind="float, sequence or matrix"),
+    }
+
     def __init__(self, process_cov=(0.0, 1e-8, 1e-2), measurement_cov=0.01, n_x: int = 3, n_y: int = 3):
-        self.process_cov = check_matrix("noise.process_cov", process_cov, (n_x, n_x))
-        self.measurement_cov = check_matrix("noise.measurement_cov", measurement_cov, (n_y, n_y))
-        self.n_x, self.n_y = n_x, n_y
+        self._assign(locals())
         self._chol_q = _psd_sqrt(self.process_cov)
         self._chol_r = _psd_sqrt(self.measurement_cov)
 

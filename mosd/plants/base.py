@@ -23,12 +23,13 @@ import numpy as np
 
 from ..faults.sensor import sensor_fault_signals
 from ..types import Trace
-from ..validation import ConfigError
+from ..validation import Component, ConfigError
 
 
-class Plant:
+class Plant(Component):
     """Base class of every plant (module docstring)."""
 
+    config_group = "plant"
     dt: float
     state_names: tuple[str, ...] = ()
     input_names: tuple[str, ...] = ()

@@ -20,7 +20,7 @@ from scipy import linalg, optimize
 
 from ..faults.sensor import sensor_fault_signals
 from ..types import Trace
-from ..validation import ConfigError, Interval, check_in, check_int
+from ..validation import ConfigError, Interval, Param
 from .base import Plant
 
 GRAVITY = 9.81
@@ -125,39 +125,36 @@ class FlappingWingMAV(Plant):
     The GPS bias b is a first-order Gauss–Markov process, ḃ = −k b + noise,
     exactly discretised (k = 1/1100 s⁻¹, σ 0.03–0.4 m); process noise w_k
     from the noise model (n_x = 6) is added to x after every logging step.
-
-    Parameters
-    ----------
-    dt : float
-        Logging period (s), (0, 1]; paper: 0.2 (5 Hz).
-    substeps : int
-        RK4 steps per logging period, 1..1000 (the autopilot and disturbance
-        update at this rate).
-    airspeed : float
-        Trim airspeed (m/s), [6, 30].
-    altitude : float
-        Mean altitude (m), any real.
-    altitude_wander, speed_wander : float
-        σ of the reference's wandering (m and m/s), >= 0.
-    wander_time : float
-        Time constant of the wandering (s), > 0.
-    flap_frequency : float
-        Centre frequency of the flapping disturbance (Hz), (0, 0.5 · substeps / dt).
-    flap_damping : float
-        Its damping ratio, (0, 1].
-    flap_heave, flap_pitch : float
-        RMS of d_w (m/s²) and d_q (rad/s²), >= 0.
-    gps_bias_sigma : float
-        Stationary σ of the GPS bias (m), >= 0 (paper 0.03–0.4).
-    gps_bias_rate : float
-        Its Gauss–Markov rate k (1/s), > 0 (paper 1/1100).
-    throttle_limits, tail_limit : see :attr:`airframe`
-        Throttle is clipped to [0, 1], tail deflection to ±``tail_limit`` rad, (0, 1.5].
+    Throttle is clipped to [0, 1] (see :attr:`airframe`).
     """
+
+    params = {
+        "dt": Param(Interval(0.0, 1.0, open_low=True), "Logging period (s); paper: 0.2 (5 Hz)."),
+        "substeps": Param(Interval(1, 1000, integer=True), "RK4 steps per logging period (the autopilot and "
+                          "disturbance update at this rate)."),
+        "airspeed": Param(Interval(6.0, 30.0), "Trim airspeed (m/s)."),
+        "altitude": Param(Interval(-1e4, 1e5), "Mean altitude (m)."),
+        "altitude_wander": Param(_NONNEGATIVE, "σ of the altitude reference's wandering (m)."),
+        "speed_wander": Param(Interval(0.0, 5.0), "σ of the speed reference's wandering (m/s)."),
+        "wander_time": Param(_POSITIVE, "Time constant of the wandering (s)."),
+        "flap_frequency": Param(Interval(0.0, "nyquist", open_low=True, open_high=True), "Centre frequency of the "
+                                "flapping disturbance (Hz), below the integration's Nyquist 0.5 · substeps / dt."),
+        "flap_damping": Param(Interval(0.0, 1.0, open_low=True), "Its damping ratio."),
+        "flap_heave": Param(_NONNEGATIVE, "RMS of d_w (m/s²)."),
+        "flap_pitch": Param(_NONNEGATIVE, "RMS of d_q (rad/s²)."),
+        "gps_bias_sigma": Param(_NONNEGATIVE, "Stationary σ of the GPS bias (m) (paper 0.03–0.4)."),
+        "gps_bias_rate": Param(_POSITIVE, "Its Gauss–Markov rate k (1/s) (paper 1/1100)."),
+        "tail_limit": Param(Interval(0.0, 1.5, open_low=True), "Tail deflection is clipped to ±tail_limit (rad)."),
+    }
 
     state_names = ("u", "w", "q", "theta", "h", "gps_bias")
     input_names = ("throttle", "tail_deflection")
     output_names = ("gps_altitude", "down_velocity", "pitch", "throttle", "tail_deflection")
+
+    @property
+    def nyquist(self) -> float:
+        """Nyquist frequency of the integration grid, 0.5 · substeps / dt (Hz): flap_frequency's bound."""
+        return 0.5 * self.substeps / self.dt
 
     def __init__(
         self,
@@ -176,21 +173,7 @@ class FlappingWingMAV(Plant):
         gps_bias_rate: float = 1.0 / 1100.0,
         tail_limit: float = 0.7,
     ):
-        self.dt = check_in("plant.dt", dt, Interval(0.0, 1.0, open_low=True))
-        self.substeps = check_int("plant.substeps", substeps, 1, 1000)
-        self.airspeed = check_in("plant.airspeed", airspeed, Interval(6.0, 30.0))
-        self.altitude = check_in("plant.altitude", altitude, Interval(-1e4, 1e5))
-        self.altitude_wander = check_in("plant.altitude_wander", altitude_wander, _NONNEGATIVE)
-        self.speed_wander = check_in("plant.speed_wander", speed_wander, Interval(0.0, 5.0))
-        self.wander_time = check_in("plant.wander_time", wander_time, _POSITIVE)
-        nyquist = 0.5 * self.substeps / self.dt
-        self.flap_frequency = check_in("plant.flap_frequency", flap_frequency, Interval(0.0, nyquist, True, True))
-        self.flap_damping = check_in("plant.flap_damping", flap_damping, Interval(0.0, 1.0, open_low=True))
-        self.flap_heave = check_in("plant.flap_heave", flap_heave, _NONNEGATIVE)
-        self.flap_pitch = check_in("plant.flap_pitch", flap_pitch, _NONNEGATIVE)
-        self.gps_bias_sigma = check_in("plant.gps_bias_sigma", gps_bias_sigma, _NONNEGATIVE)
-        self.gps_bias_rate = check_in("plant.gps_bias_rate", gps_bias_rate, _POSITIVE)
-        self.tail_limit = check_in("plant.tail_limit", tail_limit, Interval(0.0, 1.5, open_low=True))
+        self._assign(locals())
         self.airframe = Airframe()
         self.trim_state, self.trim_input = self._trim(self.airspeed)
         if not 0.0 < self.trim_input[0] < 1.0 or abs(self.trim_input[1]) >= self.tail_limit:

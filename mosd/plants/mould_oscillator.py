@@ -10,11 +10,12 @@ import math
 import numpy as np
 
 from ..model import PointwiseModel, StateSpaceModel
-from ..validation import Interval, check_in
+from ..validation import Interval, Param
 from .base import ClosedLoopPlant
 
 _RPM_PER_RAD_S = 60.0 / (2.0 * math.pi)
 _POSITIVE = Interval(0.0, math.inf, open_low=True)
+_NONNEGATIVE = Interval(0.0, math.inf)
 
 
 class SpeedPI:
@@ -64,24 +65,23 @@ class MouldOscillator(ClosedLoopPlant):
     oscillation frequency f; the amplitude is A by the eccentric's geometry.
     The loop bandwidth ``speed_bandwidth`` sets K_p = ω_c / k_t and
     K_i = K_p ω_c / 5 with k_t = (1.5 p ψ_f / J)(60/2π).
-
-    Parameters
-    ----------
-    dt : float
-        Sampling period T in s (Table 1: 0.001).
-    frequency : float
-        Oscillation frequency in Hz (Table 1: 120 /min = 2 Hz).
-    amplitude : float
-        Eccentricity A in mm (paper: 3).
-    pole_pairs, flux, inertia, friction, gear_ratio, rated_current :
-        p, ψ_f (Wb), J (kg·m²), B, i_r, I_N (A) from Table 1.
-    mould_mass : float
-        Oscillating mass m in kg (not in the paper; 5 t is typical).
-    coulomb_torque : float
-        Constant load torque T_c in N·m (not in the paper).
-    speed_bandwidth : float
-        Speed-loop crossover ω_c in rad/s.
     """
+
+    params = {
+        "dt": Param(Interval(0.0, 0.1, open_low=True), "Sampling period T in s (Table 1: 0.001)."),
+        "frequency": Param(Interval(0.0, 20.0, open_low=True), "Oscillation frequency in Hz (Table 1: 120 /min "
+                           "= 2 Hz)."),
+        "amplitude": Param(_POSITIVE, "Eccentricity A in mm (paper: 3)."),
+        "pole_pairs": Param(_POSITIVE, "Pole pairs p (Table 1)."),
+        "flux": Param(_POSITIVE, "Permanent-magnet flux ψ_f in Wb (Table 1)."),
+        "inertia": Param(_POSITIVE, "Inertia J in kg·m² (Table 1)."),
+        "friction": Param(_NONNEGATIVE, "Viscous friction B (Table 1)."),
+        "gear_ratio": Param(_POSITIVE, "Reduction ratio i_r (Table 1)."),
+        "rated_current": Param(_POSITIVE, "Rated current I_N in A (Table 1)."),
+        "mould_mass": Param(_NONNEGATIVE, "Oscillating mass m in kg (not in the paper; 5 t is typical)."),
+        "coulomb_torque": Param(_NONNEGATIVE, "Constant load torque T_c in N·m (not in the paper)."),
+        "speed_bandwidth": Param(_POSITIVE, "Speed-loop crossover ω_c in rad/s."),
+    }
 
     state_names = ("x_p", "theta", "n")
     output_names = ("x_p", "theta", "n")
@@ -102,18 +102,7 @@ class MouldOscillator(ClosedLoopPlant):
         coulomb_torque: float = 5.0,
         speed_bandwidth: float = 150.0,
     ):
-        self.dt = check_in("plant.dt", dt, Interval(0.0, 0.1, open_low=True))
-        self.frequency = check_in("plant.frequency", frequency, Interval(0.0, 20.0, open_low=True))
-        self.amplitude = check_in("plant.amplitude", amplitude, _POSITIVE)
-        self.pole_pairs = check_in("plant.pole_pairs", pole_pairs, _POSITIVE)
-        self.flux = check_in("plant.flux", flux, _POSITIVE)
-        self.inertia = check_in("plant.inertia", inertia, _POSITIVE)
-        self.friction = check_in("plant.friction", friction, Interval(0.0, math.inf))
-        self.gear_ratio = check_in("plant.gear_ratio", gear_ratio, _POSITIVE)
-        self.rated_current = check_in("plant.rated_current", rated_current, _POSITIVE)
-        self.mould_mass = check_in("plant.mould_mass", mould_mass, Interval(0.0, math.inf))
-        self.coulomb_torque = check_in("plant.coulomb_torque", coulomb_torque, Interval(0.0, math.inf))
-        self.speed_bandwidth = check_in("plant.speed_bandwidth", speed_bandwidth, _POSITIVE)
+        self._assign(locals())
 
     # -- physics --------------------------------------------------------------------
     @property

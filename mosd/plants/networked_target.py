@@ -36,7 +36,7 @@ from scipy.linalg import expm
 
 from ..noise.continuous import psd_sqrt
 from ..types import SensorSamples, Trace
-from ..validation import ConfigError, Interval, check_in
+from ..validation import ConfigError, Interval, Param, check_in
 from .base import Plant
 
 _POSITIVE = Interval(0.0, math.inf, open_low=True)
@@ -133,6 +133,41 @@ class ContinuousLinearModel:
                        fault_directions=np.zeros((n + 1, 0)))
 
 
+def _sequence(key: str, value) -> tuple:
+    if isinstance(value, (str, bytes)) or not hasattr(value, "__len__") or len(value) == 0:
+        raise ConfigError(f"{key}={value!r} is not allowed; allowed: a non-empty list with one entry per sensor")
+    return tuple(value)
+
+
+def _vector(key: str, value, size: int) -> np.ndarray:
+    try:
+        arr = np.asarray(value, float)
+    except (TypeError, ValueError):
+        arr = np.empty(0)
+    if arr.shape != (size,) or not np.all(np.isfinite(arr)):
+        raise ConfigError(f"{key}={value!r} is not allowed; allowed: a list of {size} finite numbers")
+    return arr
+
+
+def _period_choices(key: str, value) -> tuple[float, ...]:
+    """A sensor's period: one number, or a non-empty list of numbers drawn from uniformly."""
+    choices = tuple(value) if hasattr(value, "__len__") and not isinstance(value, str) else (value,)
+    if not choices:
+        raise ConfigError(f"{key} has an empty list; allowed: a period > 0 or a non-empty list of them")
+    return tuple(check_in(key, p, _POSITIVE) for p in choices)
+
+
+def _per_sensor(entry):
+    """A ``Param`` validator: a non-empty list, one entry per sensor, each checked by ``entry``
+    (an Interval or a function ``(key, value) -> value``)."""
+    def check(key, value, plant):
+        values = _sequence(key, value)
+        if isinstance(entry, Interval):
+            return tuple(check_in(key, v, entry) for v in values)
+        return tuple(entry(key, v) for v in values)
+    return check
+
+
 class NetworkedTarget(Plant):
     """A target turning at rate ω, observed by asynchronous networked sensors (paper 001, §5; reconstruction).
 
@@ -143,30 +178,26 @@ class NetworkedTarget(Plant):
     ``Trace.sensors[name]`` (``"s1"``, ``"s2"``, ...), with their instants and
     whether each packet arrived. Accepts :class:`~mosd.faults.actuator.ActuatorFault`
     and :class:`~mosd.noise.continuous.ContinuousWhiteNoise`.
-
-    Parameters
-    ----------
-    omega : float
-        Turn rate ω (rad/s), |ω| <= 10 (paper: 0.2).
-    u : sequence of 2 floats
-        Constant command (paper: [0.5, 0.5]).
-    fusion_period : float
-        T (s) of the fusion centre, in (0, 100] (paper: 1).
-    first_samples : sequence of float
-        First sample instant of each sensor (s), > 0 (paper: 0.2, 0.3, 0.4).
-    periods : sequence
-        Per sensor: a period (s) or a list of periods drawn uniformly and
-        independently for every sample (paper: 0.6, 0.6, [0.8, 0.9, 1.0]).
-    arrival : sequence of float
-        Per sensor: packet arrival probability β in [0, 1] (paper: 0.9, 0.8, 0.8).
-    initial_state : sequence of 2 floats
-        x(0), also the estimator's prior mean (reconstruction: 0).
-    initial_cov : float
-        Prior covariance P_0 = initial_cov·I of the estimator, > 0 (reconstruction: 1).
-    resolution : float
-        Simulation grid step (s); sample instants, periods, the fusion period
-        and fault onsets must be multiples of it (default 0.1).
     """
+
+    params = {
+        "omega": Param(Interval(-10.0, 10.0), "Turn rate ω (rad/s) (paper: 0.2)."),
+        "u": Param(lambda key, value, plant: _vector(key, value, 2), "Constant command (paper: [0.5, 0.5]).",
+                   kind="sequence of 2 floats"),
+        "fusion_period": Param(Interval(0.0, 100.0, open_low=True), "T (s) of the fusion centre (paper: 1)."),
+        "resolution": Param(Interval(0.0, "fusion_period", open_low=True), "Simulation grid step (s); sample "
+                            "instants, periods, the fusion period and fault onsets must be multiples of it."),
+        "initial_state": Param(lambda key, value, plant: _vector(key, value, 2), "x(0), also the estimator's prior "
+                               "mean (reconstruction: 0).", kind="sequence of 2 floats"),
+        "initial_cov": Param(_POSITIVE, "Prior covariance P_0 = initial_cov·I of the estimator (reconstruction: 1)."),
+        "first_samples": Param(_per_sensor(_POSITIVE), "First sample instant of each sensor (s) (paper: 0.2, 0.3, "
+                               "0.4).", kind="sequence of float > 0"),
+        "periods": Param(_per_sensor(_period_choices), "Per sensor: a period (s) or a list of periods drawn "
+                         "uniformly and independently for every sample (paper: 0.6, 0.6, [0.8, 0.9, 1.0]).",
+                         kind="sequence of float > 0 or of lists of them"),
+        "arrival": Param(_per_sensor(Interval(0.0, 1.0)), "Per sensor: packet arrival probability β (paper: 0.9, "
+                         "0.8, 0.8).", kind="sequence of float in [0, 1]"),
+    }
 
     state_names = ("x1", "x2")
     input_names = ("u1", "u2")
@@ -184,19 +215,9 @@ class NetworkedTarget(Plant):
         initial_cov: float = 1.0,
         resolution: float = 0.1,
     ):
-        self.omega = check_in("plant.omega", omega, Interval(-10.0, 10.0))
-        self.u = _vector("plant.u", u, 2)
-        self.fusion_period = check_in("plant.fusion_period", fusion_period, Interval(0.0, 100.0, open_low=True))
+        self._assign(locals())
         self.dt = self.fusion_period
-        self.resolution = check_in("plant.resolution", resolution, Interval(0.0, self.fusion_period, open_low=True))
-        self.initial_state = _vector("plant.initial_state", initial_state, 2)
-        self.initial_cov = check_in("plant.initial_cov", initial_cov, _POSITIVE)
-        self.first_samples = tuple(check_in("plant.first_samples", t, _POSITIVE) for t in _sequence(
-            "plant.first_samples", first_samples))
         n_sensors = len(self.first_samples)
-        self.periods = tuple(_period_choices(p) for p in _sequence("plant.periods", periods))
-        self.arrival = tuple(check_in("plant.arrival", b, Interval(0.0, 1.0)) for b in _sequence(
-            "plant.arrival", arrival))
         if not len(self.periods) == len(self.arrival) == n_sensors:
             raise ConfigError(f"plant.first_samples, plant.periods and plant.arrival have lengths {n_sensors}, "
                               f"{len(self.periods)}, {len(self.arrival)}; allowed: one entry per sensor each")
@@ -301,27 +322,3 @@ def _check_noise(noise) -> None:
     if not (hasattr(noise, "process_intensity") and hasattr(noise, "measurement_cov")):
         raise ConfigError(f"noise={type(noise).__name__} is not accepted by plant networked_target; "
                           f"allowed: ContinuousWhiteNoise (process_intensity, measurement_cov)")
-
-
-def _sequence(key: str, value) -> tuple:
-    if isinstance(value, (str, bytes)) or not hasattr(value, "__len__") or len(value) == 0:
-        raise ConfigError(f"{key}={value!r} is not allowed; allowed: a non-empty list with one entry per sensor")
-    return tuple(value)
-
-
-def _vector(key: str, value, size: int) -> np.ndarray:
-    try:
-        arr = np.asarray(value, float)
-    except (TypeError, ValueError):
-        arr = np.empty(0)
-    if arr.shape != (size,) or not np.all(np.isfinite(arr)):
-        raise ConfigError(f"{key}={value!r} is not allowed; allowed: a list of {size} finite numbers")
-    return arr
-
-
-def _period_choices(value) -> tuple[float, ...]:
-    """A sensor's period: one number, or a non-empty list of numbers drawn from uniformly."""
-    choices = tuple(value) if hasattr(value, "__len__") and not isinstance(value, str) else (value,)
-    if not choices:
-        raise ConfigError("plant.periods has an empty list; allowed: a period > 0 or a non-empty list of them")
-    return tuple(check_in("plant.periods", p, Interval(0.0, math.inf, open_low=True)) for p in choices)

@@ -24,7 +24,7 @@ import numpy as np
 
 from ..faults.random_amplitude import RandomAmplitudeFault
 from ..types import Trace
-from ..validation import ConfigError, Interval, check_in
+from ..validation import ConfigError, Interval, Param
 from .base import Plant
 
 
@@ -59,42 +59,30 @@ class ScalarNonlinearModel:
 class ScalarNonlinearPlant(Plant):
     """x_{k+1} = a x_k + b sin x_k + δ_k + η_k + ω_k, y_k = x_k + σ_v v_k, MCAR outputs (module docstring).
 
-    Parameters
-    ----------
-    a : float
-        Linear coefficient of f, in (0, 1) (reconstruction: 0.5).
-    b : float
-        Coefficient of sin x in f, |b| < a so that ∂f/∂x ∈ [a − |b|, a + |b|]
-        excludes 0 (assumption 3) (reconstruction: 0.2).
-    dt : float
-        Sampling period T in s, > 0 (paper: 0.1).
-    missing_rate : float
-        Probability that an output sample is missing, in [0, 0.9] (paper: 0,
-        0.05, 0.10, 0.20).
-    x0_low, x0_high : float
-        x_0 ~ U[x0_low, x0_high] (paper: [0, 1]).
-
     Accepted faults: :class:`~mosd.faults.random_amplitude.RandomAmplitudeFault`
     (target δ or nuisance η; both add to the state equation).
     """
 
+    params = {
+        "a": Param(Interval(0.0, 1.0, open_low=True, open_high=True), "Linear coefficient of f (reconstruction: 0.5)."),
+        "b": Param(Interval(-1.0, 1.0), "Coefficient of sin x in f, also |b| < a so that ∂f/∂x ∈ [a − |b|, a + |b|] "
+                   "excludes 0 (assumption 3) (reconstruction: 0.2)."),
+        "dt": Param(Interval(0.0, 1e3, open_low=True), "Sampling period T in s (paper: 0.1)."),
+        "missing_rate": Param(Interval(0.0, 0.9), "Probability that an output sample is missing (paper: 0, 0.05, "
+                              "0.10, 0.20)."),
+        "x0_low": Param(Interval(-1e6, 1e6), "x_0 ~ U[x0_low, x0_high] (paper: [0, 1])."),
+        "x0_high": Param(Interval("x0_low", 1e6), "Upper end of x_0's law."),
+    }
     state_names = ("x",)
     input_names = ()
     output_names = ("y",)
 
     def __init__(self, a: float = 0.5, b: float = 0.2, dt: float = 0.1, missing_rate: float = 0.0,
                  x0_low: float = 0.0, x0_high: float = 1.0):
-        self.a = check_in("plant.a", a, Interval(0.0, 1.0, open_low=True, open_high=True))
-        self.b = check_in("plant.b", b, Interval(-1.0, 1.0))
+        self._assign(locals())
         if abs(self.b) >= self.a:
             raise ConfigError(f"plant.b={b!r} makes ∂f/∂x = a + b cos x vanish somewhere; "
                               f"allowed: |b| < plant.a={a!r}")
-        self.dt = check_in("plant.dt", dt, Interval(0.0, 1e3, open_low=True))
-        self.missing_rate = check_in("plant.missing_rate", missing_rate, Interval(0.0, 0.9))
-        self.x0_low = check_in("plant.x0_low", x0_low, Interval(-1e6, 1e6))
-        self.x0_high = check_in("plant.x0_high", x0_high, Interval(-1e6, 1e6))
-        if self.x0_high < self.x0_low:
-            raise ConfigError(f"plant.x0_high={x0_high!r} is below plant.x0_low={x0_low!r}; allowed: x0_high >= x0_low")
 
     def model(self, noise) -> ScalarNonlinearModel:
         """f, h, the noise densities and the law of x_0 (the paper's assumptions 1–2)."""
