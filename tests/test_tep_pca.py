@@ -95,11 +95,11 @@ def test_population_matches_one_design_at_a_time_and_rounds_integers():
     designs = np.array([[2, 0.01, 1.0, 1], [3, 0.05, 0.3, 2], [4.4, 0.02, 0.5, 3.6]])
     together = detector.population(cal, z, designs)
     for p, row in enumerate(designs):
-        one = detector.with_params(n_components=row[0], alpha=row[1], lam=row[2], k=row[3]).decide(cal, z)
+        one = detector.with_params(n_components=row[0], alpha=row[1], lam=row[2], persistence=row[3]).decide(cal, z)
         np.testing.assert_array_equal(together.decision[p], one.decision)
         np.testing.assert_allclose(together.statistic[p], one.statistic)
-    assert detector.with_params(n_components=4.4, k=3.6).get_params()["n_components"] == 4
-    assert detector.with_params(n_components=4.4, k=3.6).get_params()["k"] == 4
+    assert detector.with_params(n_components=4.4, persistence=3.6).get_params()["n_components"] == 4
+    assert detector.with_params(n_components=4.4, persistence=3.6).get_params()["persistence"] == 4
     # theoretical limits with lam = 1: the statistic is T²/T²_α, SPE/SPE_α of the fit run
     model = PCAModel(cal[0])
     t2 = model.t2(z[0], 2) / model.t2_limit(2, 0.01)

@@ -23,7 +23,7 @@ its limit.
 z (R, K, m) are the variables to monitor (recorded signals, or any estimator's
 residual channels): n_components (integer), α, an EWMA λ on both statistics
 (λ < 1 breaks the theoretical limits, so they are then recalibrated on the
-held-back calibration runs) and a persistence k (integer).
+held-back calibration runs) and a persistence (integer).
 """
 from __future__ import annotations
 
@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import linalg, special
 
-from ..validation import ConfigError, Interval, check_choice, check_in, check_int
+from ..validation import ConfigError, Interval, Param, check_choice
 from .base import Decisions, Detector, persistent
 
 STATISTICS = ("combined", "t2", "spe")
@@ -203,49 +203,31 @@ class _Projected:
 
 
 class PCADetector(Detector):
-    """PCA T²/SPE monitoring with tunable components, α, EWMA λ and persistence (module docstring).
+    """PCA T²/SPE monitoring with tunable components, α, EWMA λ and persistence (module docstring)."""
 
-    Parameters
-    ----------
-    n_components : int
-        Principal components a (tunable, integers in [1, max_components]).
-    alpha : float
-        Significance level of each limit, in (0, 0.5] (tunable).
-    lam : float
-        EWMA smoothing of T² and SPE, in (0, 1]; 1 = no smoothing (tunable).
-    k : int
-        Consecutive points above the limit before an alarm, in [1, k_max] (tunable).
-    statistic : {"combined", "t2", "spe"}
-        Alarm on T² or SPE (combined), or on one of them.
-    limits : {"theoretical", "empirical"}
-        F / Jackson–Mudholkar limits, or the (1 − α) quantiles on the held-back calibration
-        runs. With lam < 1 the limits are always empirical (smoothing changes the distributions).
-    fit_runs : int, optional
-        The first ``fit_runs`` calibration runs fit the PCA; the others are held back for the
-        empirical limits. None: all runs do both (the empirical limits are then in-sample).
-    max_components, k_max : int
-        Upper ends of the search ranges of n_components and k.
-    """
+    params = {
+        "max_components": Param(Interval(1, 10_000, integer=True), "Upper end of n_components' range (below the "
+                                "number of variables)."),
+        "persistence_max": Param(Interval(1, 10_000, integer=True), "Upper end of the persistence's range."),
+        "n_components": Param(Interval(1, "max_components", integer=True), "Principal components a.", tunable=True),
+        "alpha": Param(Interval(0.0, 0.5, open_low=True), "Significance level of each limit.", tunable=True),
+        "lam": Param(Interval(0.0, 1.0, open_low=True), "EWMA smoothing of T² and SPE; 1 = no smoothing.",
+                     tunable=True),
+        "persistence": Param(Interval(1, "persistence_max", integer=True), "Consecutive points above the limit "
+                             "before an alarm.", tunable=True),
+        "statistic": Param(STATISTICS, "Alarm on T² or SPE (combined), or on one of them."),
+        "limits": Param(LIMITS, "F / Jackson–Mudholkar limits, or the (1 − α) quantiles on the held-back "
+                        "calibration runs. With lam < 1 the limits are always empirical (smoothing changes the "
+                        "distributions)."),
+        "fit_runs": Param(Interval(1, math.inf, integer=True), "The first fit_runs calibration runs fit the PCA; the "
+                          "others are held back for the empirical limits. None: all runs do both (the empirical "
+                          "limits are then in-sample).", optional=True),
+    }
 
-    tunable = {"n_components": Interval(1, 20, integer=True), "alpha": Interval(0.0, 0.5, open_low=True),
-               "lam": Interval(0.0, 1.0, open_low=True), "k": Interval(1, 10, integer=True)}
-
-    def __init__(self, n_components: int = 9, alpha: float = 0.01, lam: float = 1.0, k: int = 1,
+    def __init__(self, n_components: int = 9, alpha: float = 0.01, lam: float = 1.0, persistence: int = 1,
                  statistic: str = "combined", limits: str = "theoretical", fit_runs: int | None = None,
-                 max_components: int = 20, k_max: int = 10):
-        max_components = check_int("detector.max_components", max_components, 1, 10_000)
-        k_max = check_int("detector.k_max", k_max, 1, 10_000)
-        self.tunable = {"n_components": Interval(1, max_components, integer=True),
-                        "alpha": Interval(0.0, 0.5, open_low=True), "lam": Interval(0.0, 1.0, open_low=True),
-                        "k": Interval(1, k_max, integer=True)}
-        self.max_components, self.k_max = max_components, k_max
-        self.n_components = check_in("detector.n_components", n_components, self.tunable["n_components"])
-        self.alpha = check_in("detector.alpha", alpha, self.tunable["alpha"])
-        self.lam = check_in("detector.lam", lam, self.tunable["lam"])
-        self.k = check_in("detector.k", k, self.tunable["k"])
-        self.statistic = check_choice("detector.statistic", statistic, STATISTICS)
-        self.limits = check_choice("detector.limits", limits, LIMITS)
-        self.fit_runs = None if fit_runs is None else check_int("detector.fit_runs", fit_runs, 1)
+                 max_components: int = 20, persistence_max: int = 10):
+        self._assign(locals())
         self._cache: dict = {}
 
     def with_statistic(self, statistic: str) -> "PCADetector":
@@ -329,13 +311,14 @@ class PCADetector(Detector):
         """
         d = {**self.get_params(), **(design or {})}
         calibration = self._calibration(calibration_z)
-        parts = self._design(calibration, self._projected(calibration[0], z), int(round(d["n_components"])),
+        a = self.params["n_components"].domain.round(float(d["n_components"]))
+        parts = self._design(calibration, self._projected(calibration[0], z), a,
                              float(d["alpha"]), float(d["lam"]))
         return {key: v for name, (value, limit) in parts.items()
                 for key, v in ((name, value), (f"{name}_limit", limit))}
 
     def population(self, calibration_features: np.ndarray, features: np.ndarray, X: np.ndarray) -> Decisions:
-        """Decisions of every design in X (P, 4) = (n_components, alpha, lam, k).
+        """Decisions of every design in X (P, 4) = (n_components, alpha, lam, persistence).
 
         The statistic is the ratio to the limit (the larger of T²/T²_α and SPE/SPE_α for the
         combined rule), so the threshold is 1.
@@ -347,9 +330,10 @@ class PCADetector(Detector):
         statistic = np.empty((X.shape[0],) + proj.finite.shape)
         with np.errstate(divide="ignore", invalid="ignore"):
             for p, (a, alpha, lam, _) in enumerate(X):
-                parts = self._design(calibration, proj, int(round(a)), float(alpha), float(lam), names)
+                parts = self._design(calibration, proj, self.params["n_components"].domain.round(float(a)),
+                                     float(alpha), float(lam), names)
                 ratios = [value / limit for value, limit in parts.values()]
                 statistic[p] = ratios[0] if len(ratios) == 1 else np.fmax(ratios[0], ratios[1])
             above = statistic > 1.0
-        alarm = persistent(above, np.maximum(np.rint(X[:, 3]), 1).astype(int))
+        alarm = persistent(above, self.tunable["persistence"].round(X[:, 3], clip=True).astype(int))
         return Decisions(statistic, np.ones((X.shape[0], 1, 1)), alarm.astype(np.int8))

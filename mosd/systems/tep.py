@@ -37,7 +37,7 @@ from .base import TUNED, figure, recorded_designs
 SYSTEM = "tep"
 STATISTICS = ("t2", "spe", "combined")
 #: the literature's design (module docstring)
-LITERATURE = {"n_components": 9, "alpha": 0.01, "lam": 1.0, "k": 1}
+LITERATURE = {"n_components": 9, "alpha": 0.01, "lam": 1.0, "persistence": 1}
 LIT = "lit"
 
 #: Yin, Ding, Haghani, Hao & Zhang (2012), J. Process Control 22(9) 1567-1581, PCA with 9 components on the
@@ -118,8 +118,8 @@ class Study(base.Study):
             rates = alarm_rates(detector, calibration, _z(experiment, test))
             out["fdr"][name] = {s: {int(n): float(r[labels == n][0]) for n in ALL_FAULTS} for s, r in rates.items()}
             out["far"][name] = {s: float(r[labels == 0][0]) for s, r in rates.items()}
-            out["params"][name] = {k: (int(v) if k in ("n_components", "k") else float(v))
-                                   for k, v in detector.get_params().items()}
+            out["params"][name] = {k: (int(v) if k in ("n_components", "persistence") else float(v))
+                                   for k, v in detector.get_params().items() if k in detector.tunable}
             out.setdefault("figure", {})[name] = self._figure_data(experiment, source, detector, calibration)
         out["variables"] = {name: list(_study_source(data, literature=name == LIT).output_names)
                             for name in designs}
@@ -275,7 +275,7 @@ def _label(name: str) -> str:
 
 def _design_text(params: Mapping[str, float]) -> str:
     return (f"(a = {params['n_components']}, α = {params['alpha']:.3g}, λ = {params['lam']:.3g}, "
-            f"k = {params['k']})")
+            f"persistence = {params['persistence']})")
 
 
 def format_table(data: dict, csv: bool = False) -> str:
