@@ -12,34 +12,32 @@ tunes the number of components itself.
 """
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
 
 from ..detectors.pca import PCAModel
 from ..types import Residuals, Trace
-from ..validation import ConfigError, check_int
+from ..validation import ConfigError, Interval, Param
 from .base import Estimator
 
 
 class PCAResidual(Estimator):
-    """T², SPE and scores of a PCA fitted on fault-free runs (module docstring).
+    """T², SPE and scores of a PCA fitted on fault-free runs (module docstring)."""
 
-    Parameters
-    ----------
-    n_components : int
-        Principal components a, >= 1 (and below the number of variables and fit rows).
-    fit_runs : int, optional
-        Fit on the first ``fit_runs`` runs of the training trace only (recorded data: 1 is
-        ``d00.dat`` of the TE calibration split); None: on every complete row.
-    """
-
+    params = {
+        "n_components": Param(Interval(1, 10_000, integer=True), "Principal components a (and below the number of "
+                              "variables and fit rows)."),
+        "fit_runs": Param(Interval(1, math.inf, integer=True), "Fit on the first fit_runs runs of the training trace "
+                          "only (recorded data: 1 is ``d00.dat`` of the TE calibration split); None: on every "
+                          "complete row.", optional=True),
+    }
     requires_fit = True
     fit_on_faults = False
 
     def __init__(self, n_components: int = 9, fit_runs: int | None = None):
-        self.n_components = check_int("estimator.n_components", n_components, 1, 10_000)
-        self.fit_runs = None if fit_runs is None else check_int("estimator.fit_runs", fit_runs, 1)
+        self._assign(locals())
 
     def fit(self, trace: Trace, model: Any = None, rng: np.random.Generator | None = None) -> "PCAResidual":
         y = trace.y if self.fit_runs is None else trace.y[: self.fit_runs]
