@@ -133,12 +133,9 @@ def test_ms_oewma_grid_tuning_detects_a_mean_shift_better_than_a_blind_choice():
 def test_presets_and_faults_follow_table3():
     base = SSDEWMA(limit="phase1", denoiser=NoDenoiser())
 
-    def tuned(chart):  # get_params has every declared parameter; the presets set the tunable ones
-        return {k: v for k, v in chart.get_params().items() if k in chart.tunable}
-
-    assert tuned(paper.make_chart("M-DEWMA", paper.PAPER_PRESETS["M-DEWMA"]["variance"], base)) == {
+    assert paper.make_chart("M-DEWMA", paper.PAPER_PRESETS["M-DEWMA"]["variance"], base).tunable_params() == {
         "lam": 0.3, "K": 0.2}
-    assert tuned(paper.make_chart("MS-OEWMA", paper.PAPER_PRESETS["MS-OEWMA"]["offset"], base)) == {
+    assert paper.make_chart("MS-OEWMA", paper.PAPER_PRESETS["MS-OEWMA"]["offset"], base).tunable_params() == {
         "lam": 0.3388, "L": 4.8621}
     # the recorded designs (mosd/systems/designs/paper000.json) are the paper's Table 3 columns
     for method, by_fault in paper.PAPER_PRESETS.items():

@@ -123,6 +123,8 @@ def test_with_params_rounds_integers_and_validates_a_new_instance():
     detector = ModeProbabilityDetector(mu_T=0.5, persistence=2, labels=[2, 1])
     tuned = detector.with_params(mu_T=0.7, persistence=3.4)
     assert (tuned.mu_T, tuned.persistence, tuned.labels) == (0.7, 3, (2, 1))
+    assert tuned.tunable_params() == {"mu_T": 0.7, "persistence": 3}
+    assert set(tuned.get_params()) == {"mu_T", "persistence", "labels"}
     assert (detector.mu_T, detector.persistence) == (0.5, 2)  # the template is not mutated
     with pytest.raises(ConfigError, match=r"detector.persistence=21 is out of range; allowed: integers in \[1, 20\]"):
         detector.with_params(persistence=20.6)

@@ -65,6 +65,10 @@ class Detector(Component):
         """True when the decision at point k uses points 1..k only (an online detector)."""
         return True
 
+    def tunable_params(self) -> dict:
+        """The tunable parameters and their values (``get_params`` has every declared one)."""
+        return {name: getattr(self, name) for name in self.tunable}
+
     def candidates(self, X: np.ndarray) -> list["Detector"]:
         """One validated copy per row of X (P, d), columns in the order of ``tunable``."""
         names = list(self.tunable)
@@ -72,8 +76,8 @@ class Detector(Component):
 
     def design(self) -> np.ndarray:
         """This detector's own tunable parameters as a population of one, shape (1, d)."""
-        names = list(self.tunable)
-        return np.array([[float(getattr(self, name)) for name in names]]).reshape(1, len(names))
+        values = [float(v) for v in self.tunable_params().values()]
+        return np.array([values]).reshape(1, len(values))
 
     # -- the decision -------------------------------------------------------------------
     def features(self, z: np.ndarray) -> np.ndarray:

@@ -309,7 +309,7 @@ class PCADetector(Detector):
 
         Returns ``{"t2": (R, K), "t2_limit": float, "spe": (R, K), "spe_limit": float}``.
         """
-        d = {**self.get_params(), **(design or {})}
+        d = {**self.tunable_params(), **(design or {})}
         calibration = self._calibration(calibration_z)
         a = self.params["n_components"].domain.round(float(d["n_components"]))
         parts = self._design(calibration, self._projected(calibration[0], z), a,

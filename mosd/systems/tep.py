@@ -119,7 +119,7 @@ class Study(base.Study):
             out["fdr"][name] = {s: {int(n): float(r[labels == n][0]) for n in ALL_FAULTS} for s, r in rates.items()}
             out["far"][name] = {s: float(r[labels == 0][0]) for s, r in rates.items()}
             out["params"][name] = {k: (int(v) if k in ("n_components", "persistence") else float(v))
-                                   for k, v in detector.get_params().items() if k in detector.tunable}
+                                   for k, v in detector.tunable_params().items()}
             out.setdefault("figure", {})[name] = self._figure_data(experiment, source, detector, calibration)
         out["variables"] = {name: list(_study_source(data, literature=name == LIT).output_names)
                             for name in designs}

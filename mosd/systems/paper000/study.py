@@ -77,7 +77,7 @@ class Study(base.Study):
         for name, detector in designs.items():
             decided = detector.decide(phase1.z, test.z)
             reports[name] = DetectionReport.of(decided.decision, test, NAMES)
-            params[name] = {k: float(v) for k, v in detector.get_params().items()}
+            params[name] = {k: float(v) for k, v in detector.tunable_params().items()}
             causal[name] = bool(detector.is_causal)
         return {"fault": table3_fault(fault), "n_runs": self.n_runs, "reports": reports, "params": params,
                 "causal": causal}

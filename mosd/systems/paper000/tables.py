@@ -36,7 +36,7 @@ def self_referenced_report(chart: Chart, data: FaultData) -> DetectionReport:
     in-control values. Not an honest detector (the limit uses the future and the fault
     itself); shown only to explain the paper-parameter rows.
     """
-    width = chart.get_params()[list(chart.tunable)[1]]
+    width = chart.tunable_params()[list(chart.tunable)[1]]
     test = data.test_subgroups
     statistic = chart.statistic(test.z)
     ucl = statistic.mean(axis=-1, keepdims=True) + width * statistic.std(axis=-1, ddof=1, keepdims=True)
@@ -234,7 +234,7 @@ def run_table3(study: Reproduction, faults: Sequence[str] = tuple(FAULTS), inclu
 def tune_causal(study: Reproduction, data: FaultData) -> Row:
     """:data:`CAUSAL_OURS`: MO-SS-DEWMA's optimiser, box, budget and data on the raw statistic (online)."""
     settings, preset = study.settings, study.settings.preset
-    chart = study.chart(CAUSAL_OURS, study.experiment.detector.get_params())
+    chart = study.chart(CAUSAL_OURS, study.experiment.detector.tunable_params())
     opt = optimise(chart, study, data, "mopso", preset.pop_size, preset.n_gen, settings.bounds, settings.n_jobs)
     t0 = time.perf_counter()
     chosen = chart.with_params(**opt.params)
