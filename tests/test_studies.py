@@ -185,13 +185,14 @@ def test_paper003_study_validates_its_parameters():
         paper003.Study(rates=[0.0, 0.5], trace_rate=0.5)
 
 
-def test_paper003_with_window_keeps_every_other_setting():
+def test_paper003_observer_of_another_window_keeps_every_other_setting():
+    """What the study trains per window: the experiment's observer with only N replaced, its filter shared."""
     from mosd.estimators.neural_observer import MultiStepNeuralObserver
 
     base = MultiStepNeuralObserver(window=12, hidden=7, epochs=11, weighting="uniform", cache_dir=None)
-    other = paper003.with_window(base, 4)
+    other = base.with_params(window=4)
     assert other.window == 4 and {**base.config(), "window": 4} == other.config()
-    assert other.ekf is base.ekf and other.cache_dir is None
+    assert other.ekf is base.ekf and other.cache_dir is None and not hasattr(other, "params_")
 
 
 # -- the study contract and the report commands ----------------------------------------------

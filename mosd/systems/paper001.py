@@ -14,7 +14,6 @@ returned is plain dicts, lists and floats.
 """
 from __future__ import annotations
 
-import copy
 import math
 from pathlib import Path
 from typing import Sequence
@@ -80,9 +79,8 @@ class Study(base.Study):
         onset_index = int(np.argmax(faulty.fault_mask.any(axis=0)))
         filters = {"fused": experiment.estimator}
         for i, name in enumerate(SENSOR_FILTERS, start=1):
-            single = copy.copy(experiment.estimator)
-            single.sensors = (name,)  # the same filter on one sensor's packets (validated at estimate)
-            filters[f"sensor{i}"] = single
+            # the same filter on one sensor's packets
+            filters[f"sensor{i}"] = experiment.estimator.with_params(sensors=(name,))
         curves = {}
         fused = None
         for name, est in filters.items():

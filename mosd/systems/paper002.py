@@ -13,7 +13,6 @@ returned is plain dicts, arrays and floats (the report command prints/plots them
 """
 from __future__ import annotations
 
-import copy
 import math
 from pathlib import Path
 
@@ -123,8 +122,7 @@ class Study(base.Study):
                "params": {name: design_params(d) for name, d in designs.items()},
                "designs": {name: {"results": {}, "roc": {}} for name in designs}}
         for rate in self.missing_rates:
-            plant = copy.copy(experiment.plant)
-            plant.missing_rate = check_in("study.missing_rates", rate, Interval(0.0, 0.9))
+            plant = experiment.plant.with_params(missing_rate=rate)
             trace = Scenario(plant, experiment.noise, experiment.fault, experiment.duration).simulate(
                 experiment.seed, 2 * self.n_runs, "test")
             for name, est in filters.items():

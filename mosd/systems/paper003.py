@@ -30,7 +30,6 @@ from pathlib import Path
 
 import numpy as np
 
-from ..estimators.neural_observer import MultiStepNeuralObserver
 from ..faults.ramp import RampFault
 from ..faults.sensor import sensor_fault_signals
 from ..scenario import training_rng
@@ -71,13 +70,6 @@ FULL_WINDOWS = tuple(range(1, 16))
 RATES = tuple(float(r) for r in np.round(np.arange(1, 11) / 10, 1))
 #: the other reading's metric prefix, by the statistic the preset's monitor tests
 READING_PREFIX = {"observer_chi2": "observer_", "chi2": "innovation_"}
-
-
-def with_window(estimator: MultiStepNeuralObserver, window: int) -> MultiStepNeuralObserver:
-    """An untrained observer like ``estimator`` (same network, training and filter settings) of window N."""
-    settings = {k: v for k, v in estimator.config().items() if k not in ("class", "format")}
-    settings["window"] = window
-    return type(estimator)(**settings, ekf=estimator.ekf, cache_dir=estimator.cache_dir, progress=estimator.progress)
 
 
 def with_fault(trace, fault):
@@ -182,8 +174,9 @@ class Study(base.Study):
         for i, window in enumerate(self.windows):
             estimator = experiment.estimator
             if getattr(estimator, "window", None) != window or not hasattr(estimator, "params_"):
-                estimator = with_window(experiment.estimator, window)
-                # the experiment's generator: the experiment's own window is the same network (a cache hit)
+                # an untrained observer like the experiment's (same network, training and filter settings)
+                # of window N, trained with the experiment's generator: its own window is the same network
+                estimator = experiment.estimator.with_params(window=window)
                 estimator.fit(training, experiment.model, training_rng(experiment.seed))
             loss[window] = {k: np.asarray(v, float) for k, v in estimator.history_.items()}
             sigma[window] = float(estimator.residual_std_)
