@@ -23,23 +23,39 @@ def test_threshold_is_the_chi2_quantile():
 
 
 def test_decisions_on_hand_made_points():
+    """T_k = a·T_D + b·(E_{k−d}/σ_N)² with the default lag d = 1 (issue 20: dimensionless and lagged)."""
     z = np.zeros((2, 5, 2))
     z[0, :, 0] = [0.0, 4.0, 3.0, 10.0, np.nan]   # λ_k
-    z[0, :, 1] = [0.0, 0.0, 0.0, 7.0, 0.0]       # E_k
+    z[0, :, 1] = [0.0, 0.0, 0.0, 3.0, 0.0]       # E_k/σ_N
     z[1, :, 0] = [5.0, 5.0, 5.0, 5.0, 5.0]
     z[1, :, 1] = [0.0, 0.5, 1.0, 1.5, np.nan]
-    X = np.array([[0.05, 1.0, 1.0],     # T = 3.84 + E
+    X = np.array([[0.05, 1.0, 1.0],     # T = 3.84 + (E_{k-1}/σ)²
                   [0.05, 1.0, 0.0],     # E ignored
-                  [0.05, 0.0, 1.0]])    # T = E only
+                  [0.05, 0.0, 1.0]])    # T = (E_{k-1}/σ)² only
     decided = AdaptiveChi2Detector().population(None, z, X)
     assert decided.statistic.shape == decided.decision.shape == (3, 2, 5)
-    np.testing.assert_array_equal(decided.decision[0], [[0, 1, 0, 0, 0], [1, 1, 1, 0, 0]])
+    # k = 0 has no E_{k-1}: no alarm unless b = 0; run 0's E = 3 at k = 3 raises only k = 4's threshold
+    np.testing.assert_array_equal(decided.decision[0], [[0, 1, 0, 1, 0], [0, 1, 1, 1, 0]])
     np.testing.assert_array_equal(decided.decision[1], [[0, 1, 0, 1, 0], [1, 1, 1, 1, 1]])
-    np.testing.assert_array_equal(decided.decision[2], [[0, 1, 1, 1, 0], [1, 1, 1, 1, 0]])
-    np.testing.assert_allclose(decided.threshold[0, 1], 3.841458820694124 + z[1, :, 1])
+    np.testing.assert_array_equal(decided.decision[2], [[0, 1, 1, 1, 0], [0, 1, 1, 1, 1]])
+    np.testing.assert_allclose(decided.threshold[0, 1, 1:], 3.841458820694124 + z[1, :-1, 1] ** 2)
     # the one design of decide() is the first row of the population
     single = AdaptiveChi2Detector(alpha=0.05).decide(z, z)
     np.testing.assert_array_equal(single.decision, decided.decision[0])
+
+
+def test_threshold_lag_is_a_parameter():
+    z = np.zeros((1, 6, 2))
+    z[0, :, 0] = 5.0
+    z[0, 2, 1] = 2.0                     # E/σ_N = 2 at k = 2 only: the threshold rises by b·4 d points later
+    for lag in (0, 1, 3):
+        decided = AdaptiveChi2Detector(alpha=0.05, b=1.0, lag=lag).decide(z, z)
+        expected = np.ones(6, int)
+        expected[:lag] = 0               # no E_{k-d} yet
+        expected[2 + lag] = 0            # 5 < 3.84 + 4
+        np.testing.assert_array_equal(decided.decision[0], expected)
+    with pytest.raises(ConfigError, match="detector.lag"):
+        AdaptiveChi2Detector(lag=-1)
 
 
 def test_persistence_needs_consecutive_exceedances():

@@ -17,11 +17,12 @@ from mosd.systems import base, cli, paper000, paper001, paper002, paper003
 from mosd.validation import ConfigError
 
 P001_NAMES = {f"rmse_{q}_{f}" for q in ("state", "amplitude") for f in ("fused", "sensor1", "sensor2", "sensor3")} | {
-    "isolation_rate", "false_isolation_rate", "far", "mdr", "delay_s", "detection_rate", "no_fault_declared_rate"}
+    "isolation_rate", "false_isolation_rate", "far", "mdr", "delay_s", "detection_rate", "no_fault_declared_rate",
+    "paper_no_fault_declared_rate", "mode_calibration_max_gap"}
 P002_NAMES = {f"{p}{k}_r{r}" for p in ("", "baseline_") for r in (0, 10)
               for k in ("delay_target_s", "detection_rate_target", "false_alarm_nuisance")}
 P003_NAMES = {"detection_step_n1", "detection_step_best", "best_window", "detection_rate_n1", "detection_rate_best",
-              "far"}
+              "far", "threshold_relative_range"}
 
 
 def _preset(name, *overrides):
@@ -64,7 +65,7 @@ def test_paper001_study_names_and_figures(tmp_path):
     metrics, files = paper001.Study(n_runs=20).run(experiment, _result(experiment.detector.with_params(mu_T=0.8)),
                                                      tmp_path)
     _finite(metrics, P001_NAMES | {"paper_" + k for k in ("isolation_rate", "no_fault_declared_rate")})
-    assert len(files) == 4 and all(f.exists() and f.stat().st_size > 10_000 for f in files)
+    assert len(files) == 5 and all(f.exists() and f.stat().st_size > 10_000 for f in files)
     for key in ("isolation_rate", "false_isolation_rate", "far", "mdr", "detection_rate", "no_fault_declared_rate"):
         assert 0.0 <= metrics[key] <= 1.0
     # the paper's lower threshold can only add declarations on the same fault-free runs
@@ -167,9 +168,12 @@ def _tiny_paper003(tmp_path, epochs=3):
 def test_paper003_study_names_and_figures(tmp_path):
     experiment = _tiny_paper003(tmp_path)
     experiment.fit_estimator()
-    study = paper003.Study(windows=[1, 3], rates=[0.5, 1.0], n_runs=2, trace_rate=1.0)
+    # confirm=1: two flights of 20 faulty steps after 3 epochs need not hold 3 alarms in a row for N = 1
+    study = paper003.Study(windows=[1, 3], rates=[0.5, 1.0], n_runs=2, trace_rate=1.0, confirm=1)
     metrics, files = study.run(experiment, _result(experiment.detector), tmp_path / "out")
     _finite(metrics, P003_NAMES | {"paper_far", "innovation_far"})
+    # the fault-free flights' first-alarm law (NaN when none of the two flights alarms)
+    assert {"chance_alarm_step_mean", "paper_chance_alarm_step_mean", "chance_alarm_share"} <= set(metrics)
     assert metrics["best_window"] in (1.0, 3.0)
     assert len(files) == 4 and all(f.exists() and f.stat().st_size > 10_000 for f in files)
     # the experiment's own window reuses its trained observer; the other was trained and cached
@@ -251,7 +255,12 @@ def test_paper001_bars_at_500_runs():
 
 @pytest.mark.slow
 def test_paper003_multi_step_window_detects_sooner_only_on_the_observer_residual(tmp_path):
-    """Reading 2 shows the paper's window effect, reading 1 does not; FAR stays within 2α (about 1 min)."""
+    """Reading 2 shows the paper's window effect, reading 1 does not; FAR stays within 2α (about 1 min).
+
+    Issue 20's definitions: a detection is a run of 3 alarms from the onset, which N = 1 rarely makes
+    with the paper's lagged threshold (never at full scale), so the window effect is read off the
+    flights detected and the post-onset points alarmed.
+    """
     pytest.importorskip("torch")
     experiment = _preset("paper003", "seed=0", f"estimator.cache_dir='{tmp_path}'")
     study = paper003.Study(windows=[1, 8], rates=[0.2, 0.5], n_runs=10, trace_rate=0.2, figures=False)
@@ -260,9 +269,10 @@ def test_paper003_multi_step_window_detects_sooner_only_on_the_observer_residual
     observer = study.summary(data, "paper", "observer_chi2")
     innovation = study.summary(data, "paper", "chi2")
     assert observer["best_window"] == 8
-    assert observer["detection_step_n1"] >= 3 * observer["detection_step_best"]
-    assert observer["detection_rate_best"] > observer["detection_rate_n1"] + 0.3
+    assert observer["run_detection_share_best"] >= observer["run_detection_share_n1"] + 0.3
+    assert observer["detection_rate_best"] > observer["detection_rate_n1"] + 0.1
     assert observer["far"] <= 2 * paper["alpha"]
+    assert observer["chance_detection_share"] == 0.0  # no fault-free flight makes a detection
     # the filter's innovation does not gain from the observer's window: it only raises the threshold
     i1, i8 = data["windows"].index(1), data["windows"].index(8)
     rate = data["table"]["paper"]["chi2"]["detection_rate"].mean(axis=1)

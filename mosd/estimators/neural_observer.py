@@ -71,7 +71,8 @@ class MultiStepNeuralObserver(Estimator):
 
     ``estimate`` returns the filter's innovation as r (R, N, 1) with its
     variance as cov, and in ``extra``: ``chi2`` (the filter's λ_k, χ²(1)),
-    ``observer_residual`` (E_k, m), ``observer_chi2`` (E_k standardised by
+    ``observer_residual`` (E_k, m), ``observer_residual_scaled`` (E_k/σ_N,
+    σ_N the N-step error's σ on the validation split), ``observer_chi2`` (E_k standardised by
     the observer's validation error: ((h_k − ĥ_k − μ)/σ)²), ``h_hat`` (ĥ_k)
     and ``h_filtered``. The first N points have no prediction (NaN).
     """
@@ -342,6 +343,7 @@ class MultiStepNeuralObserver(Estimator):
         error = h - h_hat
         kf = self.ekf.filter(trace, model)
         extra = {"chi2": kf["chi2"], "observer_residual": np.abs(error),
+                 "observer_residual_scaled": np.abs(error) / self.residual_std_,  # E_k/σ_N (dimensionless)
                  "observer_chi2": ((error - self.residual_mean_) / self.residual_std_) ** 2,
                  "h_hat": h_hat, "h_filtered": kf["z_filtered"]}
         return Residuals.of(trace, r=kf["r"][..., None], channels=(model.output_names[self.altitude_channel],),

@@ -20,14 +20,125 @@ from typing import Sequence
 
 import numpy as np
 
+from ..faults.actuator import ActuatorFault
 from ..metrics.estimation import rmse_over_runs
 from ..metrics.registry import per_run
-from ..validation import check_int
+from ..scenario import Scenario
+from ..validation import ConfigError, check_int
 from . import base, cli
 from .base import TUNED, decorate, design_params, figure, prefixed
 
 SYSTEM = "paper001"
 SENSOR_FILTERS = ("s1", "s2", "s3")
+#: the calibration runs' replications of the ``test`` stream start here (disjoint from the study's runs)
+CALIBRATION_FIRST = 10**6
+#: the reliability curve's bins of μ₂ and the fewest fusion steps a bin needs to enter the largest gap
+CALIBRATION_BINS, CALIBRATION_MIN_STEPS = 10, 50
+
+
+def hazard_transition(n_intervals: int, n_faults: int) -> np.ndarray:
+    """Λ from the scenario's fault hazard (a reconstruction; docs/systems/paper001.md, "Choosing Λ").
+
+    The paper's scenario puts one fault in every run, at an instant the filter
+    does not know; with no other knowledge the onset is equally likely in each of
+    the run's ``n_intervals`` fusion intervals, so the chance that a fault starts
+    within one fusion interval is h = 1/n_intervals, split equally over the
+    ``n_faults`` fault directions. The paper's faults are constant and one at a
+    time, so a fault neither ends nor changes direction: the fault rows are
+    absorbing. Row i holds P(mode i → mode m) (§3.1, rows summing to 1)::
+
+        Λ = [[1 − h, h/d_f, …, h/d_f],
+             [0,     1,     …, 0    ],
+             …
+             [0,     0,     …, 1    ]]
+
+    Parameters
+    ----------
+    n_intervals : int
+        Fusion intervals of a run (the paper's example: 40, t = 0 … 40 s at 1 s).
+    n_faults : int
+        Fault models d_f (the example: 2 actuators).
+    """
+    n_intervals = check_int("n_intervals", n_intervals, 1)
+    n_faults = check_int("n_faults", n_faults, 1)
+    hazard = 1.0 / n_intervals
+    trans = np.eye(n_faults + 1)
+    trans[0, 0] = 1.0 - hazard
+    trans[0, 1:] = hazard / n_faults
+    return trans
+
+
+def reliability(probability: np.ndarray, outcome: np.ndarray, bins: int = CALIBRATION_BINS,
+                min_steps: int = CALIBRATION_MIN_STEPS) -> dict:
+    """A reliability curve: per equal bin of [0, 1], the mean probability and the share of outcomes that occurred.
+
+    Returns ``mean_probability``, ``active_share`` and ``steps`` (per bin; NaN where
+    a bin is empty) and ``max_gap``, the largest |share − mean probability| over the
+    bins holding at least ``min_steps`` values (NaN if none does). A calibrated
+    forecaster's gaps shrink like the binomial error √(p(1 − p)/steps).
+    """
+    probability = np.asarray(probability, float).ravel()
+    outcome = np.asarray(outcome, bool).ravel()
+    index = np.clip((probability * bins).astype(int), 0, bins - 1)
+    steps = np.bincount(index, minlength=bins)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = np.bincount(index, probability, bins) / steps
+        share = np.bincount(index, outcome.astype(float), bins) / steps
+    kept = steps >= min_steps
+    return {"mean_probability": mean, "active_share": share, "steps": steps,
+            "max_gap": float(np.max(np.abs(share - mean)[kept])) if kept.any() else math.nan}
+
+
+def mode_calibration(experiment, n_runs: int, actuator: int = 2, bins: int = CALIBRATION_BINS,
+                     min_steps: int = CALIBRATION_MIN_STEPS) -> dict:
+    """Are the fused filter's mode probabilities probabilities? A reliability curve of μ_actuator.
+
+    ``n_runs`` runs whose faults follow the estimator's own Λ: in each fusion
+    interval a fault-free run turns faulty with probability 1 − λ_00, on
+    actuator m with probability λ_0m / (1 − λ_00), at the interval's midpoint
+    (like the paper's 16.5 s), with the scenario's amplitude, and stays so (a run
+    may end fault-free). The fusion steps t_1 … t_K of all runs are binned by
+    μ_actuator into ``bins`` equal bins of [0, 1]; in each bin the share of steps
+    at which that actuator's fault is active should equal the bin's mean μ.
+    Draws: the onsets from ``default_rng([seed, 2, 2**30])``, the runs from the
+    ``test`` stream's replications :data:`CALIBRATION_FIRST` … (disjoint from the
+    study's).
+
+    Returns
+    -------
+    dict
+        ``mean_probability``, ``active_share``, ``steps`` (per bin; NaN where
+        empty), ``max_gap`` (the largest |share − mean μ| over bins with at least
+        ``min_steps`` steps), ``hazard`` (1 − λ_00), ``faulty_runs``.
+    """
+    model, estimator = experiment.model, experiment.estimator
+    n_models = len(estimator.model_set(model))
+    trans, _ = estimator._probabilities(n_models)  # the estimator's own Λ (a float expands to a matrix)
+    hazard = 1.0 - float(trans[0, 0])
+    if hazard <= 0.0:
+        raise ConfigError("estimator.transition keeps the normal model forever (lambda_00 = 1); allowed for the "
+                          "calibration check: lambda_00 < 1")
+    fault = experiment.fault
+    period, duration = float(experiment.plant.dt), float(experiment.duration)
+    n_intervals = int(round(duration / period)) - 1
+    rng = np.random.default_rng([int(experiment.seed), 2, 2**30])
+    start = rng.geometric(hazard, size=n_runs)  # the interval (t_{k-1}, t_k] in which the fault starts
+    which = 1 + rng.choice(n_models - 1, size=n_runs, p=trans[0, 1:] / hazard)
+    groups: dict[tuple[int, int], int] = {}
+    for k, m in zip(start, which):
+        key = (int(k), int(m)) if k <= n_intervals else (0, 0)
+        groups[key] = groups.get(key, 0) + 1
+    probability, active, first = [], [], CALIBRATION_FIRST
+    for (k, m), count in sorted(groups.items()):
+        member = None if k == 0 else ActuatorFault(actuator=m, amplitude=fault.amplitude, onset=(k - 0.5) * period)
+        trace = Scenario(experiment.plant, experiment.noise, member, duration).simulate(
+            experiment.seed, count, "test", first=first)
+        first += count
+        mu = estimator.estimate(trace, model).extra["mode_probabilities"][:, 1:, actuator]
+        probability.append(mu.ravel())
+        active.append((trace.x[:, 1:, model.n_x + actuator - 1] != 0).ravel())
+    curve = reliability(np.concatenate(probability), np.concatenate(active), bins, min_steps)
+    return {**curve, "hazard": hazard, "faulty_runs": int(n_runs - groups.get((0, 0), 0))}
 
 
 class Study(base.Study):
@@ -62,7 +173,10 @@ class Study(base.Study):
     * ``far``, ``mdr``, ``detection_rate`` (faulty runs detected): the metric
       registry's, on the faulty runs; ``delay_s``: mean over detected runs of
       (first alarm − first faulty fusion instant) in seconds.
-    * ``no_fault_declared_rate``: fault-free runs without any declaration.
+    * ``no_fault_declared_rate``: fault-free runs without any declaration
+      (``paper_no_fault_declared_rate``: the same at the paper's μ_T = 0.5, L = 1).
+    * ``mode_calibration_max_gap``: the largest gap of the reliability curve of μ₂
+      (:func:`mode_calibration`, ``n_runs`` runs whose faults start as Λ says).
     """
 
     system = SYSTEM
@@ -101,6 +215,7 @@ class Study(base.Study):
             decisions[name] = self._score(detector, d, d0, points, clean_points, float(np.median(np.diff(fused.t))))
         return {"t": faulty.t, "onset_index": onset_index, "onset_s": float(experiment.fault.onset),
                 "true_amplitude": faulty.x[0, :, 2:], "curves": curves,
+                "calibration": mode_calibration(experiment, self.n_runs),
                 "mode_probabilities_mean": fused.extra["mode_probabilities"].mean(axis=0),
                 "decisions": decisions, "params": {name: design_params(d) for name, d in designs.items()},
                 "n_runs": self.n_runs}
@@ -132,6 +247,7 @@ class Study(base.Study):
             out[f"rmse_amplitude_{name}"] = float(curve["amplitude"][k0:].mean())
         for design, scores in data["decisions"].items():
             out.update({prefixed(design) + k: float(v) for k, v in scores.items()})
+        out["mode_calibration_max_gap"] = data["calibration"]["max_gap"]
         return out
 
     # -- figures --------------------------------------------------------------------------
@@ -178,6 +294,22 @@ class Study(base.Study):
             finish(ax, "RMSE over runs", f"{title}, {data['n_runs']} runs")
             files.append(out_dir / f"{prefix}{fname}.png")
             fig.savefig(files[-1], dpi=110)
+
+        cal = data["calibration"]
+        fig = figure(4.2, 4.0)
+        ax = fig.add_subplot()
+        ax.plot([0, 1], [0, 1], color="grey", lw=0.8, ls=":", label="calibrated")
+        kept = cal["steps"] >= CALIBRATION_MIN_STEPS
+        ax.plot(cal["mean_probability"][kept], cal["active_share"][kept], marker="o", color="k",
+                label=f"largest gap {cal['max_gap']:.3f}")
+        ax.set_xlabel("mean μ₂ in the bin")
+        ax.set_ylabel("share of steps with the actuator-2 fault active")
+        ax.set_title(f"Mode-probability calibration, onsets as Λ says ({cal['faulty_runs']} faulty runs)",
+                     fontsize=8)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+        files.append(out_dir / f"{prefix}calibration.png")
+        fig.savefig(files[-1], dpi=110)
         return files
 
 
@@ -194,6 +326,20 @@ def format_report(metrics: dict[str, float], designs: dict[str, dict]) -> str:
                      f"| {metrics[prefix + 'false_isolation_rate']:.3f} | {metrics[prefix + 'detection_rate']:.3f} "
                      f"| {metrics[prefix + 'delay_s']:.3f} | {metrics[prefix + 'far']:.4f} "
                      f"| {metrics[prefix + 'mdr']:.4f} | {metrics[prefix + 'no_fault_declared_rate']:.3f} |")
+    return "\n".join(lines)
+
+
+def format_calibration(cal: dict) -> str:
+    """The reliability curve of μ₂ (:func:`mode_calibration`) as a markdown table."""
+    lines = [f"Mode-probability calibration: faults start as Λ says (hazard {cal['hazard']:.4g} per fusion interval, "
+             f"{cal['faulty_runs']} faulty runs); largest gap {cal['max_gap']:.3f} over bins with >= "
+             f"{CALIBRATION_MIN_STEPS} steps", "", "| μ₂ bin | steps | mean μ₂ | share with the fault active |",
+             "|---|---|---|---|"]
+    n = len(cal["steps"])
+    for i in range(n):
+        if cal["steps"][i]:
+            lines.append(f"| {i / n:.1f}–{(i + 1) / n:.1f} | {int(cal['steps'][i])} | {cal['mean_probability'][i]:.3f} "
+                         f"| {cal['active_share'][i]:.3f} |")
     return "\n".join(lines)
 
 
@@ -238,6 +384,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         params = data["params"]
         print(f"## Paper 001: {args.n_runs} faulty + {args.n_runs} fault-free runs, seed {args.seed} (test stream)\n")
         print(format_report(metrics, params) + "\n")
+        print(format_calibration(data["calibration"]) + "\n")
         for design in params:
             rows = [(name, "met" if met else "**not met**", numbers)
                     for name, met, numbers in bars(metrics, prefixed(design))]
