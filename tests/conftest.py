@@ -36,3 +36,28 @@ def _hand_trace(times, sensors, y, grid):
 def hand_trace():
     """``hand_trace(times, sensors, y, grid)``: a paper 001 trace with measurements placed by hand."""
     return _hand_trace
+
+
+@pytest.fixture
+def fresh_python():
+    """``fresh_python(code)``: ``code`` run in a new interpreter on this checkout (kernels on); its last line, as JSON.
+
+    For what only a new process shows: which compiled kernels a warm-up loads, what an import pulls in.
+    """
+    import json
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    import mosd
+
+    env = {k: v for k, v in os.environ.items() if k != "MOSD_KERNELS"}
+    env["PYTHONPATH"] = os.pathsep.join([str(Path(mosd.__file__).resolve().parents[1]), env.get("PYTHONPATH", "")])
+
+    def run(code: str):
+        out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600, env=env)
+        assert out.returncode == 0, out.stderr[-2000:]
+        return json.loads(out.stdout.strip().splitlines()[-1])
+
+    return run

@@ -197,27 +197,17 @@ def test_converged_newton_iterations_agree_up_to_a_step_below_the_rounding_of_j(
     assert np.sum(difference > 1e-9) <= 15
 
 
-def test_warm_up_runs():
+def test_warm_up_runs(fresh_python):
     """In a fresh process: the kernels are loaded by the warm-up, and a filter's cost on real particles needs no more."""
-    import json
-    import os
-    import subprocess
-    import sys
-    from pathlib import Path
-
-    code = ("import json\n"
-            "import numpy as np\n"
-            "from mosd.kernels import entropy\n"
-            "kernels = (entropy.information_potential, entropy.cost)\n"
-            "before = [len(k.signatures) for k in kernels]\n"
-            "entropy.warm_up()\n"
-            "after = [len(k.signatures) for k in kernels]\n"
-            "a, b = np.random.default_rng(1).normal(size=(2, 200))\n"
-            "value = entropy.cost(a, b, b, a, 0.5, 0.1, 0.2, 1.0, 20.0)\n"
-            "print(json.dumps([before, after, [len(k.signatures) for k in kernels], bool(np.all(np.isfinite(value)))]))\n")
-    env = {k: v for k, v in os.environ.items() if k != "MOSD_KERNELS"}
-    env["PYTHONPATH"] = os.pathsep.join([str(Path(kernels.__file__).parents[2]), env.get("PYTHONPATH", "")])
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600, env=env)
-    assert out.returncode == 0, out.stderr[-2000:]
-    before, after, used, finite = json.loads(out.stdout.strip().splitlines()[-1])
+    before, after, used, finite = fresh_python(
+        "import json\n"
+        "import numpy as np\n"
+        "from mosd.kernels import entropy\n"
+        "kernels = (entropy.information_potential, entropy.cost)\n"
+        "before = [len(k.signatures) for k in kernels]\n"
+        "entropy.warm_up()\n"
+        "after = [len(k.signatures) for k in kernels]\n"
+        "a, b = np.random.default_rng(1).normal(size=(2, 200))\n"
+        "value = entropy.cost(a, b, b, a, 0.5, 0.1, 0.2, 1.0, 20.0)\n"
+        "print(json.dumps([before, after, [len(k.signatures) for k in kernels], bool(np.all(np.isfinite(value)))]))\n")
     assert before == [0, 0] and min(after) >= 1 and used == after and finite, (before, after, used)

@@ -147,28 +147,20 @@ def test_what_the_kernel_cannot_reproduce_is_left_to_the_reference():
         np.testing.assert_array_equal(got.extra[key], ref.extra[key], err_msg=key)
 
 
-def test_warm_up_loads_the_kernel():
+def test_warm_up_loads_the_kernel(fresh_python):
     """In a fresh process: nothing loaded before, the kernel after, and a real filtering needs nothing more."""
-    import json
-    import os
-    import subprocess
-    import sys
     from pathlib import Path
 
-    code = ("import json, sys\n"
-            f"sys.path.insert(0, {str(Path(__file__).parent)!r})\n"
-            "from mosd.kernels import imm\n"
-            "before = len(imm.imm.signatures)\n"
-            "imm.warm_up()\n"
-            "after = len(imm.imm.signatures)\n"
-            "from test_kernel_imm import _paper\n"
-            "from mosd.estimators.async_imm import AsyncIMMFusion\n"
-            "model, trace = _paper(n_reps=2, seed=1, duration=21)\n"
-            "AsyncIMMFusion().estimate(trace, model)\n"
-            "print(json.dumps([before, after, len(imm.imm.signatures)]))\n")
-    env = {k: v for k, v in os.environ.items() if k != "MOSD_KERNELS"}
-    env["PYTHONPATH"] = os.pathsep.join([str(Path(kernels.__file__).parents[2]), env.get("PYTHONPATH", "")])
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600, env=env)
-    assert out.returncode == 0, out.stderr[-2000:]
-    before, after, used = json.loads(out.stdout.strip().splitlines()[-1])
+    before, after, used = fresh_python(
+        "import json, sys\n"
+        f"sys.path.insert(0, {str(Path(__file__).parent)!r})\n"
+        "from mosd.kernels import imm\n"
+        "before = len(imm.imm.signatures)\n"
+        "imm.warm_up()\n"
+        "after = len(imm.imm.signatures)\n"
+        "from test_kernel_imm import _paper\n"
+        "from mosd.estimators.async_imm import AsyncIMMFusion\n"
+        "model, trace = _paper(n_reps=2, seed=1, duration=21)\n"
+        "AsyncIMMFusion().estimate(trace, model)\n"
+        "print(json.dumps([before, after, len(imm.imm.signatures)]))\n")
     assert before == 0 and after >= 1 and used == after, (before, after, used)
