@@ -271,6 +271,10 @@ class Checked:
     def __len__(self) -> int:
         return sum(len(v) for v in self._setups.values())
 
+    def __getstate__(self):
+        # a job in another process (the joblib launcher pickles the task) builds its own: nothing is shipped
+        return {"_setups": {}}
+
 
 def preflight(argv: Sequence[str]) -> Checked:
     """Compose and build every job of a command line; raise UsageError/ConfigError on a mistake.
