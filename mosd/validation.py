@@ -116,6 +116,14 @@ def check_choice(name: str, value: Any, choices: Iterable[Any]) -> Any:
     return value
 
 
+def check_names(name: str, value: Any, allowed: str) -> tuple[str, ...]:
+    """A name or a non-empty list of names, as a tuple of str; ``allowed`` says what they may be."""
+    names = (value,) if isinstance(value, str) else tuple(str(v) for v in value)
+    if not names:
+        raise ConfigError(f"{name}=[] is empty; allowed: {allowed}")
+    return names
+
+
 def check_matrix(name: str, value: Any, shape: tuple[int, int], psd: bool = True) -> np.ndarray:
     """A covariance-like matrix: a scalar, a diagonal (1-D) or a full matrix of ``shape``."""
     arr = np.asarray(value, dtype=float)
@@ -174,6 +182,8 @@ class Param:
         None is also allowed (the meaning of None goes in ``doc``).
     sequence : bool
         A sequence of values, each in ``domain``; stored as a tuple.
+    nonzero : bool
+        0 is refused (a fault of amplitude 0 would be no fault).
     kind : str
         The type shown in the docstring where ``domain`` does not tell it (a callable).
     """
@@ -183,6 +193,7 @@ class Param:
     tunable: bool = False
     optional: bool = False
     sequence: bool = False
+    nonzero: bool = False
     kind: str = ""
 
     def interval(self, owner: Any) -> Interval:
@@ -209,8 +220,12 @@ class Param:
         if isinstance(d, Interval):
             interval = self.interval(owner)
             if interval.integer and not (interval.open_low or interval.open_high):
-                return check_int(key, value, interval.low, interval.high)
-            return check_in(key, value, interval)
+                checked = check_int(key, value, interval.low, interval.high)
+            else:
+                checked = check_in(key, value, interval)
+            if self.nonzero and checked == 0:
+                raise ConfigError(f"{key}={value!r} is not allowed; allowed: a non-zero number in {interval}")
+            return checked
         if isinstance(d, tuple):
             return check_choice(key, value, d)
         if callable(d):
@@ -232,7 +247,8 @@ class Param:
         kind = self._domain_text()
         if self.sequence:
             kind = f"sequence of {kind}"
-        flags = "".join([", optional" if self.optional else "", ", tunable" if self.tunable else ""])
+        flags = "".join([", non-zero" if self.nonzero else "", ", optional" if self.optional else "",
+                         ", tunable" if self.tunable else ""])
         return f"{name} : {kind}{flags}\n" + textwrap.fill(self.doc, 96, initial_indent="    ",
                                                            subsequent_indent="    ")
 

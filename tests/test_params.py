@@ -152,3 +152,14 @@ def test_clone_copies_sub_components_and_drops_fitted_state():
     monitor = SubgroupMonitor()
     monitor.mean_ = np.zeros(1)
     assert not hasattr(monitor.clone(), "mean_") and not hasattr(monitor.with_params(n=6), "mean_")
+
+
+def test_a_nonzero_parameter_refuses_zero_with_its_range():
+    from mosd.faults.actuator import ActuatorFault
+    from mosd.faults.ramp import RampFault
+
+    with pytest.raises(ConfigError, match=r"^fault.rate=0 is not allowed; allowed: a non-zero number in \[-100, 100\]$"):
+        RampFault(rate=0)
+    with pytest.raises(ConfigError, match=r"^fault.amplitude=0.0 is not allowed; allowed: a non-zero number in "):
+        ActuatorFault().with_params(amplitude=0.0)
+    assert "rate : float in [-100, 100], non-zero" in inspect.getdoc(RampFault)

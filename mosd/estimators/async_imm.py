@@ -48,7 +48,7 @@ from typing import Sequence
 import numpy as np
 
 from ..types import Residuals, Trace
-from ..validation import ConfigError, Interval, Param, check_in
+from ..validation import ConfigError, Interval, Param, check_in, check_names
 from .base import Estimator
 
 FUSION_RULES = ("equivalent_measurement", "sequential")
@@ -76,13 +76,6 @@ def _check_initial(value) -> np.ndarray:
         raise ConfigError(f"estimator.initial_probabilities={value!r} is not allowed; allowed: a float in (0, 1) "
                           f"or one probability per model (>= 0, summing to 1)")
     return arr
-
-
-def _check_sensors(key: str, value, estimator) -> tuple[str, ...]:
-    sensors = (value,) if isinstance(value, str) else tuple(str(s) for s in value)
-    if not sensors:
-        raise ConfigError(f"{key}=[] is empty; allowed: null (all sensors) or sensor names")
-    return sensors
 
 
 class AsyncIMMFusion(Estimator):
@@ -116,7 +109,7 @@ class AsyncIMMFusion(Estimator):
         "fault_intensity": Param(Interval(0.0, 1e6), "Intensity q_f of the random walk of f (slowly varying "
                                  "amplitude; 1e-4)."),
         "fault_variance": Param(Interval(0.0, 1e12, open_low=True), "Prior variance of f at t_0 (1)."),
-        "sensors": Param(_check_sensors, "Sensors to fuse (None: all); one name gives a single-sensor filter.",
+        "sensors": Param(lambda key, value, est: check_names(key, value, "null (all sensors) or sensor names"), "Sensors to fuse (None: all); one name gives a single-sensor filter.",
                          optional=True, kind="sequence of str"),
         "fusion": Param(FUSION_RULES, "Theorem 1's batch update (the paper) or measurement-by-measurement updates."),
     }

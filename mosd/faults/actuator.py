@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-from ..validation import ConfigError, Interval, Param
+from ..validation import Interval, Param
 from .base import Fault
 
 
@@ -21,16 +21,13 @@ class ActuatorFault(Fault):
     params = {
         "actuator": Param(Interval(1, math.inf, integer=True), "Which actuator fails, numbered from 1 as in the "
                           "paper (its example: 2); a detector that isolates declares fault i for actuator i."),
-        "amplitude": Param(Interval(-1e6, 1e6), "f, in the units of the input (paper: 2), non-zero."),
+        "amplitude": Param(Interval(-1e6, 1e6), "f, in the units of the input (paper: 2).", nonzero=True),
     }
     relative = False  # amplitudes are in input units, not in residual σ
 
     def __init__(self, actuator: int = 2, amplitude: float = 2.0, onset: float = 16.5, role: str = "target"):
         super().__init__(onset=onset, role=role)
         self._assign(locals())
-        if self.amplitude == 0.0:
-            raise ConfigError(f"fault.amplitude=0 makes the fault empty; allowed: a non-zero number in "
-                              f"{self.params['amplitude'].domain}")
 
     def __repr__(self) -> str:
         return f"ActuatorFault(actuator={self.actuator}, amplitude={self.amplitude}, onset={self.onset})"

@@ -14,23 +14,19 @@ from typing import Sequence
 import numpy as np
 
 from ..types import Residuals, Subgroups
-from ..validation import ConfigError, Interval, Param
+from ..validation import ConfigError, Interval, Param, check_names
 from .base import Monitor, _grid
 
 
-def _outputs(key: str, value, monitor) -> tuple[str, ...]:
-    names = (value,) if isinstance(value, str) else tuple(str(o) for o in value)
-    if not names:
-        raise ConfigError(f"{key}=[] is empty; allowed: names of estimator outputs, e.g. [residual]")
-    return names
+_ALLOWED = "names of estimator outputs, e.g. [residual]"
 
 
 class OutputMonitor(Monitor):
     """Select outputs by name (module docstring)."""
 
     params = {
-        "outputs": Param(_outputs, "Names in the estimator's ``extra``, or ``\"residual\"``.",
-                         kind="sequence of str"),
+        "outputs": Param(lambda key, value, monitor: check_names(key, value, _ALLOWED),
+                         "Names in the estimator's ``extra``, or ``\"residual\"``.", kind="sequence of str"),
         "burn_in": Param(Interval(0, math.inf, integer=True), "Points dropped at the start of every run."),
     }
 
