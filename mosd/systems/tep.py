@@ -32,7 +32,7 @@ from ..data.tep import ALL_FAULTS, ONSET, TennesseeEastman
 from ..detectors.pca import PCADetector
 from ..validation import ConfigError, check_int
 from . import base, cli
-from .base import TUNED, figure, recorded_designs
+from .base import TUNED, figure
 
 SYSTEM = "tep"
 STATISTICS = ("t2", "spe", "combined")
@@ -118,8 +118,8 @@ class Study(base.Study):
             rates = alarm_rates(detector, calibration, _z(experiment, test))
             out["fdr"][name] = {s: {int(n): float(r[labels == n][0]) for n in ALL_FAULTS} for s, r in rates.items()}
             out["far"][name] = {s: float(r[labels == 0][0]) for s, r in rates.items()}
-            out["params"][name] = {k: (int(v) if k in ("n_components", "persistence") else float(v))
-                                   for k, v in detector.tunable_params().items()}
+            out["params"][name] = {k: (int(v) if detector.tunable[k].integer else v)
+                                   for k, v in base.design_params(detector).items()}
             out.setdefault("figure", {})[name] = self._figure_data(experiment, source, detector, calibration)
         out["variables"] = {name: list(_study_source(data, literature=name == LIT).output_names)
                             for name in designs}
@@ -223,9 +223,9 @@ class Study(base.Study):
                        label={"t2": "T²", "spe": "SPE", "combined": "T² or SPE"}[stat])
             ax.set_xticks(x, [str(f) for f in faults])
             ax.set_ylim(0, 1.05)
-            ax.set_ylabel("detection rate")
             far = data["far"][name]["combined"]
-            ax.set_title(f"{_label(name)} {_design_text(data['params'][name])}: FAR (combined) {far:.3f}")
+            base.decorate(ax, ylabel="detection rate", legend_size=None,
+                          title=f"{_label(name)} {_design_text(data['params'][name])}: FAR (combined) {far:.3f}")
         handles, labels = ax.get_legend_handles_labels()
         fig.legend(handles, labels, loc="outside upper center", ncols=3, fontsize=8)
         ax.set_xlabel("fault IDV(N), test files rows 160-959")
@@ -244,9 +244,8 @@ class Study(base.Study):
                 ax.semilogy(f["hours"], np.maximum(f[stat], 1e-6), lw=0.8, label=label)
                 ax.axhline(f[f"{stat}_limit"], color="C3", lw=1.0, label=f"limit {f[f'{stat}_limit']:.3g}")
                 ax.axvline(ONSET * 0.05, color="k", ls=":", lw=0.8)
-                ax.set_ylabel(label)
-                ax.legend(loc="upper left", fontsize=8)
-                ax.set_title(f"{_label(name)} on d{data['figure_fault']:02d}_te.dat (fault from 8 h)", fontsize=9)
+                base.decorate(ax, ylabel=label, legend_loc="upper left", title_size=9,
+                              title=f"{_label(name)} on d{data['figure_fault']:02d}_te.dat (fault from 8 h)")
         ax.set_xlabel("hours")
         fig.savefig(path, dpi=110)
         return path
@@ -263,8 +262,9 @@ class Study(base.Study):
                 order = np.argsort(np.abs(values))[::-1][: self.top]
                 ax.barh(np.arange(len(order))[::-1], values[order], color="C0" if k == 0 else "C1")
                 ax.set_yticks(np.arange(len(order))[::-1], [names[j] for j in order], fontsize=7)
-                ax.set_title(f"{_label(name)}: contributions to {label}, mean over {f['n_alarmed']} alarms "
-                             f"(IDV({data['figure_fault']}))", fontsize=8)
+                base.decorate(ax, legend_size=None, title_size=8,
+                              title=f"{_label(name)}: contributions to {label}, mean over {f['n_alarmed']} alarms "
+                                    f"(IDV({data['figure_fault']}))")
         fig.savefig(path, dpi=110)
         return path
 
@@ -274,8 +274,7 @@ def _label(name: str) -> str:
 
 
 def _design_text(params: Mapping[str, float]) -> str:
-    return (f"(a = {params['n_components']}, α = {params['alpha']:.3g}, λ = {params['lam']:.3g}, "
-            f"persistence = {params['persistence']})")
+    return "(" + ", ".join(f"{k} = {v:.3g}" if isinstance(v, float) else f"{k} = {v}" for k, v in params.items()) + ")"
 
 
 def format_table(data: dict, csv: bool = False) -> str:
@@ -295,9 +294,7 @@ def format_table(data: dict, csv: bool = False) -> str:
                 + ([f"{100 * equal['far']:.2f}"] if equal else []) + [f"{YIN2012_FAR_COMBINED:.2f}"])
     if csv:
         return "\n".join(",".join(r) for r in [head, *rows]) + "\n"
-    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    lines += ["| " + " | ".join(r) + " |" for r in rows]
-    return "\n".join(lines)
+    return cli.markdown_table(head, rows)
 
 
 def monitor_table(table, detector: PCADetector, top: int = 10) -> dict:
@@ -328,7 +325,6 @@ def monitor_table(table, detector: PCADetector, top: int = 10) -> dict:
 
 def main(argv=None) -> int:
     """``python -m mosd.systems.tep [--directory DIR] [--out DIR] | --table FILE [--time-column C]``."""
-    recorded = recorded_designs(SYSTEM)
     parser = cli.report_parser("python -m mosd.systems.tep", "Tennessee Eastman: the per-fault PCA table (T², SPE, "
                                "combined) of the literature's design and of the tuned one, without the optimiser.",
                                out="outputs/systems/tep", seed=False)
@@ -337,6 +333,7 @@ def main(argv=None) -> int:
     parser.add_argument("--table", default=None, help="monitor a CSV/Parquet table instead (fit on its first half)")
     parser.add_argument("--time-column", default=None, help="--table: the time column (a name or a 0-based position)")
     parser.add_argument("--label-column", default=None, help="--table: the fault-label column")
+    cli.design_options(parser, SYSTEM)
 
     def table_body(args):
         from ..data.table import Table
@@ -361,14 +358,10 @@ def main(argv=None) -> int:
         overrides = [f"data.directory={args.directory}"] if args.directory else []
         experiment = cli.preset(SYSTEM, overrides).experiment
         study = Study(fault=args.fault)
-        designs = {TUNED: experiment.detector.with_params(**recorded[TUNED]),
+        designs = {TUNED: experiment.detector.with_params(**cli.tuned_design(args, SYSTEM)),
                    **study.reference_designs(experiment, experiment.detector)}
         experiment.monitor.fit(experiment.estimator.estimate(experiment.data.trace("calibration"), None))
-        data = study.compute(experiment, designs)
-        metrics = study.metrics(data)
-        out = Path(args.out)
-        files = study.write_figures(data, out)
-        files.append(cli.write_json(out / "tep_study.json", {"metrics": metrics, "designs": data["params"]}))
+        data, metrics, files = cli.score(study, experiment, designs, Path(args.out))
         print(f"## Tennessee Eastman, PCA: detection rates in % on the test files (rows 160-959), "
               f"FAR on d00_te.dat rows 160-959\n")
         for name in data["params"]:
