@@ -69,6 +69,10 @@ def _command(argv: list[str], from_command_line: bool) -> int:
         from .report import main as report_main
 
         return report_main(argv[1:])
+    if argv[:1] == ["monitor"]:
+        from .monitor import main as monitor_main
+
+        return monitor_main(argv[1:])
     if argv[:1] == ["log"]:
         from .pending import log_main
 

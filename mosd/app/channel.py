@@ -52,6 +52,13 @@ class Handler:
             self.store.log(self.run_id, request.get("params"), metrics, request.get("tags"),
                            request.get("artifacts", ()))
             return {}
+        if op == "model":  # the fitted pipeline as the run's pyfunc model (mosd.app.detector_model)
+            from .detector_model import log_model
+
+            try:
+                return {"model_uri": log_model(request["state"], self.store.settings.uri, self.run_id)}
+            except Exception as exc:  # the run itself is complete: reported, not fatal
+                return {"model_error": described(exc)}
         if op == "end":
             self.store.end(self.run_id, request["status"], request.get("error"))
             self.store = None

@@ -164,6 +164,11 @@ def run(cfg, started: float | None = None, checked=None):
             finals = [(k, v, 0) for k, v in {**timings, "wall_time_s": time.perf_counter() - started}.items()]
             logged.extend(finals)
             tracker.log(metrics=finals, artifacts=[f for f in files if f not in sent])
+            from .detector_model import save_for_run
+
+            model_file = save_for_run(setup, result, run_dir)
+            if model_file is not None:
+                tracker.log_model(model_file)
             try:
                 run_id = tracker.finish("FINISHED")
             except TrackingError as exc:
@@ -179,6 +184,11 @@ def run(cfg, started: float | None = None, checked=None):
                                     for k, v in tracker.startup_timings.items())
                 tracking_line = (f"mlflow    run {run_id}  experiment {tracker.settings.experiment!r}"
                                  f"  store {tracker.settings.uri}\n          ({where}: {startup})")
+                if tracker.model_uri:
+                    tracking_line += (f"\n          model {tracker.model_uri} (runs:/{run_id}/detector): "
+                                      f"python -m mosd monitor --model {tracker.model_uri} DATA.csv")
+                elif tracker.model_error:
+                    tracking_line += f"\n          model NOT LOGGED: {tracker.model_error}"
                 if tracker.note:
                     tracking_line += f"\n          store: {tracker.note}"
         timings["wall_s"] = time.perf_counter() - started

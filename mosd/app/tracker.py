@@ -48,6 +48,9 @@ class RunTracker:
         self.note: str | None = None
         self._channel = None
         self._queued: list[dict] = []
+        #: the logged model's URI, or why it was not logged (after finish; mosd.app.detector_model)
+        self.model_uri: str | None = None
+        self.model_error: str | None = None
 
     def start(self) -> "RunTracker":
         """Create the run (in the side process this returns at once)."""
@@ -63,6 +66,10 @@ class RunTracker:
                              "metrics": [(k, float(v), int(s)) for k, v, s in metrics],
                              "tags": {k: str(v) for k, v in (tags or {}).items()},
                              "artifacts": [str(Path(a).resolve()) for a in artifacts]})
+
+    def log_model(self, state_file: str | os.PathLike) -> None:
+        """Queue the fitted pipeline ``state_file`` as the run's pyfunc model ``detector``."""
+        self._queued.append({"op": "model", "state": str(Path(state_file).resolve())})
 
     def send(self) -> None:
         """Send the queued batches now; their replies are read by :meth:`finish`.
@@ -103,6 +110,8 @@ class RunTracker:
             self.run_id = replies[0]["run_id"]
             self.startup_timings = replies[0].get("timings", {})
             self.note = replies[0].get("note")
+        self.model_uri = next((r["model_uri"] for r in replies if r.get("model_uri")), None)
+        self.model_error = next((r["model_error"] for r in replies if r.get("model_error")), None)
         failed = [r["error"] for r in replies if not r.get("ok")]
         if failed:
             raise TrackingError(failed[0])

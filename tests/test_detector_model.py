@@ -1,0 +1,162 @@
+"""The tuned recorded-data detector as an MLflow pyfunc model, and ``python -m mosd monitor`` (issue 24).
+
+* :class:`mosd.app.detector_model.FittedPCA` alarms where :class:`PCADetector.decide` alarms (EWMA and
+  persistence included), in one call, in chunks and row by row with the state carried;
+* a missing or extra column is a one-line error naming it; column order does not matter;
+* end to end: a ``data=table`` run logs the model, its URI is in the summary, and ``mosd monitor`` on the
+  test split's rows gives the run's own test FAR and MDR and the detector's alarms row by row.
+"""
+from __future__ import annotations
+
+import json
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mosd.app.detector_model import STATE, FittedPCA
+from mosd.detectors.pca import PCADetector
+from mosd.validation import ConfigError
+
+PACKAGE_PARENT = str(Path(__file__).resolve().parents[1])
+TAGS = tuple(f"tag{i}" for i in range(6))
+
+
+def plant(n=1200, seed=0):
+    """Correlated tags (two latent factors) with a shift of tag2 in two labelled fault windows."""
+    rng = np.random.default_rng(seed)
+    X = rng.normal(size=(n, 2)) @ rng.normal(size=(2, len(TAGS))) + 0.3 * rng.normal(size=(n, len(TAGS)))
+    label = np.zeros(n, int)
+    for a, b in [(700, 800), (950, 1100)]:
+        label[a:b] = 1
+        X[a:b, 2] += 1.5
+    return X, label
+
+
+DESIGNS = [dict(n_components=2, alpha=0.01, lam=1.0, persistence=1),
+           dict(n_components=3, alpha=0.05, lam=0.3, persistence=3),
+           dict(n_components=2, alpha=0.1, lam=0.7, persistence=2, statistic="spe")]
+
+
+@pytest.mark.parametrize("design", DESIGNS)
+def test_scoring_equals_the_detector_in_one_call_in_chunks_and_row_by_row(design):
+    X, _ = plant()
+    calibration = np.stack([X[:300], X[300:600]])        # run 0 fits, run 1 holds back (empirical limits)
+    test = X[600:][None]
+    detector = PCADetector(fit_runs=1, max_components=5, **design)
+    expected = detector.decide(calibration, test).decision[0].astype(bool)
+    fitted = FittedPCA.from_detector(detector, calibration, TAGS)
+    whole = fitted.score(test[0])
+    assert np.array_equal(whole["alarm"], expected)
+    assert 0 < expected.sum() < expected.size               # something to get wrong either way
+    # row by row, each call from the previous row's state
+    state, alarms, t2 = None, [], []
+    for row in test[0]:
+        out = fitted.score(row[None], state)
+        state = {k: out[k][-1] for k in STATE}
+        alarms.append(out["alarm"][0])
+        t2.append(out["t2_smoothed"][0])
+    assert np.array_equal(alarms, expected)
+    # one row's projection and a block's differ in BLAS rounding only (1e-15 relative)
+    np.testing.assert_allclose(t2, whole["t2_smoothed"], rtol=1e-12)
+    # chunks of 7 rows
+    state, parts = None, []
+    for start in range(0, len(test[0]), 7):
+        out = fitted.score(test[0][start:start + 7], state)
+        state = {k: out[k][-1] for k in STATE}
+        parts.append(out["alarm"])
+    assert np.array_equal(np.concatenate(parts), expected)
+
+
+def test_without_the_carried_state_chunks_differ():
+    """The state matters: restarting every chunk from the in-control start changes the alarms."""
+    X, _ = plant()
+    calibration = np.stack([X[:300], X[300:600]])
+    detector = PCADetector(fit_runs=1, max_components=5, **DESIGNS[1])
+    fitted = FittedPCA.from_detector(detector, calibration, TAGS)
+    expected = fitted.score(X[600:])["alarm"]
+    restarted = np.concatenate([fitted.score(X[600 + s:600 + s + 3])["alarm"] for s in range(0, 600, 3)])
+    assert not np.array_equal(restarted, expected)
+
+
+def test_columns_any_order_missing_or_extra_is_one_line_naming_it(tmp_path):
+    import pandas as pd
+
+    X, _ = plant()
+    detector = PCADetector(fit_runs=1, max_components=5, n_components=2)
+    fitted = FittedPCA.load(FittedPCA.from_detector(detector, X[None, :600], TAGS).save(tmp_path))
+    frame = pd.DataFrame(X[600:700], columns=TAGS)
+    out = fitted.predict_frame(frame)
+    shuffled = fitted.predict_frame(frame[list(TAGS[::-1])])
+    pd.testing.assert_frame_equal(out, shuffled)
+    with pytest.raises(ConfigError, match=r"^input column 'tag3' is missing"):
+        fitted.predict_frame(frame.drop(columns=["tag3"]))
+    with pytest.raises(ConfigError, match=r"^input column 'extra' is not a tag of the model"):
+        fitted.predict_frame(frame.assign(extra=1.0))
+    # a historian error code: no alarm on that row, the others are scored
+    text = frame.astype(object)
+    text.iloc[5, 1] = "Bad"
+    scored = fitted.predict_frame(text)
+    assert not scored["alarm"].iloc[5] and np.isnan(scored["t2"].iloc[5])
+    assert np.isfinite(scored["t2"].drop(index=scored.index[5])).all()
+
+
+def _mosd(args, cwd, outputs):
+    env = {k: v for k, v in os.environ.items() if not k.startswith("MOSD_")}
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (PACKAGE_PARENT, env.get("PYTHONPATH")) if p)
+    env["MOSD_OUTPUTS"] = str(outputs)
+    return subprocess.run([sys.executable, "-m", "mosd", *args], cwd=cwd, env=env, capture_output=True, text=True,
+                          timeout=600)
+
+
+def test_run_logs_the_model_and_monitor_reproduces_its_test_evaluation(tmp_path):
+    import pandas as pd
+
+    pytest.importorskip("mlflow")
+    X, label = plant()
+    table = pd.DataFrame(X, columns=TAGS)
+    table.insert(0, "time", np.arange(len(X)) * 60.0)
+    table["fault"] = label
+    csv = tmp_path / "plant.csv"
+    table.to_csv(csv, index=False)
+    outputs = tmp_path / "out"
+    run = _mosd([f"data.path={csv}", "data=table", "data.time_column=time", "data.label_column=fault",
+                 "estimator=measured", "monitor=signals", "detector=pca", "detector.max_components=4",
+                 "detector.n_components=2", "optimizer.pop_size=8", "optimizer.n_gen=2", "progress=false"],
+                tmp_path, outputs)
+    assert run.returncode == 0, run.stderr[-2000:]
+    uri = re.search(r"model (models:/\S+) \(runs:/(\w+)/detector\)", run.stdout)
+    assert uri, run.stdout[-2000:]
+    tracking = f"sqlite:///{outputs / 'mlflow.db'}"
+    summary = json.loads(next((outputs / "runs").glob("*/summary.json")).read_text())
+    # the test split: rows 900-1199 (splits 0.5/0.25/0.25)
+    test = table.iloc[900:]
+    test.to_csv(tmp_path / "test.csv", index=False)
+    for model in (uri.group(1), f"runs:/{uri.group(2)}/detector"):
+        scored = _mosd(["monitor", "--model", model, str(tmp_path / "test.csv"), "--keep", "time", "--keep", "fault",
+                        "--out", str(tmp_path / "alarms.csv"), "--tracking-uri", tracking, "--chunk", "13"],
+                       tmp_path, outputs)
+        assert scored.returncode == 0, scored.stderr[-2000:]
+        assert re.search(r"300 rows, \d+ alarms", scored.stdout)
+        alarms = pd.read_csv(tmp_path / "alarms.csv")
+        alarm = alarms["alarm"].to_numpy(bool)
+        labels = alarms["fault"].to_numpy()
+        assert np.mean(alarm[labels == 0]) == pytest.approx(summary["test"]["far"]["mean"], abs=1e-12)
+        assert 1 - np.mean(alarm[labels != 0]) == pytest.approx(summary["test"]["mdr"]["mean"], abs=1e-12)
+    # and row by row: the tuned design refitted on the calibration rows (0-599) decides the same
+    params = summary["params"]
+    detector = PCADetector(max_components=4, **{k: params[k] for k in ("n_components", "alpha", "lam",
+                                                                       "persistence")})
+    expected = detector.decide(X[None, :600], X[None, 900:]).decision[0].astype(bool)
+    assert np.array_equal(alarm, expected)
+    # one-line errors, exit 2: an extra column, an unknown model
+    bad = _mosd(["monitor", "--model", uri.group(1), str(csv), "--tracking-uri", tracking], tmp_path, outputs)
+    assert bad.returncode == 2 and bad.stderr.strip().count("\n") == 0
+    assert "column 'time'" in bad.stderr
+    bad = _mosd(["monitor", "--model", "runs:/0123/detector", str(csv), "--tracking-uri", tracking], tmp_path,
+                outputs)
+    assert bad.returncode == 2 and bad.stderr.strip().count("\n") == 0 and "runs:/0123/detector" in bad.stderr
