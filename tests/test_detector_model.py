@@ -113,10 +113,13 @@ def _mosd(args, cwd, outputs):
                           timeout=600)
 
 
-def test_run_logs_the_model_and_monitor_reproduces_its_test_evaluation(tmp_path):
+@pytest.fixture(scope="module")
+def logged_run(tmp_path_factory):
+    """A data=table run of the generated plant (tracking on), its model URI and summary."""
     import pandas as pd
 
     pytest.importorskip("mlflow")
+    tmp_path = tmp_path_factory.mktemp("logged")
     X, label = plant()
     table = pd.DataFrame(X, columns=TAGS)
     table.insert(0, "time", np.arange(len(X)) * 60.0)
@@ -131,32 +134,84 @@ def test_run_logs_the_model_and_monitor_reproduces_its_test_evaluation(tmp_path)
     assert run.returncode == 0, run.stderr[-2000:]
     uri = re.search(r"model (models:/\S+) \(runs:/(\w+)/detector\)", run.stdout)
     assert uri, run.stdout[-2000:]
-    tracking = f"sqlite:///{outputs / 'mlflow.db'}"
     summary = json.loads(next((outputs / "runs").glob("*/summary.json")).read_text())
-    # the test split: rows 900-1199 (splits 0.5/0.25/0.25)
-    test = table.iloc[900:]
+    params = summary["params"]
+    detector = PCADetector(max_components=4, **{k: params[k] for k in ("n_components", "alpha", "lam",
+                                                                       "persistence")})
+    # the run's test split is rows 900-1199 (splits 0.5/0.25/0.25): the tuned design refitted on rows 0-599
+    expected = detector.decide(X[None, :600], X[None, 900:]).decision[0].astype(bool)
+    return dict(tmp=tmp_path, outputs=outputs, csv=csv, table=table, model=uri.group(1), run_id=uri.group(2),
+                tracking=f"sqlite:///{outputs / 'mlflow.db'}", summary=summary, expected=expected)
+
+
+def test_run_logs_the_model_and_monitor_reproduces_its_test_evaluation(logged_run):
+    import pandas as pd
+
+    r = logged_run
+    tmp_path, summary, tracking = r["tmp"], r["summary"], r["tracking"]
+    test = r["table"].iloc[900:]
     test.to_csv(tmp_path / "test.csv", index=False)
-    for model in (uri.group(1), f"runs:/{uri.group(2)}/detector"):
+    for model in (r["model"], f"runs:/{r['run_id']}/detector"):
         scored = _mosd(["monitor", "--model", model, str(tmp_path / "test.csv"), "--keep", "time", "--keep", "fault",
                         "--out", str(tmp_path / "alarms.csv"), "--tracking-uri", tracking, "--chunk", "13"],
-                       tmp_path, outputs)
+                       tmp_path, r["outputs"])
         assert scored.returncode == 0, scored.stderr[-2000:]
         assert re.search(r"300 rows, \d+ alarms", scored.stdout)
         alarms = pd.read_csv(tmp_path / "alarms.csv")
         alarm = alarms["alarm"].to_numpy(bool)
         labels = alarms["fault"].to_numpy()
+        # the run's own test evaluation (summary.json), and row by row the tuned design's decisions
         assert np.mean(alarm[labels == 0]) == pytest.approx(summary["test"]["far"]["mean"], abs=1e-12)
         assert 1 - np.mean(alarm[labels != 0]) == pytest.approx(summary["test"]["mdr"]["mean"], abs=1e-12)
-    # and row by row: the tuned design refitted on the calibration rows (0-599) decides the same
-    params = summary["params"]
-    detector = PCADetector(max_components=4, **{k: params[k] for k in ("n_components", "alpha", "lam",
-                                                                       "persistence")})
-    expected = detector.decide(X[None, :600], X[None, 900:]).decision[0].astype(bool)
-    assert np.array_equal(alarm, expected)
+        assert np.array_equal(alarm, r["expected"])
     # one-line errors, exit 2: an extra column, an unknown model
-    bad = _mosd(["monitor", "--model", uri.group(1), str(csv), "--tracking-uri", tracking], tmp_path, outputs)
+    bad = _mosd(["monitor", "--model", r["model"], str(r["csv"]), "--tracking-uri", tracking], tmp_path, r["outputs"])
     assert bad.returncode == 2 and bad.stderr.strip().count("\n") == 0
     assert "column 'time'" in bad.stderr
-    bad = _mosd(["monitor", "--model", "runs:/0123/detector", str(csv), "--tracking-uri", tracking], tmp_path,
-                outputs)
+    bad = _mosd(["monitor", "--model", "runs:/0123/detector", str(r["csv"]), "--tracking-uri", tracking], tmp_path,
+                r["outputs"])
     assert bad.returncode == 2 and bad.stderr.strip().count("\n") == 0 and "runs:/0123/detector" in bad.stderr
+
+
+@pytest.mark.slow
+def test_mlflow_models_serve_gives_the_same_alarms(logged_run):
+    """``mlflow models serve --env-manager local`` on 127.0.0.1: requests of 100 rows, state carried in params."""
+    import socket
+    import time
+    import urllib.request
+
+    r = logged_run
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    env = {**os.environ, "MLFLOW_TRACKING_URI": r["tracking"],
+           "PYTHONPATH": os.pathsep.join(p for p in (PACKAGE_PARENT, os.environ.get("PYTHONPATH")) if p)}
+    server = subprocess.Popen([sys.executable, "-m", "mlflow", "models", "serve", "-m", r["model"], "--host",
+                               "127.0.0.1", "--port", str(port), "--env-manager", "local"], env=env,
+                              stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 300
+        while True:
+            assert server.poll() is None, server.stderr.read().decode()[-2000:]
+            try:
+                urllib.request.urlopen(f"http://127.0.0.1:{port}/ping", timeout=2)
+                break
+            except OSError:
+                assert time.monotonic() < deadline, "the model server did not answer /ping"
+                time.sleep(1)
+        test = r["table"].iloc[900:].drop(columns=["time", "fault"])
+        state, alarms = None, []
+        for start in range(0, len(test), 100):
+            chunk = test.iloc[start:start + 100]
+            body = {"dataframe_split": {"columns": list(chunk.columns), "data": chunk.to_numpy().tolist()}}
+            if state:
+                body["params"] = state
+            request = urllib.request.Request(f"http://127.0.0.1:{port}/invocations", json.dumps(body).encode(),
+                                             {"Content-Type": "application/json"})
+            rows = json.loads(urllib.request.urlopen(request, timeout=60).read())["predictions"]
+            alarms += [bool(row["alarm"]) for row in rows]
+            state = {k: rows[-1][k] for k in STATE}
+        assert np.array_equal(alarms, r["expected"])
+    finally:
+        os.killpg(server.pid, 15)
+        server.wait(timeout=30)
