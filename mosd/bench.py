@@ -493,11 +493,25 @@ def bench_tep(quick: bool = False) -> tuple[list, dict]:
 
     if bibmon_directory() is None:
         return [("skipped: the TE files need pip install \".[te]\"", float("nan"), "")], {}
-    r = benchmark(quick)
-    return ([("PCA designs/s on the training split, in-process", r["candidates_per_s"],
-              f"{r['n_candidates']} designs, {r['training_points']} points each"),
-             ("fit on d00.dat + score all 22 test files, s", r["fit_score_s"], f"{r['test_points']} points")],
-            {"tep_candidates_per_s": r["candidates_per_s"], "tep_fit_score_s": r["fit_score_s"]})
+    return _with_monitor(benchmark(quick), quick)
+
+
+def _with_monitor(r: dict, quick: bool) -> tuple[list, dict]:
+    """bench_tep's rows and figures plus the logged model's scoring speed (mosd.app.detector_model)."""
+    from .app.detector_model import monitor_benchmark
+
+    m = monitor_benchmark(quick)
+    rows = [("PCA designs/s on the training split, in-process", r["candidates_per_s"],
+             f"{r['n_candidates']} designs, {r['training_points']} points each"),
+            ("fit on d00.dat + score all 22 test files, s", r["fit_score_s"], f"{r['test_points']} points"),
+            ("logged model: rows scored/s (predict on a DataFrame, in-process)", m["monitor_rows_per_s"],
+             f"{m['rows']} rows of the 22 test files, with top contributors")]
+    figures = {"tep_candidates_per_s": r["candidates_per_s"], "tep_fit_score_s": r["fit_score_s"],
+               "monitor_rows_per_s": m["monitor_rows_per_s"]}
+    if "bibmon_rows_per_s" in m:
+        rows.append(("bibmon PCA predict on the same rows, rows/s", m["bibmon_rows_per_s"], "side by side"))
+        figures["bibmon_predict_rows_per_s"] = m["bibmon_rows_per_s"]
+    return rows, figures
 
 
 def main(argv: list[str] | None = None) -> int:
