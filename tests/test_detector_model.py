@@ -215,3 +215,36 @@ def test_mlflow_models_serve_gives_the_same_alarms(logged_run):
     finally:
         os.killpg(server.pid, 15)
         server.wait(timeout=30)
+
+
+@pytest.mark.slow
+def test_tep_run_logs_a_model_whose_monitor_alarms_give_the_run_s_test_rates(tmp_path):
+    """+experiment=tep: the logged model scores the test files' rows 160-959 as the run's evaluation did."""
+    import pandas as pd
+
+    from mosd.data.tep import TennesseeEastman, bibmon_directory
+
+    if bibmon_directory() is None:
+        pytest.skip('the TE files need pip install ".[te]"')
+    outputs = tmp_path / "out"
+    run = _mosd(["+experiment=tep", "optimizer.pop_size=8", "optimizer.n_gen=2", "optimizer.n_jobs=1",
+                 "progress=false", "study.figures=false"], tmp_path, outputs)
+    assert run.returncode == 0, run.stderr[-2000:]
+    model = re.search(r"model (models:/\S+) \(runs:/\w+/detector\)", run.stdout).group(1)
+    summary = json.loads(next((outputs / "runs").glob("*/summary.json")).read_text())
+    te = TennesseeEastman()
+    test = te.trace("test")
+    labels = test.fault_label.max(axis=1)
+    for fault in (0, 1, 10):
+        r = int(np.flatnonzero(labels == fault)[0])
+        path = tmp_path / f"te{fault}.parquet"
+        pd.DataFrame(test.y[r], columns=list(te.output_names)).to_parquet(path)
+        scored = _mosd(["monitor", "--model", model, str(path), "--out", str(tmp_path / "alarms.csv"),
+                        "--tracking-uri", f"sqlite:///{outputs / 'mlflow.db'}"], tmp_path, outputs)
+        assert scored.returncode == 0, scored.stderr[-2000:]
+        rate = pd.read_csv(tmp_path / "alarms.csv")["alarm"].mean()
+        if fault == 0:
+            assert rate == pytest.approx(summary["test"]["far"]["mean"], abs=1e-12)
+            assert rate == pytest.approx(summary["study"]["tuned_far_combined"], abs=1e-12)
+        else:
+            assert rate == pytest.approx(summary["study"][f"tuned_fdr_combined_idv{fault}"], abs=1e-12)
