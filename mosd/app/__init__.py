@@ -5,7 +5,9 @@ script) runs one experiment; ``python -m mosd +experiment=NAME`` a paper's prese
 ``-m`` sweeps, one MLflow child run per job under one parent run
 (:class:`mosd.app.sweep.SweepCallback`); ``mosd report`` prints the
 comparison table (:mod:`mosd.app.report`); ``mosd log RUN_DIR`` logs a run
-whose MLflow logging failed (:func:`mosd.app.pending.log_main`).
+whose MLflow logging failed (:func:`mosd.app.pending.log_main`); ``mosd monitor
+--model URI DATA.csv`` scores a file with a run's logged detector model
+(:mod:`mosd.app.monitor`, :mod:`mosd.app.detector_model`).
 
 Modules by job (docs/ARCHITECTURE.md has their import graph):
 
@@ -22,7 +24,8 @@ Modules by job (docs/ARCHITECTURE.md has their import graph):
   :mod:`.channel` (its side process), :mod:`.tracker` (one run's
   :class:`~mosd.app.tracker.RunTracker`), :mod:`.pending` (``mosd log``),
   :mod:`.sweep` (a sweep's parent run);
-* :mod:`.report` (``mosd report``).
+* :mod:`.report` (``mosd report``); :mod:`.detector_model` (a recorded-data run's fitted
+  pipeline as an MLflow pyfunc model) and :mod:`.monitor` (``mosd monitor``).
 
 Hydra and MLflow live here only, imported when needed, so ``import mosd.app`` is cheap.
 """
