@@ -186,7 +186,7 @@ def build(cfg) -> Setup:
     from ..experiment import Budget, Experiment
     from ..metrics.registry import check_objectives
     from ..optim.backends import check_backend
-    from ..optim.selection import RULES, choose
+    from ..optim.selection import RULES, choose, false_alarm_column
     from .settings import TrackingSettings
 
     if recorded:
@@ -228,9 +228,7 @@ def build(cfg) -> Setup:
     if not isinstance(cfg.progress, bool):
         raise ConfigError(f"progress={cfg.progress!r} is not allowed; allowed: true, false")
     TrackingSettings.from_config(dict(cfg.tracking), str(cfg.outputs_root))
-    if rule != "knee" and not {"far", "mdr"} <= set(objectives):
-        raise ConfigError(f"selection.rule={rule} needs far and mdr among optimizer.objectives "
-                          f"({', '.join(objectives)}); allowed: knee")
+    false_alarm_column(rule, objectives)  # the FAR/MDR rules need a false-alarm objective and mdr
     if recorded:
         from ..recorded import RecordedExperiment
 

@@ -48,9 +48,10 @@ from ..faults.random_amplitude import RandomAmplitudeFault
 from ..types import Residuals, Trace
 from ..validation import ConfigError, Interval, Param
 from .base import Estimator
-from .imputation import HALF_WIDTHS, EMImputer
+from .imputation import HALF_WIDTHS, EMImputer, hold_last
 
-MISSING = ("em", "skip")
+#: fills of a missing output: EM on lag windows (the paper), hold the last sample, or skip the correction
+MISSING = ("em", "hold", "skip")
 _BACKTRACKS = 12  # halvings of a step that does not lower J before the gain is kept
 
 
@@ -117,7 +118,8 @@ class _GainFilter(Estimator):
     """x̂_{k+1} = f(x̂_k) + U_k (ỹ_k − h(x̂_k)) on EM-filled outputs ỹ, vectorised over runs."""
 
     params = {
-        "missing": Param(MISSING, "Fill missing outputs by EM on lag windows (em), or skip the correction there."),
+        "missing": Param(MISSING, "Fill missing outputs by EM on lag windows (em), hold the last observed output "
+                         "(hold), or skip the correction there (skip)."),
         "em_half_width": Param(HALF_WIDTHS, "Half-width h of the EM lag windows."),
     }
 
@@ -127,6 +129,14 @@ class _GainFilter(Estimator):
 
     def _gains(self, n_samples: int) -> np.ndarray:
         raise NotImplementedError
+
+    def fill(self, y: np.ndarray) -> np.ndarray:
+        """The outputs ỹ the recursion uses: EM- or hold-filled, or ``y`` itself (``skip``: NaN stays)."""
+        if self.missing == "em":
+            return self.imputer.impute(y)
+        if self.missing == "hold":
+            return hold_last(y)
+        return y
 
     def estimate(self, trace: Trace, model) -> Residuals:
         """Outputs of every run of ``trace`` (R runs of N samples).
@@ -139,13 +149,13 @@ class _GainFilter(Estimator):
         y = np.asarray(trace.y, float)[..., 0]
         R, N = y.shape
         gains = self._gains(N)
-        y_filled = self.imputer.impute(y) if self.imputer is not None else y
+        y_filled = self.fill(y)
         x_hat = np.empty((R, N))
         xk = np.zeros(R)  # x̂_0 = 0 (paper)
         for k in range(N):
             x_hat[:, k] = xk
             innovation = y_filled[:, k] - model.h(xk)
-            # "skip": a missing output leaves the prediction uncorrected
+            # "skip" (and "hold" before the first sample): a missing output leaves the prediction uncorrected
             xk = model.f(xk) + gains[k] * np.nan_to_num(innovation)
         r = y - model.h(x_hat)
         extra = {"error": np.asarray(trace.x, float)[..., 0] - x_hat, "gain": np.broadcast_to(gains, (R, N)).copy(),

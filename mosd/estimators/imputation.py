@@ -119,6 +119,20 @@ def em_gaussian(X: np.ndarray, max_iter: int = 500, tol: float = 1e-10):
     return mean, cov, n_iter
 
 
+def hold_last(y: np.ndarray) -> np.ndarray:
+    """``y`` (R, N) with every NaN replaced by the last observed sample of its run (NaN before the first one).
+
+    The zero-order hold of a sample-and-hold acquisition: causal, no model, the
+    comparison for the EM fill (a gap of g samples is filled with a value up to g
+    steps old).
+    """
+    y = np.asarray(y, float)
+    k = np.arange(y.shape[-1])
+    last = np.maximum.accumulate(np.where(np.isnan(y), -1, k), axis=-1)   # index of the last observed sample
+    held = np.take_along_axis(y, np.maximum(last, 0), axis=-1)
+    return np.where(last >= 0, held, np.nan)
+
+
 def lag_windows(y: np.ndarray, width: int) -> np.ndarray:
     """Overlapping windows (y_j, ..., y_{j+width−1}) of every run: (R, N) -> (R, N − width + 1, width)."""
     return np.lib.stride_tricks.sliding_window_view(np.asarray(y, float), width, axis=-1)

@@ -102,6 +102,20 @@ def false_alarm_run_rate(alarms: np.ndarray, fault_mask: np.ndarray) -> np.ndarr
     return np.where(healthy.any(axis=-1), (alarms & healthy).any(axis=-1).astype(float), np.nan)
 
 
+def role_alarm_rate(alarms: np.ndarray, fault_label: np.ndarray, fault_roles, role: str = "nuisance") -> np.ndarray:
+    """Share of the points where a fault of ``role`` is active that raise an alarm (per run).
+
+    Paper 002's false isolation: an alarm while only the nuisance fault acts names the
+    wrong fault. ``fault_label`` is 0 (no fault) or i >= 1 (fault ``fault_roles[i - 1]``
+    active). NaN for runs without such points.
+    """
+    alarms = _alarms(alarms)
+    label = np.broadcast_to(np.asarray(fault_label), alarms.shape)
+    codes = [i + 1 for i, r in enumerate(fault_roles) if r == role]
+    points = np.isin(label, codes)
+    return _share(alarms & points, points)
+
+
 def _share(numerator: np.ndarray, denominator: np.ndarray) -> np.ndarray:
     count = denominator.sum(axis=-1)
     with np.errstate(invalid="ignore", divide="ignore"):

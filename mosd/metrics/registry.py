@@ -59,6 +59,9 @@ register("isolation_rate", False, "share of target-fault runs whose first alarm 
     lambda d, truth: detection.isolation_rate(d, truth.fault_mask, truth.fault_label))
 register("false_alarm_run_rate", True, "share of runs with any alarm on a point without the target fault")(
     lambda d, truth: detection.false_alarm_run_rate(d, truth.fault_mask))
+register("nuisance_alarm_rate", True, "false isolation: share of points with only a nuisance fault active that "
+         "alarm (paper 002)")(
+    lambda d, truth: detection.role_alarm_rate(d, truth.fault_label, truth.fault_roles, "nuisance"))
 
 
 def objective_names() -> list[str]:

@@ -178,12 +178,25 @@ def choose(X, F, rule: str = "max_accuracy", alpha: float = 0.05, objectives=("f
         if len(objectives) == 2:
             return int(rows[knee(sub)])
         return int(rows[ideal_distance(sub)])
-    if rule in ("max_accuracy", "min_mdr_far_le") and not {"far", "mdr"} <= set(objectives):
-        raise ConfigError(f"selection.rule={rule} needs far and mdr among optimizer.objectives "
-                          f"({', '.join(objectives)}); allowed: knee")
-    if objectives != ("far", "mdr"):
-        sub = sub[:, [objectives.index("far"), objectives.index("mdr")]]
+    far = false_alarm_column(rule, objectives)
+    if objectives != (far, "mdr"):
+        sub = sub[:, [objectives.index(far), objectives.index("mdr")]]
     return int(rows[select(sub, rule, alpha).index])
+
+
+#: objectives that play FAR in the FAR/MDR rules, in order of preference: the false-alarm rate, or
+#: paper 002's false isolation (alarms while only the nuisance fault acts)
+FALSE_ALARM_OBJECTIVES = ("far", "nuisance_alarm_rate")
+
+
+def false_alarm_column(rule: str, objectives) -> str:
+    """The objective that plays FAR in ``rule`` (``far``, else ``nuisance_alarm_rate``), or a one-line error."""
+    objectives = tuple(objectives)
+    far = next((name for name in FALSE_ALARM_OBJECTIVES if name in objectives), None)
+    if rule != "knee" and (far is None or "mdr" not in objectives):
+        raise ConfigError(f"selection.rule={rule} needs far and mdr (or nuisance_alarm_rate and mdr) among "
+                          f"optimizer.objectives ({', '.join(objectives)}); allowed: knee")
+    return far or "far"
 
 
 def _check_front(F) -> np.ndarray:

@@ -18,10 +18,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ..estimators.entropy_filter import FixedGainFilter
+from ..estimators.entropy_filter import MISSING, FixedGainFilter
+from ..estimators.imputation import EMImputer
 from ..metrics import Estimate, detection
+from ..plants.missingness import MECHANISMS
 from ..scenario import Scenario
-from ..validation import ConfigError, Interval, check_in, check_int
+from ..validation import ConfigError, Interval, check_choice, check_in, check_int
 from . import base, cli
 from .base import TUNED, decorate, design_params, figure, prefixed, recorded_designs
 
@@ -32,6 +34,8 @@ PAPER = {  # Tables 1–2 of the paper (delays in s; "fails" at 20 %)
     "nuisance_delay": {0.05: 1.176, 0.10: 2.578, 0.20: math.nan},
 }
 SETTLE = 10       # steps after the onset before the error's level is read
+#: the per-rate numbers of each missingness mechanism × fill (study metrics ``{mechanism}_{fill}_{key}_r{r}``)
+GRID_KEYS = ("detection_rate_target", "false_alarm_nuisance", "delay_target_s", "error_fluct_target", "fill_rmse")
 
 
 # ------------------------------------------------------------------------------------
@@ -65,6 +69,13 @@ class Study(base.Study):
         MCAR rates of the outputs in [0, 0.9] (the paper: 0, 5, 10, 20 %).
     baseline_gain : float
         U of the fixed-gain baseline, in [-2, 2] (docs/systems/paper002.md: 0.27).
+    mechanisms : sequence of {"mcar", "burst", "gap"}
+        Missingness mechanisms of the grid (:mod:`mosd.plants.missingness`).
+    fills : sequence of {"em", "hold", "skip"}
+        Fills of a missing output in the grid (the filters' ``missing``).
+    burst_length : float
+        Mean burst length in samples of the ``burst`` mechanism, in [1, 1000] and
+        at least rate / (1 − rate) for every rate.
     figures : bool
         Write the PNG figures into ``out_dir``.
 
@@ -83,6 +94,20 @@ class Study(base.Study):
       error x − x̂ (10 steps after the onset to the end), whose meeting is the
       paper's failure at 20 %.
 
+    Each filter is scored at its own threshold: a design given as one detector
+    (the tuned one) is the entropy filter's; the baseline gets the lowest
+    threshold of :data:`THRESHOLD_GRID` (same L) whose share of alarmed nuisance
+    points on ``2 n_runs`` calibration-stream runs does not exceed the entropy
+    design's on the same runs (equal false isolation); ``baseline_threshold``
+    records it. A design given as ``{"entropy": detector, "baseline": detector}``
+    (the report's midway design) is used as given.
+
+    Mechanism × fill grid (entropy filter, the tuned design, the same seeds):
+    ``{mechanism}_{fill}_{key}_r{r}`` for key in :data:`GRID_KEYS`, where
+    ``error_fluct_target`` is the mean over target runs of the sd of the error
+    over the steady steps and ``fill_rmse`` the RMS of filled minus true output
+    h(x_k) over the missing samples (NaN for ``skip`` and complete data).
+
     Separation (complete data, the tuned L, thresholds swept over
     :data:`THRESHOLD_GRID`): ``roc_auc`` and ``baseline_roc_auc`` (area under
     target point-detection against nuisance point false alarms), and
@@ -94,7 +119,7 @@ class Study(base.Study):
     system = SYSTEM
 
     def __init__(self, n_runs: int = 200, missing_rates=MISSING_RATES, baseline_gain: float = 0.27,
-                 figures: bool = True):
+                 mechanisms=MECHANISMS, fills=MISSING, burst_length: float = 5.0, figures: bool = True):
         super().__init__(figures=figures)
         self.n_runs = check_int("study.n_runs", n_runs, 2)
         if isinstance(missing_rates, (str, bytes)) or not hasattr(missing_rates, "__len__") or not len(missing_rates):
@@ -105,6 +130,12 @@ class Study(base.Study):
             raise ConfigError(f"study.missing_rates={list(missing_rates)!r} repeats a rate (in whole per cent); "
                               f"allowed: distinct rates")
         self.baseline_gain = check_in("study.baseline_gain", baseline_gain, Interval(-2.0, 2.0))
+        self.mechanisms = _choices("study.mechanisms", mechanisms, MECHANISMS)
+        self.fills = _choices("study.fills", fills, MISSING)
+        self.burst_length = check_in("study.burst_length", burst_length, Interval(1.0, 1000.0))
+        if "burst" in self.mechanisms and self.burst_length < max(r / (1 - r) for r in self.missing_rates):
+            raise ConfigError(f"study.burst_length={burst_length!r} is too short for the largest rate; allowed: "
+                              f">= rate / (1 - rate) = {max(r / (1 - r) for r in self.missing_rates):.3g}")
 
     # -- computation --------------------------------------------------------------------
     def baseline(self, estimator) -> FixedGainFilter:
@@ -112,32 +143,79 @@ class Study(base.Study):
         return FixedGainFilter(gain=self.baseline_gain, missing=getattr(estimator, "missing", "em"),
                                em_half_width=getattr(estimator, "em_half_width", 1))
 
-    def compute(self, experiment, designs: dict) -> dict:
-        """Per rate and filter: mean error curves and, per design, the scores; the ROC on complete data."""
+    def own_thresholds(self, experiment, designs: dict) -> dict[str, dict]:
+        """Each design as ``{filter: detector}``: the baseline at its own threshold (class docstring)."""
         filters = {"entropy": experiment.estimator, "baseline": self.baseline(experiment.estimator)}
+        out, points = {}, {}
+        for design, detector in designs.items():
+            if isinstance(detector, dict):
+                out[design] = {name: detector[name] for name in FILTER_PREFIXES}
+                continue
+            if not points:
+                trace = Scenario(experiment.plant, experiment.noise, experiment.fault, experiment.duration).simulate(
+                    experiment.seed, 2 * self.n_runs, "calibration")
+                points = {name: experiment.monitor.transform(est.estimate(trace, experiment.model))
+                          for name, est in filters.items()}
+            target = self._roc(detector, points["entropy"], [float(detector.threshold)])["false_alarm"][0]
+            fa = self._roc(detector, points["baseline"])["false_alarm"]
+            ok = np.flatnonzero(fa <= target)
+            threshold = float(THRESHOLD_GRID[ok[0]] if ok.size else THRESHOLD_GRID[-1])
+            out[design] = {"entropy": detector, "baseline": detector.with_params(threshold=threshold)}
+        return out
+
+    def compute(self, experiment, designs: dict) -> dict:
+        """Per rate and filter: mean error curves and, per design, the scores; the ROC on complete data; the grid."""
+        filters = {"entropy": experiment.estimator, "baseline": self.baseline(experiment.estimator)}
+        designs = self.own_thresholds(experiment, designs)
         dt = float(experiment.plant.dt)
         out = {"rates": self.missing_rates, "dt": dt, "n_runs": self.n_runs, "curves": {},
                "gain": np.asarray(getattr(experiment.estimator, "gain_", np.full(1, np.nan))),
                "baseline_gain": self.baseline_gain,
-               "params": {name: design_params(d) for name, d in designs.items()},
+               "params": {name: design_params(d["entropy"]) for name, d in designs.items()},
+               "baseline_params": {name: design_params(d["baseline"]) for name, d in designs.items()},
                "designs": {name: {"results": {}, "roc": {}} for name in designs}}
         for rate in self.missing_rates:
-            plant = experiment.plant.with_params(missing_rate=rate)
-            trace = Scenario(plant, experiment.noise, experiment.fault, experiment.duration).simulate(
-                experiment.seed, 2 * self.n_runs, "test")
+            trace = self._simulate(experiment, rate)
             for name, est in filters.items():
                 outputs = est.estimate(trace, experiment.model)
                 points = experiment.monitor.transform(outputs)
                 out["curves"][(name, rate)] = self._curves(outputs)
-                for design, detector in designs.items():
+                for design, detectors in designs.items():
                     scored = out["designs"][design]
-                    scored["results"][(name, rate)] = self._score(detector, outputs, points, dt)
+                    scored["results"][(name, rate)] = self._score(detectors[name], outputs, points, dt)
                     if rate == self.missing_rates[0]:
-                        scored["roc"][name] = self._roc(detector, points)
+                        scored["roc"][name] = self._roc(detectors[name], points)
                 if rate == self.missing_rates[0]:
                     out["onset_s"] = float(outputs.t[int(np.argmax(outputs.fault_label.max(axis=0) > 0))])
                     out["t"] = np.asarray(outputs.t, float)
+        shown = designs.get(TUNED) or next(iter(designs.values()))
+        out["grid"] = self._grid(experiment, shown["entropy"], dt)
         return out
+
+    def _simulate(self, experiment, rate: float, mechanism: str | None = None):
+        """The ``test`` runs at ``rate`` (the plant's own mechanism unless ``mechanism``), same seeds at every rate."""
+        extra = {} if mechanism is None else {"missing_mechanism": mechanism, "burst_length": self.burst_length}
+        plant = experiment.plant.with_params(missing_rate=rate, **extra)
+        return Scenario(plant, experiment.noise, experiment.fault, experiment.duration).simulate(
+            experiment.seed, 2 * self.n_runs, "test")
+
+    def _grid(self, experiment, detector, dt: float) -> dict:
+        """The entropy filter's numbers for every mechanism × fill × rate (class docstring)."""
+        grid = {}
+        for mechanism in self.mechanisms:
+            for rate in self.missing_rates:
+                trace = self._simulate(experiment, rate, mechanism)
+                gap = np.isnan(np.asarray(trace.y, float)[..., 0])
+                truth = experiment.model.h(np.asarray(trace.x, float)[..., 0])
+                for fill in self.fills:
+                    outputs = with_fill(experiment.estimator, fill).estimate(trace, experiment.model)
+                    scores = self._score(detector, outputs, experiment.monitor.transform(outputs), dt)
+                    filled = outputs.extra["y_filled"][gap]
+                    error = (filled - truth[gap])[np.isfinite(filled)]
+                    scores["fill_rmse"] = float(np.sqrt(np.mean(error**2))) if fill != "skip" and error.size \
+                        else math.nan
+                    grid[(mechanism, fill, rate)] = scores
+        return grid
 
     @staticmethod
     def _roles(labels: np.ndarray, roles) -> np.ndarray:
@@ -151,6 +229,7 @@ class Study(base.Study):
         error = outputs.extra["error"]
         onset = int(np.argmax(outputs.fault_label.max(axis=0) > 0))
         level = error[:, onset + SETTLE:].mean(axis=1)
+        fluct = error[:, onset + SETTLE:].std(axis=1)
         delay = detection.detection_delay(d[is_target], points.fault_mask[is_target]) * dt
         nuisance = (d[~is_target] != 0) & active[~is_target]
         return {
@@ -160,6 +239,7 @@ class Study(base.Study):
             "false_alarm_nuisance": float(nuisance.sum() / max(active[~is_target].sum(), 1)),
             "error_level_target": float(level[is_target].mean()),
             "error_level_nuisance": float(level[~is_target].mean()),
+            "error_fluct_target": float(fluct[is_target].mean()),
             "nuisance_level_p95": float(np.percentile(level[~is_target], 95)),
         }
 
@@ -174,15 +254,16 @@ class Study(base.Study):
                             "high": np.percentile(e, 95, axis=0), "example": e[0]}
         return curves
 
-    def _roc(self, detector, points) -> dict:
-        """Target point detection against nuisance point false alarms over the threshold sweep (tuned L)."""
-        X = np.column_stack([THRESHOLD_GRID, np.full(THRESHOLD_GRID.size, float(getattr(detector, "persistence", 1)))])
+    def _roc(self, detector, points, thresholds=THRESHOLD_GRID) -> dict:
+        """Target point detection against nuisance point false alarms over a threshold sweep (the design's L)."""
+        thresholds = np.asarray(thresholds, float)
+        X = np.column_stack([thresholds, np.full(thresholds.size, float(getattr(detector, "persistence", 1)))])
         d = detector.population(None, detector.features(points.z), X).decision != 0   # (P, R, K)
         is_target = self._roles(points.fault_label, points.fault_roles)
         active = points.fault_label > 0
         hit = (d[:, is_target] & active[is_target]).sum((1, 2)) / active[is_target].sum()
         fa = (d[:, ~is_target] & active[~is_target]).sum((1, 2)) / active[~is_target].sum()
-        return {"threshold": THRESHOLD_GRID, "detection": hit, "false_alarm": fa}
+        return {"threshold": thresholds, "detection": hit, "false_alarm": fa}
 
     @staticmethod
     def _at_false_alarm(roc: dict, level: float) -> float:
@@ -203,14 +284,18 @@ class Study(base.Study):
                 for rate in data["rates"]:
                     tag = rate_tag(rate)
                     for key, value in scored["results"][(name, rate)].items():
-                        if key in ("delay_target_ci95", "nuisance_level_p95"):
+                        if key in ("delay_target_ci95", "nuisance_level_p95", "error_fluct_target"):
                             continue
                         out[f"{prefixed(design)}{prefix}{key}_{tag}"] = float(value)
+            out[f"{prefixed(design)}baseline_threshold"] = float(data["baseline_params"][design]["threshold"])
             own_fa = scored["results"][("entropy", data["rates"][0])]["false_alarm_nuisance"]
             for name, prefix in FILTER_PREFIXES.items():
                 roc = scored["roc"][name]
                 out[f"{prefixed(design)}{prefix}roc_auc"] = self._auc(roc)
                 out[f"{prefixed(design)}{prefix}equal_fa_target_detection"] = self._at_false_alarm(roc, own_fa)
+        for (mechanism, fill, rate), scores in data.get("grid", {}).items():
+            for key in GRID_KEYS:
+                out[f"{mechanism}_{fill}_{key}_{rate_tag(rate)}"] = float(scores[key])
         return out
 
     # -- figures --------------------------------------------------------------------------
@@ -284,13 +369,32 @@ class Study(base.Study):
         return files
 
 
-def midway_threshold(experiment, n_runs: int) -> float:
+def _choices(key: str, values, allowed) -> tuple[str, ...]:
+    """A non-empty list of distinct names from ``allowed``, or a one-line :class:`ConfigError`."""
+    if isinstance(values, (str, bytes)) or not hasattr(values, "__len__") or not len(values) \
+            or len(set(values)) != len(values):
+        raise ConfigError(f"{key}={values!r} is not allowed; allowed: a list of distinct names from "
+                          f"{', '.join(allowed)}")
+    return tuple(check_choice(key, v, allowed) for v in values)
+
+
+def with_fill(estimator, fill: str):
+    """A shallow copy of a trained gain filter that fills missing outputs by ``fill`` (em, hold, skip)."""
+    est = copy.copy(estimator)
+    est.missing = fill
+    if fill == "em" and getattr(est, "imputer", None) is None:
+        est.imputer = EMImputer(half_width=getattr(estimator, "em_half_width", 1))
+    return est
+
+
+def midway_threshold(experiment, n_runs: int, estimator=None) -> float:
     """The reconstruction's fixed threshold: midway between the steady error levels of calibration-stream runs.
 
-    Drawn from the ``calibration`` stream with both faults (never the test runs).
+    Drawn from the ``calibration`` stream with both faults (never the test runs), estimated
+    by ``estimator`` (default: the experiment's): each filter has its own midway threshold.
     """
     sc = Scenario(experiment.plant, experiment.noise, experiment.fault, experiment.duration)
-    outputs = experiment.estimator.estimate(sc.simulate(experiment.seed, 2 * n_runs, "calibration"), experiment.model)
+    outputs = (estimator or experiment.estimator).estimate(sc.simulate(experiment.seed, 2 * n_runs, "calibration"), experiment.model)
     error = outputs.extra["error"]
     onset = int(np.argmax(outputs.fault_label.max(axis=0) > 0))
     level = error[:, onset + SETTLE:].mean(axis=1)
@@ -298,13 +402,19 @@ def midway_threshold(experiment, n_runs: int) -> float:
     return float(0.5 * (level[is_target].mean() + level[~is_target].mean()))
 
 
-def format_report(designs: dict[str, dict], metrics: dict[str, float]) -> str:
-    """Markdown: per design, filter and rate, the study's numbers beside the paper's delays."""
+def format_report(designs: dict[str, dict], metrics: dict[str, float], mechanisms=MECHANISMS,
+                  fills=MISSING) -> str:
+    """Markdown: per design, filter and rate, the study's numbers beside the paper's delays; the grid.
+
+    ``designs`` maps a design's name to ``{"entropy": params, "baseline": params}``: each
+    filter's row shows its own threshold.
+    """
     lines = ["| design | filter | missing | target detected | target delay (s) | paper delay (s) "
              "| nuisance points alarmed | error level target / nuisance |", "|---|---|---|---|---|---|---|---|"]
-    for design, p in designs.items():
+    for design, by_filter in designs.items():
         for name, filter_prefix in FILTER_PREFIXES.items():
             prefix = prefixed(design) + filter_prefix
+            p = by_filter[name]
             for tag, rate in ((rate_tag(r), r) for r in MISSING_RATES):
                 if f"{prefix}delay_target_s_{tag}" not in metrics:
                     continue
@@ -324,6 +434,17 @@ def format_report(designs: dict[str, dict], metrics: dict[str, float]) -> str:
             prefix = prefixed(design) + filter_prefix
             lines.append(f"| {design} | {name} | {metrics[prefix + 'roc_auc']:.4f} "
                          f"| {metrics[prefix + 'equal_fa_target_detection']:.4f} |")
+    lines += ["", "Entropy filter, tuned design, per missingness mechanism and fill (0 / 5 / 10 / 20 % ...):", "",
+              "| mechanism | fill | target detected | nuisance points alarmed | target delay (s) "
+              "| target error fluct. | fill RMSE |", "|---|---|---|---|---|---|---|"]
+    for mechanism in mechanisms:
+        for fill in fills:
+            tags = [rate_tag(r) for r in MISSING_RATES if f"{mechanism}_{fill}_fill_rmse_{rate_tag(r)}" in metrics]
+            if not tags:
+                continue
+            cells = [" / ".join(f"{metrics[f'{mechanism}_{fill}_{key}_{t}']:{fmt}}" for t in tags)
+                     for key, fmt in zip(GRID_KEYS, (".3f", ".4f", ".2f", ".3f", ".3f"))]
+            lines.append(f"| {mechanism} | {fill} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
@@ -341,14 +462,18 @@ def main(argv=None) -> int:
         experiment = cli.preset(SYSTEM, [f"seed={args.seed}"]).experiment
         tuned = experiment.detector.with_params(**cli.tuned_design(args, SYSTEM))
         experiment.fit_estimator()
-        midway = experiment.detector.with_params(threshold=midway_threshold(experiment, args.n_runs),
-                                                 **recorded["midway"])
+        # each filter at its own midway threshold (issue 20: the baseline used the entropy filter's)
+        midway = {name: experiment.detector.with_params(threshold=midway_threshold(experiment, args.n_runs, est),
+                                                        **recorded["midway"])
+                  for name, est in (("entropy", experiment.estimator),
+                                    ("baseline", study.baseline(experiment.estimator)))}
         data, metrics, files = cli.score(study, experiment, {TUNED: tuned, "midway": midway}, Path(args.out),
                                          n_runs=args.n_runs, seed=args.seed)
-        params = data["params"]
+        params = {name: {"entropy": data["params"][name], "baseline": data["baseline_params"][name]}
+                  for name in data["designs"]}
         print(f"## Paper 002: {args.n_runs} target + {args.n_runs} nuisance runs per missing rate, seed {args.seed} "
               f"(test stream)\n")
-        print(format_report(params, metrics) + "\n")
+        print(format_report(params, metrics, study.mechanisms, study.fills) + "\n")
         return files
 
     return cli.run_report(parser, argv, body)
