@@ -124,7 +124,7 @@ def test_paper002_separation_paths_agree_and_target_error_dominates(paper002_set
     # (each filter at its own threshold)
     for name, prefix in paper002.FILTER_PREFIXES.items():
         roc = data["designs"]["tuned"]["roc"][name]
-        own = data["designs"]["tuned"]["params" if name == "entropy" else "baseline_params"]["threshold"]
+        own = data["params" if name == "entropy" else "baseline_params"]["tuned"]["threshold"]
         k = int(np.flatnonzero(np.isclose(roc["threshold"], own))[0])
         assert roc["false_alarm"][k] == pytest.approx(metrics[f"{prefix}false_alarm_nuisance_r0"], abs=1e-12)
     # a ROC curve: fewer alarms of both kinds as the threshold rises
