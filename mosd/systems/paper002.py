@@ -13,6 +13,7 @@ returned is plain dicts, arrays and floats (the report command prints/plots them
 """
 from __future__ import annotations
 
+import copy
 import math
 from pathlib import Path
 
