@@ -164,6 +164,22 @@ def test_run_logs_the_model_and_monitor_reproduces_its_test_evaluation(logged_ru
         assert np.mean(alarm[labels == 0]) == pytest.approx(summary["test"]["far"]["mean"], abs=1e-12)
         assert 1 - np.mean(alarm[labels != 0]) == pytest.approx(summary["test"]["mdr"]["mean"], abs=1e-12)
         assert np.array_equal(alarm, r["expected"])
+    # a historian error code: the run's data.fill (hold) fills it as training did, with the previous row's value
+    coded = test.astype(object)
+    coded.iloc[40, 3] = "Bad"
+    coded.to_csv(tmp_path / "coded.csv", index=False)
+    held = test.copy()
+    held.iloc[40, 3] = held.iloc[39, 3]
+    held.to_csv(tmp_path / "held.csv", index=False)
+    outs = []
+    for name in ("coded", "held"):
+        scored = _mosd(["monitor", "--model", r["model"], str(tmp_path / f"{name}.csv"), "--keep", "time", "--keep",
+                        "fault", "--out", str(tmp_path / f"{name}_alarms.csv"), "--tracking-uri", tracking],
+                       tmp_path, r["outputs"])
+        assert scored.returncode == 0, scored.stderr[-2000:]
+        outs.append(pd.read_csv(tmp_path / f"{name}_alarms.csv"))
+    pd.testing.assert_frame_equal(outs[0], outs[1])
+    assert np.isfinite(outs[0]["t2"].iloc[40])
     # one-line errors, exit 2: an extra column, an unknown model
     bad = _mosd(["monitor", "--model", r["model"], str(r["csv"]), "--tracking-uri", tracking], tmp_path, r["outputs"])
     assert bad.returncode == 2 and bad.stderr.strip().count("\n") == 0

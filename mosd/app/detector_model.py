@@ -60,10 +60,11 @@ class FittedPCA:
     spe_limit: float
     t2_start: float
     spe_start: float
+    fill: str = "none"        # the training data's missing-value policy (mosd.data.table), applied by mosd monitor
 
     # -- building and storing ----------------------------------------------------------
     @classmethod
-    def from_detector(cls, detector, calibration_z: np.ndarray, tags) -> "FittedPCA":
+    def from_detector(cls, detector, calibration_z: np.ndarray, tags, fill: str = "none") -> "FittedPCA":
         """The tuned ``detector`` (a PCADetector) calibrated on ``calibration_z`` (R, K, m)."""
         calibration_z = np.asarray(calibration_z, float)
         model, fit_rows, _ = detector._calibration(calibration_z)
@@ -75,14 +76,14 @@ class FittedPCA:
                    t2_limit=float(limits["t2_limit"]), spe_limit=float(limits["spe_limit"]),
                    # the in-control mean the detector starts its EWMA from (PCADetector._design)
                    t2_start=float(np.nanmean(fit_rows.t2[..., a - 1])),
-                   spe_start=float(np.nanmean(fit_rows.spe[..., a - 1])))
+                   spe_start=float(np.nanmean(fit_rows.spe[..., a - 1])), fill=str(fill))
 
     def save(self, directory: str | Path) -> Path:
         """Write the arrays and the design to ``directory/pca_detector.npz``; returns the file."""
         directory = Path(directory)
         directory.mkdir(parents=True, exist_ok=True)
         meta = {k: getattr(self, k) for k in ("n_fit", "n_components", "alpha", "lam", "persistence", "statistic",
-                                              "t2_limit", "spe_limit", "t2_start", "spe_start")}
+                                              "t2_limit", "spe_limit", "t2_start", "spe_start", "fill")}
         path = directory / STATE_FILE
         np.savez(path, mean=self.mean, scale=self.scale, loadings=self.loadings, eigenvalues=self.eigenvalues,
                  tags=np.array(self.tags), meta=np.array(json.dumps(meta)))
@@ -249,7 +250,8 @@ def fitted_of_run(setup, result) -> FittedPCA | None:
             or int(getattr(monitor, "burn_in", 0)) != 0 or tuple(monitor.outputs) != ("residual",)):
         return None
     calibration = experiment.monitor.transform(experiment.calibrate()).z
-    return FittedPCA.from_detector(result.detector, calibration, data.output_names)
+    return FittedPCA.from_detector(result.detector, calibration, data.output_names,
+                                   fill=getattr(data, "fill", "none"))
 
 
 def save_for_run(setup, result, run_dir) -> Path | None:

@@ -5,9 +5,10 @@ The model is a run's logged detector (:mod:`mosd.app.detector_model`), loaded wi
 ``--chunk`` rows, in file order; each chunk starts from the state (EWMA of T²
 and SPE, consecutive points above the limit) the previous chunk ended with,
 so the alarms do not depend on the chunk size. A cell that is not a number (a
-historian error code such as ``Bad``) is a missing value: that row gets no
-alarm and the EWMA takes the in-control mean there, as in the run's
-evaluation with ``data.fill=none``.
+historian error code such as ``Bad``) is a missing value, and the run's
+``data.fill`` policy (stored in the model) fills the file as training did
+(``hold``, ``interpolate``, ``drop``); with ``none`` (and for TE) a row with a
+missing value gets no alarm and the EWMA takes the in-control mean there.
 
 Exit codes: 0 done; 2 a mistake (one line: no such model or file, a missing or
 an extra column).
@@ -114,6 +115,19 @@ def main(argv: Sequence[str] | None = None) -> int:
             if found:
                 raise ConfigError(f"column {found[0]!r} of {path} {kind} ({len(found)} such); allowed: the model's "
                                   f"{len(names)} tags in any order, other columns named with --keep")
+        fill = getattr(getattr(model.unwrap_python_model(), "fitted", None), "fill", "none")
+        if fill != "none":
+            # the training data's policy for historian error codes and gaps (mosd.data.table), on the whole file
+            import numpy as np
+            import pandas as pd
+
+            from ..data.table import _fill
+
+            values = np.column_stack([pd.to_numeric(tags[c], errors="coerce").to_numpy(dtype=float, na_value=np.nan)
+                                      for c in tags.columns])
+            values, _, kept = _fill(values, np.zeros(len(values), int), fill)
+            frame = frame.iloc[kept]
+            tags = pd.DataFrame(values, columns=tags.columns, index=frame.index)
         try:
             out = score_file(model, tags, args.chunk, progress=not args.no_progress and sys.stderr.isatty())
         except ConfigError:
