@@ -268,12 +268,12 @@ def monitor_benchmark(quick: bool = False) -> dict:
     in-process). With bibmon installed, its ``PCA.predict`` on the same rows, fitted on the same
     calibration rows with 9 components, side by side (``bibmon_rows_per_s``).
     """
-    import time
     import warnings
 
     import pandas as pd
 
     from ..data.tep import TennesseeEastman
+    from ..timing import best_of
     from ..detectors.pca import PCADetector
 
     te = TennesseeEastman(variables="literature")
@@ -284,12 +284,7 @@ def monitor_benchmark(quick: bool = False) -> dict:
     repeats = 2 if quick else 5
 
     def best(fn):
-        times = []
-        for _ in range(repeats):
-            t0 = time.perf_counter()
-            fn()
-            times.append(time.perf_counter() - t0)
-        return min(times)
+        return best_of(fn, repeats)
 
     out = {"rows": len(frame), "monitor_rows_per_s": len(frame) / best(lambda: fitted.predict_frame(frame))}
     try:

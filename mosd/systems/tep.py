@@ -387,11 +387,10 @@ def benchmark(quick: bool = False, seed: int = 0) -> dict:
     the training split in-process (FAR and MDR: what one optimiser worker does);
     ``fit_score_s``: fitting the literature design on d00.dat and scoring all 22 test files.
     """
-    import time
-
     from ..estimators.measured import MeasuredSignals
     from ..monitors.outputs import OutputMonitor
     from ..recorded import RecordedExperiment
+    from ..timing import best_of
 
     te = TennesseeEastman()
     experiment = RecordedExperiment(te, MeasuredSignals(), OutputMonitor(), PCADetector(fit_runs=1, max_components=25))
@@ -404,12 +403,7 @@ def benchmark(quick: bool = False, seed: int = 0) -> dict:
     repeats = 2 if quick else 3
 
     def best(fn):
-        times = []
-        for _ in range(repeats):
-            t0 = time.perf_counter()
-            fn()
-            times.append(time.perf_counter() - t0)
-        return min(times)
+        return best_of(fn, repeats)
 
     calibration, test = te.trace("calibration").y, te.trace("test").y
     fit_score = best(lambda: PCADetector(**LITERATURE, fit_runs=1).decide(calibration, test))
