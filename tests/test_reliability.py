@@ -183,7 +183,7 @@ def test_read_only_outputs_root_fails_in_preflight(tmp_path):
     (["denoise=wavelet", "denoise.level=12"], r"denoise\.level=12 needs at least 20480 chart points per run for db3; "
                                               r"the run has 1000 .*allowed: denoise\.level <= 7"),
     (["fault.onset=10"], r"fault\.onset=10 is past the end of the run \(scenario\.duration=5\.2\)"),
-    (["fault.onset=5.1999"], r"the fault never acts within the run .*allowed: 0 <= fault\.onset < scenario\.duration"),
+    (["fault.onset=5.1999"], r"fault\.onset=5\.1999 leaves no faulty chart point.*allowed: 0\.204 < fault\.onset <= 5\.199"),
 ])
 def test_values_that_do_not_fit_together_are_refused_with_the_bound(overrides, pattern):
     with pytest.raises((ConfigError, UsageError)) as info:
@@ -192,7 +192,8 @@ def test_values_that_do_not_fit_together_are_refused_with_the_bound(overrides, p
     assert "\n" not in message and re.search(pattern, message), message
 
 
-@pytest.mark.parametrize("overrides", [["fault.onset=0"], ["monitor.burn_in=5190"], ["denoise=wavelet"]])
+@pytest.mark.parametrize("overrides", [["fault.onset=0.2045"], ["fault.onset=5.199"], ["monitor.burn_in=5190", "fault.onset=5.199"],
+                                       ["denoise=wavelet"]])
 def test_values_at_the_bound_pass_the_dry_run(overrides, monkeypatch):
     """At the bound the dry run runs to its end and scores the design with a finite limit and finite rates."""
     from mosd.experiment import Experiment
@@ -209,8 +210,8 @@ def test_values_at_the_bound_pass_the_dry_run(overrides, monkeypatch):
     assert len(scored) == 1, "the dry run did not score the design"
     report, example = scored[0]
     assert example["statistic"].size >= 2 and np.all(np.isfinite(example["ucl"])), example["ucl"]
-    # the dry run scores its one training run (FAR is NaN where the fault acts from its first subgroup)
-    assert 0.0 <= report.summary()["mdr"].mean <= 1.0, report.summary()
+    # the dry run scores its one training run: a fault-free and a faulty chart point at least (issue 22)
+    assert 0.0 <= report.summary()["mdr"].mean <= 1.0 and 0.0 <= report.summary()["far"].mean <= 1.0, report.summary()
 
 
 def test_the_dry_run_leaves_the_components_as_built():

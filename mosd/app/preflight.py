@@ -147,6 +147,56 @@ def _check_denoiser(setup: Setup, n_chart_points: int) -> None:
                       f"{', ' + source if source else ''}); allowed: {allowed}")
 
 
+def _check_onset(setup: Setup, train) -> None:
+    """The fault's onset against the chart's time grid: a run needs fault-free and faulty chart points.
+
+    A chart point's fault state is that of its last sample (``t >= onset``), so
+    both exist exactly when ``t[0] < onset <= t[-1]`` on the chart's grid (the
+    points after ``monitor.burn_in``). Without a fault-free point the false-alarm
+    rate is 0/0 (NaN), without a faulty one the missed-detection rate is.
+    """
+    mask, t = np.asarray(train.fault_mask, bool), np.asarray(train.t, float)
+    healthy, faulty = (~mask).any(axis=-1).all(), mask.any(axis=-1).all()
+    if healthy and faulty:
+        return
+    fault, monitor = setup.experiment.fault, setup.experiment.monitor
+    # a fault set (one fault per replication) has no onset key of its own
+    key = "fault.onset" if (getattr(type(fault), "params", None) or {}).get("onset") is not None else "the fault's onset"
+    value = f"={getattr(fault, 'onset', float('nan')):g}" if key == "fault.onset" else ""
+    source = ", ".join(f"monitor.{k}={getattr(monitor, k)}" for k in ("burn_in", "n") if hasattr(monitor, k))
+    what = ("leaves no fault-free chart point: the first is at" if not healthy
+            else "leaves no faulty chart point: the last is at")
+    raise ConfigError(f"{key}{value} {what} t={t[0] if not healthy else t[-1]:g} s ({source}; "
+                      f"{_run_length(setup)}); allowed: {t[0]:g} < {key} <= {t[-1]:g}")
+
+
+def _check_memory(setup: Setup, bytes_per_run: int) -> None:
+    """Each budget key against the machine's available memory (``psutil``), before any work.
+
+    ``bytes_per_run`` is what one replication's simulated arrays take in the dry
+    run; a budget of n replications holds at least n times that at once (the
+    filter's internals and the chart come on top), so a key whose lower bound
+    already exceeds the available memory can only end in a MemoryError.
+    """
+    import psutil
+
+    available = int(psutil.virtual_memory().available)
+    budget = setup.experiment.budget
+    for key in ("n_test", "n_train", "n_calibration", "n_estimator"):
+        n = int(getattr(budget, key, 0) or 0)
+        if bytes_per_run and n * bytes_per_run > available:
+            raise ConfigError(f"budget.{key}={n} needs at least {n * bytes_per_run / 2**30:.3g} GiB "
+                              f"({bytes_per_run / 2**20:.3g} MiB per replication, {_run_length(setup)}); "
+                              f"the machine has {available / 2**30:.3g} GiB available; "
+                              f"allowed: budget.{key} <= {available // bytes_per_run}")
+
+
+def _nbytes(obj) -> int:
+    """Bytes of the NumPy arrays an object (a Residuals, a Trace) holds as attributes."""
+    fields = vars(obj) if hasattr(obj, "__dict__") else {f.name: getattr(obj, f.name) for f in dataclasses.fields(obj)}
+    return sum(v.nbytes for v in fields.values() if isinstance(v, np.ndarray))
+
+
 def _default_design(setup: Setup) -> np.ndarray:
     """One design inside the search box: the detector's own values where they fit, else the box middle."""
     detector = setup.experiment.detector
@@ -176,19 +226,23 @@ def dry_run(setup: Setup) -> None:
     if getattr(exp, "data", None) is not None:  # recorded data: the real splits (mosd.recorded)
         exp.dry_run(_default_design(setup))
         return
-    if getattr(exp.estimator, "requires_fit", False):
-        _check_burn_in(setup, int(round(exp.duration / exp.plant.dt)))
-        return
     mini = Experiment(exp.plant, exp.noise, exp.fault, exp.estimator, exp.monitor, exp.detector,
                       duration=exp.duration, budget=Budget(1, 1, 1, 1), seed=exp.seed, objectives=exp.objectives)
+    if getattr(exp.estimator, "requires_fit", False):
+        check_samples = getattr(exp.estimator, "check_samples", None)
+        if check_samples is not None:  # the training data's shapes, on one simulated run (no training)
+            trace = mini.simulate(None, 1, "estimator")
+            _check_memory(setup, _nbytes(trace))
+            check_samples(int(trace.y.shape[1]))
+        _check_burn_in(setup, int(round(exp.duration / exp.plant.dt)))
+        return
     calibration = mini.residuals(None, 1, "calibration")
+    _check_memory(setup, _nbytes(calibration))
     _check_burn_in(setup, int(calibration.r.shape[1]))
     mini.monitor.fit(calibration)
     data = mini.prepare(calibration=calibration)
     _check_denoiser(setup, int(data.train.z.shape[1]))
-    if not np.asarray(data.train.fault_mask).any():
-        raise ConfigError(f"the fault never acts within the run (fault.onset against {_run_length(setup)}); "
-                          f"allowed: 0 <= fault.onset < scenario.duration")
+    _check_onset(setup, data.train)
     mini.evaluator(data)(_default_design(setup))
     mini.evaluate(exp.detector, data, test=(data.train, data.train_residuals))
 

@@ -29,7 +29,7 @@ from .config import COMPONENTS, one_line
 from .files import write_run_files, write_status
 from .pending import NOT_LOGGED, mark_not_logged, pending_request
 from .signals import RECEIVED, Interrupted, install_signal_handlers, name, shutdown_workers
-from .summary import final_metrics, format_summary, header_line
+from .summary import UndefinedResult, final_metrics, format_summary, header_line, undefined_metrics
 
 log = logging.getLogger("mosd.app")
 
@@ -131,6 +131,10 @@ def run(cfg, started: float | None = None, checked=None):
             result.timings["study_s"] = timings["study_s"] = time.perf_counter() - t0
         metrics = {**final_metrics(result, result.example["seconds_per_point"]),
                    **{k: float(v) for k, v in study_metrics.items()}}
+        undefined = undefined_metrics(metrics)
+        if undefined:  # the last guard behind preflight: a NaN rate is no result, whatever the exit code said
+            raise UndefinedResult(f"the run's metrics {', '.join(undefined)} are NaN (no points to score them on); "
+                                  f"the run is not finished")
         logged: list[tuple[str, float, int]] = []
         params: dict[str, str] = {}
         sent: list[Path] = []  # artifacts already handed to MLflow

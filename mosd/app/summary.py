@@ -37,6 +37,23 @@ def final_metrics(result, seconds_per_point: float) -> dict[str, float]:
     return metrics
 
 
+class UndefinedResult(RuntimeError):
+    """A run's metrics are NaN: it ends FAILED rather than reporting them as a finished result."""
+
+
+def undefined_metrics(metrics: Mapping[str, float]) -> list[str]:
+    """The metrics a run must not report as finished: NaN means (no points to score, e.g. no fault-free point).
+
+    Left out: CI half-widths (NaN from a single test replication) and the delays,
+    which are means over the detected runs only (NaN when no run was detected).
+    """
+    import math
+
+    return [key for key, value in metrics.items()
+            if isinstance(value, float) and math.isnan(value)
+            and not key.endswith("_ci") and not key.startswith("delay")]
+
+
 def header_line(labels: Mapping[str, str], setup: Setup) -> str:
     """``mosd  fault=…  detector=…  optimizer=… (pop × gen)  estimator=…  denoise=…``: the summary's first line."""
     pop = getattr(setup.algorithm, "pop_size", "?")

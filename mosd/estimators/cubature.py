@@ -92,7 +92,7 @@ class EmbeddedCubatureRule:
     """
 
     def __init__(self, delta1: float = 1.0):
-        self.delta1 = check_in("estimator.delta1", delta1, _DELTA1_RANGE)
+        self.delta1 = check_in("estimator.filter.delta1", delta1, _DELTA1_RANGE)
 
     @property
     def delta2(self) -> float:
@@ -196,7 +196,7 @@ class _CubatureFilterBase(Component):
     contiguous (n_pts, R·n) block instead of many tiny broadcasts.
     """
 
-    config_group = "estimator"  # a filter is configured under estimator.filter; its messages keep estimator.<key>
+    config_group = "estimator.filter"  # a filter is configured under estimator.filter (conf/estimator/*.yaml)
     params = {
         "delta1": Param(_DELTA1_RANGE, "δ₁ of the embedded rule (eq. 3), δ₁² > 1/2 (used with rule=embedded)."),
         "rule": Param(RULES, "Point set: embedded (the paper's) or spherical_radial (the third-degree CKF set)."),

@@ -153,6 +153,25 @@ class MultiStepNeuralObserver(Estimator):
         ok = np.isfinite(h0) & np.isfinite(targets).all(-1) & np.isfinite(inputs).all((-1, -2))
         return h0[ok], inputs[ok], targets[ok]
 
+    def check_samples(self, n_samples: int) -> int:
+        """The training/validation cut of ``n_samples``-sample runs; ConfigError unless both parts hold windows.
+
+        Training needs one window of ``window + 1`` samples, validation two (the
+        held-out error's σ has ddof = 1). Called by the app's preflight with the
+        run's length, before any training.
+        """
+        cut = int(round(n_samples * (1.0 - self.validation_fraction)))
+        n_train, n_valid = cut - self.window, n_samples - cut - self.window
+        if n_train < 1 or n_valid < 2:
+            largest = min(cut - 1, n_samples - cut - 2)
+            allowed = (f"estimator.window <= {largest}" if largest >= 1
+                       else "a larger estimator.validation_fraction or a longer run")
+            raise ConfigError(f"estimator.window={self.window} with estimator.validation_fraction="
+                              f"{self.validation_fraction:g} leaves {max(n_train, 0)} training and {max(n_valid, 0)} "
+                              f"validation windows in runs of {n_samples} samples (validation: the last "
+                              f"{n_samples - cut}; it needs 2); allowed: {allowed}")
+        return cut
+
     # -- training ------------------------------------------------------------------------
     def fit(self, trace: Trace, model: Any, rng: np.random.Generator) -> "MultiStepNeuralObserver":
         """Train on the fault-free runs of ``trace`` (or load the cached weights of the same training).
@@ -163,12 +182,12 @@ class MultiStepNeuralObserver(Estimator):
         seed = int(rng.integers(0, 2**62))
         h, C = self._split(np.asarray(trace.y, float))
         K = h.shape[1]
-        cut = int(round(K * (1.0 - self.validation_fraction)))
+        cut = self.check_samples(K)
         train = self._windows(h, C, 0, cut)
         valid = self._windows(h, C, cut, K)
-        if train is None or valid is None or len(train[0]) == 0 or len(valid[0]) == 0:
-            raise ConfigError(f"estimator.window={self.window} leaves no complete training or validation window in "
-                              f"runs of {K} samples; allowed: window < {int(K * min(self.validation_fraction, 1 - self.validation_fraction))}")
+        if train is None or valid is None or len(train[0]) == 0 or len(valid[0]) < 2:  # non-finite samples dropped
+            raise ConfigError(f"estimator.window={self.window} leaves no complete training window or fewer than 2 "
+                              f"finite validation windows in runs of {K} samples; allowed: a smaller estimator.window")
         key = self._cache_key(seed, trace.y)
         cached = self._load(key)
         if cached is None:
