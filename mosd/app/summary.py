@@ -1,6 +1,7 @@
 """What a run prints and logs as numbers: the final metrics, the summary's lines, the design on the search box."""
 from __future__ import annotations
 
+import math
 from typing import TYPE_CHECKING, Mapping
 
 if TYPE_CHECKING:
@@ -25,6 +26,12 @@ def final_metrics(result, seconds_per_point: float) -> dict[str, float]:
     for key, estimate in result.summary().items():
         metrics[key] = estimate.mean
         metrics[f"{key}_ci"] = estimate.half_width
+    if math.isnan(metrics.get("accuracy", 0.0)) and not math.isnan(metrics.get("far", math.nan) + metrics.get("mdr", math.nan)):
+        # recorded data: every run is all fault-free or all faulty, so no run has its own 1 - FAR - MDR;
+        # the accuracy is that of the mean rates (no CI: the two means come from different runs)
+        from ..metrics.summary import accuracy
+
+        metrics["accuracy"] = accuracy(metrics["far"], metrics["mdr"])
     for key in ("delay", "delay_censored"):
         if key in metrics:
             metrics[f"{key}_s"] = metrics[key] * seconds_per_point
@@ -47,8 +54,6 @@ def undefined_metrics(metrics: Mapping[str, float]) -> list[str]:
     Left out: CI half-widths (NaN from a single test replication) and the delays,
     which are means over the detected runs only (NaN when no run was detected).
     """
-    import math
-
     return [key for key, value in metrics.items()
             if isinstance(value, float) and math.isnan(value)
             and not key.endswith("_ci") and not key.startswith("delay")]
