@@ -75,7 +75,7 @@ def test_fault_free_flights_first_alarm_follows_the_geometric_law(tmp_path):
     at 1 %); at N = 1 on the observer's residual nearly every flight alarms by chance.
     """
     pytest.importorskip("torch")
-    from mosd.scenario import STREAMS
+    from mosd.scenario import training_rng
     from mosd.systems import cli, paper003
 
     experiment = cli.preset("paper003", ["seed=0", f"estimator.cache_dir='{tmp_path}'",
@@ -84,8 +84,8 @@ def test_fault_free_flights_first_alarm_follows_the_geometric_law(tmp_path):
     clean = experiment.simulate(None, 100, "test")
     paper = experiment.detector.with_params(alpha=0.01, a=1.0, b=1.0)
     for window in (1, 12):
-        estimator = paper003.with_window(experiment.estimator, window)
-        estimator.fit(training, experiment.model, np.random.default_rng([experiment.seed, STREAMS["estimator"], 2**31]))
+        estimator = experiment.estimator.with_params(window=window)
+        estimator.fit(training, experiment.model, training_rng(experiment.seed))
         free = estimator.estimate(clean, experiment.model)
         for statistic in ("observer_chi2", "chi2"):
             z = np.stack([free.extra[statistic], free.extra[paper003.SCALED_RESIDUAL]], -1)
