@@ -12,7 +12,7 @@ from mosd.estimators.neural_observer import MultiStepNeuralObserver
 from mosd.plants.flapping_wing import FlappingWingModel
 from mosd.types import Trace
 
-pytest.importorskip("torch")
+import torch  # noqa: F401  (a test dependency: a missing one fails, never skips)
 
 NAMES = ("gps_altitude", "down_velocity", "pitch", "throttle", "tail_deflection")
 MODEL = FlappingWingModel(dt=0.2, output_names=NAMES, gps_variance=0.05**2, down_velocity_variance=0.05**2,
