@@ -510,7 +510,7 @@ def test_report_keeps_one_row_per_set_up_and_shows_what_differs(tmp_path):
 # a real tracking server: a sweep and concurrent runs against http://127.0.0.1:PORT
 # ---------------------------------------------------------------------------------------
 @pytest.mark.slow
-def test_a_real_mlflow_server_takes_a_sweep_and_concurrent_runs(tmp_path):
+def test_a_real_mlflow_server_takes_a_sweep_and_concurrent_runs(tmp_path, stop_process_group):
     import shutil
     import urllib.request
 
@@ -554,12 +554,7 @@ def test_a_real_mlflow_server_takes_a_sweep_and_concurrent_runs(tmp_path):
             assert FINAL_METRICS <= set(r.data.metrics), r.info.run_id
             assert {"summary.json", "pareto.csv", "chart.png"} <= {a.path for a in client.list_artifacts(r.info.run_id)}
     finally:
-        os.killpg(server.pid, signal.SIGTERM)
-        try:
-            server.wait(timeout=20)
-        except subprocess.TimeoutExpired:
-            os.killpg(server.pid, signal.SIGKILL)
-            server.wait()
+        stop_process_group(server)
         log.close()
 
 

@@ -176,7 +176,7 @@ def test_mosd_writes_directly_to_postgresql(postgres, tmp_path, monkeypatch):
     _check_store(uri, tmp_path)
 
 
-def test_mosd_writes_through_an_mlflow_server_on_postgresql(postgres, tmp_path):
+def test_mosd_writes_through_an_mlflow_server_on_postgresql(postgres, tmp_path, stop_process_group):
     mlflow_cli = _mlflow_cli()
     port = _free_port()
     url = f"http://127.0.0.1:{port}"
@@ -201,9 +201,4 @@ def test_mosd_writes_through_an_mlflow_server_on_postgresql(postgres, tmp_path):
         stored = list((tmp_path / "server-artifacts").rglob("summary.json"))
         assert len(stored) == 10, stored
     finally:
-        os.killpg(server.pid, signal.SIGTERM)
-        try:
-            server.wait(timeout=20)
-        except subprocess.TimeoutExpired:
-            os.killpg(server.pid, signal.SIGKILL)
-            server.wait()
+        stop_process_group(server)
