@@ -7,6 +7,7 @@ subprocess runs in a tmp directory; servers bind 127.0.0.1 only.
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import re
@@ -140,6 +141,111 @@ def test_unreachable_tracking_server_fails_in_preflight_within_seconds(tmp_path)
     assert f"tracking.uri=http://127.0.0.1:{port} is not reachable" in line and "tracking=none" in line
     assert elapsed < 15, elapsed
     assert list(tmp_path.iterdir()) == []
+
+
+class _NotMlflow(BaseHTTPRequestHandler):
+    """Any web server: 404 with an HTML page for every path (or a proxy answering every host)."""
+
+    def do_GET(self):
+        self.send_error(404)
+
+    def log_message(self, *args):
+        pass
+
+
+class _MlflowWithoutTheExperiment(BaseHTTPRequestHandler):
+    """Answers ``experiments/get-by-name`` as MLflow 3 does for a name it does not hold (server/handlers.py)."""
+
+    def _send(self, status: int, body: bytes, kind: str = "application/json") -> None:
+        self.send_response(status)
+        self.send_header("Content-Type", kind)
+        self.end_headers()
+        self.wfile.write(body)
+
+    def _reply(self):
+        if self.command == "GET" and self.path == "/api/2.0/mlflow/experiments/get-by-name?experiment_name=deleted":
+            self._send(200, b'{"experiment": {"experiment_id": "7", "name": "deleted", "lifecycle_stage": "deleted"}}')
+        elif self.command == "GET" and self.path.startswith("/api/2.0/mlflow/experiments/get-by-name?experiment_name="):
+            self._send(404, b'{"error_code": "RESOURCE_DOES_NOT_EXIST", "message": "Could not find experiment"}')
+        else:
+            self._other()
+
+    def _other(self):
+        self._send(404, b'{"error_code": "ENDPOINT_NOT_FOUND", "message": "no such endpoint"}')
+
+    do_GET = do_POST = _reply
+
+    def log_message(self, *args):
+        pass
+
+
+@contextlib.contextmanager
+def http_server(handler):
+    server = ThreadingHTTPServer(("127.0.0.1", 0), handler)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    try:
+        yield f"http://127.0.0.1:{server.server_address[1]}"
+    finally:
+        server.shutdown()
+        server.server_close()
+
+
+@contextlib.contextmanager
+def tcp_server(answer: bytes | None):
+    """A plain TCP service on 127.0.0.1: accepts, then sends ``answer`` (None: nothing) and keeps the connection."""
+    listener = socket.create_server(("127.0.0.1", 0))
+    held = []
+
+    def serve():
+        while True:
+            try:
+                conn, _ = listener.accept()
+            except OSError:  # closed: the test is over
+                return
+            held.append(conn)
+            if answer is not None:
+                conn.sendall(answer)
+
+    threading.Thread(target=serve, daemon=True).start()
+    try:
+        yield f"tcp://127.0.0.1:{listener.getsockname()[1]}"
+    finally:
+        listener.close()
+        for conn in held:
+            conn.close()
+
+
+def test_a_web_server_that_is_not_mlflow_fails_in_preflight(tmp_path):
+    with http_server(_NotMlflow) as uri:
+        t0 = time.monotonic()
+        result = mosd(["+fault=offset_var", f"tracking.uri={uri}", *SMALL], cwd=tmp_path, timeout=120)
+        elapsed = time.monotonic() - t0
+    line = one_line_exit_2(result)
+    assert f"tracking.uri={uri} answers HTTP but not as an MLflow tracking server" in line, line
+    assert "HTTP 404" in line and "tracking=none" in line
+    assert elapsed < 20, elapsed
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_an_mlflow_server_passes_the_check_unless_its_experiment_is_deleted():
+    with http_server(_MlflowWithoutTheExperiment) as uri:
+        checks.check_mlflow_server(uri, "mosd", timeout=3)  # the run creates the experiment
+        with pytest.raises(ConfigError, match=r"tracking.experiment='deleted' is deleted .*--experiment-id 7\)$"):
+            checks.check_mlflow_server(uri, "deleted", timeout=3)  # MLflow refuses runs in a deleted experiment
+
+
+@pytest.mark.parametrize("answer", [None, b"\xff" * 64, b"HTTP/1.1 200 OK\r\n\r\nhello"],
+                         ids=["silent", "garbage", "http"])
+def test_a_tcp_service_that_is_not_a_dask_scheduler_fails_in_preflight(tmp_path, answer):
+    with tcp_server(answer) as address:
+        t0 = time.monotonic()
+        result = mosd(["+fault=offset_var", "optimizer.backend=dask", f"optimizer.dask_address={address}",
+                       "tracking=none", *SMALL], cwd=tmp_path, timeout=120)
+        elapsed = time.monotonic() - t0
+    line = one_line_exit_2(result)
+    assert f"optimizer.dask_address='{address}' accepts connections but is not a Dask scheduler" in line, line
+    assert elapsed < 30, elapsed
+    assert not (tmp_path / "outputs" / "runs").exists()
 
 
 def test_corrupt_store_fails_in_preflight_naming_the_file(tmp_path):
@@ -277,19 +383,11 @@ def test_every_documented_mosd_command_passes_the_cheap_checks():
 # ---------------------------------------------------------------------------------------
 # 2 (late): MLflow fails after the work -> summary, complete run directory, one line, exit 3
 # ---------------------------------------------------------------------------------------
-class _HealthyButBroken(BaseHTTPRequestHandler):
-    """Answers /health like an MLflow server and fails every API call (a store that breaks late)."""
+class _HealthyButBroken(_MlflowWithoutTheExperiment):
+    """Answers preflight's call like an MLflow server and fails every other call (a store that breaks late)."""
 
-    def _reply(self):
-        ok = self.path.startswith("/health")
-        self.send_response(200 if ok else 503)
-        self.end_headers()
-        self.wfile.write(b"OK" if ok else b"down")
-
-    do_GET = do_POST = _reply
-
-    def log_message(self, *args):
-        pass
+    def _other(self):
+        self._send(503, b"down", "text/plain")
 
 
 @pytest.mark.slow

@@ -14,13 +14,17 @@ from urllib.parse import urlparse
 
 from ..validation import ConfigError
 from .config import described
-from .settings import TrackingSettings
+from .settings import TrackingSettings, redacted
 from .store import StoreState, refusal, sqlite_path, sqlite_store_state, store_lock
 
 #: Seconds preflight waits for a tracking server or database to answer.
 CHECK_TIMEOUT_S = 3.0
 #: Default ports of the database back ends (checked with a TCP connection in preflight).
 DB_PORTS = {"postgresql": 5432, "mysql": 3306, "mssql": 1433}
+#: The REST call preflight makes to a tracking server: MLflow's client makes it first for every run.
+MLFLOW_PROBE = "/api/2.0/mlflow/experiments/get-by-name"
+#: Bytes of the server's answer preflight reads (MLflow's is a few hundred; a stray server may stream).
+MAX_ANSWER_BYTES = 1 << 20
 
 
 def writable_dir_problem(path: Path) -> str | None:
@@ -48,13 +52,114 @@ def check_outputs(outputs_root: str | os.PathLike, *dirs: str | os.PathLike) -> 
             raise ConfigError(f"{key}={where} cannot be written: {problem}; allowed: a writable directory")
 
 
+def _mlflow_request(uri: str, path: str) -> "urllib.request.Request":
+    """GET ``uri`` + ``path`` with the credentials MLflow's client would send.
+
+    Those of the URI (``http://user:password@host``, which MLflow's HTTP library
+    takes as basic authentication and urllib cannot), else its environment variables.
+    """
+    import base64
+    import urllib.parse
+    import urllib.request
+
+    parts = urllib.parse.urlsplit(uri)
+    user, password = os.environ.get("MLFLOW_TRACKING_USERNAME"), os.environ.get("MLFLOW_TRACKING_PASSWORD")
+    if parts.username is not None:
+        user, password = urllib.parse.unquote(parts.username), urllib.parse.unquote(parts.password or "")
+        parts = parts._replace(netloc=parts.netloc.rpartition("@")[2])
+    request = urllib.request.Request(f"{urllib.parse.urlunsplit(parts).rstrip('/')}{path}",
+                                     headers={"Accept": "application/json"})
+    token = os.environ.get("MLFLOW_TRACKING_TOKEN")
+    if user and password:
+        request.add_header("Authorization", "Basic " + base64.b64encode(f"{user}:{password}".encode()).decode())
+    elif token:
+        request.add_header("Authorization", f"Bearer {token}")
+    return request
+
+
+def _mlflow_tls():
+    """The TLS context of MLflow's client settings (insecure, a server CA bundle, a client certificate), or None."""
+    import ssl
+
+    if os.environ.get("MLFLOW_TRACKING_INSECURE_TLS", "").strip().lower() in ("true", "1"):
+        return ssl._create_unverified_context()
+    cafile, client_cert = (os.environ.get("MLFLOW_TRACKING_SERVER_CERT_PATH"),
+                           os.environ.get("MLFLOW_TRACKING_CLIENT_CERT_PATH"))
+    if not (cafile or client_cert):
+        return None
+    context = ssl.create_default_context(cafile=cafile or None)
+    if client_cert:
+        context.load_cert_chain(client_cert)
+    return context
+
+
+def check_mlflow_server(uri: str, experiment: str, timeout: float = CHECK_TIMEOUT_S) -> None:
+    """Raise ConfigError (one line) unless ``uri`` is an MLflow tracking server that can take the experiment's runs.
+
+    Something answering HTTP is not enough (a web server or a proxy answers every
+    path): the server must answer MLflow's ``GET experiments/get-by-name`` as
+    MLflow does, with the experiment (not deleted) or MLflow's
+    ``RESOURCE_DOES_NOT_EXIST`` error (the run creates it). The request carries the
+    credentials and TLS settings MLflow's client reads from its environment.
+    """
+    import json
+    import urllib.error
+    import urllib.parse
+    import urllib.request
+
+    shown = redacted(uri)
+    allowed = ("allowed: a running MLflow tracking server (mlflow server --host 127.0.0.1 ...), "
+               "another tracking.uri, or tracking=none")
+    request = _mlflow_request(uri, f"{MLFLOW_PROBE}?{urllib.parse.urlencode({'experiment_name': experiment})}")
+    try:
+        with urllib.request.urlopen(request, timeout=timeout, context=_mlflow_tls()) as response:
+            status, kind, body = response.status, response.headers.get_content_type(), response.read(MAX_ANSWER_BYTES)
+    except urllib.error.HTTPError as exc:  # an answer all the same: MLflow's errors come with a status
+        status, kind = exc.code, exc.headers.get_content_type() if exc.headers else "no content type"
+        try:
+            body = exc.read(MAX_ANSWER_BYTES)
+        except OSError:
+            body = b""
+    except (OSError, ValueError) as exc:
+        reason = getattr(exc, "reason", exc)
+        reason = described(reason) if isinstance(reason, BaseException) else str(reason)
+        raise ConfigError(f"tracking.uri={shown} is not reachable ({reason}, checked for {timeout:g} s); "
+                          f"{allowed}") from None
+    try:
+        answer = json.loads(body)
+    except ValueError:
+        answer = None
+    answer = answer if isinstance(answer, dict) else {}
+    found = answer.get("experiment")
+    if status == 200 and isinstance(found, dict) and "experiment_id" in found:
+        if found.get("lifecycle_stage") == "deleted":
+            raise ConfigError(f"tracking.experiment={experiment!r} is deleted in the store at tracking.uri={shown} "
+                              f"(runs cannot be created in it); allowed: another tracking.experiment, or restore it "
+                              f"(mlflow experiments restore --experiment-id {found['experiment_id']})")
+        return
+    error_code = answer.get("error_code")
+    if status == 404 and error_code == "RESOURCE_DOES_NOT_EXIST":
+        return  # an MLflow server without the experiment yet: the first run creates it
+    if status in (401, 403):
+        raise ConfigError(f"tracking.uri={shown} refuses mosd's request (HTTP {status}"
+                          f"{', ' + error_code if isinstance(error_code, str) else ''}); allowed: the server's "
+                          f"credentials in MLFLOW_TRACKING_USERNAME and MLFLOW_TRACKING_PASSWORD (or "
+                          f"MLFLOW_TRACKING_TOKEN), another tracking.uri, or tracking=none")
+    if isinstance(error_code, str) and isinstance(answer.get("message"), str):
+        message = " ".join(answer["message"].split())[:300]
+        raise ConfigError(f"tracking.uri={shown}: the MLflow server fails (HTTP {status}, {error_code}: {message}); "
+                          f"{allowed}")
+    raise ConfigError(f"tracking.uri={shown} answers HTTP but not as an MLflow tracking server "
+                      f"(GET {MLFLOW_PROBE}: HTTP {status}, {kind}); {allowed}")
+
+
 def check_tracking(settings: TrackingSettings, timeout: float = CHECK_TIMEOUT_S) -> None:
     """Raise ConfigError (one line) if the store cannot take a run; bounded by ``timeout`` per check.
 
     sqlite: the DB file is read-only checked (a store a killed migration left
     without runs passes: the run recreates it); its directory must be writable.
-    http(s): the server answers ``/health``. Databases: the port accepts a TCP
-    connection. A ``file:`` artifact root must be writable.
+    http(s): the server answers MLflow's REST API as MLflow does (:func:`check_mlflow_server`).
+    Databases: the port accepts a TCP connection. A ``file:`` artifact root must be writable.
     """
     uri = settings.uri
     parsed = urlparse(uri)
@@ -73,20 +178,7 @@ def check_tracking(settings: TrackingSettings, timeout: float = CHECK_TIMEOUT_S)
             if state.state == "corrupt" or (state.state == "incomplete" and state.n_runs):
                 raise ConfigError(refusal(db, state))
     elif scheme in ("http", "https"):
-        import urllib.error
-        import urllib.request
-
-        try:
-            with urllib.request.urlopen(f"{uri.rstrip('/')}/health", timeout=timeout):
-                pass
-        except urllib.error.HTTPError:
-            pass  # it answered: an auth or routing question for MLflow itself, not reachability
-        except (OSError, ValueError) as exc:
-            reason = getattr(exc, "reason", exc)
-            reason = described(reason) if isinstance(reason, BaseException) else str(reason)
-            raise ConfigError(f"tracking.uri={uri} is not reachable ({reason}, checked for {timeout:g} s); "
-                              f"allowed: a running MLflow server "
-                              f"(mlflow server --host 127.0.0.1 ...), another tracking.uri, or tracking=none") from None
+        check_mlflow_server(uri, settings.experiment, timeout)
     elif scheme in DB_PORTS:
         host, port = parsed.hostname or "localhost", parsed.port or DB_PORTS[scheme]
         try:

@@ -276,7 +276,7 @@ def check_job(cfg, setup: Setup, done: dict, multirun: bool = False) -> None:
     if setup.backend == "dask" and setup.dask_address and ("dask", setup.dask_address) not in done:
         from ..optim.backends import check_scheduler
 
-        check_scheduler(setup.dask_address)  # a TCP connect: seconds at most, before the simulation
+        check_scheduler(setup.dask_address)  # Dask's handshake with a deadline, before the simulation
         done[("dask", setup.dask_address)] = True
     key = _shape_key(cfg)
     if key not in done:

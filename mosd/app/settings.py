@@ -7,6 +7,7 @@ MLflow or Hydra (``mosd report`` and preflight read it).
 from __future__ import annotations
 
 import os
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping
@@ -19,6 +20,19 @@ STORE_SCHEMES = ("sqlite", "postgresql", "mysql", "mssql", "http", "https", "dat
 #: Environment variable that overrides the default outputs root.
 OUTPUTS_ENV = "MOSD_OUTPUTS"
 TRACKING_KEYS = ("enabled", "uri", "artifact_root", "experiment")
+#: ``scheme://user:password@`` in any text: the password of a database or server URI.
+_CREDENTIALS = re.compile(r"(?P<head>\b[A-Za-z][A-Za-z0-9+.-]*://[^:/@\s]*):[^@/\s]+@")
+
+
+def redacted(text: str) -> str:
+    """``text`` with the password of every URI in it masked: ``postgresql://user:***@host/db``.
+
+    For everything mosd prints or records (the console, ``summary.json``, the run
+    directory's config files, MLflow params and tags); the run itself connects with
+    the real URI. A password holding ``/`` or ``@`` must be percent-encoded in a URI
+    anyway (``%2F``, ``%40``), so it never ends the match early.
+    """
+    return _CREDENTIALS.sub(r"\g<head>:***@", text)
 
 
 def default_outputs_root() -> Path:

@@ -21,9 +21,11 @@ naming the install command.
 """
 from __future__ import annotations
 
+import asyncio
 import importlib.util
 import logging
 import socket
+import threading
 from urllib.parse import urlsplit
 
 import numpy as np
@@ -77,11 +79,15 @@ def check_backend(backend: str = "loky", dask_address: str | None = None) -> tup
 
 
 def check_scheduler(address: str, timeout: float = 5.0) -> None:
-    """Raise ConfigError when nothing listens at a ``tcp://host:port`` scheduler address.
+    """Raise ConfigError unless a Dask scheduler answers at a ``tcp://host:port`` address within ``timeout``.
 
-    A plain TCP connection (no Dask import, a few seconds at most), so that a wrong
-    address is reported before the simulation rather than after it. Addresses of
-    other schemes (``tls://``, ``ucx://``, ``inproc://``) are left to Dask.
+    Something accepting TCP connections is not enough (an HTTP server, a proxy, a
+    Dask worker): Dask's own comm handshake, then the scheduler's ``identity``
+    call, must answer with ``type == "Scheduler"`` before the deadline. The probe
+    runs in a daemon thread with its own event loop, so that a service that sends
+    nothing, garbage (Dask then reads a frame length of exabytes) or an endless
+    stream costs ``timeout`` seconds at most and never the run. Addresses of other
+    schemes (``tls://``, ``ucx://``, ``inproc://``) are left to Dask.
     """
     parts = urlsplit(address if "://" in address else f"tcp://{address}")
     if parts.scheme != "tcp":
@@ -93,13 +99,53 @@ def check_scheduler(address: str, timeout: float = 5.0) -> None:
     if not host or port is None:
         raise ConfigError(f"optimizer.dask_address={address!r} has no host and port; "
                           "allowed: a scheduler address such as tcp://host:8786")
-    try:
+    allowed = "allowed: the address a running `dask scheduler` prints, or null for a local cluster"
+    try:  # a refused or unroutable address says so plainly, without Dask's import
         with socket.create_connection((host, port), timeout=timeout):
             pass
     except OSError as exc:
         raise ConfigError(f"optimizer.dask_address={address!r}: no Dask scheduler answers there "
-                          f"({type(exc).__name__}: {exc}); allowed: the address a running `dask scheduler` "
-                          "prints, or null for a local cluster") from None
+                          f"({type(exc).__name__}: {exc}); {allowed}") from None
+    try:
+        import distributed  # noqa: F401 - the probe's comm layer
+    except ImportError:
+        raise _missing_distributed() from None
+    answer: dict = {}
+    probe = threading.Thread(target=_identify, args=(f"tcp://{host}:{port}", timeout, answer), daemon=True)
+    probe.start()
+    probe.join(timeout + 1.0)  # the probe's own deadline is timeout; this bounds a probe stuck outside its loop
+    identity, error = answer.get("identity"), answer.get("error")
+    if identity is None:
+        if error is None or isinstance(error, (TimeoutError, asyncio.TimeoutError)):
+            what = f"no Dask handshake within {timeout:g} s"
+        else:
+            detail = " ".join(str(error).split())[:200]
+            what = f"its answer is not Dask's protocol: {type(error).__name__}: {detail}"
+        raise ConfigError(f"optimizer.dask_address={address!r} accepts connections but is not a Dask scheduler "
+                          f"({what}); {allowed}")
+    kind = identity.get("type") if isinstance(identity, dict) else None
+    if kind != "Scheduler":
+        scheduler = identity.get("scheduler") if isinstance(identity, dict) else None
+        raise ConfigError(f"optimizer.dask_address={address!r} is a Dask {kind or 'service'}, not a scheduler"
+                          + (f" (its scheduler: {scheduler})" if scheduler else "") + f"; {allowed}")
+
+
+def _identify(address: str, timeout: float, answer: dict) -> None:
+    """Dask's handshake and the ``identity`` call at ``address`` within ``timeout`` s; the reply or error into ``answer``."""
+    from distributed.comm import connect
+
+    async def identify():
+        comm = await connect(address, timeout=timeout)
+        try:
+            await comm.write({"op": "identity", "reply": True})
+            return await comm.read()
+        finally:
+            comm.abort()
+
+    try:
+        answer["identity"] = asyncio.run(asyncio.wait_for(identify(), timeout))
+    except BaseException as exc:  # noqa: BLE001 - whatever a stray service provokes is the answer "not Dask"
+        answer["error"] = exc
 
 
 def _evaluate_scattered(evaluator, X: np.ndarray) -> np.ndarray:
