@@ -718,3 +718,170 @@ def test_report_on_a_damaged_store_is_one_line(tmp_path, capsys):
     assert report.main(["--tracking-uri", f"sqlite:///{tmp_path / 'mlflow.db'}"]) == 2
     lines = capsys.readouterr().err.strip().splitlines()
     assert len(lines) == 1 and "is damaged" in lines[0] and "_alembic_tmp_runs" in lines[0]
+
+
+# ---------------------------------------------------------------------------------------
+# a full disk (issue 22, item 4): the artifact store, then the outputs directory
+# ---------------------------------------------------------------------------------------
+def _run_dir_with_results(run_dir: Path) -> list[Path]:
+    run_dir.mkdir()
+    files = [run_dir / "summary.json", run_dir / "pareto.csv", run_dir / "chart.png"]
+    files[0].write_text(json.dumps({"status": "finished"}))
+    files[1].write_text("lam,K,far,mdr,chosen\n0.5,3,0.01,0.02,1\n")
+    files[2].write_bytes(np.random.default_rng(2).bytes(50_000))
+    return files
+
+
+def test_a_run_whose_artifacts_did_not_fit_is_failed_and_mosd_log_completes_it_once(tmp_path, monkeypatch, capsys):
+    """The artifact store fills up while a run's files are copied in: the run is FAILED and tagged, not
+    FINISHED; ``mosd log`` completes that same run, and a second ``mosd log`` adds nothing.
+
+    The full disk is injected where MLflow writes an artifact: the copy of a PNG starts, leaves a file
+    cut short and fails with ENOSPC, as ``shutil.copy`` does on a full file system.
+    """
+    import errno
+
+    from mlflow.store.artifact.local_artifact_repo import LocalArtifactRepository
+    from mlflow.tracking import MlflowClient
+
+    from mosd.app import pending
+    from mosd.app.tracker import RunTracker
+
+    run_dir = tmp_path / "run"
+    files = _run_dir_with_results(run_dir)
+    copy = LocalArtifactRepository.log_artifact
+
+    def disk_full(self, local_file, artifact_path=None):
+        if not str(local_file).endswith(".png"):
+            return copy(self, local_file, artifact_path)
+        target = Path(self.artifact_dir, artifact_path or "", Path(local_file).name)
+        target.parent.mkdir(parents=True, exist_ok=True)
+        target.write_bytes(Path(local_file).read_bytes()[:4096])
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(target))
+
+    monkeypatch.setattr(LocalArtifactRepository, "log_artifact", disk_full)
+    settings = TrackingSettings(f"sqlite:///{tmp_path / 'mlflow.db'}", (tmp_path / "art").as_uri(), "mosd")
+    tracker = RunTracker(settings, "r", {"mosd.role": "job", "mosd.run_dir": str(run_dir)}, in_process=True).start()
+    params = {"optimizer.n_gen": "3"}
+    metrics = [("far", 0.01, 0), ("hypervolume", 0.5, 1), ("hypervolume", 0.6, 2), ("delay", float("nan"), 0)]
+    tracker.log(params=params, metrics=metrics, artifacts=files)
+    with pytest.raises(store.TrackingError, match="No space left on device"):
+        tracker.finish("FINISHED")
+    client = MlflowClient(tracking_uri=settings.uri)
+    run = client.get_run(tracker.run_id)
+    assert run.info.status == "FAILED" and tracker.status == "FAILED"
+    pending.mark_not_logged(run_dir, "disk full", pending.pending_request(tracker, params, metrics, files),
+                            tracker.status)
+    assert "No space left on device" in run.data.tags["mosd.logging_error"]
+    assert f"python -m mosd log {run_dir}" in run.data.tags["mosd.logging_error"]
+    summary = json.loads((run_dir / "summary.json").read_text())["tracking"]
+    assert summary["run_id"] == tracker.run_id and summary["mlflow_status"] == "FAILED"
+
+    # still full: `mosd log` fails in one line, keeps the pending file and makes no second run
+    assert pending.log_main([str(run_dir)]) == 1
+    assert "No space left on device" in capsys.readouterr().err
+    assert (run_dir / pending.PENDING_FILE).is_file()
+    monkeypatch.setattr(LocalArtifactRepository, "log_artifact", copy)  # room again
+    assert pending.log_main([str(run_dir)]) == 0
+    assert pending.log_main([str(run_dir)]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert out[0].endswith(f"-> MLflow run {tracker.run_id}") and "logged already" in out[1], out
+
+    runs = client.search_runs([client.get_experiment_by_name("mosd").experiment_id])
+    assert [r.info.run_id for r in runs] == [tracker.run_id]
+    run = runs[0]
+    assert run.info.status == "FINISHED" and run.data.tags["mosd.logged_later"] == "true"
+    assert "mosd.logging_error" not in run.data.tags and "error" not in run.data.tags
+    assert run.data.params == params
+    history = {key: sorted((m.step, m.value) for m in client.get_metric_history(tracker.run_id, key))
+               for key in ("far", "hypervolume")}
+    assert history == {"far": [(0, 0.01)], "hypervolume": [(1, 0.5), (2, 0.6)]}
+    assert len(client.get_metric_history(tracker.run_id, "delay")) == 1  # NaN is logged once too
+    # the copy the full disk cut short is replaced by the whole file
+    assert {a.path: a.file_size for a in client.list_artifacts(tracker.run_id)} == {
+        f.name: f.stat().st_size for f in files}
+    assert json.loads((run_dir / "summary.json").read_text())["tracking"]["run_id"] == tracker.run_id
+
+
+def _limited_file_size(limit: int):
+    """``preexec_fn`` of a child whose writes beyond ``limit`` bytes per file fail with EFBIG (RLIMIT_FSIZE).
+
+    A full disk without root: the kernel refuses the write as a full file system does (Python ignores
+    SIGXFSZ, so the write raises ``OSError`` instead of ending the process).
+    """
+    import resource
+
+    return lambda: resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+
+
+def test_a_write_that_does_not_fit_leaves_the_file_complete_or_absent(tmp_path):
+    from mosd.app import files
+
+    (tmp_path / "big.png").write_bytes(b"old")
+    script = ("import sys; from mosd.app.atomic import write_atomically\n"
+              "for name, size in (('small.csv', 100), ('big.png', 50_000)):\n"
+              "    try:\n"
+              "        write_atomically(sys.argv[1] + '/' + name, lambda out: out.write(b'x' * size), binary=True)\n"
+              "    except OSError as exc:\n"
+              "        print(name, exc.errno)\n")
+    result = subprocess.run([sys.executable, "-c", script, str(tmp_path)], env=_env(), capture_output=True,
+                            text=True, timeout=60, preexec_fn=_limited_file_size(20_000))
+    assert result.stdout.split() == ["big.png", "27"], result.stderr[-2000:]  # EFBIG
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["big.png", "small.csv"]  # no temporary file left
+    assert (tmp_path / "big.png").read_bytes() == b"old" and (tmp_path / "small.csv").stat().st_size == 100
+    assert files.lacking(tmp_path, [tmp_path / "small.csv", tmp_path / "chart.png"]) == ["chart.png"]
+
+
+def test_preflight_refuses_an_outputs_directory_that_takes_no_bytes(tmp_path, monkeypatch):
+    """A full disk still creates an empty file: the check writes bytes (and asks for room for a run)."""
+    script = ("import sys; from pathlib import Path; from mosd.app.checks import writable_dir_problem\n"
+              "print(writable_dir_problem(Path(sys.argv[1])))")
+    result = subprocess.run([sys.executable, "-c", script, str(tmp_path / "out")], env=_env(), capture_output=True,
+                            text=True, timeout=60, preexec_fn=_limited_file_size(0))
+    assert result.stdout.strip() == f"{tmp_path} is not writable (File too large)", result.stderr[-2000:]
+    assert list(tmp_path.iterdir()) == []
+
+    class AlmostFull:
+        f_bavail, f_frsize = 100, 1024
+
+    monkeypatch.setattr(checks.os, "statvfs", lambda path: AlmostFull)
+    with pytest.raises(ConfigError, match=r"outputs_root=.* cannot be written: .* has 100 kB free; a run needs about "
+                                          r"1 MB \(disk full\?\)"):
+        checks.check_outputs(tmp_path / "out")
+
+
+@pytest.mark.slow
+def test_a_full_outputs_disk_is_one_line_and_a_run_directory_that_says_what_it_lacks(tmp_path):
+    """The run directory's disk fills up after the text files: the PNGs do not fit (RLIMIT_FSIZE of 20 kB:
+    the CSVs, the YAML and JSON files are smaller, every PNG larger)."""
+    args = [sys.executable, "-m", "mosd", "+fault=offset_var", "tracking=none", *SMALL]
+    # a complete run first: what a run directory holds, and numba's kernel cache written (a cache
+    # file is larger than the limit: under it, a cold cache fails at compilation, before the run)
+    complete = subprocess.run(args, cwd=tmp_path, env=_env(), capture_output=True, text=True, timeout=600)
+    assert complete.returncode == 0, complete.stderr[-3000:]
+    whole, = (tmp_path / "outputs" / "runs").iterdir()
+    pngs = sorted(p.name for p in whole.glob("*.png"))
+    assert len(pngs) == 4 and all(p.stat().st_size > 20_000 for p in whole.glob("*.png"))
+
+    result = subprocess.run(args, cwd=tmp_path, env=_env(), capture_output=True, text=True, timeout=600,
+                            preexec_fn=_limited_file_size(20_000))
+    assert result.returncode == 1, result.stderr[-3000:]
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in result.stderr, result.stderr[-3000:]
+    assert "the run directory could not be written" in lines[0] and "File too large" in lines[0]
+    run_dir, = set((tmp_path / "outputs" / "runs").iterdir()) - {whole}
+    assert f"{run_dir} lacks {', '.join(sorted(pngs, key=lambda n: lines[0].index(n)))};" in lines[0]
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert summary["status"] == "failed" and sorted(summary["missing"]) == pngs
+    assert summary["params"] == json.loads((whole / "summary.json").read_text())["params"]  # the results are kept
+    # nothing cut short: every file there is whole, no temporary file is left
+    present = sorted(p.relative_to(run_dir).as_posix() for p in run_dir.rglob("*") if p.is_file())
+    assert present == sorted(p.relative_to(whole).as_posix() for p in whole.rglob("*")
+                             if p.is_file() and p.suffix != ".png")
+    for name in ("pareto.csv", "resolved_config.yaml"):
+        assert (run_dir / name).read_text() == (whole / name).read_text()
+
+    def without_elapsed(path):  # history.csv's last column is elapsed_s: the rest is the same run
+        return [line.rsplit(",", 1)[0] for line in path.read_text().splitlines()]
+
+    assert without_elapsed(run_dir / "history.csv") == without_elapsed(whole / "history.csv")

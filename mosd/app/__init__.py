@@ -46,7 +46,8 @@ _LAUNCHED = False
 def main(argv: Sequence[str] | None = None) -> int:
     """``python -m mosd`` / ``mosd``: run, sweep (``-m``), ``report`` or ``log RUN_DIR``.
 
-    Exit codes: 0 done; 1 an error during the run (traceback); 2 a mistake found
+    Exit codes: 0 done; 1 an error during the run (a traceback; one line when the
+    run directory could not be written, e.g. a full disk); 2 a mistake found
     before anything ran (one line); 3 the work finished but MLflow did not take
     it (one line says how to log it later); 128 + N stopped by signal N (130
     Ctrl-C, 143 SIGTERM).
@@ -80,12 +81,15 @@ def _command(argv: list[str], from_command_line: bool) -> int:
         from .pending import log_main
 
         return log_main(argv[1:])
+    from .files import RunNotWritten
     from .pending import EXIT_NOT_LOGGED, NOT_LOGGED
     from .signals import ignore_stop_signals, install_signal_handlers, name
 
     install_signal_handlers()
     try:
         return _main(argv, started) or (EXIT_NOT_LOGGED if NOT_LOGGED else 0)
+    except RunNotWritten:  # a full disk: reported in one line by the run
+        return 1
     except KeyboardInterrupt as exc:  # Interrupted (a signal) or a Ctrl-C before the handlers were set
         signum = getattr(exc, "signum", 2)  # SIGINT
         if not getattr(exc, "reported", False):

@@ -21,18 +21,28 @@ import time
 from pathlib import Path
 
 from .config import described
-from .mlflow_client import HTTP_ENV_DEFAULTS, MlflowStore
+from .mlflow_client import HTTP_ENV_DEFAULTS, LOGGING_ERROR_TAG, MlflowStore
 from .settings import TrackingSettings
 from .store import TrackingError
 
 
 class Handler:
-    """Executes tracking requests (in the side process or in-process)."""
+    """Executes tracking requests (in the side process or in-process).
+
+    A run whose params, metrics or artifacts were not all logged (a ``log``
+    request failed: the artifact store full, the server gone) is not ended
+    FINISHED whatever the app asks: it is ended FAILED with the tag
+    ``mosd.logging_error``, and ``python -m mosd log RUN_DIR`` completes it
+    (:mod:`mosd.app.pending`).
+    """
 
     def __init__(self):
         self.store: MlflowStore | None = None
         self.run_id: str | None = None
+        self.run_dir: str = "RUN_DIR"
         self.timings: dict[str, float] = {}
+        #: the first failed ``log`` request's error
+        self.logging_error: str | None = None
 
     def __call__(self, request: dict) -> dict:
         op = request["op"]
@@ -41,6 +51,7 @@ class Handler:
             self.store = MlflowStore(TrackingSettings(**request["settings"]))
             t1 = time.perf_counter()
             self.run_id = self.store.create_run(request["run_name"], request["tags"], request.get("parent_run_id"))
+            self.run_dir = request["tags"].get("mosd.run_dir", self.run_dir)
             self.timings = {"mlflow_import_s": t1 - t0, "mlflow_create_run_s": time.perf_counter() - t1}
             return {"run_id": self.run_id, "timings": self.timings, "note": self.store.note}
         if self.store is None or self.run_id is None:
@@ -49,8 +60,12 @@ class Handler:
             # how long MLflow took to start, measured where it ran (overlapping the experiment)
             metrics = [*request.get("metrics", ()), *((k, v, 0) for k, v in self.timings.items())]
             self.timings = {}
-            self.store.log(self.run_id, request.get("params"), metrics, request.get("tags"),
-                           request.get("artifacts", ()))
+            try:
+                self.store.log(self.run_id, request.get("params"), metrics, request.get("tags"),
+                               request.get("artifacts", ()))
+            except Exception as exc:
+                self.logging_error = self.logging_error or described(exc)
+                raise
             return {}
         if op == "model":  # the fitted pipeline as the run's pyfunc model (mosd.app.detector_model)
             from .detector_model import log_model
@@ -60,9 +75,18 @@ class Handler:
             except Exception as exc:  # the run itself is complete: reported, not fatal
                 return {"model_error": described(exc)}
         if op == "end":
-            self.store.end(self.run_id, request["status"], request.get("error"))
+            status, error = request["status"], request.get("error")
+            if self.logging_error is not None:
+                hint = f"python -m mosd log {self.run_dir} completes this run"
+                if status == "FINISHED":
+                    status, error = "FAILED", f"not all logged ({self.logging_error}); {hint}"
+                try:
+                    self.store.log(self.run_id, tags={LOGGING_ERROR_TAG: f"{self.logging_error}; {hint}"})
+                except Exception:  # the store is failing: ending the run comes first
+                    pass
+            self.store.end(self.run_id, status, error)
             self.store = None
-            return {}
+            return {"status": status}
         raise TrackingError(f"unknown tracking request {op!r}")
 
 

@@ -27,20 +27,34 @@ MLFLOW_PROBE = "/api/2.0/mlflow/experiments/get-by-name"
 MAX_ANSWER_BYTES = 1 << 20
 
 
+#: Free space below which preflight refuses a directory a run writes to: a run directory takes about
+#: 0.3 MB (four PNGs of 40-90 kB and the text files), its MLflow artifacts as much again.
+MIN_FREE_BYTES = 1 << 20
+
+
 def writable_dir_problem(path: Path) -> str | None:
-    """Why ``path`` cannot be (created as) a writable directory, or None; leaves nothing behind."""
+    """Why ``path`` cannot be (created as) a writable directory with room for a run, or None; leaves nothing behind."""
     path = path.expanduser().resolve()
     probe = path
     while not probe.exists():
         probe = probe.parent
     if not probe.is_dir():
         return f"{probe} is not a directory"
-    try:  # a real write: os.access says yes to root on a read-only mount's mode bits
+    try:  # a real write of real bytes: os.access says yes to root on a read-only mount's mode bits,
+        # and an empty file is created even on a full disk (or beyond a quota or a file-size limit)
         fd, name = tempfile.mkstemp(prefix=".mosd-write-check-", dir=probe)
-        os.close(fd)
-        os.unlink(name)
+        try:
+            os.write(fd, b"mosd")
+        finally:
+            os.close(fd)
+            os.unlink(name)
     except OSError as exc:
         return f"{probe} is not writable ({exc.strerror or exc})"
+    stats = os.statvfs(probe)
+    free = stats.f_bavail * stats.f_frsize
+    if free < MIN_FREE_BYTES:
+        return (f"{probe} has {free / 1024:.0f} kB free; a run needs about {MIN_FREE_BYTES >> 20} MB "
+                f"(disk full?)")
     return None
 
 

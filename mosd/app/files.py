@@ -4,19 +4,56 @@ The figures are the slow part: they are submitted first to the figure process
 (:class:`mosd.app.plots.FigureWriter`) and drawn there while this module writes
 the text files; MLflow takes the text files meanwhile (``on_text_files``). A run
 that does not finish leaves a ``summary.json`` that says so (:func:`write_status`).
+
+Every file is written through a temporary file and an atomic rename
+(:func:`mosd.app.atomic.write_atomically`): a full disk leaves a file complete or absent, never
+cut short. A run whose directory cannot be written (disk full, quota) ends with
+one line (:class:`RunNotWritten`) and a ``summary.json``, if even that can be
+written, that lists what the directory lacks.
 """
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable, Mapping
 
 import numpy as np
 
+from .atomic import write_atomically, write_json
 from .summary import on_bound
 
 if TYPE_CHECKING:
     from .build import Setup
+
+
+class RunNotWritten(BaseException):
+    """The run directory could not be written; the one-line message is printed already.
+
+    A BaseException, as a signal's :class:`~mosd.app.signals.Interrupted` is, so
+    that Hydra's job runner passes it through instead of printing a traceback;
+    :func:`mosd.app.main` turns it into exit code 1.
+    """
+
+
+def expected_files(run_dir: Path, result, setup: Setup, labels: Mapping[str, str]) -> list[Path]:
+    """The files :func:`write_run_files` writes for ``result`` (the study's own files aside)."""
+    text = ["resolved_config.yaml", "pareto.csv", *(["history.csv"] if result.history else []), "summary.json"]
+    return [*(run_dir / name for name in text), *(kwargs["path"] for _, kwargs in figure_jobs(run_dir, result, setup,
+                                                                                              labels))]
+
+
+def lacking(run_dir: Path, expected: list[Path]) -> list[str]:
+    """The names of the ``expected`` files ``run_dir`` lacks; removes the temporary files of unfinished writes.
+
+    For a run stopped while writing (its figure process killed mid-PNG, whose
+    temporary file :func:`write_atomically` had no chance to remove).
+    """
+    for path in expected:
+        for leftover in run_dir.glob(f".{path.stem}-*{path.suffix}"):
+            try:
+                leftover.unlink()
+            except OSError:
+                pass
+    return [p.name for p in expected if not p.exists()]
 
 
 def write_run_files(run_dir: Path, cfg, result, setup: Setup, labels: Mapping[str, str],
@@ -41,9 +78,8 @@ def write_run_files(run_dir: Path, cfg, result, setup: Setup, labels: Mapping[st
     if figures is not None:
         figures.submit(jobs)
     written = []
-    path = run_dir / "resolved_config.yaml"
-    path.write_text(OmegaConf.to_yaml(cfg, resolve=True))
-    written.append(path)
+    written.append(write_atomically(run_dir / "resolved_config.yaml",
+                                    lambda out: out.write(OmegaConf.to_yaml(cfg, resolve=True))))
 
     names = list(result.params)
     order = np.argsort(F[:, 0], kind="stable")
@@ -53,21 +89,18 @@ def write_run_files(run_dir: Path, cfg, result, setup: Setup, labels: Mapping[st
         columns.append(1.0 - F[order].sum(axis=1))
         header.append("accuracy")
     table = np.column_stack([*columns, (order == result.chosen_index).astype(float)])
-    path = run_dir / "pareto.csv"
-    np.savetxt(path, table, delimiter=",", header=",".join([*header, "chosen"]),
-               comments="", fmt=["%.10g"] * (table.shape[1] - 1) + ["%d"])
-    written.append(path)
+    written.append(write_atomically(run_dir / "pareto.csv", lambda out: np.savetxt(
+        out, table, delimiter=",", header=",".join([*header, "chosen"]), comments="",
+        fmt=["%.10g"] * (table.shape[1] - 1) + ["%d"])))
 
     if result.history:
         keys = list(result.history[0])
-        path = run_dir / "history.csv"
-        np.savetxt(path, np.array([[r[k] for k in keys] for r in result.history], float), delimiter=",",
-                   header=",".join(keys), comments="", fmt="%.10g")
-        written.append(path)
+        rows = np.array([[r[k] for k in keys] for r in result.history], float)
+        written.append(write_atomically(run_dir / "history.csv", lambda out: np.savetxt(
+            out, rows, delimiter=",", header=",".join(keys), comments="", fmt="%.10g")))
 
     summary = result.summary()
-    path = run_dir / "summary.json"
-    path.write_text(json.dumps({
+    written.append(write_json(run_dir / "summary.json", {
         "status": "finished",
         "labels": dict(labels),
         "params": result.params,
@@ -81,8 +114,7 @@ def write_run_files(run_dir: Path, cfg, result, setup: Setup, labels: Mapping[st
         **({"data": setup.experiment.describe()} if hasattr(setup.experiment, "describe") else {}),
         **({"study": dict(study)} if study else {}),
         "timings": result.timings,
-    }, indent=2, allow_nan=True))
-    written.append(path)
+    }))
     if on_text_files is not None:
         on_text_files(list(written))
     written += figures.result() if figures is not None else plots.draw(jobs)
@@ -131,9 +163,7 @@ def write_status(run_dir: Path, status: str, labels: Mapping[str, str], error: s
                  **extra: Any) -> Path:
     """``summary.json`` of a run that did not finish (``killed``, ``failed``): never a silent stub."""
     run_dir.mkdir(parents=True, exist_ok=True)
-    path = run_dir / "summary.json"
-    path.write_text(json.dumps({"status": status, "labels": dict(labels), **({"error": error} if error else {}),
-                                **extra}, indent=2, allow_nan=True))
-    return path
+    return write_json(run_dir / "summary.json", {"status": status, "labels": dict(labels),
+                                                 **({"error": error} if error else {}), **extra})
 
 

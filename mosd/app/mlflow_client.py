@@ -25,6 +25,9 @@ HTTP_ENV_DEFAULTS = {"MLFLOW_HTTP_REQUEST_MAX_RETRIES": "2", "MLFLOW_HTTP_REQUES
 # MLflow limits: param values 6000 characters, tag values 8000.
 MAX_PARAM_LENGTH = 6000
 MAX_TAG_LENGTH = 8000
+#: Tag of a run whose params, metrics or artifacts were not all logged (the run is FAILED until
+#: ``mosd log RUN_DIR`` completes it: :mod:`mosd.app.pending`).
+LOGGING_ERROR_TAG = "mosd.logging_error"
 
 
 def git_commit(path: str | os.PathLike | None = None) -> str | None:
@@ -139,5 +142,50 @@ class MlflowStore:
         if error:
             self.client.set_tag(run_id, "error", error[:MAX_TAG_LENGTH])
         self.client.set_terminated(run_id, status=status)
+
+    def active_run(self, run_id: str | None) -> bool:
+        """True if ``run_id`` is a run of this store that is not deleted."""
+        from mlflow.exceptions import MlflowException
+
+        if not run_id:
+            return False
+        try:
+            return self.client.get_run(run_id).info.lifecycle_stage == "active"
+        except MlflowException as exc:
+            if exc.error_code == "RESOURCE_DOES_NOT_EXIST":
+                return False
+            raise
+
+    def not_yet_logged(self, run_id: str, params: Mapping[str, str], metrics: Iterable[tuple[str, float, int]]
+                       ) -> tuple[dict[str, str], list[tuple[str, float, int]]]:
+        """The params and metric values ``(key, value, step)`` that run ``run_id`` does not hold yet.
+
+        Logging only these makes logging again idempotent: a param is logged
+        once, and a metric value that is already in the key's history (same
+        step, same value; NaN equal to NaN) is not added a second time.
+        """
+        run = self.client.get_run(run_id)
+        new_params = {k: v for k, v in params.items() if k not in run.data.params}
+        history: dict[str, set[tuple[int, str]]] = {}
+        new_metrics = []
+        for key, value, step in metrics:
+            if key not in run.data.metrics:
+                new_metrics.append((key, value, step))
+                continue
+            if key not in history:
+                history[key] = {(m.step, repr(float(m.value))) for m in self.client.get_metric_history(run_id, key)}
+            if (int(step), repr(float(value))) not in history[key]:
+                new_metrics.append((key, value, step))
+        return new_params, new_metrics
+
+    def complete(self, run_id: str, tags: Mapping[str, str] | None = None) -> None:
+        """End run ``run_id`` FINISHED with ``tags``, without the error tags of an earlier failure."""
+        held = self.client.get_run(run_id).data.tags
+        for key in ("error", LOGGING_ERROR_TAG):
+            if key in held:
+                self.client.delete_tag(run_id, key)
+        if tags:
+            self.log(run_id, tags=tags)
+        self.client.set_terminated(run_id, status="FINISHED")
 
 

@@ -1,8 +1,13 @@
 """Runs that MLflow did not take at the time, and ``mosd log RUN_DIR``, which logs them later.
 
 When MLflow fails after the work, the run directory is complete and
-``mlflow_pending.json`` holds what was to be logged (:func:`mark_not_logged`);
-``python -m mosd log RUN_DIR`` sends it as a new run (:func:`log_pending`).
+``mlflow_pending.json`` holds what was to be logged (:func:`mark_not_logged`).
+If the MLflow run exists (the store took the run but not all of its params,
+metrics or artifacts, e.g. a full artifact directory), it is ended FAILED with
+the tag ``mosd.logging_error`` (:class:`mosd.app.channel.Handler`), and
+``python -m mosd log RUN_DIR`` completes that same run (:func:`log_pending`):
+it logs what the run does not hold yet, uploads the files again and ends it
+FINISHED. It is idempotent: run twice, it logs once.
 """
 from __future__ import annotations
 
@@ -16,12 +21,15 @@ from typing import Any, Iterable, Mapping
 from ..validation import ConfigError
 from .checks import check_tracking
 from .config import described
+from .atomic import write_atomically, write_json
 from .mlflow_client import MlflowStore
 from .settings import TrackingSettings
 from .store import TrackingError
 
 #: File in a run directory with the MLflow requests of a run that was not logged.
 PENDING_FILE = "mlflow_pending.json"
+#: What the pending file is renamed to once ``mosd log`` has logged it.
+LOGGED_FILE = PENDING_FILE + ".logged"
 #: Exit code of a run whose work finished but whose MLflow logging failed.
 EXIT_NOT_LOGGED = 3
 #: Run directories of this process whose MLflow logging failed (:func:`mosd.app.main` exits non-zero).
@@ -30,63 +38,92 @@ NOT_LOGGED: list[Path] = []
 
 def pending_request(tracker, params: Mapping[str, str], metrics: Iterable[tuple[str, float, int]],
                     files: Iterable[str | os.PathLike]) -> dict:
-    """What :func:`log_pending` needs to log a :class:`~mosd.app.tracker.RunTracker`'s run later."""
-    return {"settings": asdict(tracker.settings), "run_name": tracker.run_name, "tags": tracker.tags,
-            "parent_run_id": tracker.parent_run_id, "params": dict(params),
+    """What :func:`log_pending` needs to log a :class:`~mosd.app.tracker.RunTracker`'s run later.
+
+    ``run_id`` is the MLflow run the tracker created (None if the store did not
+    take even that): ``mosd log`` completes it rather than making a second one.
+    """
+    return {"settings": asdict(tracker.settings), "run_id": tracker.run_id, "run_name": tracker.run_name,
+            "tags": tracker.tags, "parent_run_id": tracker.parent_run_id, "params": dict(params),
             "metrics": [(k, float(v), int(step)) for k, v, step in metrics], "artifacts": [str(f) for f in files]}
 
 
-def mark_not_logged(run_dir: Path, error: str, pending: Mapping[str, Any]) -> Path:
-    """Keep what was to be logged in ``mlflow_pending.json`` and say so in ``summary.json``."""
-    path = run_dir / PENDING_FILE
-    path.write_text(json.dumps(pending, indent=1, allow_nan=True))
+def _update_summary(run_dir: Path, tracking: Mapping[str, Any]) -> None:
     summary_path = run_dir / "summary.json"
     try:
         summary = json.loads(summary_path.read_text())
     except (OSError, ValueError):
         summary = {"status": "finished"}
-    summary["tracking"] = {"logged": False, "error": error, "pending": PENDING_FILE}
-    summary_path.write_text(json.dumps(summary, indent=2, allow_nan=True))
+    summary["tracking"] = dict(tracking)
+    write_json(summary_path, summary)
+
+
+def mark_not_logged(run_dir: Path, error: str, pending: Mapping[str, Any], status: str | None = None) -> Path:
+    """Keep what was to be logged in ``mlflow_pending.json`` and say so in ``summary.json``.
+
+    ``status``: what the MLflow run ``pending["run_id"]`` was ended with (FAILED
+    when it did not get everything), recorded in the summary.
+    """
+    path = write_json(run_dir / PENDING_FILE, pending)
+    _update_summary(run_dir, {"logged": False, "error": error, "pending": PENDING_FILE,
+                              **({"run_id": pending["run_id"], "mlflow_status": status} if pending.get("run_id")
+                                 else {})})
     return path
 
 
-def log_pending(run_dir: str | os.PathLike, uri: str | None = None) -> str:
-    """Log a run directory's ``mlflow_pending.json`` (a run whose logging failed) as a new run.
+def log_pending(run_dir: str | os.PathLike, uri: str | None = None) -> tuple[str, bool]:
+    """Log a run directory's ``mlflow_pending.json`` (a run whose logging failed); ``(run id, logged now)``.
 
-    Returns the new run id; the pending file is renamed ``*.logged`` and
-    ``summary.json`` records the id.
+    The MLflow run the pending file names is completed when it is in the store
+    (``uri``, default the run's own): only the params and metric values it
+    does not hold yet are logged, the files are uploaded again (a copy cut short
+    by a full disk is replaced) and it is ended FINISHED, without its error
+    tags. Otherwise a new run is made, and its id written to the pending file
+    first, so that a ``mosd log`` that fails half-way is resumed, not repeated.
+    The pending file is then renamed ``*.logged`` and ``summary.json`` records
+    the id; a second ``mosd log`` finds it logged and logs nothing (``logged
+    now`` False).
     """
     run_dir = Path(run_dir)
     path = run_dir / PENDING_FILE
     if not path.is_file():
+        done = run_dir / LOGGED_FILE
+        if done.is_file():
+            return json.loads(done.read_text()).get("run_id") or "", False
         raise ConfigError(f"{run_dir} has no {PENDING_FILE}; allowed: a run directory whose run was not logged")
     pending = json.loads(path.read_text())
     settings = TrackingSettings(**{**pending["settings"], **({"uri": uri} if uri else {})})
     check_tracking(settings)
     store = MlflowStore(settings)
-    parent = pending.get("parent_run_id")
-    try:
-        if parent:
-            store.client.get_run(parent)
-    except Exception:  # the sweep's parent is in another store, or gone
-        parent = None
-    run_id = store.create_run(pending["run_name"], {**pending["tags"], "mosd.logged_later": "true"}, parent)
-    try:
-        store.log(run_id, pending["params"], [tuple(m) for m in pending["metrics"]],
-                  artifacts=[a for a in pending["artifacts"] if Path(a).exists()])
-    except BaseException:
-        store.end(run_id, "FAILED", "mosd log: logging the run directory failed")
-        raise
-    store.end(run_id, "FINISHED")
-    path.rename(path.with_name(path.name + ".logged"))
+    run_id = pending.get("run_id") if settings.uri == pending["settings"]["uri"] else None
+    if not store.active_run(run_id):
+        parent = pending.get("parent_run_id")
+        if parent and not store.active_run(parent):  # the sweep's parent is in another store, or gone
+            parent = None
+        run_id = store.create_run(pending["run_name"], pending["tags"], parent)
+        pending = {**pending, "run_id": run_id, "settings": asdict(settings)}
+        write_json(path, pending)
+    params, metrics = store.not_yet_logged(run_id, pending["params"], [tuple(m) for m in pending["metrics"]])
+    # the files where the run directory is now (it may have been moved since)
+    recorded = Path(pending["tags"].get("mosd.run_dir") or run_dir)
+    files = [run_dir / Path(a).relative_to(recorded) if Path(a).is_relative_to(recorded) else Path(a)
+             for a in pending["artifacts"]]
+    # summary.json says where the run is logged before it is sent: the store's copy is the final one
     summary_path = run_dir / "summary.json"
+    before = summary_path.read_bytes() if summary_path.is_file() else None
+    if before is not None:
+        _update_summary(run_dir, {"logged": True, "run_id": run_id, "uri": settings.uri})
     try:
-        summary = json.loads(summary_path.read_text())
-        summary["tracking"] = {"logged": True, "run_id": run_id, "uri": settings.uri}
-        summary_path.write_text(json.dumps(summary, indent=2, allow_nan=True))
-    except (OSError, ValueError):
-        pass
-    return run_id
+        store.log(run_id, params, metrics, artifacts=[str(f) for f in files if f.exists()])
+    except BaseException:
+        if before is not None:
+            write_atomically(summary_path, lambda out: out.write(before), binary=True)
+        store.end(run_id, "FAILED", f"mosd log: logging the run directory failed; python -m mosd log {run_dir} "
+                                    f"completes this run")
+        raise
+    store.complete(run_id, {"mosd.logged_later": "true"})
+    path.rename(run_dir / LOGGED_FILE)
+    return run_id, True
 
 
 def log_main(argv) -> int:
@@ -104,8 +141,9 @@ def log_main(argv) -> int:
     try:
         args = parser.parse_args(list(argv))
         for run_dir in args.run_dirs:
-            run_id = log_pending(run_dir, args.tracking_uri)
-            print(f"mosd log: {run_dir} -> MLflow run {run_id}")
+            run_id, now = log_pending(run_dir, args.tracking_uri)
+            print(f"mosd log: {run_dir} -> MLflow run {run_id}" if now else
+                  f"mosd log: {run_dir} was logged already (MLflow run {run_id}); nothing logged")
     except (ConfigError, TrackingError) as exc:
         print(f"mosd log: error: {described(exc) if isinstance(exc, TrackingError) else exc}", file=sys.stderr)
         return 2

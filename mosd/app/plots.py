@@ -22,9 +22,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
-# the process's umask (read once: os.umask can only be read by setting it)
-_UMASK = os.umask(0)
-os.umask(_UMASK)
+from .atomic import write_atomically
+
 #: The figures a :class:`FigureWriter` may draw (name → function of this module).
 FIGURES = ("pareto_front", "pareto_pairs", "chart_trace", "residual_trace", "optimisation_history")
 
@@ -39,21 +38,8 @@ def _figure(width: float = 6.4, height: float = 4.0):
 
 
 def _save(fig, path: str | Path) -> Path:
-    path = Path(path)
-    # same directory, then an atomic rename: the PNG is either complete or absent
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}-", suffix=".png", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as out:
-            fig.savefig(out, dpi=110, format="png")
-        os.chmod(tmp, 0o666 & ~_UMASK)  # mkstemp makes the file private; a PNG is as readable as a CSV
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
-    return path
+    # a temporary file and an atomic rename: the PNG is either complete or absent (a full disk)
+    return write_atomically(path, lambda out: fig.savefig(out, dpi=110, format="png"), binary=True)
 
 
 def _finish_time_axes(ax, t: np.ndarray, fault_mask: np.ndarray, ylabel: str, title: str) -> None:

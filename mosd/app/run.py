@@ -9,11 +9,17 @@ What a run leaves when it does not end normally:
 * an error: the run is marked FAILED and ``summary.json`` says ``"status": "failed"``;
 * MLflow fails after the work: the summary is printed, the run directory is
   complete, ``mlflow_pending.json`` holds what was to be logged (:mod:`mosd.app.pending`),
-  one line says how to log it later (``python -m mosd log RUN_DIR``) and the exit code is
-  :data:`mosd.app.pending.EXIT_NOT_LOGGED`.
+  the MLflow run, if the store took it, is marked FAILED with the tag ``mosd.logging_error``,
+  one line says how to log it later (``python -m mosd log RUN_DIR``, which completes that run)
+  and the exit code is :data:`mosd.app.pending.EXIT_NOT_LOGGED`;
+* the run directory cannot be written (disk full, quota): the MLflow run is marked FAILED,
+  ``summary.json`` (if it can be written) says ``"status": "failed"`` and lists the files the
+  directory lacks (``missing``), no file is left cut short, one line is printed and the exit
+  code is 1 (:class:`~mosd.app.files.RunNotWritten`).
 """
 from __future__ import annotations
 
+import json
 import logging
 import signal
 import sys
@@ -26,7 +32,7 @@ import numpy as np
 
 from .build import build
 from .config import COMPONENTS, one_line
-from .files import write_run_files, write_status
+from .files import RunNotWritten, expected_files, lacking, write_run_files, write_status
 from .pending import NOT_LOGGED, mark_not_logged, pending_request
 from .signals import RECEIVED, Interrupted, install_signal_handlers, name, shutdown_workers
 from .summary import UndefinedResult, final_metrics, format_summary, header_line, undefined_metrics
@@ -86,7 +92,7 @@ def run(cfg, started: float | None = None, checked=None):
 
     from .plots import FigureWriter
     from .progress import Progress
-    from .mlflow_client import flatten
+    from .mlflow_client import LOGGING_ERROR_TAG, flatten
     from .store import TrackingError
 
     install_signal_handlers()
@@ -111,6 +117,8 @@ def run(cfg, started: float | None = None, checked=None):
                         description=f"job {hc.job.num}" if multirun else "", objectives=setup.experiment.objectives)
     timings = {"startup_s": task_start - started}
     figures = None
+    result = None
+    writing = False  # an OSError while True: the run directory cannot be written (disk full, quota)
     try:
         if not multirun:
             # the summary's first line now, so that a user (or a log file) sees the run start; the
@@ -124,6 +132,7 @@ def run(cfg, started: float | None = None, checked=None):
         progress.close()
         timings.update(result.timings)
         study_metrics, study_files = {}, []
+        writing = True
         if setup.study is not None:
             t0 = time.perf_counter()
             run_dir.mkdir(parents=True, exist_ok=True)
@@ -179,8 +188,11 @@ def run(cfg, started: float | None = None, checked=None):
             except TrackingError as exc:
                 # the work is done and on disk: keep it, say how to log it later
                 not_logged = one_line(exc)
-                mark_not_logged(run_dir, not_logged, pending_request(tracker, params, logged, files))
+                mark_not_logged(run_dir, not_logged, pending_request(tracker, params, logged, files), tracker.status)
                 tracking_line = f"mlflow    NOT LOGGED ({tracker.settings.uri}): {not_logged}"
+                if tracker.run_id:
+                    tracking_line += (f"\n          run {tracker.run_id} marked {tracker.status or 'RUNNING'}, tag "
+                                      f"{LOGGING_ERROR_TAG}: mosd log completes it")
             else:
                 # what MLflow still took after the figures (the rest overlapped them)
                 timings["mlflow_s"] = time.perf_counter() - t0
@@ -196,6 +208,7 @@ def run(cfg, started: float | None = None, checked=None):
                     tracking_line += f"\n          model NOT LOGGED: {tracker.model_error}"
                 if tracker.note:
                     tracking_line += f"\n          store: {tracker.note}"
+        writing = False
         timings["wall_s"] = time.perf_counter() - started
         print(format_summary(labels, result, setup, metrics, timings, run_dir, tracking_line, study_metrics,
                               header=multirun), flush=True)
@@ -216,6 +229,20 @@ def run(cfg, started: float | None = None, checked=None):
             signum = exc.signum if isinstance(exc, Interrupted) else (RECEIVED[-1] if RECEIVED else int(signal.SIGINT))
         status = "KILLED" if killed else "FAILED"
         error = f"stopped by {name(signum)}" if killed else f"{type(exc).__name__}: {one_line(exc)}"
+        not_written = writing and not killed and isinstance(exc, OSError)
+        kept = {}
+        if not_written:
+            error = f"the run directory could not be written: {error}"
+            # each file is complete or absent (atomic writes) and the figure process is stopped: what
+            # is absent now stays absent; summary.json is rewritten below, keeping the results it holds
+            missing = [n for n in lacking(run_dir, expected_files(run_dir, result, setup, labels))
+                       if n != "summary.json"]
+            try:
+                kept = {k: v for k, v in json.loads((run_dir / "summary.json").read_text()).items()
+                        if k not in ("status", "labels", "error")}
+            except (OSError, ValueError):
+                pass
+            kept["missing"] = missing
         run_id, marked = None, ""
         if tracker is not None and tracker.open:
             try:
@@ -227,9 +254,14 @@ def run(cfg, started: float | None = None, checked=None):
                 print(f"mosd: could not mark the MLflow run {status}: {one_line(tracking_exc)}", file=sys.stderr)
         try:
             write_status(run_dir, status.lower(), labels, error, mlflow_run_id=run_id,
-                         elapsed_s=time.perf_counter() - started)
+                         elapsed_s=time.perf_counter() - started, **kept)
+            said = "summary.json says status 'failed' and lists what it lacks"
         except OSError:
-            pass
+            said = "it has no summary.json (that could not be written either)"
+        if not_written:
+            print(f"mosd: error: {error}; {marked}{run_dir} lacks {', '.join(missing) or 'no result file'}; {said}",
+                  file=sys.stderr, flush=True)
+            raise RunNotWritten(error) from None
         if killed:
             print(f"mosd: stopped by {name(signum)} after {time.perf_counter() - started:.1f} s: "
                   f"{marked}{run_dir} is incomplete (summary.json status 'killed')", file=sys.stderr, flush=True)

@@ -51,6 +51,8 @@ class RunTracker:
         #: the logged model's URI, or why it was not logged (after finish; mosd.app.detector_model)
         self.model_uri: str | None = None
         self.model_error: str | None = None
+        #: the status the run was ended with (after finish): FAILED, not FINISHED, when a batch was not logged
+        self.status: str | None = None
 
     def start(self) -> "RunTracker":
         """Create the run (in the side process this returns at once)."""
@@ -87,7 +89,8 @@ class RunTracker:
         """Send the queued batches, end the run with ``status`` and return its id.
 
         Raises :class:`TrackingError` with MLflow's message if any request failed
-        (the run is still ended when it exists). With ``timeout``, a side process
+        (the run is still ended when it exists: FAILED, tagged ``mosd.logging_error``,
+        when a batch was not logged, see :class:`mosd.app.channel.Handler`). With ``timeout``, a side process
         that has not answered by then (still importing MLflow) is left to carry
         out the requests alone, and None is returned.
         """
@@ -110,6 +113,7 @@ class RunTracker:
             self.run_id = replies[0]["run_id"]
             self.startup_timings = replies[0].get("timings", {})
             self.note = replies[0].get("note")
+        self.status = next((r["status"] for r in replies if r.get("status")), None)
         self.model_uri = next((r["model_uri"] for r in replies if r.get("model_uri")), None)
         self.model_error = next((r["model_error"] for r in replies if r.get("model_error")), None)
         failed = [r["error"] for r in replies if not r.get("ok")]
