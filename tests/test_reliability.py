@@ -885,3 +885,64 @@ def test_a_full_outputs_disk_is_one_line_and_a_run_directory_that_says_what_it_l
         return [line.rsplit(",", 1)[0] for line in path.read_text().splitlines()]
 
     assert without_elapsed(run_dir / "history.csv") == without_elapsed(whole / "history.csv")
+
+
+def _artifact_server(tmp_path: Path, port: int, file_size_limit: int | None = None) -> subprocess.Popen:
+    """``mlflow server --artifacts-only`` on 127.0.0.1:``port``, storing under ``tmp_path / 'artifacts'``; with
+    ``file_size_limit``, a disk that takes no file larger than that (RLIMIT_FSIZE: EFBIG, an HTTP 500)."""
+    import shutil
+    import urllib.request
+
+    mlflow_cli = shutil.which("mlflow", path=str(Path(sys.executable).parent)) or shutil.which("mlflow")
+    assert mlflow_cli, "the mlflow command is not installed"
+    server = subprocess.Popen(
+        [mlflow_cli, "server", "--artifacts-only", "--artifacts-destination", str(tmp_path / "artifacts"),
+         "--host", "127.0.0.1", "--port", str(port), "--workers", "1"],
+        cwd=tmp_path, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True,
+        preexec_fn=None if file_size_limit is None else _limited_file_size(file_size_limit))
+    deadline = time.monotonic() + 180
+    while True:
+        assert server.poll() is None, "the artifact server ended"
+        try:
+            with urllib.request.urlopen(f"http://127.0.0.1:{port}/health", timeout=2):
+                return server
+        except OSError:
+            assert time.monotonic() < deadline, "the artifact server did not come up"
+            time.sleep(0.5)
+
+
+@pytest.mark.slow
+def test_a_full_artifact_store_gives_a_failed_run_that_mosd_log_completes(tmp_path, stop_process_group):
+    """End to end, the issue's case: the app and its tracking process against a real MLflow artifact server
+    whose disk takes no file over 20 kB (the PNGs); then the disk has room and ``mosd log`` runs twice."""
+    port = free_port()
+    artifacts = f"http://127.0.0.1:{port}/api/2.0/mlflow-artifacts/artifacts"
+    server = _artifact_server(tmp_path, port, file_size_limit=20_000)
+    try:
+        result = mosd(["+fault=offset_var", f"tracking.artifact_root={artifacts}", *SMALL], cwd=tmp_path, timeout=600)
+    finally:
+        stop_process_group(server)
+    assert result.returncode == 3, result.stderr[-3000:]
+    errors = [ln for ln in result.stderr.splitlines() if ln.startswith("mosd:")]
+    assert len(errors) == 1 and "python -m mosd log" in errors[0] and "Traceback" not in result.stderr
+    run_dir = next((tmp_path / "outputs" / "runs").iterdir())
+    client, runs = _runs(f"sqlite:///{tmp_path / 'outputs' / 'mlflow.db'}")
+    assert len(runs) == 1 and runs[0].info.status == "FAILED", [r.info.status for r in runs]
+    run_id = runs[0].info.run_id
+    assert f"python -m mosd log {run_dir}" in runs[0].data.tags["mosd.logging_error"]
+    assert json.loads((run_dir / "mlflow_pending.json").read_text())["run_id"] == run_id
+
+    server = _artifact_server(tmp_path, port)  # the disk has room again
+    try:
+        first = mosd(["log", str(run_dir)], cwd=tmp_path, timeout=300)
+        second = mosd(["log", str(run_dir)], cwd=tmp_path, timeout=300)
+        assert first.returncode == 0 and second.returncode == 0, (first.stderr + second.stderr)[-3000:]
+        assert "logged already" in second.stdout
+        client, runs = _runs(f"sqlite:///{tmp_path / 'outputs' / 'mlflow.db'}")
+        assert [r.info.run_id for r in runs] == [run_id] and runs[0].info.status == "FINISHED"
+        assert FINAL_METRICS <= set(runs[0].data.metrics)
+        assert all(len(client.get_metric_history(run_id, key)) == 1 for key in FINAL_METRICS)
+        stored = {a.path for a in client.list_artifacts(run_id)}
+        assert {p.name for p in run_dir.glob("*.png")} | {"summary.json", "pareto.csv"} <= stored
+    finally:
+        stop_process_group(server)
