@@ -946,3 +946,29 @@ def test_a_full_artifact_store_gives_a_failed_run_that_mosd_log_completes(tmp_pa
         assert {p.name for p in run_dir.glob("*.png")} | {"summary.json", "pareto.csv"} <= stored
     finally:
         stop_process_group(server)
+
+
+def test_mosd_log_completes_the_run_an_older_pending_file_left_finished_and_empty(tmp_path, capsys):
+    """A pending file from before the run id was recorded: ``mosd log`` finds the run made for the same
+    run directory (the issue's FINISHED run with 0 artifacts) and completes it instead of making a second."""
+    from mosd.app import pending
+
+    run_dir = tmp_path / "run"
+    files = _run_dir_with_results(run_dir)
+    settings = TrackingSettings(f"sqlite:///{tmp_path / 'mlflow.db'}", (tmp_path / "art").as_uri(), "mosd")
+    mlstore = mlflow_client.MlflowStore(settings)
+    tags = {"mosd.role": "job", "mosd.run_dir": str(run_dir)}
+    other = mlstore.create_run("another directory", {"mosd.role": "job", "mosd.run_dir": str(tmp_path / "other")})
+    left = mlstore.create_run("r", tags)
+    mlstore.log(left, {"seed": "0"}, [("far", 0.01, 0)])
+    mlstore.end(left, "FINISHED")
+    old = {"settings": {"uri": settings.uri, "artifact_root": settings.artifact_root, "experiment": "mosd"},
+           "run_name": "r", "tags": tags, "parent_run_id": None, "params": {"seed": "0"},
+           "metrics": [["far", 0.01, 0], ["mdr", 0.02, 0]], "artifacts": [str(f) for f in files]}
+    (run_dir / pending.PENDING_FILE).write_text(json.dumps(old))
+    assert pending.log_main([str(run_dir)]) == 0, capsys.readouterr().err
+    runs = mlstore.client.search_runs([mlstore.experiment_id()])
+    assert sorted(r.info.run_id for r in runs) == sorted([left, other])
+    assert len(mlstore.client.get_metric_history(left, "far")) == 1 and "mdr" in mlstore.client.get_run(left).data.metrics
+    assert {a.path for a in mlstore.client.list_artifacts(left)} == {f.name for f in files}
+    assert not list(mlstore.client.list_artifacts(other))

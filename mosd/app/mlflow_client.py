@@ -156,6 +156,13 @@ class MlflowStore:
                 return False
             raise
 
+    def run_of_directory(self, run_dir: str) -> str | None:
+        """The id of the one active run of the experiment tagged ``mosd.run_dir=run_dir``, else None."""
+        if "'" in run_dir:  # not expressible in a filter string: no guess
+            return None
+        runs = self.client.search_runs([self.experiment_id()], f"tags.`mosd.run_dir` = '{run_dir}'", max_results=2)
+        return runs[0].info.run_id if len(runs) == 1 else None
+
     def not_yet_logged(self, run_id: str, params: Mapping[str, str], metrics: Iterable[tuple[str, float, int]]
                        ) -> tuple[dict[str, str], list[tuple[str, float, int]]]:
         """The params and metric values ``(key, value, step)`` that run ``run_id`` does not hold yet.

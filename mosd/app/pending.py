@@ -78,7 +78,8 @@ def log_pending(run_dir: str | os.PathLike, uri: str | None = None) -> tuple[str
     (``uri``, default the run's own): only the params and metric values it
     does not hold yet are logged, the files are uploaded again (a copy cut short
     by a full disk is replaced) and it is ended FINISHED, without its error
-    tags. Otherwise a new run is made, and its id written to the pending file
+    tags (a pending file written before mosd recorded the run id: the one run
+    tagged with the same ``mosd.run_dir``). Otherwise a new run is made, and its id written to the pending file
     first, so that a ``mosd log`` that fails half-way is resumed, not repeated.
     The pending file is then renamed ``*.logged`` and ``summary.json`` records
     the id; a second ``mosd log`` finds it logged and logs nothing (``logged
@@ -95,7 +96,11 @@ def log_pending(run_dir: str | os.PathLike, uri: str | None = None) -> tuple[str
     settings = TrackingSettings(**{**pending["settings"], **({"uri": uri} if uri else {})})
     check_tracking(settings)
     store = MlflowStore(settings)
-    run_id = pending.get("run_id") if settings.uri == pending["settings"]["uri"] else None
+    run_id = None
+    if settings.uri == pending["settings"]["uri"]:
+        # a pending file written before mosd recorded the run id: the run made for the same directory
+        run_id = pending["run_id"] if "run_id" in pending else store.run_of_directory(pending["tags"].get(
+            "mosd.run_dir", ""))
     if not store.active_run(run_id):
         parent = pending.get("parent_run_id")
         if parent and not store.active_run(parent):  # the sweep's parent is in another store, or gone

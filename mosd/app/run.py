@@ -191,8 +191,9 @@ def run(cfg, started: float | None = None, checked=None):
                 mark_not_logged(run_dir, not_logged, pending_request(tracker, params, logged, files), tracker.status)
                 tracking_line = f"mlflow    NOT LOGGED ({tracker.settings.uri}): {not_logged}"
                 if tracker.run_id:
-                    tracking_line += (f"\n          run {tracker.run_id} marked {tracker.status or 'RUNNING'}, tag "
-                                      f"{LOGGING_ERROR_TAG}: mosd log completes it")
+                    ended = (f"marked {tracker.status} (tag {LOGGING_ERROR_TAG})" if tracker.status
+                             else "left RUNNING (the store failed)")
+                    tracking_line += f"\n          run {tracker.run_id} {ended}: mosd log completes it"
             else:
                 # what MLflow still took after the figures (the rest overlapped them)
                 timings["mlflow_s"] = time.perf_counter() - t0
