@@ -846,7 +846,7 @@ def test_preflight_refuses_an_outputs_directory_that_takes_no_bytes(tmp_path, mo
 
     monkeypatch.setattr(checks.os, "statvfs", lambda path: AlmostFull)
     with pytest.raises(ConfigError, match=r"outputs_root=.* cannot be written: .* has 100 kB free; a run needs about "
-                                          r"1 MB \(disk full\?\)"):
+                                          r"4 MB \(disk full\?\)"):
         checks.check_outputs(tmp_path / "out")
 
 

@@ -28,8 +28,9 @@ MAX_ANSWER_BYTES = 1 << 20
 
 
 #: Free space below which preflight refuses a directory a run writes to: a run directory takes about
-#: 0.3 MB (four PNGs of 40-90 kB and the text files), its MLflow artifacts as much again.
-MIN_FREE_BYTES = 1 << 20
+#: 0.3 MB (four PNGs of 40-90 kB and the text files), its MLflow artifacts as much again, and a new
+#: sqlite store (MLflow 3.17's tables) about 1 MB; twice that, for the next run to fit too.
+MIN_FREE_BYTES = 4 << 20
 
 
 def writable_dir_problem(path: Path) -> str | None:
