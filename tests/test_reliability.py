@@ -218,10 +218,12 @@ def tcp_server(answer: bytes | None):
 def test_a_web_server_that_is_not_mlflow_fails_in_preflight(tmp_path):
     with http_server(_NotMlflow) as uri:
         t0 = time.monotonic()
-        result = mosd(["+fault=offset_var", f"tracking.uri={uri}", *SMALL], cwd=tmp_path, timeout=120)
+        with_password = uri.replace("http://", "http://alice:s3cret@")
+        result = mosd(["+fault=offset_var", f"tracking.uri={with_password}", *SMALL], cwd=tmp_path, timeout=120)
         elapsed = time.monotonic() - t0
     line = one_line_exit_2(result)
-    assert f"tracking.uri={uri} answers HTTP but not as an MLflow tracking server" in line, line
+    masked = uri.replace("http://", "http://alice:***@")
+    assert f"tracking.uri={masked} answers HTTP but not as an MLflow tracking server" in line, line
     assert "HTTP 404" in line and "tracking=none" in line
     assert elapsed < 20, elapsed
     assert list(tmp_path.iterdir()) == []
@@ -246,6 +248,23 @@ def test_a_tcp_service_that_is_not_a_dask_scheduler_fails_in_preflight(tmp_path,
     assert f"optimizer.dask_address='{address}' accepts connections but is not a Dask scheduler" in line, line
     assert elapsed < 30, elapsed
     assert not (tmp_path / "outputs" / "runs").exists()
+
+
+@pytest.mark.parametrize("text,masked,bare", [
+    ("postgresql://mlflow:pw@127.0.0.1:5432/db", "postgresql://mlflow:***@127.0.0.1:5432/db",
+     "postgresql://mlflow@127.0.0.1:5432/db"),
+    ("x tracking.uri=mysql+pymysql://root:p%40ss@db/m y", "x tracking.uri=mysql+pymysql://root:***@db/m y",
+     "x tracking.uri=mysql+pymysql://root@db/m y"),
+    (r"tracking.uri=http\://alice\:pw@host\:5000", r"tracking.uri=http\://alice\:***@host\:5000",
+     r"tracking.uri=http\://host\:5000"),  # Hydra's escaped override (its launcher log, overrides.yaml)
+    ("http://host:5000/a?b=c@d", "http://host:5000/a?b=c@d", "http://host:5000/a?b=c@d"),
+    ("sqlite:////tmp/a:b@c/mlflow.db", "sqlite:////tmp/a:b@c/mlflow.db", "sqlite:////tmp/a:b@c/mlflow.db"),
+])
+def test_uri_passwords_are_masked_and_can_be_left_to_the_driver(text, masked, bare):
+    from mosd.app.settings import redacted, without_password
+
+    assert redacted(text) == masked and redacted(masked) == masked
+    assert without_password(masked) == bare
 
 
 def test_corrupt_store_fails_in_preflight_naming_the_file(tmp_path):
@@ -631,9 +650,11 @@ def test_a_real_mlflow_server_takes_a_sweep_and_concurrent_runs(tmp_path, stop_p
             except OSError:
                 assert time.monotonic() < deadline, "the server did not come up"
                 time.sleep(0.5)
+        # a password in the URI (basic authentication, which this server ignores) is never printed or recorded
+        secret = "s3cret-" + os.urandom(4).hex()
         budget = ["optimizer.pop_size=6", "optimizer.n_gen=2", "budget.n_test=2", "budget.n_train=2",
                   "budget.n_calibration=2", "optimizer.n_jobs=1", "progress=false", "scenario.duration=3",
-                  f"tracking.uri={uri}"]
+                  f"tracking.uri=http://alice:{secret}@127.0.0.1:{port}"]
         sweep = subprocess.Popen([sys.executable, "-m", "mosd", "-m", "+fault=offset,variance", "optimizer=mopso,nsga2",
                                   *budget], cwd=tmp_path / ".", env=_env(tmp_path / "sweep_out"), text=True,
                                  stdout=subprocess.PIPE, stderr=subprocess.PIPE)
@@ -651,8 +672,15 @@ def test_a_real_mlflow_server_takes_a_sweep_and_concurrent_runs(tmp_path, stop_p
         for r in jobs:
             assert FINAL_METRICS <= set(r.data.metrics), r.info.run_id
             assert {"summary.json", "pareto.csv", "chart.png"} <= {a.path for a in client.list_artifacts(r.info.run_id)}
+            assert r.data.params["tracking.uri"] == f"http://alice:***@127.0.0.1:{port}"
+        for _, (out, err) in results:  # the console: Hydra's launcher lists each job's overrides
+            assert secret not in out + err and "alice:***@" in out + err
+        stop_process_group(server)  # its store on disk is read below
+        leaks = [str(f) for f in tmp_path.rglob("*") if f.is_file() and secret.encode() in f.read_bytes()]
+        assert leaks == []  # run files, Hydra's config files, the sweep's multirun.yaml, the server's store
     finally:
-        stop_process_group(server)
+        if server.poll() is None:
+            stop_process_group(server)
         log.close()
 
 

@@ -67,7 +67,7 @@ def _as_server_user(cmd: list[str], **kwargs) -> subprocess.CompletedProcess:
 
 
 @contextlib.contextmanager
-def throwaway_postgres(databases: tuple[str, ...] = ("direct", "server")):
+def throwaway_postgres(databases: tuple[str, ...] = ("direct", "server", "masked")):
     """``postgresql://mlflow:PASSWORD@127.0.0.1:PORT``: a fresh cluster, stopped and deleted afterwards."""
     bindir = _bindir()
     home = Path(tempfile.mkdtemp(prefix="mosd-pg-"))  # under /tmp: the server user can reach it
@@ -174,6 +174,25 @@ def test_mosd_writes_directly_to_postgresql(postgres, tmp_path, monkeypatch):
                         PGPASSWORD=password)
     monkeypatch.setenv("PGPASSWORD", password)  # for this process's MLflow client and the report
     _check_store(uri, tmp_path)
+
+
+def test_a_password_in_the_uri_is_masked_everywhere_mosd_prints_or_records_it(postgres, tmp_path):
+    password = urllib.parse.urlparse(postgres).password
+    uri = f"{postgres}/masked"
+    run = subprocess.run([sys.executable, "-m", "mosd", "+fault=offset_var", *BUDGET, f"tracking.uri={uri}",
+                          f"tracking.artifact_root={tmp_path / 'artifacts'}"], cwd=tmp_path, env=_env(tmp_path / "out"),
+                         capture_output=True, text=True, timeout=600)
+    assert run.returncode == 0, run.stderr[-2000:]
+    masked = uri.replace(f":{password}@", ":***@")
+    assert password not in run.stdout + run.stderr and f"store {masked}" in run.stdout
+    leaks = [str(f) for f in tmp_path.rglob("*") if f.is_file() and password.encode() in f.read_bytes()]
+    assert leaks == []  # summary, resolved config, Hydra's .hydra/*.yaml, the logged artifacts
+    from mlflow.tracking import MlflowClient
+
+    client = MlflowClient(tracking_uri=uri)
+    (found,) = client.search_runs([client.get_experiment_by_name("mosd").experiment_id])
+    assert found.data.params["tracking.uri"] == masked
+    assert not [k for k, v in {**found.data.params, **found.data.tags}.items() if password in v]
 
 
 def test_mosd_writes_through_an_mlflow_server_on_postgresql(postgres, tmp_path, stop_process_group):

@@ -167,9 +167,11 @@ def _main(argv: list[str], started: float) -> int:
         # the components of every job, built once: a job run in this process takes its own
         checked = preflight(argv)
     except (UsageError, ConfigError) as exc:
+        from .settings import redacted
+
         if checking:
             _transient(None)
-        print(f"mosd: error: {exc}", file=sys.stderr)
+        print(f"mosd: error: {redacted(str(exc))}", file=sys.stderr)
         return 2
     except BaseException:
         if checking:
@@ -179,6 +181,10 @@ def _main(argv: list[str], started: float) -> int:
         _transient(None)
 
     import hydra
+
+    from .settings import redact_warnings
+
+    redact_warnings()
 
     @hydra.main(version_base="1.3", config_path=str(CONFIG_DIR), config_name=CONFIG_NAME)
     def task(cfg):

@@ -17,8 +17,11 @@ from .config import described
 from .settings import TrackingSettings, redacted
 from .store import StoreState, refusal, sqlite_path, sqlite_store_state, store_lock
 
-#: Seconds preflight waits for a tracking server or database to answer.
+#: Seconds preflight waits for a database port or a store lock.
 CHECK_TIMEOUT_S = 3.0
+#: Seconds preflight waits for a tracking server's answer: it reads the store, which concurrent runs
+#: keep busy (3 s refused a healthy one-worker server under 8 concurrent runs on 2 loaded cores).
+SERVER_TIMEOUT_S = 10.0
 #: Default ports of the database back ends (checked with a TCP connection in preflight).
 DB_PORTS = {"postgresql": 5432, "mysql": 3306, "mssql": 1433}
 #: The REST call preflight makes to a tracking server: MLflow's client makes it first for every run.
@@ -108,7 +111,7 @@ def _mlflow_tls():
     return context
 
 
-def check_mlflow_server(uri: str, experiment: str, timeout: float = CHECK_TIMEOUT_S) -> None:
+def check_mlflow_server(uri: str, experiment: str, timeout: float = SERVER_TIMEOUT_S) -> None:
     """Raise ConfigError (one line) unless ``uri`` is an MLflow tracking server that can take the experiment's runs.
 
     Something answering HTTP is not enough (a web server or a proxy answers every
@@ -137,6 +140,9 @@ def check_mlflow_server(uri: str, experiment: str, timeout: float = CHECK_TIMEOU
             body = b""
     except (OSError, ValueError) as exc:
         reason = getattr(exc, "reason", exc)
+        if isinstance(reason, TimeoutError):  # connected (or connecting) but silent: a busy or a stray server
+            raise ConfigError(f"tracking.uri={shown} does not answer MLflow's REST API within {timeout:g} s; "
+                              f"{allowed}") from None
         reason = described(reason) if isinstance(reason, BaseException) else str(reason)
         raise ConfigError(f"tracking.uri={shown} is not reachable ({reason}, checked for {timeout:g} s); "
                           f"{allowed}") from None
@@ -168,12 +174,14 @@ def check_mlflow_server(uri: str, experiment: str, timeout: float = CHECK_TIMEOU
                       f"(GET {MLFLOW_PROBE}: HTTP {status}, {kind}); {allowed}")
 
 
-def check_tracking(settings: TrackingSettings, timeout: float = CHECK_TIMEOUT_S) -> None:
+def check_tracking(settings: TrackingSettings, timeout: float = CHECK_TIMEOUT_S,
+                   server_timeout: float = SERVER_TIMEOUT_S) -> None:
     """Raise ConfigError (one line) if the store cannot take a run; bounded by ``timeout`` per check.
 
     sqlite: the DB file is read-only checked (a store a killed migration left
     without runs passes: the run recreates it); its directory must be writable.
-    http(s): the server answers MLflow's REST API as MLflow does (:func:`check_mlflow_server`).
+    http(s): the server answers MLflow's REST API as MLflow does within ``server_timeout``
+    (:func:`check_mlflow_server`).
     Databases: the port accepts a TCP connection. A ``file:`` artifact root must be writable.
     """
     uri = settings.uri
@@ -193,7 +201,7 @@ def check_tracking(settings: TrackingSettings, timeout: float = CHECK_TIMEOUT_S)
             if state.state == "corrupt" or (state.state == "incomplete" and state.n_runs):
                 raise ConfigError(refusal(db, state))
     elif scheme in ("http", "https"):
-        check_mlflow_server(uri, settings.experiment, timeout)
+        check_mlflow_server(uri, settings.experiment, server_timeout)
     elif scheme in DB_PORTS:
         host, port = parsed.hostname or "localhost", parsed.port or DB_PORTS[scheme]
         try:

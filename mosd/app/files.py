@@ -17,8 +17,10 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable, Mapping
 
 import numpy as np
+from hydra.experimental.callback import Callback
 
 from .atomic import write_atomically, write_json
+from .settings import redacted
 from .summary import on_bound
 
 if TYPE_CHECKING:
@@ -79,7 +81,7 @@ def write_run_files(run_dir: Path, cfg, result, setup: Setup, labels: Mapping[st
         figures.submit(jobs)
     written = []
     written.append(write_atomically(run_dir / "resolved_config.yaml",
-                                    lambda out: out.write(OmegaConf.to_yaml(cfg, resolve=True))))
+                                    lambda out: out.write(redacted(OmegaConf.to_yaml(cfg, resolve=True)))))
 
     names = list(result.params)
     order = np.argsort(F[:, 0], kind="stable")
@@ -167,3 +169,32 @@ def write_status(run_dir: Path, status: str, labels: Mapping[str, str], error: s
                                                  **({"error": error} if error else {}), **extra})
 
 
+def redact_file(path: Path) -> None:
+    """Mask URI passwords in a text file, replacing it atomically (concurrent jobs may rewrite the same one)."""
+    try:
+        text = path.read_text()
+    except (OSError, UnicodeDecodeError):
+        return
+    masked = redacted(text)
+    if masked != text:
+        write_atomically(path, lambda out: out.write(masked))
+
+
+class RedactConfigFiles(Callback):
+    """Hydra callback: masks a password in ``tracking.uri`` in the config files Hydra saved for the job.
+
+    Hydra writes ``.hydra/{config,hydra,overrides}.yaml`` (and a sweep's
+    ``multirun.yaml``) before the job starts, with the overrides as typed; the job
+    reads its config from memory, so the files are masked before any work.
+    """
+
+    def on_job_start(self, config, **kwargs: Any) -> None:
+        hc = config.hydra
+        places = []
+        if hc.output_subdir is not None:
+            places += sorted((Path(hc.runtime.output_dir) / str(hc.output_subdir)).glob("*.yaml"))
+        if hc.mode is not None and str(hc.mode).endswith("MULTIRUN"):
+            places.append(Path(hc.sweep.dir) / "multirun.yaml")
+        for path in places:
+            if path.is_file():
+                redact_file(path)

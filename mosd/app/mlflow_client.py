@@ -16,7 +16,7 @@ import time
 from pathlib import Path
 from typing import Any, Iterable, Mapping
 
-from .settings import TrackingSettings
+from .settings import TrackingSettings, redacted
 from .store import LOCK_TIMEOUT_S, TrackingError, prepare_sqlite_store, sqlite_path, store_lock
 
 #: MLflow's HTTP retries for a run (its defaults, 7 retries with backoff 2, block ~250 s on a dead server).
@@ -65,6 +65,8 @@ class MlflowStore:
     def __init__(self, settings: TrackingSettings):
         for key, value in HTTP_ENV_DEFAULTS.items():
             os.environ.setdefault(key, value)
+        if redacted(settings.uri) != settings.uri:  # MLflow prints each run's URL, with the URI's password
+            os.environ["MLFLOW_SUPPRESS_PRINTING_URL_TO_STDOUT"] = "true"
         from mlflow.tracking import MlflowClient
 
         # alembic prints its migration steps at INFO when a fresh sqlite DB is created
@@ -112,7 +114,7 @@ class MlflowStore:
             return found.experiment_id
 
     def create_run(self, run_name: str, tags: Mapping[str, str], parent_run_id: str | None = None) -> str:
-        tags = {k: str(v)[:MAX_TAG_LENGTH] for k, v in tags.items()}
+        tags = {k: redacted(str(v))[:MAX_TAG_LENGTH] for k, v in tags.items()}
         if parent_run_id:
             tags["mlflow.parentRunId"] = parent_run_id
         run = self.client.create_run(self.experiment_id(), run_name=run_name, tags=tags)
@@ -121,15 +123,15 @@ class MlflowStore:
     def log(self, run_id: str, params: Mapping[str, str] | None = None,
             metrics: Iterable[tuple[str, float, int]] = (), tags: Mapping[str, str] | None = None,
             artifacts: Iterable[str] = ()) -> None:
-        """One batched call for params, metrics and tags, then the artifact files."""
+        """One batched call for params, metrics and tags (URI passwords masked), then the artifact files."""
         from mlflow.entities import Metric, Param, RunTag
 
         stamp = int(time.time() * 1000)
         self.client.log_batch(
             run_id,
             metrics=[Metric(key, float(value), stamp, int(step)) for key, value, step in metrics],
-            params=[Param(k, str(v)[:MAX_PARAM_LENGTH]) for k, v in (params or {}).items()],
-            tags=[RunTag(k, str(v)[:MAX_TAG_LENGTH]) for k, v in (tags or {}).items()],
+            params=[Param(k, redacted(str(v))[:MAX_PARAM_LENGTH]) for k, v in (params or {}).items()],
+            tags=[RunTag(k, redacted(str(v))[:MAX_TAG_LENGTH]) for k, v in (tags or {}).items()],
         )
         for path in artifacts:
             p = Path(path)
@@ -140,7 +142,7 @@ class MlflowStore:
 
     def end(self, run_id: str, status: str = "FINISHED", error: str | None = None) -> None:
         if error:
-            self.client.set_tag(run_id, "error", error[:MAX_TAG_LENGTH])
+            self.client.set_tag(run_id, "error", redacted(error)[:MAX_TAG_LENGTH])
         self.client.set_terminated(run_id, status=status)
 
     def active_run(self, run_id: str | None) -> bool:

@@ -22,14 +22,14 @@ from pathlib import Path
 from typing import Sequence
 
 from ..validation import ConfigError
-from .settings import default_tracking_uri
+from .settings import default_tracking_uri, redacted
 
 PROG = "python -m mosd monitor"
 
 
 class _Parser(argparse.ArgumentParser):
     def error(self, message):  # one line, exit 2 (argparse prints the usage first)
-        print(f"mosd monitor: error: {message}", file=sys.stderr)
+        print(f"mosd monitor: error: {redacted(message)}", file=sys.stderr)
         raise SystemExit(2)
 
 
@@ -140,7 +140,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 cause = cause.__cause__ or cause.__context__
             raise ConfigError(" ".join(str(cause if isinstance(cause, ConfigError) else exc).split())) from None
     except ConfigError as exc:
-        print(f"mosd monitor: error: {exc}", file=sys.stderr)
+        print(f"mosd monitor: error: {redacted(str(exc))}", file=sys.stderr)
         return 2
     for column in args.keep:
         out.insert(0, column, frame[column].to_numpy())

@@ -23,7 +23,7 @@ from .checks import check_tracking
 from .config import described
 from .atomic import write_atomically, write_json
 from .mlflow_client import MlflowStore
-from .settings import TrackingSettings
+from .settings import TrackingSettings, redacted, without_password
 from .store import TrackingError
 
 #: File in a run directory with the MLflow requests of a run that was not logged.
@@ -43,7 +43,10 @@ def pending_request(tracker, params: Mapping[str, str], metrics: Iterable[tuple[
     ``run_id`` is the MLflow run the tracker created (None if the store did not
     take even that): ``mosd log`` completes it rather than making a second one.
     """
-    return {"settings": asdict(tracker.settings), "run_id": tracker.run_id, "run_name": tracker.run_name,
+    # the password of tracking.uri stays out of the file: `mosd log` takes it from the driver's
+    # environment (PGPASSWORD, ~/.pgpass, MLFLOW_TRACKING_PASSWORD) or --tracking-uri
+    settings = {**asdict(tracker.settings), "uri": redacted(tracker.settings.uri)}
+    return {"settings": settings, "run_id": tracker.run_id, "run_name": tracker.run_name,
             "tags": tracker.tags, "parent_run_id": tracker.parent_run_id, "params": dict(params),
             "metrics": [(k, float(v), int(step)) for k, v, step in metrics], "artifacts": [str(f) for f in files]}
 
@@ -93,11 +96,12 @@ def log_pending(run_dir: str | os.PathLike, uri: str | None = None) -> tuple[str
             return json.loads(done.read_text()).get("run_id") or "", False
         raise ConfigError(f"{run_dir} has no {PENDING_FILE}; allowed: a run directory whose run was not logged")
     pending = json.loads(path.read_text())
-    settings = TrackingSettings(**{**pending["settings"], **({"uri": uri} if uri else {})})
+    stored = {**pending["settings"], "uri": without_password(pending["settings"]["uri"])}
+    settings = TrackingSettings(**{**stored, **({"uri": uri} if uri else {})})
     check_tracking(settings)
     store = MlflowStore(settings)
     run_id = None
-    if settings.uri == pending["settings"]["uri"]:
+    if without_password(redacted(settings.uri)) == stored["uri"]:
         # a pending file written before mosd recorded the run id: the run made for the same directory
         run_id = pending["run_id"] if "run_id" in pending else store.run_of_directory(pending["tags"].get(
             "mosd.run_dir", ""))
@@ -106,7 +110,7 @@ def log_pending(run_dir: str | os.PathLike, uri: str | None = None) -> tuple[str
         if parent and not store.active_run(parent):  # the sweep's parent is in another store, or gone
             parent = None
         run_id = store.create_run(pending["run_name"], pending["tags"], parent)
-        pending = {**pending, "run_id": run_id, "settings": asdict(settings)}
+        pending = {**pending, "run_id": run_id, "settings": {**asdict(settings), "uri": redacted(settings.uri)}}
         write_json(path, pending)
     params, metrics = store.not_yet_logged(run_id, pending["params"], [tuple(m) for m in pending["metrics"]])
     # the files where the run directory is now (it may have been moved since)
@@ -117,7 +121,7 @@ def log_pending(run_dir: str | os.PathLike, uri: str | None = None) -> tuple[str
     summary_path = run_dir / "summary.json"
     before = summary_path.read_bytes() if summary_path.is_file() else None
     if before is not None:
-        _update_summary(run_dir, {"logged": True, "run_id": run_id, "uri": settings.uri})
+        _update_summary(run_dir, {"logged": True, "run_id": run_id, "uri": redacted(settings.uri)})
     try:
         store.log(run_id, params, metrics, artifacts=[str(f) for f in files if f.exists()])
     except BaseException:

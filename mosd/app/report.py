@@ -160,7 +160,7 @@ def _parser(default_uri: str) -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from .settings import default_tracking_uri
+    from .settings import default_tracking_uri, redacted
 
     parser = _parser(default_tracking_uri())
 
@@ -182,10 +182,10 @@ def main(argv: Sequence[str] | None = None) -> int:
                                   f"allowed: a healthy MLflow store")
         rows = collect(args.tracking_uri, args.experiment, latest_only=not args.all)
     except ReportError as exc:
-        print(f"mosd report: error: {exc}", file=sys.stderr)
+        print(f"mosd report: error: {redacted(str(exc))}", file=sys.stderr)
         return 2
     if not rows:
-        print(f"mosd report: no finished mosd runs in {args.tracking_uri}", file=sys.stderr)
+        print(f"mosd report: no finished mosd runs in {redacted(args.tracking_uri)}", file=sys.stderr)
         return 0
     sys.stdout.write((to_csv(rows) if args.format == "csv" else to_markdown(rows) + "\n"))
     return 0

@@ -34,6 +34,7 @@ from .build import build
 from .config import COMPONENTS, one_line
 from .files import RunNotWritten, expected_files, lacking, write_run_files, write_status
 from .pending import NOT_LOGGED, mark_not_logged, pending_request
+from .settings import redacted
 from .signals import RECEIVED, Interrupted, install_signal_handlers, name, shutdown_workers
 from .summary import UndefinedResult, final_metrics, format_summary, header_line, undefined_metrics
 
@@ -61,7 +62,7 @@ def _start_tracking(cfg, hc, labels: Mapping[str, str], n_jobs: int, run_dir: Pa
         return None
     multirun = hc.mode == RunMode.MULTIRUN
     tags = {"mosd.role": "job", "mosd.mode": "multirun" if multirun else "run",
-            "mosd.overrides": " ".join(hc.overrides.task), "mosd.run_dir": str(run_dir.resolve()),
+            "mosd.overrides": redacted(" ".join(hc.overrides.task)), "mosd.run_dir": str(run_dir.resolve()),
             "mosd.n_jobs": str(n_jobs), "mosd.backend": str(cfg.optimizer.get("backend", "loky")),
             **{f"mosd.{k}": v for k, v in labels.items()}}
     if params:
@@ -155,7 +156,7 @@ def run(cfg, started: float | None = None, checked=None):
             nonlocal params
             if tracker is None:
                 return
-            params = flatten(OmegaConf.to_container(cfg, resolve=True))
+            params = {k: redacted(v) for k, v in flatten(OmegaConf.to_container(cfg, resolve=True)).items()}
             logged.extend((key, record[key], record["generation"]) for record in result.history
                           for key in ("hypervolume", "archive_size", "best_accuracy", "n_eval",
                                       *(f"best_{name}" for name in result.objectives))
@@ -187,9 +188,9 @@ def run(cfg, started: float | None = None, checked=None):
                 run_id = tracker.finish("FINISHED")
             except TrackingError as exc:
                 # the work is done and on disk: keep it, say how to log it later
-                not_logged = one_line(exc)
+                not_logged = redacted(one_line(exc))
                 mark_not_logged(run_dir, not_logged, pending_request(tracker, params, logged, files), tracker.status)
-                tracking_line = f"mlflow    NOT LOGGED ({tracker.settings.uri}): {not_logged}"
+                tracking_line = f"mlflow    NOT LOGGED ({redacted(tracker.settings.uri)}): {not_logged}"
                 if tracker.run_id:
                     ended = (f"marked {tracker.status} (tag {LOGGING_ERROR_TAG})" if tracker.status
                              else "left RUNNING (the store failed)")
@@ -201,7 +202,7 @@ def run(cfg, started: float | None = None, checked=None):
                 startup = ", ".join(f"{k.removeprefix('mlflow_').removesuffix('_s')} {v:.1f} s"
                                     for k, v in tracker.startup_timings.items())
                 tracking_line = (f"mlflow    run {run_id}  experiment {tracker.settings.experiment!r}"
-                                 f"  store {tracker.settings.uri}\n          ({where}: {startup})")
+                                 f"  store {redacted(tracker.settings.uri)}\n          ({where}: {startup})")
                 if tracker.model_uri:
                     tracking_line += (f"\n          model {tracker.model_uri} (runs:/{run_id}/detector): "
                                       f"python -m mosd monitor --model {tracker.model_uri} DATA.csv")
@@ -229,7 +230,7 @@ def run(cfg, started: float | None = None, checked=None):
             shutdown_workers()
             signum = exc.signum if isinstance(exc, Interrupted) else (RECEIVED[-1] if RECEIVED else int(signal.SIGINT))
         status = "KILLED" if killed else "FAILED"
-        error = f"stopped by {name(signum)}" if killed else f"{type(exc).__name__}: {one_line(exc)}"
+        error = f"stopped by {name(signum)}" if killed else f"{type(exc).__name__}: {redacted(one_line(exc))}"
         not_written = writing and not killed and isinstance(exc, OSError)
         kept = {}
         if not_written:
@@ -252,7 +253,8 @@ def run(cfg, started: float | None = None, checked=None):
                 marked = f"MLflow run {run_id} marked {status}; " if run_id else \
                     f"the MLflow run will be marked {status} by the tracking process; "
             except Exception as tracking_exc:
-                print(f"mosd: could not mark the MLflow run {status}: {one_line(tracking_exc)}", file=sys.stderr)
+                print(f"mosd: could not mark the MLflow run {status}: {redacted(one_line(tracking_exc))}",
+                      file=sys.stderr)
         try:
             write_status(run_dir, status.lower(), labels, error, mlflow_run_id=run_id,
                          elapsed_s=time.perf_counter() - started, **kept)

@@ -6,6 +6,7 @@ MLflow or Hydra (``mosd report`` and preflight read it).
 """
 from __future__ import annotations
 
+import logging
 import os
 import re
 from dataclasses import dataclass
@@ -20,8 +21,9 @@ STORE_SCHEMES = ("sqlite", "postgresql", "mysql", "mssql", "http", "https", "dat
 #: Environment variable that overrides the default outputs root.
 OUTPUTS_ENV = "MOSD_OUTPUTS"
 TRACKING_KEYS = ("enabled", "uri", "artifact_root", "experiment")
-#: ``scheme://user:password@`` in any text: the password of a database or server URI.
-_CREDENTIALS = re.compile(r"(?P<head>\b[A-Za-z][A-Za-z0-9+.-]*://[^:/@\s]*):[^@/\s]+@")
+#: ``scheme://user:password@`` in any text: the password of a database or server URI; also as Hydra
+#: writes an override in its files and logs (``postgresql\://user\:password@``, colons escaped).
+_CREDENTIALS = re.compile(r"(?P<head>\b[A-Za-z][A-Za-z0-9+.-]*\\?://[^:/@\s\\]*)(?P<colon>\\?:)[^@/\s]+@")
 
 
 def redacted(text: str) -> str:
@@ -32,7 +34,33 @@ def redacted(text: str) -> str:
     the real URI. A password holding ``/`` or ``@`` must be percent-encoded in a URI
     anyway (``%2F``, ``%40``), so it never ends the match early.
     """
-    return _CREDENTIALS.sub(r"\g<head>:***@", text)
+    return _CREDENTIALS.sub(r"\g<head>\g<colon>***@", text)
+
+
+def without_password(uri: str) -> str:
+    """``uri`` without its (masked) password, for a driver that reads it from its environment.
+
+    A database keeps its user (``postgresql://user@host/db``: ``PGPASSWORD``,
+    ``~/.pgpass``); an HTTP server loses the user too (MLflow then sends
+    ``MLFLOW_TRACKING_USERNAME``/``MLFLOW_TRACKING_PASSWORD``, which a user in the URI would override).
+    """
+    def drop(match: re.Match) -> str:
+        head = match.group("head")
+        scheme = head.partition("://")[0].rstrip("\\")
+        return head[:head.index("//") + 2] if scheme.lower() in ("http", "https") else f"{head}@"
+
+    return _CREDENTIALS.sub(drop, uri)
+
+
+class RedactCredentials(logging.Filter):
+    """Masks URI passwords in log records (Hydra's launchers log every job's overrides on the console)."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        message = record.getMessage()
+        masked = redacted(message)
+        if masked != message:
+            record.msg, record.args = masked, None
+        return True
 
 
 def default_outputs_root() -> Path:
@@ -78,3 +106,18 @@ class TrackingSettings:
             raise ConfigError(f"tracking.experiment={experiment!r} is not allowed; allowed: a non-empty name")
         return cls(uri=str(uri), artifact_root=str(artifact_root), experiment=experiment)
 
+
+
+def redact_warnings() -> None:
+    """Mask URI passwords in the warnings this process shows (Hydra warns with a callback's exception text)."""
+    import warnings
+
+    shown = warnings.showwarning
+    if getattr(shown, "redacts", False):
+        return
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        shown(redacted(str(message)), category, filename, lineno, file, line)
+
+    show.redacts = True
+    warnings.showwarning = show
