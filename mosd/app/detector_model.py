@@ -197,22 +197,35 @@ def _python_model_class():
     import mlflow.pyfunc
 
     class MosdDetector(mlflow.pyfunc.PythonModel):
-        """mosd's fitted PCA detector; ``predict(rows, params={ewma_t2, ewma_spe, run_length})``."""
+        """mosd's fitted detector; ``predict(rows, params=the state of the previous row)`` (state_names)."""
 
         def load_context(self, context):
-            self.fitted = FittedPCA.load(context.artifacts["state"])
+            self.fitted = load_fitted(context.artifacts["state"])
 
         def predict(self, context, model_input, params=None):
             import pandas as pd
 
             frame = model_input if isinstance(model_input, pd.DataFrame) else pd.DataFrame(model_input)
-            state = {k: v for k, v in (params or {}).items() if k in STATE and v is not None}
+            names = state_names(self.fitted)
+            state = {k: v for k, v in (params or {}).items() if k in names and v is not None}
             return self.fitted.predict_frame(frame, state)
 
     return MosdDetector
 
 
-def signature(fitted: FittedPCA, example):
+def load_fitted(path):
+    """The fitted pipeline saved at ``path``: a :class:`FittedPCA` or a :class:`~mosd.app.chart_model.FittedChart`."""
+    from .chart_model import STATE_FILE as CHART_FILE, FittedChart
+
+    return FittedChart.load(path) if Path(path).name == CHART_FILE else FittedPCA.load(path)
+
+
+def state_names(fitted) -> tuple[str, ...]:
+    """The state a fitted pipeline carries from row to row (output columns and params of the same names)."""
+    return tuple(getattr(fitted, "state_names", STATE))
+
+
+def signature(fitted, example):
     """Input columns by name (doubles), output columns, and the state params with their defaults."""
     from mlflow.models import infer_signature
 
@@ -225,8 +238,8 @@ def log_model(state_file: str, tracking_uri: str, run_id: str) -> str:
     import mlflow
     import pandas as pd
 
-    fitted = FittedPCA.load(state_file)
-    example = pd.DataFrame([fitted.mean], columns=list(fitted.tags))
+    fitted = load_fitted(state_file)
+    example = fitted.example() if hasattr(fitted, "example") else pd.DataFrame([fitted.mean], columns=list(fitted.tags))
     mlflow.set_tracking_uri(tracking_uri)
     nested = mlflow.active_run() is not None
     with mlflow.start_run(run_id=run_id, nested=nested):
@@ -255,8 +268,16 @@ def fitted_of_run(setup, result) -> FittedPCA | None:
 
 
 def save_for_run(setup, result, run_dir) -> Path | None:
-    """Save the run's fitted pipeline under ``run_dir/model/`` (None: no model for this pipeline)."""
+    """Save the run's fitted pipeline under ``run_dir/model/`` (None: no model for this pipeline).
+
+    Recorded data with PCA: :class:`FittedPCA`; a simulated system's causal mean-variance chart on
+    subgroups (the main command): :class:`~mosd.app.chart_model.FittedChart`.
+    """
+    from .chart_model import fitted_chart_of_run
+
     fitted = fitted_of_run(setup, result)
+    if fitted is None:
+        fitted = fitted_chart_of_run(setup, result)
     return None if fitted is None else fitted.save(Path(run_dir) / "model")
 
 

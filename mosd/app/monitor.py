@@ -2,9 +2,11 @@
 
 The model is a run's logged detector (:mod:`mosd.app.detector_model`), loaded with
 ``mlflow.pyfunc.load_model``. The file's rows are scored in chunks of
-``--chunk`` rows, in file order; each chunk starts from the state (EWMA of T²
-and SPE, consecutive points above the limit) the previous chunk ended with,
-so the alarms do not depend on the chunk size. A cell that is not a number (a
+``--chunk`` rows, in file order; each chunk starts from the state the previous
+chunk ended with (the model's params: for PCA the EWMA of T² and SPE and the
+consecutive points above the limit; for a chart on a residual stream,
+:mod:`mosd.app.chart_model`, the samples seen, the smoothed U and V and the
+unfinished subgroup), so the alarms do not depend on the chunk size. A cell that is not a number (a
 historian error code such as ``Bad``) is a missing value, and the run's
 ``data.fill`` policy (stored in the model) fills the file as training did
 (``hold``, ``interpolate``, ``drop``); with ``none`` (and for TE) a row with a
@@ -66,11 +68,19 @@ def _load(uri: str, tracking_uri: str):
                           f"{text[:300]}; allowed: the model URI a mosd run printed") from None
 
 
+def _plain(value):
+    """A NumPy scalar as the Python number MLflow's params accept."""
+    return value.item() if hasattr(value, "item") else value
+
+
 def score_file(model, frame, chunk: int = 1000, progress: bool = False):
     """The model's output for every row of ``frame``, scored in chunks with the state carried."""
     import pandas as pd
 
     parts, state = [], None
+    schema = model.metadata.get_params_schema() if hasattr(model, "metadata") else None
+    # the carried state: the params of the model's signature, each an output column of every row
+    names = [p.name for p in schema.params] if schema is not None else ["ewma_t2", "ewma_spe", "run_length"]
     bar = None
     if progress:
         from tqdm import tqdm
@@ -79,9 +89,7 @@ def score_file(model, frame, chunk: int = 1000, progress: bool = False):
     for start in range(0, len(frame), chunk):
         out = model.predict(frame.iloc[start:start + chunk], params=state)
         parts.append(out)
-        last = out.iloc[-1]
-        state = {"ewma_t2": float(last["ewma_t2"]), "ewma_spe": float(last["ewma_spe"]),
-                 "run_length": int(last["run_length"])}
+        state = {name: _plain(out[name].iloc[-1]) for name in names}
         if bar is not None:
             bar.update(len(out))
     if bar is not None:
@@ -145,12 +153,21 @@ def main(argv: Sequence[str] | None = None) -> int:
     for column in args.keep:
         out.insert(0, column, frame[column].to_numpy())
     alarms = out["alarm"].to_numpy(bool)
-    print(f"{path}: {len(out)} rows, {int(alarms.sum())} alarms ({alarms.mean() if len(out) else 0:.4f} of rows)")
+    if "subgroup" in out.columns:  # a chart decides once per completed subgroup
+        decided = int((out["subgroup"].to_numpy() > 0).sum())
+        print(f"{path}: {len(out)} rows, {int(alarms.sum())} alarms in {decided} subgroups "
+              f"({alarms.sum() / decided if decided else 0:.4f} of them)")
+    else:
+        print(f"{path}: {len(out)} rows, {int(alarms.sum())} alarms ({alarms.mean() if len(out) else 0:.4f} of rows)")
     if alarms.any():
         first = int(alarms.argmax())
         row = out.iloc[first]
-        print(f"first alarm at row {first}: T² {row['t2']:.4g} (limit {row['t2_limit']:.4g}), SPE {row['spe']:.4g} "
-              f"(limit {row['spe_limit']:.4g}); top T² {row['top_t2']}, top SPE {row['top_spe']}")
+        if "statistic" in out.columns:  # a chart on a residual stream (mosd.app.chart_model)
+            print(f"first alarm at row {first} (subgroup {row['subgroup']}): statistic {row['statistic']:.4g} "
+                  f"(limit {row['limit']:.4g})")
+        else:
+            print(f"first alarm at row {first}: T² {row['t2']:.4g} (limit {row['t2_limit']:.4g}), SPE "
+                  f"{row['spe']:.4g} (limit {row['spe_limit']:.4g}); top T² {row['top_t2']}, top SPE {row['top_spe']}")
     if args.out:
         out.to_csv(args.out, index=False)
         print(f"per-row output: {args.out}")

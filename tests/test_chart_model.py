@@ -1,0 +1,183 @@
+"""The main command's tuned chart as an MLflow pyfunc model on a residual stream (issue 24, mosd.app.chart_model).
+
+* :class:`FittedChart` gives the statistics, limits and alarms of :meth:`Chart.decide` (bit for bit), for
+  every mean–variance chart and limit, in one call, in chunks and row by row with the state carried;
+* end to end: the main command (small budget) logs a loadable model, and the model, in-process chunk by
+  chunk through MLflow's params and through ``mosd monitor``, alarms on the run's own test residuals
+  where the run's test evaluation alarmed (its FAR and MDR in summary.json).
+"""
+from __future__ import annotations
+
+import json
+import re
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from mosd.app.chart_model import FittedChart, fitted_chart_of_run
+from mosd.detectors.mean_variance import MDEWMA, SSDEWMA, SSEWMA, MaxEWMA
+from mosd.validation import ConfigError
+from test_detector_model import _mosd  # the same subprocess helper
+
+BURN_IN, N = 20, 5
+
+
+def residual_runs(n_runs, length=420, seed=0, shift_at=None):
+    rng = np.random.default_rng(seed)
+    r = 0.3 + 2.0 * rng.standard_normal((n_runs, length))
+    if shift_at is not None:
+        r[:, shift_at:] = 1.6 * r[:, shift_at:] + 1.0
+    return r
+
+
+def fitted_and_decisions(chart, subgroup="window"):
+    """A FittedChart from Phase-I runs and the chart's own decisions on test runs."""
+    calibration, test = residual_runs(3, seed=1), residual_runs(2, seed=2, shift_at=250)
+    if subgroup == "window":
+        mean, std = calibration[:, BURN_IN:].mean(keepdims=True)[0], calibration[:, BURN_IN:].std(ddof=1, keepdims=True)[0]
+
+        def subgroups(r):
+            z = (r[:, BURN_IN:, None] - mean) / std
+            k = z.shape[1] // N
+            return z[:, :k * N, 0].reshape(len(r), k, N)
+        columns = ("residual_a",)
+        streams = test[..., None]
+    else:  # three channels, each row one subgroup
+        calibration = np.stack([calibration, residual_runs(3, seed=3), residual_runs(3, seed=4)], axis=-1)
+        streams = np.stack([test, residual_runs(2, seed=5), residual_runs(2, seed=6, shift_at=250)], axis=-1)
+        mean = calibration[:, BURN_IN:].reshape(-1, 3).mean(axis=0)
+        std = calibration[:, BURN_IN:].reshape(-1, 3).std(axis=0, ddof=1)
+
+        def subgroups(r):
+            return (r[:, BURN_IN:] - mean) / std
+        columns = ("residual_a", "residual_b", "residual_c")
+    decided = chart.decide(subgroups(calibration), subgroups(streams if subgroup == "channels" else test))
+    ucl = np.broadcast_to(decided.threshold, decided.statistic.shape)[0]
+    fitted = FittedChart(columns=columns, mean=np.atleast_1d(mean), std=np.atleast_1d(std), subgroup=subgroup,
+                         n=N if subgroup == "window" else 3, burn_in=BURN_IN, chart=type(chart).__name__,
+                         lam=chart.lam, K=chart.K, limit=chart.limit,
+                         limit_value=np.nan if chart.limit == "theoretical" else float(ucl[0]))
+    return fitted, decided, streams
+
+
+CASES = [(SSDEWMA, "phase1", "window"), (SSDEWMA, "theoretical", "window"), (SSDEWMA, "normalised", "window"),
+         (MDEWMA, "phase1", "window"), (SSEWMA, "theoretical", "window"), (MaxEWMA, "normalised", "window"),
+         (SSDEWMA, "phase1", "channels")]
+
+
+@pytest.mark.parametrize("cls, limit, subgroup", CASES)
+def test_scoring_equals_the_chart_in_one_call_in_chunks_and_row_by_row(cls, limit, subgroup):
+    fitted, decided, streams = fitted_and_decisions(cls(lam=0.25, K=1.0, limit=limit), subgroup)
+    for run, stream in enumerate(streams):
+        whole = fitted.score(stream)
+        at = whole["subgroup"] > 0
+        assert np.array_equal(whole["subgroup"][at], np.arange(1, decided.statistic.shape[-1] + 1))
+        assert np.array_equal(whole["statistic"][at], decided.statistic[run])        # bit for bit
+        assert np.array_equal(whole["limit"][at], np.broadcast_to(decided.threshold, decided.statistic.shape)[run])
+        assert np.array_equal(whole["alarm"], at & np.isin(whole["subgroup"], 1 + np.flatnonzero(decided.decision[run])))
+        assert 0 < decided.decision[run].sum() < decided.decision[run].size     # something to get wrong either way
+        for size in (1, 3, 7, 100):
+            state, parts = None, []
+            for start in range(0, len(stream), size):
+                out = fitted.score(stream[start:start + size], state)
+                state = {k: out[k][-1] for k in fitted.state_names}
+                parts.append(out)
+            for key in fitted.outputs:  # every output, the state of every row included
+                assert np.array_equal(np.concatenate([p[key] for p in parts]), whole[key], equal_nan=True), (key, size)
+
+
+def test_without_the_carried_state_chunks_differ():
+    fitted, decided, streams = fitted_and_decisions(SSDEWMA(lam=0.25, K=1.0))
+    expected = fitted.score(streams[0])["alarm"]
+    # each chunk from a stream's start: the burn-in, the subgroups and the EWMA all restart
+    restarted = np.concatenate([fitted.score(streams[0][s:s + 60], {"samples_seen": BURN_IN})["alarm"]
+                                for s in range(0, len(streams[0]), 60)])
+    assert not np.array_equal(restarted, expected)
+
+
+def test_columns_any_order_missing_extra_or_not_a_number_is_one_line(tmp_path):
+    import pandas as pd
+
+    fitted, _, streams = fitted_and_decisions(SSDEWMA(lam=0.25, K=1.0), "channels")
+    fitted = FittedChart.load(fitted.save(tmp_path))
+    frame = pd.DataFrame(streams[0], columns=fitted.columns)
+    pd.testing.assert_frame_equal(fitted.predict_frame(frame), fitted.predict_frame(frame[list(fitted.columns[::-1])]))
+    with pytest.raises(ConfigError, match=r"^input column 'residual_b' is missing"):
+        fitted.predict_frame(frame.drop(columns=["residual_b"]))
+    with pytest.raises(ConfigError, match=r"^input column 'time' is not an input of the model"):
+        fitted.predict_frame(frame.assign(time=1.0))
+    text = frame.astype(object)
+    text.iloc[7, 2] = "Bad"
+    with pytest.raises(ConfigError, match=r"^input column 'residual_c' row 7 is 'Bad', not a finite number"):
+        fitted.predict_frame(text)
+
+
+def test_no_model_for_a_denoised_chart():
+    """The paper's whole-series wavelet decides nothing before the series ends: no streaming model."""
+    from mosd.denoisers.wavelet import WaveletDenoiser
+    from mosd.monitors.subgroups import SubgroupMonitor
+
+    monitor = SubgroupMonitor()
+    monitor.mean_, monitor.std_ = np.zeros(1), np.ones(1)
+    setup = SimpleNamespace(experiment=SimpleNamespace(monitor=monitor, plant=SimpleNamespace(output_names=("y",))))
+    result = SimpleNamespace(detector=SSDEWMA(), example={"ucl": np.full(4, 2.5)})
+    assert fitted_chart_of_run(setup, result).columns == ("residual_y",)
+    result.detector = SSDEWMA(denoiser=WaveletDenoiser())
+    assert fitted_chart_of_run(setup, result) is None
+
+
+@pytest.mark.slow
+def test_main_command_logs_a_model_that_reproduces_its_test_evaluation(tmp_path):
+    import mlflow
+    import pandas as pd
+    from omegaconf import OmegaConf
+
+    from mosd.app.build import build
+    from mosd.metrics import DetectionReport
+
+    outputs = tmp_path / "out"
+    run = _mosd(["+fault=offset_var", "optimizer=mopso", "optimizer.pop_size=8", "optimizer.n_gen=2",
+                 "budget.n_calibration=3", "budget.n_train=3", "budget.n_test=4", "progress=false"],
+                tmp_path, outputs)
+    assert run.returncode == 0, run.stderr[-2000:]
+    uri = re.search(r"model (models:/\S+) \(runs:/(\w+)/detector\)", run.stdout)
+    assert uri, run.stdout[-2000:]
+    run_dir = next((outputs / "runs").glob("*"))
+    summary = json.loads((run_dir / "summary.json").read_text())
+    tracking = f"sqlite:///{outputs / 'mlflow.db'}"
+    # the run's own test residuals and decisions, rebuilt from its resolved config (same seeds)
+    setup = build(OmegaConf.load(run_dir / "resolved_config.yaml"))
+    experiment = setup.experiment
+    data = experiment.prepare()
+    subgroups, residuals = experiment.test_data(data)
+    expected = experiment.detector.with_params(**summary["params"]).decide(data.phase1.z, subgroups.z).decision
+    mlflow.set_tracking_uri(tracking)
+    model = mlflow.pyfunc.load_model(uri.group(1))
+    names = [p.name for p in model.metadata.get_params_schema().params]
+    columns = model.metadata.get_input_schema().input_names()
+    assert columns == ["residual_x_p"]
+    decisions = []
+    for r in range(residuals.r.shape[0]):
+        stream = pd.DataFrame({"residual_x_p": residuals.r[r, :, 0]})
+        state, parts = None, []
+        for start in range(0, len(stream), 100):   # 100 rows a request, the state through MLflow's params
+            out = model.predict(stream.iloc[start:start + 100], params=state)
+            state = {k: out[k].iloc[-1].item() for k in names}
+            parts.append(out)
+        out = pd.concat(parts)
+        decisions.append(out["alarm"].to_numpy()[out["subgroup"].to_numpy() > 0])
+    decisions = np.array(decisions)
+    assert np.array_equal(decisions, expected.astype(bool))
+    report = DetectionReport.of(decisions.astype(np.int8), subgroups, ("far", "mdr")).summary()
+    assert report["far"].mean == summary["test"]["far"]["mean"]
+    assert report["mdr"].mean == summary["test"]["mdr"]["mean"]
+    # mosd monitor on run 0's residual file, in chunks of 37 rows
+    path = tmp_path / "residuals.csv"
+    pd.DataFrame({"t": residuals.t, "residual_x_p": residuals.r[0, :, 0]}).to_csv(path, index=False)
+    scored = _mosd(["monitor", "--model", uri.group(1), str(path), "--keep", "t", "--out", str(tmp_path / "a.csv"),
+                    "--tracking-uri", tracking, "--chunk", "37"], tmp_path, outputs)
+    assert scored.returncode == 0, scored.stderr[-2000:]
+    assert f"{int(expected[0].sum())} alarms in {expected.shape[1]} subgroups" in scored.stdout
+    alarms = pd.read_csv(tmp_path / "a.csv")
+    assert np.array_equal(alarms["alarm"].to_numpy()[alarms["subgroup"].to_numpy() > 0], expected[0].astype(bool))
