@@ -19,11 +19,16 @@ other, so machine noise hits both. Sections:
   warm caches);
 * ``zdt`` — hypervolume and IGD on ZDT1–3 at 10,000 evaluations (slow: minutes);
 * ``tuning`` — hypervolume of MOPSO against NSGA-II on the paper's (λ, K) problem
-  at equal budget.
+  at equal budget;
+* ``tep`` — Tennessee Eastman PCA designs per second, and the logged model's
+  scoring (rows/s, with and without the top contributors) beside BibMon's
+  ``PCA.predict`` on the same rows, in turns;
+* ``serve`` — ``mlflow models serve`` of a logged model on 127.0.0.1: the median
+  latency of a request of 100 rows (the server is stopped afterwards).
 
-Usage: ``python -m mosd.bench [--only candidates,filter,...] [--quick] [--json]``.
-``--json`` runs candidates, filter, parallel and main unless ``--only`` says
-otherwise, prints the table on stderr and one JSON object on stdout with
+Usage: ``python -m mosd.bench [--only candidates,filter,...] [--skip serve] [--quick] [--json]``.
+``--json`` runs candidates, filter, parallel, main, tep and serve unless ``--only``
+or ``--skip`` says otherwise, prints the table on stderr and one JSON object on stdout with
 ``candidates_per_s``, ``candidates_numpy_per_s``, ``candidates_speedup_vs_numpy``,
 ``candidates_speedup_vs_naive``, ``candidates_identical``, ``candidates_plain_per_s``,
 ``candidates_plain_speedup_vs_numpy``,
@@ -33,7 +38,10 @@ otherwise, prints the table on stderr and one JSON object on stdout with
 ``imm_speedup_vs_numpy``, ``imm_speedup_batched_vs_single``, ``entropy_speedup_vs_numpy``, ``main_command_wall_s``,
 ``main_command_first_wall_s`` (of the sections run) and ``cpus``,
 ``load_average_1min`` (other load on the machine skews every ratio), ``quick``; ``tep`` (Tennessee Eastman,
-:func:`mosd.systems.tep.benchmark`) adds ``tep_candidates_per_s`` and ``tep_fit_score_s``.
+:func:`mosd.systems.tep.benchmark`) adds ``tep_candidates_per_s``, ``tep_fit_score_s``,
+``monitor_rows_per_s``, ``monitor_no_top_rows_per_s``, ``monitor_load_average_1min`` and, with bibmon
+installed, ``bibmon_predict_rows_per_s``, ``monitor_speedup_vs_bibmon``, ``monitor_no_top_speedup_vs_bibmon``,
+``bibmon_spe_agrees`` (1: the two SPEs agree to 1e-9 relative); ``serve`` adds ``serve_latency_ms`` and ``serve_latency_p90_ms``.
 """
 from __future__ import annotations
 
@@ -45,10 +53,10 @@ import time
 
 import numpy as np
 
-SECTIONS = ("candidates", "filter", "parallel", "main", "tuning", "zdt", "tep")
+SECTIONS = ("candidates", "filter", "parallel", "main", "tuning", "zdt", "tep", "serve")
 DEFAULT_SECTIONS = ("candidates", "filter", "parallel", "tuning")
 #: what ``--json`` runs by default: every section that feeds a JSON key
-JSON_SECTIONS = ("candidates", "filter", "parallel", "main", "tep")
+JSON_SECTIONS = ("candidates", "filter", "parallel", "main", "tep", "serve")
 
 
 def benchmark_filter(
@@ -497,21 +505,48 @@ def bench_tep(quick: bool = False) -> tuple[list, dict]:
 
 
 def _with_monitor(r: dict, quick: bool) -> tuple[list, dict]:
-    """bench_tep's rows and figures plus the logged model's scoring speed (mosd.app.detector_model)."""
+    """bench_tep's rows and figures plus the logged model's scoring speed beside bibmon's (mosd.app.detector_model)."""
     from .app.detector_model import monitor_benchmark
 
     m = monitor_benchmark(quick)
+    load = f"load average {m['load_average_1min_before']:.1f} -> {m['load_average_1min_after']:.1f}"
     rows = [("PCA designs/s on the training split, in-process", r["candidates_per_s"],
              f"{r['n_candidates']} designs, {r['training_points']} points each"),
             ("fit on d00.dat + score all 22 test files, s", r["fit_score_s"], f"{r['test_points']} points"),
             ("logged model: rows scored/s (predict on a DataFrame, in-process)", m["monitor_rows_per_s"],
-             f"{m['rows']} rows of the 22 test files, with top contributors")]
+             f"{m['rows']} TE test rows; T², SPE, EWMA, alarms, top-3 contributors; {load}"),
+            ("logged model without top contributors, rows/s", m["monitor_no_top_rows_per_s"], "same rows, in turns")]
     figures = {"tep_candidates_per_s": r["candidates_per_s"], "tep_fit_score_s": r["fit_score_s"],
-               "monitor_rows_per_s": m["monitor_rows_per_s"]}
+               "monitor_rows_per_s": m["monitor_rows_per_s"], "monitor_no_top_rows_per_s": m["monitor_no_top_rows_per_s"],
+               "monitor_load_average_1min": m["load_average_1min_after"]}
     if "bibmon_rows_per_s" in m:
-        rows.append(("bibmon PCA predict on the same rows, rows/s", m["bibmon_rows_per_s"], "side by side"))
-        figures["bibmon_predict_rows_per_s"] = m["bibmon_rows_per_s"]
+        rows += [("bibmon PCA predict on the same rows, rows/s", m["bibmon_rows_per_s"],
+                  f"in turns; SPE equal to {m['bibmon_spe_max_relative_difference']:.1e} relative"),
+                 ("logged model / bibmon predict", m["monitor_rows_per_s"] / m["bibmon_rows_per_s"], "target >= 10"),
+                 ("logged model without top / bibmon predict", m["monitor_no_top_rows_per_s"] / m["bibmon_rows_per_s"],
+                  "target >= 10")]
+        figures.update(bibmon_predict_rows_per_s=m["bibmon_rows_per_s"],
+                       monitor_speedup_vs_bibmon=m["monitor_rows_per_s"] / m["bibmon_rows_per_s"],
+                       monitor_no_top_speedup_vs_bibmon=m["monitor_no_top_rows_per_s"] / m["bibmon_rows_per_s"],
+                       # the same SPE (a flag: the JSON's 6 decimals would print 2e-14 as 0)
+                       bibmon_spe_agrees=int(m["bibmon_spe_max_relative_difference"] < 1e-9))
     return rows, figures
+
+
+def bench_serve(quick: bool = False) -> tuple[list, dict]:
+    """``mlflow models serve`` of a logged model: median latency of a request of 100 rows (mosd.app.detector_model)."""
+    from .app.detector_model import serve_benchmark
+
+    try:
+        r = serve_benchmark(quick)
+    except RuntimeError as exc:  # no server: a row that says so, no figure
+        return [(f"skipped: {exc}", float("nan"), "")], {}
+    note = (f"{r['serve_requests']} requests of {r['serve_rows_per_request']} {r['serve_source']}, state carried; "
+            f"load average {r['load_average_1min']:.1f}")
+    rows = [("served latency per request of 100 rows, median ms", r["serve_latency_ms"], note),
+            ("served latency, 90th percentile ms", r["serve_latency_p90_ms"], ""),
+            ("server start until /ping answers, s", r["serve_start_s"], "mlflow models serve --env-manager local")]
+    return rows, {"serve_latency_ms": r["serve_latency_ms"], "serve_latency_p90_ms": r["serve_latency_p90_ms"]}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -521,16 +556,21 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--only", default=None,
                         help=f"comma-separated sections out of {', '.join(SECTIONS)} (zdt takes minutes); default "
                              f"{','.join(DEFAULT_SECTIONS)}, with --json {','.join(JSON_SECTIONS)}")
+    parser.add_argument("--skip", default="", help="comma-separated sections to leave out (e.g. serve: it starts "
+                        "an MLflow model server on 127.0.0.1)")
     parser.add_argument("--quick", action="store_true", help="smaller sizes, for a smoke run")
     parser.add_argument("--json", action="store_true",
                         help="also print one JSON object of the headline numbers on stdout (the table goes to stderr)")
     args = parser.parse_args(argv)
     only = args.only if args.only is not None else ",".join(JSON_SECTIONS if args.json else DEFAULT_SECTIONS)
     chosen = [s.strip() for s in only.split(",") if s.strip()]
-    unknown = [s for s in chosen if s not in SECTIONS]
+    skipped = [s.strip() for s in args.skip.split(",") if s.strip()]
+    unknown = [s for s in chosen + skipped if s not in SECTIONS]
     if unknown:
-        print(f"error: --only {unknown[0]!r} is unknown; allowed: {', '.join(SECTIONS)}", file=sys.stderr)
+        print(f"error: --{'only' if unknown[0] in chosen else 'skip'} {unknown[0]!r} is unknown; allowed: "
+              f"{', '.join(SECTIONS)}", file=sys.stderr)
         return 2
+    chosen = [s for s in chosen if s not in skipped]
     table = sys.stderr if args.json else sys.stdout
     print(f"# mosd.bench — {os.cpu_count()} CPUs, numpy {np.__version__}; numbers are this machine's, this run's",
           file=table)

@@ -50,6 +50,16 @@ def test_unknown_section_is_refused(capsys):
     assert "'bogus' is unknown; allowed:" in capsys.readouterr().err
 
 
+def test_skipped_sections_are_left_out_and_an_unknown_one_is_refused(capsys, monkeypatch):
+    ran = []
+    monkeypatch.setattr(bench, "bench_tep", lambda quick: ran.append("tep") or ([], {}))
+    monkeypatch.setattr(bench, "bench_serve", lambda quick: ran.append("serve") or ([], {}))
+    assert bench.main(["--only", "tep,serve", "--skip", "serve"]) == 0
+    assert ran == ["tep"]
+    assert bench.main(["--skip", "servr"]) == 2
+    assert "--skip 'servr' is unknown; allowed:" in capsys.readouterr().err
+
+
 def test_parallel_section_reports_identical_archives(monkeypatch):
     """Identical archives for n_jobs 1 and 2 are reported as such, and a difference would be reported too."""
     rows, metrics = bench.bench_parallel(quick=True)

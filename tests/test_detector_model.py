@@ -72,6 +72,25 @@ def test_scoring_equals_the_detector_in_one_call_in_chunks_and_row_by_row(design
     assert np.array_equal(np.concatenate(parts), expected)
 
 
+def test_top_contributors_are_the_largest_of_the_model_s_contributions():
+    """The blocked scoring names the variables PCAModel.contributions ranks first; top=False changes nothing else."""
+    X, _ = plant()
+    calibration = np.stack([X[:300], X[300:600]])
+    fitted = FittedPCA.from_detector(PCADetector(fit_runs=1, max_components=5, n_components=2), calibration, TAGS)
+    rows = np.concatenate([X[600:]] * 8)          # several blocks of BLOCK rows
+    out = fitted.score(rows)
+    c_t2, c_spe = fitted._model().contributions(rows, 2)
+    for name, c in (("t2", c_t2), ("spe", c_spe)):
+        expected = [";".join(TAGS[j] for j in order[:3]) for order in np.argsort(-c, axis=1, kind="stable")]
+        assert list(out[f"top_{name}"]) == expected
+    bare = fitted.score(rows, top=False)
+    for key in out:
+        if key.startswith("top_"):
+            assert set(bare[key]) == {""}
+        else:
+            np.testing.assert_array_equal(bare[key], out[key])
+
+
 def test_without_the_carried_state_chunks_differ():
     """The state matters: restarting every chunk from the in-control start changes the alarms."""
     X, _ = plant()
