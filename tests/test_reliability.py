@@ -1000,3 +1000,47 @@ def test_mosd_log_completes_the_run_an_older_pending_file_left_finished_and_empt
     assert len(mlstore.client.get_metric_history(left, "far")) == 1 and "mdr" in mlstore.client.get_run(left).data.metrics
     assert {a.path for a in mlstore.client.list_artifacts(left)} == {f.name for f in files}
     assert not list(mlstore.client.list_artifacts(other))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("launcher", ["basic", "joblib"])
+def test_a_full_outputs_disk_in_a_sweep_is_one_line_per_job_and_exit_1(tmp_path, launcher):
+    """Each job of a sweep reports its run directory in one line and the sweep goes on (as with any failing
+    job); the exit code is 1 under both launchers (a joblib job runs in another process: its summary.json
+    tells the launching process). RLIMIT_FSIZE of 20 kB: no PNG fits."""
+    args = [sys.executable, "-m", "mosd", "+fault=offset_var", "tracking=none", *SMALL]
+    warm = subprocess.run(args, cwd=tmp_path, env=_env(tmp_path / "warm"), capture_output=True, text=True, timeout=600)
+    assert warm.returncode == 0, warm.stderr[-3000:]  # numba's kernel cache written (its files exceed the limit)
+    extra = ["hydra/launcher=joblib", "hydra.launcher.n_jobs=2"] if launcher == "joblib" else []
+    result = subprocess.run([*args[:3], "-m", *args[3:], "seed=0,1", *extra], cwd=tmp_path, env=_env(), text=True,
+                            capture_output=True, timeout=600, preexec_fn=_limited_file_size(20_000))
+    assert result.returncode == 1, result.stderr[-3000:]
+    assert "Traceback" not in result.stderr, result.stderr[-3000:]
+    lines = [ln for ln in result.stderr.splitlines() if ln.startswith("mosd:")]
+    assert len(lines) == 2 and all("the run directory could not be written" in ln for ln in lines), lines
+    jobs = sorted(p for p in next((tmp_path / "outputs" / "multirun").iterdir()).iterdir() if p.is_dir())
+    assert [j.name for j in jobs] == ["0", "1"]
+    for job in jobs:
+        summary = json.loads((job / "summary.json").read_text())
+        assert summary["status"] == "failed" and len(summary["missing"]) == 4, summary
+        assert not list(job.glob("*.png")) and not list(job.glob(".*-*"))
+
+
+def test_the_launching_process_learns_a_worker_jobs_outcome_from_its_summary(tmp_path, monkeypatch):
+    """A joblib-launcher job runs in another process: a job that could not write its run directory, or whose
+    run MLflow did not take, reaches the exit code through its summary.json."""
+    from mosd.app import files, pending, sweep
+
+    monkeypatch.setattr(files, "NOT_WRITTEN", [])
+    monkeypatch.setattr(pending, "NOT_LOGGED", [])
+    outcomes = {"0": {"status": "finished"}, "1": {"status": "failed", "missing": ["chart.png"]},
+                "2": {"status": "finished", "tracking": {"logged": False}}, "3": {"status": "failed", "error": "boom"}}
+    for job, summary in outcomes.items():
+        (tmp_path / job).mkdir()
+        (tmp_path / job / "summary.json").write_text(json.dumps(summary))
+    assert sweep.record_job_outcomes(tmp_path) is True
+    assert sweep.record_job_outcomes(tmp_path) is True  # again: nothing twice
+    assert files.NOT_WRITTEN == [tmp_path / "1"] and pending.NOT_LOGGED == [tmp_path / "2"]
+    (tmp_path / "1" / "summary.json").write_text(json.dumps({"status": "finished"}))
+    files.NOT_WRITTEN.clear()
+    assert sweep.record_job_outcomes(tmp_path) is False and files.NOT_WRITTEN == []

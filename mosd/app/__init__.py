@@ -81,15 +81,13 @@ def _command(argv: list[str], from_command_line: bool) -> int:
         from .pending import log_main
 
         return log_main(argv[1:])
-    from .files import RunNotWritten
+    from .files import NOT_WRITTEN
     from .pending import EXIT_NOT_LOGGED, NOT_LOGGED
     from .signals import ignore_stop_signals, install_signal_handlers, name
 
     install_signal_handlers()
     try:
-        return _main(argv, started) or (EXIT_NOT_LOGGED if NOT_LOGGED else 0)
-    except RunNotWritten:  # a full disk: reported in one line by the run
-        return 1
+        return _main(argv, started) or (1 if NOT_WRITTEN else EXIT_NOT_LOGGED if NOT_LOGGED else 0)
     except KeyboardInterrupt as exc:  # Interrupted (a signal) or a Ctrl-C before the handlers were set
         signum = getattr(exc, "signum", 2)  # SIGINT
         if not getattr(exc, "reported", False):

@@ -8,8 +8,8 @@ that does not finish leaves a ``summary.json`` that says so (:func:`write_status
 Every file is written through a temporary file and an atomic rename
 (:func:`mosd.app.atomic.write_atomically`): a full disk leaves a file complete or absent, never
 cut short. A run whose directory cannot be written (disk full, quota) ends with
-one line (:class:`RunNotWritten`) and a ``summary.json``, if even that can be
-written, that lists what the directory lacks.
+one line, exit code 1 (:data:`NOT_WRITTEN`) and a ``summary.json``, if even that
+can be written, that lists what the directory lacks.
 """
 from __future__ import annotations
 
@@ -27,13 +27,9 @@ if TYPE_CHECKING:
     from .build import Setup
 
 
-class RunNotWritten(BaseException):
-    """The run directory could not be written; the one-line message is printed already.
-
-    A BaseException, as a signal's :class:`~mosd.app.signals.Interrupted` is, so
-    that Hydra's job runner passes it through instead of printing a traceback;
-    :func:`mosd.app.main` turns it into exit code 1.
-    """
+#: Run directories of this process that could not be written (:func:`mosd.app.main` exits 1); a sweep's
+#: jobs in other processes are found from their ``summary.json`` (:class:`mosd.app.sweep.SweepCallback`).
+NOT_WRITTEN: list[Path] = []
 
 
 def expected_files(run_dir: Path, result, setup: Setup, labels: Mapping[str, str]) -> list[Path]:

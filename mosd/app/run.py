@@ -15,7 +15,7 @@ What a run leaves when it does not end normally:
 * the run directory cannot be written (disk full, quota): the MLflow run is marked FAILED,
   ``summary.json`` (if it can be written) says ``"status": "failed"`` and lists the files the
   directory lacks (``missing``), no file is left cut short, one line is printed and the exit
-  code is 1 (:class:`~mosd.app.files.RunNotWritten`).
+  code is 1 (:data:`mosd.app.files.NOT_WRITTEN`).
 """
 from __future__ import annotations
 
@@ -32,7 +32,7 @@ import numpy as np
 
 from .build import build
 from .config import COMPONENTS, one_line
-from .files import RunNotWritten, expected_files, lacking, write_run_files, write_status
+from .files import NOT_WRITTEN, expected_files, lacking, write_run_files, write_status
 from .pending import NOT_LOGGED, mark_not_logged, pending_request
 from .settings import redacted
 from .signals import RECEIVED, Interrupted, install_signal_handlers, name, shutdown_workers
@@ -264,7 +264,9 @@ def run(cfg, started: float | None = None, checked=None):
         if not_written:
             print(f"mosd: error: {error}; {marked}{run_dir} lacks {', '.join(missing) or 'no result file'}; {said}",
                   file=sys.stderr, flush=True)
-            raise RunNotWritten(error) from None
+            # the job ends here; a sweep goes on with its other jobs, and the exit code is 1
+            NOT_WRITTEN.append(run_dir)
+            return None
         if killed:
             print(f"mosd: stopped by {name(signum)} after {time.perf_counter() - started:.1f} s: "
                   f"{marked}{run_dir} is incomplete (summary.json status 'killed')", file=sys.stderr, flush=True)

@@ -8,6 +8,7 @@ parent run id in a file in the sweep directory (or an environment variable,
 from __future__ import annotations
 
 import atexit
+import json
 import os
 from pathlib import Path
 
@@ -30,6 +31,33 @@ def parent_run_id(sweep_dir: str | os.PathLike | None) -> str | None:
         if path.is_file():
             return path.read_text().strip() or None
     return os.environ.get(PARENT_RUN_ENV) or None
+
+
+def record_job_outcomes(sweep_dir: str | os.PathLike) -> bool:
+    """Note the sweep's jobs that could not write their run directory, or whose run MLflow did not take.
+
+    They join :data:`mosd.app.files.NOT_WRITTEN` and :data:`mosd.app.pending.NOT_LOGGED`,
+    which give the command's exit code: a job of the joblib launcher runs in
+    another process, and its ``summary.json`` is what this process learns of
+    it. Returns True if a job could not write its run directory.
+    """
+    from .files import NOT_WRITTEN
+    from .pending import NOT_LOGGED
+
+    not_written = False
+    for path in sorted(Path(sweep_dir).resolve().glob("*/summary.json")):
+        try:
+            summary = json.loads(path.read_text())
+        except (OSError, ValueError):
+            continue
+        job = path.parent
+        if summary.get("status") == "failed" and "missing" in summary:
+            not_written = True
+            if job not in {d.resolve() for d in NOT_WRITTEN}:
+                NOT_WRITTEN.append(job)
+        if (summary.get("tracking") or {}).get("logged") is False and job not in {d.resolve() for d in NOT_LOGGED}:
+            NOT_LOGGED.append(job)
+    return not_written
 
 
 class SweepCallback(Callback):
@@ -65,7 +93,10 @@ class SweepCallback(Callback):
         atexit.register(self._close, "FAILED", "a job of the sweep failed (see its child run)")
 
     def on_multirun_end(self, config, **kwargs) -> None:
-        self._close("FINISHED")
+        if record_job_outcomes(str(config.hydra.sweep.dir)):
+            self._close("FAILED", "a job of the sweep could not write its run directory (see its summary.json)")
+        else:
+            self._close("FINISHED")
 
     def _close(self, status: str, error: str | None = None) -> None:
         if self._store is None or self._run_id is None:
