@@ -167,13 +167,18 @@ class FittedPCA:
         raw = {"t2": np.empty(n), "spe": np.empty(n)}
         finite = np.empty(n, bool)
         tops = {"t2": np.empty((n, TOP), np.intp), "spe": np.empty((n, TOP), np.intp)} if top else None
+        block = min(BLOCK, n)
+        # the block's intermediates, allocated once per call and reused: no page faults per block
+        Z_buffer, squares_buffer = np.empty((block, m)), np.empty((len(self.eigenvalues), block))
+        if top:
+            c_buffers = np.empty((2, block, m))
         with _one_blas_thread():
             for lo in range(0, n, BLOCK):
                 hi = min(lo + BLOCK, n)
-                Z = X[lo:hi] - self.mean
+                Z = np.subtract(X[lo:hi], self.mean, out=Z_buffer[:hi - lo])
                 Z /= self.scale
                 # scores component-major (r, b): every per-component step below is a contiguous row
-                squares = fast["loadings_t"] @ Z.T
+                squares = np.matmul(fast["loadings_t"], Z.T, out=squares_buffer[:, :hi - lo])
                 squares *= squares
                 t2 = np.sum(squares[:a] / fast["eigenvalues_a"][:, None], axis=0)
                 outside = np.maximum(np.einsum("ij,ij->i", Z, Z) - np.sum(squares, axis=0), 0.0)
@@ -186,10 +191,10 @@ class FittedPCA:
                     if not ok.all():                              # the in-control mean for a missing row
                         Z[~ok] = 0.0
                     # T² contributions z_i (Pₐ Λₐ⁻¹ Pₐᵀ z)_i and SPE contributions e_i², e = (I − Pₐ Pₐᵀ) z
-                    # (PCAModel.contributions), both from one product with the two (m, m) matrices side by side
-                    both = Z @ fast["contribution_maps"]          # (b, 2m)
-                    c_t2, c_spe = both[:, :m], both[:, m:]
+                    # (PCAModel.contributions), each one product with an (m, m) matrix made once
+                    c_t2 = np.matmul(Z, fast["t2_map"], out=c_buffers[0, :hi - lo])
                     c_t2 *= Z
+                    c_spe = np.matmul(Z, fast["spe_map"], out=c_buffers[1, :hi - lo])
                     c_spe *= c_spe
                     for name, c in (("t2", c_t2), ("spe", c_spe)):
                         tops[name][lo:hi] = _largest(c, TOP)
@@ -229,9 +234,8 @@ class FittedPCA:
             a = self.n_components
             loadings = np.ascontiguousarray(self.loadings, float)
             cached = {"loadings_t": np.ascontiguousarray(loadings.T), "eigenvalues_a": np.asarray(self.eigenvalues[:a], float),
-                      "contribution_maps": np.ascontiguousarray(np.hstack([
-                          (loadings[:, :a] / self.eigenvalues[:a]) @ loadings[:, :a].T,      # Pₐ Λₐ⁻¹ Pₐᵀ
-                          np.eye(len(loadings)) - loadings[:, :a] @ loadings[:, :a].T]))}    # I − Pₐ Pₐᵀ
+                      "t2_map": (loadings[:, :a] / self.eigenvalues[:a]) @ loadings[:, :a].T,        # Pₐ Λₐ⁻¹ Pₐᵀ
+                      "spe_map": np.eye(len(loadings)) - loadings[:, :a] @ loadings[:, :a].T}         # I − Pₐ Pₐᵀ
             self.__dict__["_fast_arrays"] = cached
         return cached
 
@@ -291,7 +295,8 @@ def _largest(c: np.ndarray, k: int) -> np.ndarray:
     out = np.empty((len(c), min(k, c.shape[1])), np.intp)
     for j in range(out.shape[1]):
         out[:, j] = winner = np.argmax(c, axis=1)
-        c[rows, winner] = -np.inf
+        if j + 1 < out.shape[1]:
+            c[rows, winner] = -np.inf
     return out
 
 
