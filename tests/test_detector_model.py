@@ -91,6 +91,17 @@ def test_top_contributors_are_the_largest_of_the_model_s_contributions():
             np.testing.assert_array_equal(bare[key], out[key])
 
 
+def test_spe_includes_what_lies_outside_the_loadings_when_fewer_fit_rows_than_tags():
+    from mosd.detectors.pca import _Projected
+
+    X, _ = plant()
+    fitted = FittedPCA.from_detector(PCADetector(fit_runs=1, max_components=3, n_components=2),
+                                     np.stack([X[:5], X[5:10]]), TAGS)          # 5 rows, 6 tags: rank 5
+    assert fitted.loadings.shape[1] < len(TAGS)
+    expected = _Projected.of(fitted._model(), X[None, 600:]).spe[0, :, 1]
+    np.testing.assert_allclose(fitted.score(X[600:])["spe"], expected, rtol=1e-12)
+
+
 def test_without_the_carried_state_chunks_differ():
     """The state matters: restarting every chunk from the in-control start changes the alarms."""
     X, _ = plant()

@@ -152,8 +152,8 @@ class FittedPCA:
         """Per row of X (n, m, the model's tag order): statistics, limits, alarm, top variables, state.
 
         The arithmetic of :class:`~mosd.detectors.pca.PCADetector` (``_Projected``: the scores on every
-        component, T² as the cumulative sum of the first a, SPE as the sum of the others from the small
-        end plus what lies outside the loadings' span), done in blocks of :data:`BLOCK` rows so that the
+        component, T² as the sum of the first a, SPE as the sum of the others plus, when the fit had fewer
+        rows than tags, what lies outside the loadings' span), done in blocks of :data:`BLOCK` rows so that the
         (block, m) intermediates stay in cache, with one BLAS thread (on a loaded 2-core machine a
         two-thread product of this size waits for a core: 0.3 ms became 8 ms). ``top=False`` leaves out
         the contributions and the top variables (``top_t2``/``top_spe`` are then empty strings).
@@ -181,8 +181,9 @@ class FittedPCA:
                 squares = np.matmul(fast["loadings_t"], Z.T, out=squares_buffer[:, :hi - lo])
                 squares *= squares
                 t2 = np.sum(squares[:a] / fast["eigenvalues_a"][:, None], axis=0)
-                outside = np.maximum(np.einsum("ij,ij->i", Z, Z) - np.sum(squares, axis=0), 0.0)
-                spe = np.sum(squares[a:], axis=0) + outside    # from the small components: no cancellation
+                spe = np.sum(squares[a:], axis=0)                 # from the small components: no cancellation
+                if len(squares) < m:  # fewer fit rows than tags: add what lies outside the loadings' span
+                    spe += np.maximum(np.einsum("ij,ij->i", Z, Z) - np.sum(squares, axis=0), 0.0)
                 ok = np.isfinite(t2) & np.isfinite(spe)           # a missing value makes its row's scores NaN
                 finite[lo:hi] = ok
                 raw["t2"][lo:hi] = np.where(ok, t2, np.nan)
