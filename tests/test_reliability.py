@@ -8,6 +8,7 @@ subprocess runs in a tmp directory; servers bind 127.0.0.1 only.
 from __future__ import annotations
 
 import contextlib
+import csv
 import json
 import os
 import re
@@ -621,6 +622,78 @@ def test_report_keeps_one_row_per_set_up_and_shows_what_differs(tmp_path):
     assert table.splitlines()[0].startswith("| preset | fault | detector | optimizer | estimator | budget.n_test | MDR %")
     assert "budget.n_test" in report.to_csv(rows).splitlines()[0]
     assert len(report.collect(uri, latest_only=False)) == 4
+
+
+def test_report_groups_its_columns_and_shows_the_ones_metrics_picks(tmp_path, capsys):
+    from mosd.app import report
+
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    mlstore = mlflow_client.MlflowStore(TrackingSettings(uri, (tmp_path / "art").as_uri(), "mosd"))
+
+    def job(preset, seed, n_runs, test, study):
+        tags = {"mosd.role": "job", "mosd.experiment": preset, "mosd.fault": "ramp", "mosd.detector": "chi2",
+                "mosd.optimizer": "mopso", "mosd.params": "alpha", "mosd.online": "true",
+                **report.study_metric_tags(study)}
+        run_id = mlstore.create_run("r", tags)
+        logged = {**test, **{report.logged_study_name(k, test): v for k, v in study.items()}}
+        mlstore.log(run_id, {"seed": str(seed), "study.n_runs": str(n_runs)}, [(k, v, 0) for k, v in logged.items()])
+        mlstore.end(run_id)
+
+    test = {"far": 0.01, "far_ci": 0.001, "mdr": 0.1, "mdr_ci": 0.01, "accuracy": 0.89, "alpha": 0.5, "n_test": 20.0}
+    job("paper001", 0, 100, test, {"isolation_rate": 0.97, "far": 0.02})
+    job("paper001", 1, 100, test, {"isolation_rate": 0.95, "far": 0.03})
+    job("paper003", 0, 50, test, {"detection_step_best": 4.4, "far": 0.14})  # the study's own FAR, not the test's
+    rows = report.collect(uri)
+    assert len(rows) == 3 and report.extra_columns(rows) == ["seed", "study.n_runs"]
+    # by default: seed (it differs within paper001), not study.n_runs (it differs only between the presets)
+    header = report.to_markdown(rows).splitlines()[0]
+    assert header == ("| preset | fault | detector | optimizer | seed | MDR % | FAR % | accuracy % | detected % | "
+                      "n_test | design | online | run |")
+    paper003 = next(r for r in rows if r["preset"] == "paper003")
+    assert paper003["far"] == 0.01 and paper003["paper003:far"] == 0.14 and paper003["paper001:far"] == "–"
+    assert report.select_columns(rows, "far,setup") == ["far", "seed", "study.n_runs"]
+    assert report.select_columns(rows, "paper003") == ["paper003:detection_step_best", "paper003:far"]
+    assert report.select_columns(rows, "far,detection_rate,isolation_rate") == [
+        "far", "detected", "paper001:isolation_rate"]  # a bare study metric: every system that has it
+    assert report.to_markdown(rows, report.select_columns(rows, "paper003:far")).splitlines()[-1].endswith("| 0.14 |")
+    # the CSV holds every column by default, the picked ones (with their CIs) otherwise
+    fields = report.to_csv(rows).splitlines()[0].split(",")
+    assert {"far", "far_ci", "seed", "study.n_runs", "paper001:isolation_rate", "paper003:far"} <= set(fields)
+    assert report.to_csv(rows, ["far"]).splitlines()[0] == "preset,fault,detector,optimizer,far,far_ci"
+    assert report.main(["--tracking-uri", uri, "--metrics", "far,nope"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("mosd report: error: --metrics='nope' is not a group or column of this report; allowed: "
+                          "the groups test, design, setup, study, paper001, paper003;") and "\n" not in err
+    assert report.main(["--tracking-uri", uri, "--metrics", "test,paper001"]) == 0
+    assert capsys.readouterr().out.splitlines()[0].endswith("| n_test | paper001:far | paper001:isolation_rate |")
+
+
+@pytest.mark.slow
+def test_a_study_metric_never_replaces_the_test_metric_of_its_name(tmp_path):
+    """paper 000's study scores the tuned design on its own runs (study.n_runs != budget.n_test)."""
+    result = mosd(["+experiment=paper000", "study.n_runs=6", "budget.n_test=4", "budget.n_train=2",
+                   "budget.n_calibration=2", "optimizer.pop_size=6", "optimizer.n_gen=2", "optimizer.n_jobs=1",
+                   "progress=false"], cwd=tmp_path, timeout=600)
+    assert result.returncode == 0, result.stderr[-3000:]
+    summary = json.loads(next((tmp_path / "outputs" / "runs").glob("*/summary.json")).read_text())
+    _, (run,) = _runs(f"sqlite:///{tmp_path / 'outputs' / 'mlflow.db'}")
+    for name in ("far", "mdr", "accuracy"):
+        assert run.data.metrics[name] == pytest.approx(summary["test"][name]["mean"], rel=1e-12)
+        assert run.data.metrics[f"study_{name}"] == pytest.approx(summary["study"][name], rel=1e-12)
+    report = mosd(["report", "--format", "csv", "--metrics", "far,paper000:far"], cwd=tmp_path, timeout=300)
+    assert report.returncode == 0, report.stderr
+    (row,) = csv.DictReader(report.stdout.splitlines())
+    assert float(row["far"]) == pytest.approx(summary["test"]["far"]["mean"], rel=1e-12)
+    assert float(row["paper000:far"]) == pytest.approx(summary["study"]["far"], rel=1e-12)
+
+
+def test_study_metric_names_survive_the_tag_length():
+    from mosd.app import report
+
+    names = [f"metric_{i:04d}_of_a_long_study" for i in range(600)]
+    tags = report.study_metric_tags(names)
+    assert len(tags) > 1 and max(len(v) for v in tags.values()) <= mlflow_client.MAX_TAG_LENGTH
+    assert report.study_metric_names(tags) == names
 
 
 # ---------------------------------------------------------------------------------------

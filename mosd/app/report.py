@@ -12,6 +12,15 @@ except where the outputs go and where and on how many workers it evaluated
 preset, fault, detector and optimizer, the table gets a column for each choice
 that differs among the rows shown, so two runs are never merged into one row or
 shown side by side without the difference that separates them.
+
+The columns come in groups that ``--metrics`` picks from (by group or column
+name): ``test`` (MDR, FAR, accuracy, detected, n_test), ``design`` (the chosen
+design, online, run), ``setup`` (the differing choices) and ``study`` (every
+study metric), also per system (``paper003``: that system's study metrics, as
+``paper003:<metric>`` columns). The markdown table shows ``test``, ``design`` and
+the set-up columns that differ among runs of the same preset (a column that only
+differs between presets is the preset's doing: ``--metrics setup`` shows them
+all); the CSV holds every column of every group.
 """
 from __future__ import annotations
 
@@ -36,8 +45,60 @@ _IGNORED_PARAMS = ("tracking.", "outputs_root", "progress", "optimizer.n_jobs", 
                    "optimizer.dask_address", "hydra.")
 
 
+#: The table's columns by group (``--metrics``); ``setup`` and ``study`` columns depend on the runs.
+GROUPS = {"test": ("mdr", "far", "accuracy", "detected", "n_test"), "design": ("design", "online", "run")}
+#: Other names of those columns (their CSV fields).
+_ALIASES = {"detection_rate": "detected", "params": "design", "run_id": "run", "experiment": "run", "mdr_ci": "mdr",
+            "far_ci": "far", "accuracy_ci": "accuracy"}
+#: The columns always shown, first.
+IDENTITY = ("preset", "fault", "detector", "optimizer")
+#: CSV fields of the test and design columns.
+_CSV_FIELDS = {"mdr": ("mdr", "mdr_ci"), "far": ("far", "far_ci"), "accuracy": ("accuracy", "accuracy_ci"),
+               "detected": ("detection_rate",), "n_test": ("n_test",), "design": ("params",), "online": ("online",),
+               "run": ("run_id", "experiment")}
+#: Markdown headers of the test and design columns.
+_HEADERS = {"mdr": "MDR %", "far": "FAR %", "accuracy": "accuracy %", "detected": "detected %", "design": "design",
+            "online": "online", "n_test": "n_test", "run": "run"}
+#: Tag naming a run's study metrics (continued in ``<tag>.2``, ``<tag>.3``, … beyond MLflow's tag length).
+STUDY_METRICS_TAG = "mosd.study_metrics"
+_TAG_CHUNK = 6000
+
+
 class ReportError(Exception):
     """A problem with the command line or the store, reported as one line (exit 2)."""
+
+
+def logged_study_name(name: str, test_metrics) -> str:
+    """The MLflow key of study metric ``name``: ``study_<name>`` when a test metric has that name."""
+    return f"study_{name}" if name in test_metrics else name
+
+
+def study_metric_tags(names) -> dict[str, str]:
+    """Tags naming a run's study metrics (comma-separated, split across tags beyond MLflow's tag length)."""
+    chunks, current = [], ""
+    for name in names:
+        if current and len(current) + 1 + len(name) > _TAG_CHUNK:
+            chunks.append(current)
+            current = ""
+        current = f"{current},{name}" if current else name
+    if current:
+        chunks.append(current)
+    return {STUDY_METRICS_TAG + (f".{i + 1}" if i else ""): chunk for i, chunk in enumerate(chunks)}
+
+
+def study_metric_names(tags) -> list[str]:
+    """The study metric names :func:`study_metric_tags` recorded (none for runs logged before it)."""
+    names, i = [], 1
+    while (chunk := tags.get(STUDY_METRICS_TAG + (f".{i}" if i > 1 else ""))) is not None:
+        names += [n for n in chunk.split(",") if n]
+        i += 1
+    return names
+
+
+def _system(tags, params) -> str:
+    """The name of a run's system (its study's group): the preset, else the study class's module."""
+    target = params.get("study._target_", "")
+    return tags.get("mosd.experiment") or (target.split(".")[-2] if target.count(".") >= 2 else "study")
 
 
 def collect(tracking_uri: str, experiment: str | None = None, latest_only: bool = True) -> list[dict]:
@@ -85,11 +146,19 @@ def collect(tracking_uri: str, experiment: str | None = None, latest_only: bool 
             "run_id": run.info.run_id, "experiment": ids.get(run.info.experiment_id, ""),
             "_choices": choices, "_config": params,
         })
+        system = _system(tags, run.data.params)
+        for name in study_metric_names(tags):
+            logged = f"study_{name}" if f"study_{name}" in metrics else name
+            rows[-1][f"{system}:{name}"] = metrics.get(logged, math.nan)
     extra = differing_columns(rows)
+    studies = sorted({k for r in rows for k in r if ":" in k})
     for row in rows:
         choices, config = row.pop("_choices"), row.pop("_config")
+        study = {k: row.pop(k) for k in [k for k in row if ":" in k]}
         for column in extra:
             row[column] = choices[column] if column in choices else config.get(column, "–")
+        # every row has every column (a system's study metrics are "–" on another system's row)
+        row.update({column: study.get(column, "–") for column in studies})
     rows.sort(key=lambda r: (r["preset"], r["fault"], r["detector"], r["optimizer"], *(str(r[c]) for c in extra)))
     return rows
 
@@ -109,8 +178,57 @@ def differing_columns(rows: list[dict]) -> list[str]:
 
 
 def extra_columns(rows: list[dict]) -> list[str]:
-    """The set-up columns :func:`collect` added to ``rows`` (beyond :data:`COLUMNS`)."""
-    return [k for k in (rows[0] if rows else {}) if k not in COLUMNS]
+    """The set-up columns :func:`collect` added to ``rows`` (beyond :data:`COLUMNS`; no study metric)."""
+    return [k for k in (rows[0] if rows else {}) if k not in COLUMNS and ":" not in k]
+
+
+def study_columns(rows: list[dict]) -> list[str]:
+    """The study metric columns of ``rows`` (``<system>:<metric>``)."""
+    return [k for k in (rows[0] if rows else {}) if ":" in k]
+
+
+def default_setup_columns(rows: list[dict]) -> list[str]:
+    """The set-up columns that differ among runs of one preset (the others only differ between presets)."""
+    by_preset: dict[str, list[dict]] = {}
+    for r in rows:
+        by_preset.setdefault(r["preset"], []).append(r)
+    return [c for c in extra_columns(rows) if any(len({str(r[c]) for r in same}) > 1 for same in by_preset.values())]
+
+
+def groups(rows: list[dict]) -> dict[str, list[str]]:
+    """Every group of ``--metrics`` with its columns: test, design, setup, study and one per system."""
+    found = {name: list(columns) for name, columns in GROUPS.items()}
+    found["setup"] = extra_columns(rows)
+    found["study"] = study_columns(rows)
+    for column in found["study"]:
+        found.setdefault(column.split(":")[0], []).append(column)
+    return found
+
+
+def select_columns(rows: list[dict], metrics: str | None) -> list[str]:
+    """The columns ``--metrics`` names (groups or columns, comma-separated), in its order; None: the default.
+
+    A study metric's bare name (``detection_step_best``) stands for that metric of
+    every system that has it. An unknown name is a :class:`ReportError` naming what is allowed.
+    """
+    every = groups(rows)
+    if metrics is None:
+        return [*default_setup_columns(rows), *every["test"], *every["design"]]
+    chosen: list[str] = []
+    for name in (n.strip() for n in metrics.split(",")):
+        name = _ALIASES.get(name, name)
+        if name in every:
+            chosen += every[name]
+        elif name in every["test"] + every["design"] + every["setup"] + every["study"]:
+            chosen.append(name)
+        elif any(column.split(":", 1)[1] == name for column in every["study"]):
+            chosen += [column for column in every["study"] if column.split(":", 1)[1] == name]
+        else:
+            shown = ", ".join(every["setup"]) or "none differ"
+            raise ReportError(f"--metrics={name!r} is not a group or column of this report; allowed: the groups "
+                              f"{', '.join(every)}; the columns {', '.join(every['test'] + every['design'])}; a set-up "
+                              f"column ({shown}); a study metric, bare or as system:metric (the CSV lists them all)")
+    return list(dict.fromkeys(chosen))
 
 
 def _percent(mean: float, half_width: float) -> str:
@@ -121,26 +239,43 @@ def _percent(mean: float, half_width: float) -> str:
     return f"{100 * mean:.2f} ± {100 * half_width:.2f}"
 
 
-def to_markdown(rows: list[dict]) -> str:
-    """Markdown table: rates in % as mean ± 95 % CI half-width over the test replications."""
-    extra = extra_columns(rows)
-    header = ["preset", "fault", "detector", "optimizer", *extra, "MDR %", "FAR %", "accuracy %", "detected %",
-              "design", "online", "n_test", "run"]
+def _cell(r: dict, column: str) -> str:
+    if column in ("mdr", "far", "accuracy"):
+        return _percent(r[column], r[f"{column}_ci"])
+    if column == "detected":
+        return _percent(r["detection_rate"], math.nan)
+    if column == "n_test":
+        return f"{r['n_test']:.0f}" if math.isfinite(r["n_test"]) else "–"
+    if column == "design":
+        return r["params"] or "–"
+    if column == "run":
+        return r["run_id"][:8]
+    value = r[column]
+    return f"{value:.4g}" if isinstance(value, float) else str(value or "–")
+
+
+def to_markdown(rows: list[dict], columns: list[str] | None = None) -> str:
+    """Markdown table: rates in % as mean ± 95 % CI half-width over the test replications.
+
+    ``columns`` (:func:`select_columns`) after the identity columns; None: the default.
+    """
+    columns = select_columns(rows, None) if columns is None else columns
+    header = [*IDENTITY, *(_HEADERS.get(c, c) for c in columns)]
     lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
     for r in rows:
-        cells = [r["preset"] or "–", r["fault"], r["detector"], r["optimizer"], *(str(r[c] or "–") for c in extra),
-                 _percent(r["mdr"], r["mdr_ci"]),
-                 _percent(r["far"], r["far_ci"]), _percent(r["accuracy"], r["accuracy_ci"]),
-                 _percent(r["detection_rate"], math.nan), r["params"] or "–", r["online"],
-                 f"{r['n_test']:.0f}" if math.isfinite(r["n_test"]) else "–", r["run_id"][:8]]
+        cells = [r["preset"] or "–", r["fault"], r["detector"], r["optimizer"], *(_cell(r, c) for c in columns)]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
-def to_csv(rows: list[dict]) -> str:
-    """CSV with :data:`COLUMNS` (rates as fractions, CIs as half-widths)."""
+def to_csv(rows: list[dict], columns: list[str] | None = None) -> str:
+    """CSV (rates as fractions, CIs as half-widths): ``columns`` after the identity, or every column (None)."""
+    if columns is None:
+        fields = [*COLUMNS, *extra_columns(rows), *study_columns(rows)]
+    else:
+        fields = [*IDENTITY, *(f for c in columns for f in _CSV_FIELDS.get(c, (c,)))]
     out = io.StringIO()
-    writer = csv.DictWriter(out, fieldnames=[*COLUMNS, *extra_columns(rows)], lineterminator="\n")
+    writer = csv.DictWriter(out, fieldnames=list(dict.fromkeys(fields)), lineterminator="\n", extrasaction="ignore")
     writer.writeheader()
     for r in rows:
         writer.writerow({k: (repr(v) if isinstance(v, float) else v) for k, v in r.items()})
@@ -156,6 +291,11 @@ def _parser(default_uri: str) -> argparse.ArgumentParser:
     parser.add_argument("--experiment", default=None, help="only runs of this MLflow experiment (default: all)")
     parser.add_argument("--format", choices=("markdown", "csv"), default="markdown", help="output format")
     parser.add_argument("--all", action="store_true", help="every finished run, not only the latest per set-up")
+    parser.add_argument("--metrics", default=None,
+                        help="columns to show, comma-separated group or column names: test, design, setup, study, "
+                             "a system (paper003: its study metrics), or a column such as far, budget.n_test, "
+                             "detection_step_best (default: test, design and the set-up columns that differ among "
+                             "runs of one preset; the CSV's default is every column)")
     return parser
 
 
@@ -181,13 +321,14 @@ def main(argv: Sequence[str] | None = None) -> int:
                 raise ReportError(f"--tracking-uri={args.tracking_uri!r}: the store {db} is damaged ({state.detail}); "
                                   f"allowed: a healthy MLflow store")
         rows = collect(args.tracking_uri, args.experiment, latest_only=not args.all)
+        columns = select_columns(rows, args.metrics) if rows and args.metrics is not None else None
     except ReportError as exc:
         print(f"mosd report: error: {redacted(str(exc))}", file=sys.stderr)
         return 2
     if not rows:
         print(f"mosd report: no finished mosd runs in {redacted(args.tracking_uri)}", file=sys.stderr)
         return 0
-    sys.stdout.write((to_csv(rows) if args.format == "csv" else to_markdown(rows) + "\n"))
+    sys.stdout.write((to_csv(rows, columns) if args.format == "csv" else to_markdown(rows, columns) + "\n"))
     return 0
 
 

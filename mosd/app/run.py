@@ -34,6 +34,7 @@ from .build import build
 from .config import COMPONENTS, one_line
 from .files import NOT_WRITTEN, expected_files, lacking, write_run_files, write_status
 from .pending import NOT_LOGGED, mark_not_logged, pending_request
+from .report import logged_study_name, study_metric_tags
 from .settings import redacted
 from .signals import RECEIVED, Interrupted, install_signal_handlers, name, shutdown_workers
 from .summary import UndefinedResult, final_metrics, format_summary, header_line, undefined_metrics
@@ -140,7 +141,9 @@ def run(cfg, started: float | None = None, checked=None):
             study_metrics, study_files = setup.study.run(setup.experiment, result, run_dir)
             result.timings["study_s"] = timings["study_s"] = time.perf_counter() - t0
         test_metrics = final_metrics(result, result.example["seconds_per_point"])
-        metrics = {**test_metrics, **{k: float(v) for k, v in study_metrics.items()}}
+        # a study metric named like a test metric (paper 003's far, scored its own way; paper 000's with
+        # study.n_runs != budget.n_test) must not replace the test metric: MLflow gets it as study_<name>
+        metrics = {**test_metrics, **{logged_study_name(k, test_metrics): float(v) for k, v in study_metrics.items()}}
         # the studies' own metrics may be NaN by definition (e.g. paper 003's step of a window that never detects)
         undefined = undefined_metrics(test_metrics)
         if undefined:  # the last guard behind preflight: a NaN rate is no result, whatever the exit code said
@@ -163,7 +166,7 @@ def run(cfg, started: float | None = None, checked=None):
                           if np.isfinite(record[key]))
             logged.extend((k, v, 0) for k, v in metrics.items())
             sent.extend([*text_files, *study_files])
-            tracker.log(params=params, metrics=logged, artifacts=sent)
+            tracker.log(params=params, metrics=logged, tags=study_metric_tags(study_metrics), artifacts=sent)
             tracker.send()
 
         t0 = time.perf_counter()
