@@ -1065,9 +1065,11 @@ def test_mosd_log_completes_the_run_an_older_pending_file_left_finished_and_empt
     mlstore.end(left, "FINISHED")
     old = {"settings": {"uri": settings.uri, "artifact_root": settings.artifact_root, "experiment": "mosd"},
            "run_name": "r", "tags": tags, "parent_run_id": None, "params": {"seed": "0"},
-           "metrics": [["far", 0.01, 0], ["mdr", 0.02, 0]], "artifacts": [str(f) for f in files]}
+           "metrics": [["far", 0.01, 0], ["mdr", 0.02, 0]],
+           "artifacts": [*(str(f) for f in files), str(run_dir / "residual.png")]}  # one removed since
     (run_dir / pending.PENDING_FILE).write_text(json.dumps(old))
-    assert pending.log_main([str(run_dir)]) == 0, capsys.readouterr().err
+    assert pending.log_main([str(run_dir)]) == 0
+    assert f"not logged, no longer in {run_dir}: {run_dir / 'residual.png'}" in capsys.readouterr().err
     runs = mlstore.client.search_runs([mlstore.experiment_id()])
     assert sorted(r.info.run_id for r in runs) == sorted([left, other])
     assert len(mlstore.client.get_metric_history(left, "far")) == 1 and "mdr" in mlstore.client.get_run(left).data.metrics

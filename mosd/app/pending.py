@@ -74,16 +74,20 @@ def mark_not_logged(run_dir: Path, error: str, pending: Mapping[str, Any], statu
     return path
 
 
-def log_pending(run_dir: str | os.PathLike, uri: str | None = None) -> tuple[str, bool]:
-    """Log a run directory's ``mlflow_pending.json`` (a run whose logging failed); ``(run id, logged now)``.
+def log_pending(run_dir: str | os.PathLike, uri: str | None = None) -> tuple[str, bool, list[str]]:
+    """Log a run directory's ``mlflow_pending.json`` (a run whose logging failed).
+
+    Returns ``(run id, logged now, files that were to be logged and are gone)``.
 
     The MLflow run the pending file names is completed when it is in the store
     (``uri``, default the run's own): only the params and metric values it
     does not hold yet are logged, the files are uploaded again (a copy cut short
     by a full disk is replaced) and it is ended FINISHED, without its error
     tags (a pending file written before mosd recorded the run id: the one run
-    tagged with the same ``mosd.run_dir``). Otherwise a new run is made, and its id written to the pending file
-    first, so that a ``mosd log`` that fails half-way is resumed, not repeated.
+    tagged with the same ``mosd.run_dir``). Otherwise a new run is made, and
+    its id written to the pending file first, so that a ``mosd log`` that fails
+    half-way is resumed, not repeated. A file gone from the run directory since
+    is named in the result, not silently skipped.
     The pending file is then renamed ``*.logged`` and ``summary.json`` records
     the id; a second ``mosd log`` finds it logged and logs nothing (``logged
     now`` False).
@@ -93,7 +97,7 @@ def log_pending(run_dir: str | os.PathLike, uri: str | None = None) -> tuple[str
     if not path.is_file():
         done = run_dir / LOGGED_FILE
         if done.is_file():
-            return json.loads(done.read_text()).get("run_id") or "", False
+            return json.loads(done.read_text()).get("run_id") or "", False, []
         raise ConfigError(f"{run_dir} has no {PENDING_FILE}; allowed: a run directory whose run was not logged")
     pending = json.loads(path.read_text())
     stored = {**pending["settings"], "uri": without_password(pending["settings"]["uri"])}
@@ -124,6 +128,7 @@ def log_pending(run_dir: str | os.PathLike, uri: str | None = None) -> tuple[str
         _update_summary(run_dir, {"logged": True, "run_id": run_id, "uri": redacted(settings.uri)})
     try:
         store.log(run_id, params, metrics, artifacts=[str(f) for f in files if f.exists()])
+        gone = [str(f) for f in files if not f.exists()]
     except BaseException:
         if before is not None:
             write_atomically(summary_path, lambda out: out.write(before), binary=True)
@@ -132,7 +137,7 @@ def log_pending(run_dir: str | os.PathLike, uri: str | None = None) -> tuple[str
         raise
     store.complete(run_id, {"mosd.logged_later": "true"})
     path.rename(run_dir / LOGGED_FILE)
-    return run_id, True
+    return run_id, True, gone
 
 
 def log_main(argv) -> int:
@@ -150,9 +155,11 @@ def log_main(argv) -> int:
     try:
         args = parser.parse_args(list(argv))
         for run_dir in args.run_dirs:
-            run_id, now = log_pending(run_dir, args.tracking_uri)
+            run_id, now, gone = log_pending(run_dir, args.tracking_uri)
             print(f"mosd log: {run_dir} -> MLflow run {run_id}" if now else
                   f"mosd log: {run_dir} was logged already (MLflow run {run_id}); nothing logged")
+            if gone:  # removed from the run directory since: said, not silently skipped
+                print(f"mosd log: not logged, no longer in {run_dir}: {', '.join(gone)}", file=sys.stderr)
     except (ConfigError, TrackingError) as exc:
         print(f"mosd log: error: {described(exc) if isinstance(exc, TrackingError) else exc}", file=sys.stderr)
         return 2
