@@ -5,7 +5,9 @@ What a run leaves when it does not end normally:
 * a signal (SIGINT, SIGTERM, SIGHUP): :func:`mosd.app.signals.install_signal_handlers` turns it into
   :class:`~mosd.app.signals.Interrupted` at once, after killing the evaluation workers; the MLflow run
   is marked KILLED, ``summary.json`` says ``"status": "killed"``, one line is
-  printed and the process exits with 128 + the signal number;
+  printed and the process exits with 128 + the signal number (a job in a joblib-launcher worker
+  reports to its launcher instead, :func:`mosd.app.signals.end_job_worker`). Once the run is
+  complete (ended FINISHED, or kept for ``mosd log``) a signal no longer changes it;
 * an error: the run is marked FAILED and ``summary.json`` says ``"status": "failed"``;
 * MLflow fails after the work: the summary is printed, the run directory is
   complete, ``mlflow_pending.json`` holds what was to be logged (:mod:`mosd.app.pending`),
@@ -34,20 +36,17 @@ from .build import build
 from .config import COMPONENTS, one_line
 from .files import NOT_WRITTEN, expected_files, lacking, write_run_files, write_status
 from .pending import NOT_LOGGED, mark_not_logged, pending_request
+from . import signals
 from .report import logged_study_name, study_metric_tags
 from .settings import redacted
-from .signals import RECEIVED, Interrupted, install_signal_handlers, name, shutdown_workers
+from .signals import RECEIVED, Interrupted, name
+from .sweep import under_joblib_launcher
 from .summary import UndefinedResult, final_metrics, format_summary, header_line, undefined_metrics
 
 log = logging.getLogger("mosd.app")
 
 #: Seconds a stopped run waits for MLflow to mark it KILLED before leaving that to the tracking process.
 ABORT_WAIT_S = 3.0
-
-def _under_joblib_launcher(hydra_cfg) -> bool:
-    target = str(hydra_cfg.launcher.get("_target_", ""))
-    return "joblib" in target.lower()
-
 
 def _start_tracking(cfg, hc, labels: Mapping[str, str], n_jobs: int, run_dir: Path, params=()):
     """Create the job's MLflow run (a child of the sweep's parent in a multirun); None if disabled."""
@@ -97,31 +96,41 @@ def run(cfg, started: float | None = None, checked=None):
     from .mlflow_client import LOGGING_ERROR_TAG, flatten
     from .store import TrackingError
 
-    install_signal_handlers()
-    task_start = time.perf_counter()
+    import multiprocessing
+
     hc = HydraConfig.get()
     multirun = hc.mode == RunMode.MULTIRUN
+    # a job in a joblib-launcher worker: its launcher waits for it to mark its run on a signal
+    job_worker = multirun and under_joblib_launcher(hc) and multiprocessing.parent_process() is not None
+    signals.install_signal_handlers(job_worker=job_worker)
+    stopped = signals.sweep_stopped() if job_worker else None
+    if stopped is not None:  # the sweep was stopped while this job was on its way: no run to start
+        signals.end_job_worker(stopped)
+    task_start = time.perf_counter()
     started = task_start if (started is None or multirun) else started
     run_dir = Path(hc.runtime.output_dir)
     choices = {k: v for k, v in hc.runtime.choices.items() if not k.startswith("hydra/") and v is not None}
     labels = {group: str(choices.get(group, "")) for group in (*COMPONENTS, "tracking", "experiment")}
-    setup = (checked.take(cfg) if checked is not None else None) or build(cfg)
-    labels["online"] = "true" if setup.experiment.detector.is_causal else "false"
-    n_jobs = setup.n_jobs
-    if n_jobs > 1 and _under_joblib_launcher(hc):
-        # nested joblib under the joblib launcher silently becomes threads: evaluate in-process
-        log.info("joblib launcher: fitness evaluation runs in-process (optimizer.n_jobs=%d -> 1)", n_jobs)
-        n_jobs = 1
-
-    tracker = _start_tracking(cfg, hc, labels, n_jobs, run_dir, tuple(setup.experiment.detector.tunable))
-    position = int(hc.job.num) if multirun and _under_joblib_launcher(hc) else 0
-    progress = Progress(setup.n_gen, enabled=cfg.progress, position=position,
-                        description=f"job {hc.job.num}" if multirun else "", objectives=setup.experiment.objectives)
-    timings = {"startup_s": task_start - started}
-    figures = None
+    tracker = progress = figures = setup = None
     result = None
     writing = False  # an OSError while True: the run directory cannot be written (disk full, quota)
+    done = False  # the run is complete (FINISHED, or its files kept for `mosd log`): a signal no longer changes it
     try:
+        setup = (checked.take(cfg) if checked is not None else None) or build(cfg)
+        labels["online"] = "true" if setup.experiment.detector.is_causal else "false"
+        n_jobs = setup.n_jobs
+        if n_jobs > 1 and under_joblib_launcher(hc):
+            # nested joblib under the joblib launcher silently becomes threads: evaluate in-process
+            log.info("joblib launcher: fitness evaluation runs in-process (optimizer.n_jobs=%d -> 1)", n_jobs)
+            n_jobs = 1
+
+        with signals.deferred():  # a run that exists in MLflow is one this process can mark KILLED
+            tracker = _start_tracking(cfg, hc, labels, n_jobs, run_dir, tuple(setup.experiment.detector.tunable))
+        position = int(hc.job.num) if multirun and under_joblib_launcher(hc) else 0
+        progress = Progress(setup.n_gen, enabled=cfg.progress, position=position,
+                            description=f"job {hc.job.num}" if multirun else "",
+                            objectives=setup.experiment.objectives)
+        timings = {"startup_s": task_start - started}
         if not multirun:
             # the summary's first line now, so that a user (or a log file) sees the run start; the
             # rest comes at the end (a sweep prints each job's summary whole: jobs may run at once)
@@ -188,7 +197,12 @@ def run(cfg, started: float | None = None, checked=None):
             if model_file is not None:
                 tracker.log_model(model_file)
             try:
-                run_id = tracker.finish("FINISHED")
+                # a signal now is raised once the run is ended FINISHED: never a FINISHED run with a 'killed' summary
+                with signals.deferred():
+                    try:
+                        run_id = tracker.finish("FINISHED")
+                    finally:
+                        done = True
             except TrackingError as exc:
                 # the work is done and on disk: keep it, say how to log it later
                 not_logged = redacted(one_line(exc))
@@ -214,6 +228,7 @@ def run(cfg, started: float | None = None, checked=None):
                 if tracker.note:
                     tracking_line += f"\n          store: {tracker.note}"
         writing = False
+        done = True
         timings["wall_s"] = time.perf_counter() - started
         print(format_summary(labels, result, setup, metrics, timings, run_dir, tracking_line, study_metrics,
                               header=multirun), flush=True)
@@ -223,15 +238,20 @@ def run(cfg, started: float | None = None, checked=None):
                   f"{run_dir}; log it later with: python -m mosd log {run_dir}", file=sys.stderr, flush=True)
         return result
     except BaseException as exc:
-        progress.close()
+        if progress is not None:
+            progress.close()
         if figures is not None:
             figures.close(wait=False)
         # a signal raised inside compiled code (numba) comes out as a SystemError with the
         # Interrupted as its context: what counts is that a stop signal arrived
         killed = isinstance(exc, KeyboardInterrupt) or bool(RECEIVED)
         if killed:
-            shutdown_workers()
-            signum = exc.signum if isinstance(exc, Interrupted) else (RECEIVED[-1] if RECEIVED else int(signal.SIGINT))
+            signals.shutdown_workers()
+            signum = exc.signum if isinstance(exc, Interrupted) else (RECEIVED[0] if RECEIVED else int(signal.SIGINT))
+            if done:  # the run is complete, its summary.json and MLflow run say so: leave them
+                print(f"mosd: stopped by {name(signum)} after the run was complete ({run_dir})",
+                      file=sys.stderr, flush=True)
+                _stopped(exc, signum, job_worker)
         status = "KILLED" if killed else "FAILED"
         error = f"stopped by {name(signum)}" if killed else f"{type(exc).__name__}: {redacted(one_line(exc))}"
         not_written = writing and not killed and isinstance(exc, OSError)
@@ -273,10 +293,20 @@ def run(cfg, started: float | None = None, checked=None):
         if killed:
             print(f"mosd: stopped by {name(signum)} after {time.perf_counter() - started:.1f} s: "
                   f"{marked}{run_dir} is incomplete (summary.json status 'killed')", file=sys.stderr, flush=True)
-            interrupted = exc if isinstance(exc, Interrupted) else Interrupted(signum)
-            interrupted.reported = True
-            if interrupted is not exc:
-                raise interrupted from None
+            _stopped(exc, signum, job_worker)
         raise
+    finally:
+        signals.run_ended()
+
+
+def _stopped(exc: BaseException, signum: int, job_worker: bool):
+    """After a stopped run's one line: end a job worker (its launcher waits for it), else raise Interrupted."""
+    if job_worker:
+        signals.end_job_worker(signum)
+    interrupted = exc if isinstance(exc, Interrupted) else Interrupted(signum)
+    interrupted.reported = True
+    if interrupted is exc:
+        raise
+    raise interrupted from None
 
 

@@ -1,10 +1,25 @@
 """Stop signals: SIGINT, SIGTERM and SIGHUP end a run as KILLED, with exit code 128 + the signal number.
 
-:func:`install_signal_handlers` turns a stop signal into :class:`Interrupted` in the
-main thread at once, after killing the evaluation workers
-(:func:`kill_workers`); :func:`mosd.app.run.run` then marks the MLflow run KILLED
-and writes ``"status": "killed"`` to ``summary.json``, and a sweep's parent run
-(:mod:`mosd.app.sweep`) is ended KILLED from :data:`RECEIVED`.
+:func:`install_signal_handlers` turns the first stop signal into :class:`Interrupted`, raised in
+the main thread; :func:`mosd.app.run.run` then marks the MLflow run KILLED and writes
+``"status": "killed"`` to ``summary.json``, and a sweep's parent run (:mod:`mosd.app.sweep`) is
+ended KILLED from :data:`RECEIVED`. Later signals change nothing (the cleanup runs to its end).
+
+Where the signal may not raise at once:
+
+* the evaluation workers of a run (loky) are SIGTERMed first (:func:`kill_workers`);
+* a process that launches a sweep's jobs into a worker pool (the joblib launcher,
+  :func:`jobs_run_in_pool`) passes the signal on to the workers and waits, up to
+  :data:`JOB_STOP_WAIT_S`, until each has reported that its run is marked
+  (:func:`stop_job_workers`), before it raises. Its teardown then SIGKILLs the workers (joblib's
+  abort), as loky does to all of them as soon as one ends: a worker therefore does not end after
+  marking its run KILLED, it reports and waits (:func:`end_job_worker`);
+* in a job worker between two runs there is nothing to mark: it reports at once; a job that
+  starts after the sweep was stopped does not start its run (:func:`sweep_stopped`);
+* inside :func:`deferred` (creating the MLflow run) it is raised when the section ends;
+* inside numba's unpickling hook, which compiled code calls to box its results and which does
+  not expect an exception (one raised there crashes the process with a segmentation fault), it
+  is raised again a few milliseconds later, once control is back in ordinary Python code.
 """
 from __future__ import annotations
 
@@ -12,14 +27,23 @@ import os
 import signal
 import sys
 import threading
+import time
+from contextlib import contextmanager
 
 #: Signals that stop a run (each gives exit code 128 + its number).
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
-#: The stop signals this process received, in order (the sweep's parent run is then ended KILLED).
+#: The stop signals this process received, in order (the first one decides the exit code).
 RECEIVED: list[int] = []
 #: The worker-pool adapter, never imported here (it loads the optimisers): read from sys.modules. Any loky
 #: pool of this process (the evaluation's, the joblib launcher's) starts after preflight has loaded it.
 _WORKERS = "mosd.optim.workers"
+#: Seconds a sweep's launching process waits for its job workers to mark their runs KILLED.
+JOB_STOP_WAIT_S = 30.0
+#: Environment variable naming the directory through which a joblib sweep's launching process and its
+#: job workers agree on a stop: ``stop`` (written by the launcher: the signal number), ``<pid>`` (a worker done).
+STOP_DIR_ENV = "MOSD_SWEEP_STOP_DIR"
+#: Seconds before a signal that landed in numba's unpickling hook is raised again.
+RETRY_S = 0.005
 
 
 class Interrupted(KeyboardInterrupt):
@@ -32,57 +56,235 @@ class Interrupted(KeyboardInterrupt):
         self.reported = False
 
 
+class _State:
+    raised = False        # Interrupted has been raised: later signals change nothing
+    busy = False          # the first signal's handler is stopping the workers
+    deferring = 0         # depth of deferred() sections
+    job_pool = False      # this process launches a sweep's jobs into the loky pool
+    job_worker = False    # this process is a joblib-launcher worker running mosd jobs
+    in_run = False        # ... and one of them is running (it has an MLflow run to mark)
+    retry: threading.Event | None = None
+    retry_pid = 0
+
+
 def name(signum: int) -> str:
     """``SIGTERM`` for 15."""
     return signal.Signals(signum).name
 
 
+def _signal_pool(pids, signum: int) -> None:
+    for pid in pids:
+        try:
+            os.kill(pid, signum)
+        except (ProcessLookupError, PermissionError):
+            pass
+
+
 def kill_workers() -> int:
-    """SIGTERM the process pool's workers (loky), without taking any lock.
+    """SIGTERM the evaluation pool's workers (loky), without taking any lock; the number signalled.
 
     Called from a signal handler: the executor's own ``shutdown`` takes locks the
     interrupted main thread may hold. An evaluation worker dies at once (default
-    action); a job of the joblib launcher runs :func:`mosd.app.run.run`, whose
-    handler marks its own run KILLED first. :func:`shutdown_workers` SIGKILLs
-    whatever is left; loky's resource tracker exits by itself once its clients are gone.
+    action); :func:`shutdown_workers` SIGKILLs whatever is left; loky's resource
+    tracker exits by itself once its clients are gone.
     """
     workers = sys.modules.get(_WORKERS)
-    killed = 0
-    for pid in workers.pool_pids() if workers is not None else ():
+    pids = workers.pool_pids() if workers is not None else []
+    _signal_pool(pids, signal.SIGTERM)
+    return len(pids)
+
+
+def stop_job_workers(signum: int, wait_s: float = JOB_STOP_WAIT_S) -> list[int]:
+    """Pass ``signum`` on to the job workers and wait until each has marked its run; the pids not done.
+
+    Writes ``stop`` (the signal number) to the stop directory first, so that a
+    job starting meanwhile does not start its run. The signal is passed on as
+    received (a Ctrl-C stays SIGINT in the jobs' summaries). A worker is done
+    when it has written ``<pid>`` there (:func:`end_job_worker`) or has ended.
+    Lock-free, like :func:`kill_workers`: it waits on the workers' process
+    sentinels and the stop directory only.
+    """
+    from multiprocessing.connection import wait
+
+    stop_dir = os.environ.get(STOP_DIR_ENV)
+    if stop_dir:
         try:
-            os.kill(pid, signal.SIGTERM)
-            killed += 1
-        except (ProcessLookupError, PermissionError):
-            pass
-    return killed
+            with open(os.path.join(stop_dir, "stop"), "w") as out:
+                out.write(str(int(signum)))
+        except OSError:
+            stop_dir = None
+    workers = sys.modules.get(_WORKERS)
+    alive = workers.pool_sentinels() if workers is not None else {}
+    _signal_pool(alive, signum)
+    deadline = time.monotonic() + wait_s
+    while alive and time.monotonic() < deadline:
+        ended = set(wait(list(alive.values()), timeout=0.05))
+        alive = {pid: sentinel for pid, sentinel in alive.items()
+                 if sentinel not in ended and not (stop_dir and os.path.exists(os.path.join(stop_dir, str(pid))))}
+    return sorted(alive)
 
 
 def shutdown_workers() -> None:
-    """Shut the evaluation pool down and reap its workers (after :func:`kill_workers`)."""
+    """Shut the process pool down and reap its workers (after :func:`kill_workers`)."""
     workers = sys.modules.get(_WORKERS)
     if workers is not None:
         workers.shutdown_pool()
 
 
+def _in_compiled_callback(frame) -> bool:
+    """True inside numba's unpickling hook, which compiled code calls and which must not raise."""
+    serialize = sys.modules.get("numba.core.serialize")
+    hook = getattr(getattr(serialize, "_numba_unpickle", None), "__code__", None)
+    while hook is not None and frame is not None:
+        if frame.f_code is hook:
+            return True
+        frame = frame.f_back
+    return False
+
+
+def _retry_loop(event: threading.Event) -> None:
+    import _thread
+
+    while True:
+        event.wait()
+        event.clear()
+        time.sleep(RETRY_S)
+        if RECEIVED and not _State.raised:
+            _thread.interrupt_main(RECEIVED[0])  # runs the handler again, in the main thread
+
+
 def _on_signal(signum, frame):
-    # cleanup (marking the run KILLED, writing the status) must not be cut short by a second signal
-    for sig in STOP_SIGNALS:
-        signal.signal(sig, signal.SIG_IGN)
-    RECEIVED.append(int(signum))
-    kill_workers()
-    raise Interrupted(signum)
+    if _State.busy or _State.raised:
+        return  # the stop is on its way: the cleanup must not be cut short
+    if not RECEIVED:
+        RECEIVED.append(int(signum))
+        _State.busy = True
+        try:
+            if _State.job_pool:
+                stop_job_workers(signum)
+            else:
+                kill_workers()
+        finally:
+            _State.busy = False
+    first = RECEIVED[0]
+    if _State.job_worker and not _State.in_run:
+        end_job_worker(first)  # between two jobs: no run of this worker to mark
+    if _State.deferring:
+        return  # raised when the section ends
+    if _in_compiled_callback(frame):
+        if _State.retry is not None:
+            _State.retry.set()
+        return
+    _State.raised = True
+    raise Interrupted(first)
 
 
-def install_signal_handlers() -> None:
-    """SIGINT/SIGTERM/SIGHUP raise :class:`Interrupted` in the main thread (no-op elsewhere)."""
+def install_signal_handlers(job_worker: bool = False) -> None:
+    """SIGINT/SIGTERM/SIGHUP raise :class:`Interrupted` in the main thread (no-op elsewhere).
+
+    ``job_worker``: this process is a joblib-launcher worker and a job's run starts
+    now (:func:`run_ended` when it is complete); a stopped run ends the worker.
+    """
     if threading.current_thread() is not threading.main_thread():
         return
+    if _State.retry_pid != os.getpid():  # once per process (a forked child has no such thread)
+        _State.retry, _State.retry_pid = threading.Event(), os.getpid()
+        threading.Thread(target=_retry_loop, args=(_State.retry,), name="mosd-signal-retry", daemon=True).start()
+    if job_worker:
+        _State.job_worker = _State.in_run = True
     for sig in STOP_SIGNALS:
-        if signal.getsignal(sig) is not signal.SIG_IGN or sig == signal.SIGINT:
+        current = signal.getsignal(sig)
+        if current is _on_signal:
+            continue
+        if current is not signal.SIG_IGN or sig == signal.SIGINT:
             signal.signal(sig, _on_signal)
 
 
+def run_ended() -> None:
+    """The job's run is complete: a stop signal now ends a job worker without touching it."""
+    _State.in_run = False
+
+
+def jobs_run_in_pool() -> None:
+    """This process launches a sweep's jobs into the loky pool (the joblib launcher): see :func:`stop_job_workers`.
+
+    Creates the stop directory (removed at exit) and names it in the environment the workers inherit.
+    """
+    import atexit
+    import shutil
+    import tempfile
+
+    if _State.job_pool:
+        return
+    _State.job_pool = True
+    stop_dir = tempfile.mkdtemp(prefix="mosd-sweep-stop-")
+    os.environ[STOP_DIR_ENV] = stop_dir
+    atexit.register(shutil.rmtree, stop_dir, True)
+
+
+def sweep_stopped() -> int | None:
+    """In a joblib sweep's job worker: the signal number that stopped the sweep, else None."""
+    stop_dir = os.environ.get(STOP_DIR_ENV)
+    try:
+        with open(os.path.join(stop_dir, "stop")) as stop:
+            return int(stop.read().strip() or signal.SIGTERM)
+    except (TypeError, OSError, ValueError):
+        return None
+
+
+def end_job_worker(signum: int) -> None:
+    """Report to the launching process that this worker's run is marked, wait to be ended, exit 128 + ``signum``.
+
+    Ending at once would make loky kill the other workers, which may still be
+    marking their runs. The launcher's teardown ends this process; should the
+    launcher die first, the worker ends by itself when it sees it gone.
+    """
+    import logging
+
+    logging.shutdown()  # the job's log file
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):
+            pass
+    stop_dir = os.environ.get(STOP_DIR_ENV)
+    if stop_dir:
+        launcher = os.getppid()
+        try:
+            open(os.path.join(stop_dir, str(os.getpid())), "w").close()
+        except OSError:
+            pass
+        else:
+            deadline = time.monotonic() + JOB_STOP_WAIT_S + 10
+            while os.getppid() == launcher and time.monotonic() < deadline:
+                time.sleep(0.1)
+    os._exit(128 + int(signum))
+
+
+@contextmanager
+def deferred():
+    """A section a stop signal must not cut (creating the MLflow run): it is raised when the section ends."""
+    _State.deferring += 1
+    try:
+        yield
+    finally:
+        _State.deferring -= 1
+    if not _State.deferring and RECEIVED and not _State.raised:
+        _State.raised = True
+        raise Interrupted(RECEIVED[0])
+
+
+def _ignore(signum, frame):
+    pass
+
+
 def ignore_stop_signals() -> None:
-    """Ignore the stop signals from now on (the work is over: a late one must not raise in the teardown)."""
+    """Ignore the stop signals from now on (the work is over: a late one must not raise in the teardown).
+
+    A Python handler that does nothing rather than ``SIG_IGN``: a signal already
+    received but not yet handled would otherwise raise ``OSError: Signal N ignored
+    due to race condition`` wherever the main thread is.
+    """
     for sig in STOP_SIGNALS:
-        signal.signal(sig, signal.SIG_IGN)
+        if signal.getsignal(sig) is not signal.SIG_IGN:
+            signal.signal(sig, _ignore)

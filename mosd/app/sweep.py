@@ -60,6 +60,11 @@ def record_job_outcomes(sweep_dir: str | os.PathLike) -> bool:
     return not_written
 
 
+def under_joblib_launcher(hydra_cfg) -> bool:
+    """True when ``hydra_cfg`` (the ``hydra`` section) names the joblib launcher: its jobs run in loky workers."""
+    return "joblib" in str(hydra_cfg.launcher.get("_target_", "")).lower()
+
+
 class SweepCallback(Callback):
     """Hydra callback: one MLflow parent run per multirun, the jobs attach as children.
 
@@ -76,6 +81,12 @@ class SweepCallback(Callback):
         self._run_id: str | None = None
 
     def on_multirun_start(self, config, **kwargs) -> None:
+        if under_joblib_launcher(config.hydra):
+            from ..optim.workers import start_resource_trackers
+
+            # a stop signal must reach the jobs in the launcher's workers before the launcher kills them
+            signals.jobs_run_in_pool()
+            start_resource_trackers()
         settings = TrackingSettings.from_config(dict(config.tracking), config.outputs_root)
         if settings is None:
             return

@@ -9,11 +9,14 @@ upgrade that changes one fails there, by name:
   executor. ``joblib.Parallel`` (used elsewhere in the same process, e.g. the
   optimiser benchmarks) reuses or replaces it; a plain loky executor in that
   global slot makes ``Parallel`` fail (no ``_temp_folder_manager``).
-* :func:`pool_pids`, :func:`shutdown_pool` — the reusable executor is loky's module
-  global ``_executor``, its workers the keys of its ``_processes``. Read without
+* :func:`pool_pids`, :func:`pool_sentinels`, :func:`shutdown_pool` — the reusable executor is
+  loky's module global ``_executor``, its workers the keys of its ``_processes`` (the values are
+  ``multiprocessing`` process objects, whose public ``sentinel`` is ready once one ends). Read without
   taking any lock and without importing joblib: :func:`pool_pids` is called from a
   signal handler, where the executor's own ``shutdown`` would take locks the
   interrupted main thread may hold; no pool exists unless joblib was loaded.
+* :func:`start_resource_trackers` — loky's ``backend.resource_tracker.ensure_running``
+  and the standard library's ``multiprocessing.resource_tracker.ensure_running``.
 """
 from __future__ import annotations
 
@@ -40,7 +43,30 @@ def memmapping_executor(n_workers: int, timeout: float):
     """joblib's reusable memmapping executor with ``n_workers`` processes (started or resized on first use)."""
     from joblib.executor import get_memmapping_executor
 
+    start_resource_trackers()
     return get_memmapping_executor(n_workers, timeout=timeout)
+
+
+def start_resource_trackers() -> None:
+    """Start loky's and multiprocessing's resource trackers (if not running) with SIGHUP blocked in them.
+
+    They ignore SIGINT and SIGTERM by themselves, but SIGHUP to the process group
+    (a closed terminal, ``kill -HUP -PGID``) killed them: loky then relaunched one,
+    which printed a KeyError traceback for each pool resource it had never seen.
+    A blocked signal mask is inherited through fork and exec; this process's own
+    mask is restored at once (a SIGHUP meanwhile is delivered then).
+    """
+    import signal
+    from multiprocessing import resource_tracker as stdlib_tracker
+
+    from joblib.externals.loky.backend import resource_tracker as loky_tracker
+
+    blocked = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGHUP})
+    try:
+        loky_tracker.ensure_running()
+        stdlib_tracker.ensure_running()
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
 
 
 def _executor():
@@ -51,6 +77,17 @@ def _executor():
 def pool_pids() -> list[int]:
     """The process ids of the reusable executor's workers (empty when there is none). Lock-free."""
     return list(getattr(_executor(), "_processes", None) or {})
+
+
+def pool_sentinels() -> dict[int, int]:
+    """``{pid: sentinel}`` of the reusable executor's workers; a sentinel is ready once its worker has ended. Lock-free."""
+    found = {}
+    for pid, process in list((getattr(_executor(), "_processes", None) or {}).items()):
+        try:
+            found[pid] = process.sentinel
+        except (AttributeError, ValueError):  # not started, or closed: nothing to wait for
+            pass
+    return found
 
 
 def shutdown_pool() -> None:
