@@ -17,6 +17,7 @@ import socket
 import sqlite3
 import subprocess
 import sys
+import textwrap
 import threading
 import time
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
@@ -583,6 +584,158 @@ def test_a_signal_to_the_process_group_is_one_line_and_a_killed_run(tmp_path, si
     assert not [c for c in children if _alive(c)]
     _, runs = _runs(f"sqlite:///{db}")
     assert [r.info.status for r in runs] == ["KILLED"]
+
+
+def _python(code: str, timeout: float = 120) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-c", textwrap.dedent(code)], capture_output=True, text=True,
+                          timeout=timeout, env=_env())
+
+
+def test_a_signal_inside_numbas_unpickling_hook_is_raised_once_out_of_it():
+    """Compiled code calls ``numba.core.serialize._numba_unpickle`` to box the arrays it returns; an exception
+    raised there comes out as a SystemError or crashes the process (the segmentation fault of issue 22)."""
+    out = _python("""
+        import os, signal, sys, time
+        import numba
+        import numpy as np
+        from numba.core import serialize
+        from mosd.app import signals
+
+        @numba.njit
+        def pair(x):
+            return x + 1.0, x * 2.0
+
+        x = np.ones(3)
+        pair(x)
+        signals.install_signal_handlers()
+        hook, sent = serialize._numba_unpickle.__code__, []
+
+        def tracer(frame, event, arg):  # the signal arrives while the hook runs
+            if event == "call" and frame.f_code is hook and not sent:
+                sent.append(1)
+                os.kill(os.getpid(), signal.SIGINT)
+
+        sys.settrace(tracer)
+        try:
+            end = time.monotonic() + 5
+            while time.monotonic() < end:
+                pair(x)
+            print("not stopped")
+        except signals.Interrupted as exc:
+            sys.settrace(None)
+            print("stopped by", exc.signum, len(sent))
+    """)
+    assert out.returncode == 0 and out.stdout.split() == ["stopped", "by", "2", "1"], out.stderr[-2000:]
+
+
+def test_the_launcher_waits_until_every_job_worker_has_marked_its_run(tmp_path):
+    """loky SIGKILLs every worker as soon as one ends: a job that ends after marking its run used to take
+    down the others still marking theirs. Two jobs, one slow to mark; both have marked when the launcher raises."""
+    out = _python(f"""
+        import json, os, signal, time
+        from pathlib import Path
+        from mosd.app import signals
+        from mosd.optim import workers
+
+        tmp = Path({str(tmp_path)!r})
+
+        def job(i, marking_s):
+            signals.install_signal_handlers(job_worker=True)
+            (tmp / f"started-{{i}}").touch()
+            try:
+                while True:
+                    time.sleep(0.01)
+            except signals.Interrupted as exc:
+                time.sleep(marking_s)  # MLflow and summary.json
+                (tmp / f"marked-{{i}}").write_text(str(exc.signum))
+                signals.end_job_worker(exc.signum)
+
+        signals.jobs_run_in_pool()
+        executor = workers.memmapping_executor(2, timeout=60)
+        futures = [executor.submit(job, i, s) for i, s in enumerate((0.0, 2.0))]
+        while len(list(tmp.glob("started-*"))) < 2:
+            time.sleep(0.05)
+        signals.install_signal_handlers()
+        try:
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(60)
+        except signals.Interrupted as exc:
+            marked = sorted(p.name + "=" + p.read_text() for p in tmp.glob("marked-*"))
+            print(json.dumps({{"signum": exc.signum, "marked": marked}}))
+        workers.shutdown_pool()
+    """)
+    assert out.returncode == 0, out.stderr[-2000:]
+    found = json.loads(out.stdout.strip().splitlines()[-1])
+    assert found == {"signum": 15, "marked": ["marked-0=15", "marked-1=15"]}
+
+
+def _runs_by_status(db: Path) -> dict[str, int]:
+    if not (db.exists() and store.sqlite_store_state(db).state == "ok"):
+        return {}
+    con = sqlite3.connect(db)
+    try:
+        return dict(con.execute("SELECT status, count(*) FROM runs GROUP BY status").fetchall())
+    except sqlite3.Error:
+        return {}
+    finally:
+        con.close()
+
+
+# the README's joblib sweep, small: two short jobs that finish, then long ones that the signal stops
+SWEEP = ["optimizer.n_gen=2,100000", "seed=0,1", "+fault=offset_var", "optimizer.pop_size=10", "budget.n_test=3",
+         "budget.n_train=3", "budget.n_calibration=3", "scenario.duration=3", "progress=false"]
+LAUNCHERS = {"basic": [], "joblib": ["hydra/launcher=joblib", "hydra.launcher.n_jobs=2"]}
+FIGURES = {"chart.png", "residual.png", "history.png", "pareto.png", "summary.json", "history.csv", "pareto.csv"}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("launcher, delivery, sig", [
+    ("basic", "pid", signal.SIGTERM), ("basic", "group", signal.SIGINT),
+    ("joblib", "pid", signal.SIGTERM), ("joblib", "group", signal.SIGINT), ("joblib", "group", signal.SIGHUP),
+], ids=["basic-pid-sigterm", "basic-group-ctrl_c", "joblib-pid-sigterm", "joblib-group-ctrl_c", "joblib-group-sighup"])
+def test_a_signal_during_a_sweep_kills_the_started_jobs_and_keeps_the_finished_ones(tmp_path, launcher, delivery, sig):
+    """Issue 22: under the joblib launcher the jobs were left RUNNING, with a segmentation-fault dump."""
+    proc = subprocess.Popen([sys.executable, "-m", "mosd", "-m", *LAUNCHERS[launcher], *SWEEP], cwd=tmp_path,
+                            env=_env(), text=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            start_new_session=True)
+    db = tmp_path / "outputs" / "mlflow.db"
+    running_jobs = 2 if launcher == "joblib" else 1
+    deadline = time.monotonic() + 300
+    while True:  # the two short jobs finished, the long ones optimising
+        assert proc.poll() is None, proc.communicate()[1][-3000:]
+        assert time.monotonic() < deadline, "the sweep did not reach its long jobs"
+        counts = _runs_by_status(db)
+        if counts.get("FINISHED", 0) >= 2 and counts.get("RUNNING", 0) >= 1 + running_jobs:  # + the sweep's run
+            break
+        time.sleep(0.2)
+    time.sleep(1.5)
+    children = _descendants(proc.pid)
+    if delivery == "group":
+        os.killpg(proc.pid, sig)  # Ctrl-C in a terminal signals the whole foreground process group
+    else:
+        proc.send_signal(sig)
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 128 + sig, err[-3000:]
+    assert "Fatal Python error" not in err and "Traceback" not in err, err[-3000:]
+    lines = err.strip().splitlines()
+    assert lines and all(line.startswith(f"mosd: stopped by {signal.Signals(sig).name}") for line in lines), err[-3000:]
+    deadline = time.monotonic() + 10
+    while time.monotonic() < deadline and any(_alive(c) for c in children):
+        time.sleep(0.2)
+    assert not [c for c in children if _alive(c)], "child processes survived"
+    _, runs = _runs(f"sqlite:///{db}")
+    sweep = [r for r in runs if r.data.tags.get("mosd.role") == "sweep"]
+    jobs = [r for r in runs if r.data.tags.get("mosd.role") == "job"]
+    assert [r.info.status for r in sweep] == ["KILLED"]
+    statuses = sorted(r.info.status for r in jobs)
+    assert statuses == ["FINISHED"] * 2 + ["KILLED"] * running_jobs, statuses
+    for run in jobs:
+        run_dir = Path(run.data.tags["mosd.run_dir"])
+        summary = json.loads((run_dir / "summary.json").read_text())
+        if run.info.status == "FINISHED":
+            assert summary["status"] == "finished" and FIGURES <= {f.name for f in run_dir.iterdir()}
+        else:
+            assert summary["status"] == "killed" and summary["error"] == f"stopped by {signal.Signals(sig).name}"
 
 
 # ---------------------------------------------------------------------------------------

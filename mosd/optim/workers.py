@@ -80,7 +80,7 @@ def pool_pids() -> list[int]:
 
 
 def pool_sentinels() -> dict[int, int]:
-    """``{pid: sentinel}`` of the reusable executor's workers; a sentinel is ready once its worker has ended. Lock-free."""
+    """``{pid: sentinel}`` of the reusable executor's workers (ready once the worker has ended). Lock-free."""
     found = {}
     for pid, process in list((getattr(_executor(), "_processes", None) or {}).items()):
         try:
