@@ -227,6 +227,7 @@ def run(cfg, started: float | None = None, checked=None):
                     tracking_line += f"\n          model NOT LOGGED: {tracker.model_error}"
                 if tracker.note:
                     tracking_line += f"\n          store: {tracker.note}"
+            signals.raise_pending()  # one that arrived while MLflow failed: the pending file is written
         writing = False
         done = True
         timings["wall_s"] = time.perf_counter() - started

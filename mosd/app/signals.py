@@ -269,7 +269,12 @@ def deferred():
         yield
     finally:
         _State.deferring -= 1
-    if not _State.deferring and RECEIVED and not _State.raised:
+    raise_pending()
+
+
+def raise_pending() -> None:
+    """Raise a stop signal that arrived in a :func:`deferred` section which then ended with an exception."""
+    if RECEIVED and not _State.raised and not _State.deferring:
         _State.raised = True
         raise Interrupted(RECEIVED[0])
 
