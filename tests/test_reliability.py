@@ -269,6 +269,21 @@ def test_uri_passwords_are_masked_and_can_be_left_to_the_driver(text, masked, ba
     assert without_password(masked) == bare
 
 
+@pytest.mark.parametrize("answer", [b"\xff" * 64, b"HTTP/1.1 200 OK\r\n\r\n"], ids=["garbage", "http"])
+def test_a_database_port_that_takes_no_login_fails_in_preflight(tmp_path, answer):
+    """An open port is not a database: MLflow would retry for ~100 s after the work, then not log the run."""
+    with tcp_server(answer) as address:
+        uri = address.replace("tcp://", "postgresql://mlflow:s3cret@") + "/mlflow"
+        t0 = time.monotonic()
+        result = mosd(["+fault=offset_var", f"tracking.uri={uri}", *SMALL], cwd=tmp_path, timeout=120)
+        elapsed = time.monotonic() - t0
+    line = one_line_exit_2(result)
+    assert line.startswith(f"mosd: error: tracking.uri={uri.replace(':s3cret@', ':***@')}: the postgresql database "
+                           f"does not take a login (OperationalError: "), line
+    assert "s3cret" not in result.stderr + result.stdout and elapsed < 30, elapsed
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_corrupt_store_fails_in_preflight_naming_the_file(tmp_path):
     outputs = tmp_path / "outputs"
     outputs.mkdir()

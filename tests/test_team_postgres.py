@@ -185,6 +185,13 @@ def test_a_password_in_the_uri_is_masked_everywhere_mosd_prints_or_records_it(po
     assert run.returncode == 0, run.stderr[-2000:]
     masked = uri.replace(f":{password}@", ":***@")
     assert password not in run.stdout + run.stderr and f"store {masked}" in run.stdout
+    # a wrong password: refused by preflight's login, in one line, before any work
+    wrong = subprocess.run([sys.executable, "-m", "mosd", "+fault=offset_var", *BUDGET,
+                            f"tracking.uri={uri.replace(password, 'not-' + password)}"], cwd=tmp_path,
+                           env=_env(tmp_path / "wrong"), capture_output=True, text=True, timeout=120)
+    assert wrong.returncode == 2 and len(wrong.stderr.strip().splitlines()) == 1, wrong.stderr[-2000:]
+    assert "password authentication failed" in wrong.stderr and password not in wrong.stderr
+    assert not (tmp_path / "wrong").exists()
     leaks = [str(f) for f in tmp_path.rglob("*") if f.is_file() and password.encode() in f.read_bytes()]
     assert leaks == []  # summary, resolved config, Hydra's .hydra/*.yaml, the logged artifacts
     from mlflow.tracking import MlflowClient

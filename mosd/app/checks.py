@@ -6,6 +6,7 @@ failure after the optimisation. No MLflow import.
 """
 from __future__ import annotations
 
+import math
 import os
 import socket
 import tempfile
@@ -174,6 +175,43 @@ def check_mlflow_server(uri: str, experiment: str, timeout: float = SERVER_TIMEO
                       f"(GET {MLFLOW_PROBE}: HTTP {status}, {kind}); {allowed}")
 
 
+#: What each database driver calls its connection deadline (SQLAlchemy passes ``connect_args`` through).
+_CONNECT_TIMEOUT_ARG = {"postgresql": "connect_timeout", "mysql": "connect_timeout"}
+
+
+def check_database(uri: str, scheme: str, timeout: float = CHECK_TIMEOUT_S) -> None:
+    """Raise ConfigError (one line) unless the database at ``uri`` takes a login, through MLflow's own driver.
+
+    An open port is not a database that takes the run: a wrong password, a missing
+    database or a service that is not one would fail only after the work (MLflow
+    retries a failing engine for about 100 s), so preflight logs in with SQLAlchemy,
+    as MLflow does, and runs ``SELECT 1``.
+    """
+    shown = redacted(uri)
+    try:
+        from sqlalchemy import create_engine, text
+        from sqlalchemy.pool import NullPool
+
+        arg = _CONNECT_TIMEOUT_ARG.get(scheme)
+        engine = create_engine(uri, poolclass=NullPool,
+                               connect_args={arg: max(2, int(math.ceil(timeout)))} if arg else {})
+        try:
+            with engine.connect() as connection:
+                connection.execute(text("SELECT 1"))
+        finally:
+            engine.dispose()
+    except ImportError as exc:
+        raise ConfigError(f"tracking.uri={shown}: the {scheme} driver is not installed ({exc}); allowed: "
+                          f'pip install "mosd[team]" (PostgreSQL), another tracking.uri, or tracking=none') from None
+    except Exception as exc:  # noqa: BLE001 - SQLAlchemy's and the driver's errors: the reason, on one line
+        text = str(getattr(exc, "orig", None) or exc)  # a stray service's bytes may be quoted: printable only
+        reason = " ".join("".join(c if c.isprintable() else " " for c in text).split())
+        raise ConfigError(f"tracking.uri={shown}: the {scheme} database does not take a login "
+                          f"({type(getattr(exc, 'orig', None) or exc).__name__}: {redacted(reason)[:300]}); allowed: "
+                          f"its user, password (in the URI, or the driver's own: PGPASSWORD, ~/.pgpass) and "
+                          f"database, another tracking.uri, or tracking=none") from None
+
+
 def check_tracking(settings: TrackingSettings, timeout: float = CHECK_TIMEOUT_S,
                    server_timeout: float = SERVER_TIMEOUT_S) -> None:
     """Raise ConfigError (one line) if the store cannot take a run; bounded by ``timeout`` per check.
@@ -182,7 +220,8 @@ def check_tracking(settings: TrackingSettings, timeout: float = CHECK_TIMEOUT_S,
     without runs passes: the run recreates it); its directory must be writable.
     http(s): the server answers MLflow's REST API as MLflow does within ``server_timeout``
     (:func:`check_mlflow_server`).
-    Databases: the port accepts a TCP connection. A ``file:`` artifact root must be writable.
+    Databases: the port accepts a TCP connection, then the database a login (:func:`check_database`).
+    A ``file:`` artifact root must be writable.
     """
     uri = settings.uri
     parsed = urlparse(uri)
@@ -209,6 +248,7 @@ def check_tracking(settings: TrackingSettings, timeout: float = CHECK_TIMEOUT_S,
         except OSError as exc:
             raise ConfigError(f"tracking.uri: the {scheme} server {host}:{port} is not reachable ({exc.strerror or exc}, "
                               f"checked for {timeout:g} s); allowed: a running database, or tracking=none") from None
+        check_database(uri, scheme, timeout)
     artifacts = urlparse(settings.artifact_root)
     if artifacts.scheme == "file":
         problem = writable_dir_problem(Path(artifacts.path))
