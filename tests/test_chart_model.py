@@ -2,14 +2,17 @@
 
 * :class:`FittedChart` gives the statistics, limits and alarms of :meth:`Chart.decide` (bit for bit), for
   every mean–variance chart and limit, in one call, in chunks and row by row with the state carried;
-* end to end: the main command (small budget) logs a loadable model, and the model, in-process chunk by
-  chunk through MLflow's params and through ``mosd monitor``, alarms on the run's own test residuals
-  where the run's test evaluation alarmed (its FAR and MDR in summary.json).
+* end to end (slow): the main command (small budget) logs a loadable model, and the model, in-process chunk
+  by chunk through MLflow's params, through ``mosd monitor`` and through ``mlflow models serve``, alarms on
+  the run's own test residuals where the run's test evaluation alarmed (its FAR and MDR in summary.json).
 """
 from __future__ import annotations
 
 import json
+import os
 import re
+import subprocess
+import sys
 from types import SimpleNamespace
 
 import numpy as np
@@ -128,7 +131,7 @@ def test_no_model_for_a_denoised_chart():
 
 
 @pytest.mark.slow
-def test_main_command_logs_a_model_that_reproduces_its_test_evaluation(tmp_path):
+def test_main_command_logs_a_model_that_reproduces_its_test_evaluation(tmp_path, stop_process_group):
     import mlflow
     import pandas as pd
     from omegaconf import OmegaConf
@@ -181,3 +184,47 @@ def test_main_command_logs_a_model_that_reproduces_its_test_evaluation(tmp_path)
     assert f"{int(expected[0].sum())} alarms in {expected.shape[1]} subgroups" in scored.stdout
     alarms = pd.read_csv(tmp_path / "a.csv")
     assert np.array_equal(alarms["alarm"].to_numpy()[alarms["subgroup"].to_numpy() > 0], expected[0].astype(bool))
+    # mlflow models serve, as logged: requests of 100 rows of run 1, the state in the request's params
+    assert np.array_equal(_served_alarms(uri.group(1), tracking, residuals.r[1, :, 0], names, stop_process_group),
+                          expected[1].astype(bool))
+
+
+def _served_alarms(model, tracking, residual, names, stop_process_group):
+    import socket
+    import time
+    import urllib.request
+
+    from test_detector_model import PACKAGE_PARENT
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    env = {**os.environ, "MLFLOW_TRACKING_URI": tracking,
+           "PYTHONPATH": os.pathsep.join(p for p in (PACKAGE_PARENT, os.environ.get("PYTHONPATH")) if p)}
+    server = subprocess.Popen([sys.executable, "-m", "mlflow", "models", "serve", "-m", model, "--host", "127.0.0.1",
+                               "--port", str(port), "--env-manager", "local"], env=env, stdout=subprocess.DEVNULL,
+                              stderr=subprocess.PIPE, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 300
+        while True:
+            assert server.poll() is None, server.stderr.read().decode()[-2000:]
+            try:
+                urllib.request.urlopen(f"http://127.0.0.1:{port}/ping", timeout=2)
+                break
+            except OSError:
+                assert time.monotonic() < deadline, "the model server did not answer /ping"
+                time.sleep(1)
+        state, alarms = None, []
+        for start in range(0, len(residual), 100):
+            body = {"dataframe_split": {"columns": ["residual_x_p"],
+                                        "data": [[float(v)] for v in residual[start:start + 100]]}}
+            if state:
+                body["params"] = state
+            request = urllib.request.Request(f"http://127.0.0.1:{port}/invocations", json.dumps(body).encode(),
+                                             {"Content-Type": "application/json"})
+            rows = json.loads(urllib.request.urlopen(request, timeout=60).read())["predictions"]
+            alarms += [bool(row["alarm"]) for row in rows if row["subgroup"] > 0]
+            state = {k: rows[-1][k] for k in names}
+        return np.array(alarms)
+    finally:
+        stop_process_group(server)
