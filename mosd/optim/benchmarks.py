@@ -24,8 +24,9 @@ Set-up (issue 21's protocol):
   pymoo's sample differs between processes). IGD against the same front is
   reported alongside;
 * algorithms (:data:`ALGORITHMS`) — this package's :class:`~mosd.optim.mopso.MOPSO` with
-  its defaults; the issue-14 default (``exploration=None``, what ``MOPSO()`` was before
-  issue 21) as the no-loss reference; pymoo's NSGA-II (100 individuals), NSGA-III (3
+  its defaults; the issue-14 default (:data:`ISSUE14_DEFAULT`, what ``MOPSO()`` was before
+  issue 21) as the no-loss reference; when named, the first issue-21 default
+  (:data:`EXPLORATION_DEFAULT`: the exploring move without archive offspring); pymoo's NSGA-II (100 individuals), NSGA-III (3
   objectives only: 91 Das–Dennis directions, 12 partitions, 92 individuals); jMetalPy's
   SMPSO (Nebro et al. 2009, swarm 100, crowding archive 100, polynomial mutation p = 1/n,
   η = 20) on the unconstrained problems. Paper 000's Table 2 preset and pymoo's MOPSO_CD
@@ -170,6 +171,11 @@ NSGA2_NAME = "NSGA-II (pymoo)"
 NSGA3_NAME = "NSGA-III (pymoo)"
 SMPSO_NAME = "SMPSO (jMetalPy)"
 MOPSO_CD_NAME = "MOPSO_CD (pymoo)"
+EXPLORATION_NAME = "MOPSO (exploration only)"
+#: ``MOPSO()`` before issue 21 (the no-loss reference), and after its first change (SMPSO's
+#: exploring move, no archive offspring), as constructor arguments.
+ISSUE14_DEFAULT = dict(exploration=None, recombination=None, mutation_eta=20.0)
+EXPLORATION_DEFAULT = dict(recombination=None, mutation_eta=20.0)
 #: The peers of issue 21 (the "best peer" of a problem is the best of these that ran on it).
 PEERS = (NSGA2_NAME, NSGA3_NAME, SMPSO_NAME)
 
@@ -262,25 +268,25 @@ def _nsga3() -> NSGA3:
 #: name → factory of a fresh algorithm (100 particles / individuals; NSGA-III 92).
 ALGORITHMS: dict[str, Callable[[], object]] = {
     DEFAULT_NAME: lambda: MOPSO(),
-    ISSUE14_NAME: lambda: MOPSO(exploration=None),
+    ISSUE14_NAME: lambda: MOPSO(**ISSUE14_DEFAULT),
     NSGA2_NAME: lambda: NSGA2(pop_size=100),
     NSGA3_NAME: _nsga3,
     SMPSO_NAME: lambda: JMetalSMPSO(),
 }
 #: Run only when named (MOPSO_CD gets archive_size=100 like the others; its own default is 200).
 OPTIONAL: dict[str, Callable[[], object]] = {
+    EXPLORATION_NAME: lambda: MOPSO(**EXPLORATION_DEFAULT),
     PAPER_NAME: lambda: MOPSO(**PAPER_PRESET),
     MOPSO_CD_NAME: lambda: MOPSO_CD(pop_size=100, archive_size=100),
 }
 
 #: One change at a time from the default, for docs/MOPSO.md.
 ABLATIONS: dict[str, Callable[[], object]] = {
-    "default, exploration=0.3": lambda: MOPSO(exploration=0.3),
-    "default, exploration=0.4": lambda: MOPSO(exploration=0.4),
-    "default, exploration=1.0": lambda: MOPSO(exploration=1.0),
-    "default, mutation_rate=0.3": lambda: MOPSO(mutation_rate=0.3),
-    "default, boundary=reflect": lambda: MOPSO(boundary="reflect"),
-    "default, max_velocity=0.5": lambda: MOPSO(max_velocity=0.5),
+    "default, recombination=None": lambda: MOPSO(recombination=None),
+    "default, recombination=0.5": lambda: MOPSO(recombination=0.5),
+    "default, recombination=0.5, mutation_eta=2": lambda: MOPSO(recombination=0.5, mutation_eta=2.0),
+    "default, mutation_eta=20": lambda: MOPSO(mutation_eta=20.0),
+    "default, exploration=None": lambda: MOPSO(exploration=None),
     "default, leader=tournament": lambda: MOPSO(leader="tournament"),
 }
 

@@ -21,7 +21,12 @@ One class, two presets:
   extremes kept; velocities are clamped to each variable's range. While the archive
   is less than half full, particles make SMPSO's constricted, partly repulsive move
   (``exploration``, :func:`smpso_velocity`): on multimodal landscapes (ZDT4, DTLZ1,
-  DTLZ3) the attraction-only swarm collapsed onto a local front (issue 21).
+  DTLZ3) the attraction-only swarm collapsed onto a local front (issue 21). And 70 % of
+  each generation's evaluations are archive offspring (``recombination``,
+  :meth:`MOPSO._archive_offspring`: crossover and long-tailed mutation of two archive
+  members), which combine what particles cannot (WFG4's separable multimodal distance
+  variables, OSY's disconnected feasible regions) and re-spread an archive that has
+  collapsed onto one point (ZDT2) (issue 21).
 * ``MOPSO(**PAPER_PRESET)`` (``MOPSO.paper()``, ``optimizer=mopso_paper``) — paper
   000's Table 2 literally: constriction w = 0.7298, c1 = c2 = 1.4962, velocities
   reflected at the bounds, roulette-wheel leaders, Coello's mutation, random removal
@@ -61,6 +66,7 @@ import numpy as np
 from pymoo.core.algorithm import Algorithm
 from pymoo.core.population import Population
 from pymoo.core.sampling import Sampling
+from pymoo.operators.crossover.sbx import SBX
 from pymoo.operators.mutation.pm import PolynomialMutation
 from pymoo.operators.repair.to_bound import set_to_bounds_if_outside
 from pymoo.operators.sampling.rnd import FloatRandomSampling
@@ -93,6 +99,10 @@ MUTATIONS = ("polynomial", "coello")
 SMPSO_C_RANGE = (1.5, 2.5)
 SMPSO_INERTIA = 0.1
 SMPSO_MAX_VELOCITY = 0.5
+#: The archive offspring's simulated binary crossover (see :meth:`MOPSO._archive_offspring`): pymoo's
+#: defaults, which are its NSGA-II's (probability 0.9 per pair, η = 15, each variable with probability 0.5).
+CROSSOVER_PROBABILITY = 0.9
+CROSSOVER_ETA = 15.0
 #: Exponent of Coello's mutation decay law (1 - t / (T p_m))^1.5 (see :meth:`MOPSO._coello_mutation`).
 MUTATION_DECAY_EXPONENT = 1.5
 
@@ -100,7 +110,7 @@ MUTATION_DECAY_EXPONENT = 1.5
 PAPER_PRESET = dict(archive_size=100, n_divisions=30, velocity="constriction", w=None, c1=None,
                     c2=None, max_velocity=None, boundary="reflect", leader="roulette",
                     personal_best="coin", removal="random", keep_extremes=False, mutation="coello",
-                    mutation_rate=0.5, exploration=None)
+                    mutation_rate=0.5, exploration=None, recombination=None)
 
 
 def constriction_coefficients(phi: float = CONSTRICTION_PHI) -> tuple[float, float, float]:
@@ -245,7 +255,9 @@ class MOPSO(Algorithm):
         x ← x + v,  then the bound rule, mutation and integer rounding,
 
     with r1, r2 ~ U(0, 1) per particle and dimension, a leader per particle and move
-    drawn from the archive, and Δ = xu − xl per variable.
+    drawn from the archive, and Δ = xu − xl per variable. With ``recombination`` r, only
+    the first N − round(r N) slots move so; the last round(r N) are filled each generation
+    by children of archive members (:meth:`_archive_offspring`).
 
     Parameters
     ----------
@@ -298,7 +310,10 @@ class MOPSO(Algorithm):
         the share of the run during which mutation acts ("coello"). None: no mutation
         (the pre-existing key's meaning).
     mutation_eta : float
-        Distribution index of the polynomial mutation, >= 0.
+        Distribution index of the polynomial mutation (of particles and of archive
+        offspring), >= 0. Default 3: long-tailed steps, which let offspring jump between
+        OSY's disconnected feasible regions (20, the issue-14 value: mostly steps of
+        about 5 % of the range; docs/MOPSO.md).
     exploration : float in (0, 1] or None
         While the archive holds fewer than ``exploration`` × ``archive_size`` members,
         the first ⌈s N⌉ particles, s = 1 − |A| / (``exploration`` × Z_ar)
@@ -306,6 +321,14 @@ class MOPSO(Algorithm):
         instead of the velocity variant's. Default 0.5: what lets the swarm leave the local
         fronts of ZDT4, DTLZ1 and DTLZ3 (issue 21, docs/MOPSO.md). None: never (the
         issue-14 default and the paper preset).
+    recombination : float in (0, 1) or None
+        Share r of the swarm's N slots filled each move by archive offspring instead of
+        particle moves: round(r N) children (at most N − 1) of two archive members each,
+        drawn by the ``leader`` rule, through pymoo's SBX (η 15, probability 0.9) and
+        polynomial mutation (``mutation_eta``, 1/n_var per variable)
+        (:meth:`_archive_offspring`). Default 0.7 (issue 21, docs/MOPSO.md: 0.3–0.5 left
+        WFG4 below 0.95 × NSGA-II). None: every slot is a particle (issue-14 default, paper
+        preset).
     horizon : int or None
         Run length in generations (the initial swarm included) that scheduled
         coefficients and Coello's mutation refer to. None: taken from the termination if
@@ -334,8 +357,8 @@ class MOPSO(Algorithm):
                  leader: str = "roulette", personal_best: str = "dominance",
                  removal: str = "crowding", keep_extremes: bool = True,
                  mutation: str | None = "polynomial", mutation_rate: float | None = 0.15,
-                 mutation_eta: float = 20.0, exploration: float | None = 0.5,
-                 horizon: int | None = None,
+                 mutation_eta: float = 3.0, exploration: float | None = 0.5,
+                 recombination: float | None = 0.7, horizon: int | None = None,
                  sampling: Sampling | None = None, output=None, **kwargs):
         super().__init__(output=MultiObjectiveOutput() if output is None else output, **kwargs)
         self.pop_size = check_int("optimizer.pop_size", pop_size, 1)
@@ -362,6 +385,9 @@ class MOPSO(Algorithm):
                                      Interval(0.0, math.inf, open_high=True))
         self.exploration = (None if exploration is None else
                             check_in("optimizer.exploration", exploration, Interval(0.0, 1.0, open_low=True)))
+        self.recombination = (None if recombination is None else
+                              check_in("optimizer.recombination", recombination,
+                                       Interval(0.0, 1.0, open_low=True, open_high=True)))
         self.horizon = None if horizon is None else check_int("optimizer.horizon", horizon, 1)
         if sampling is not None and not isinstance(sampling, Sampling):
             raise ConfigError(f"optimizer.sampling={sampling!r} is not allowed; allowed: a pymoo Sampling")
@@ -421,11 +447,15 @@ class MOPSO(Algorithm):
         """
         rng, archive, problem = self.random_state, self.leader_archive, self.problem
         move = self.n_iter - 2
-        X, personal = self.particle_position, self.pbest_X
-        leaders = archive.X[archive.select_leaders(len(X), rng, self.leader)]
+        n_offspring = self._n_offspring()
+        # the last n_offspring slots are filled by archive offspring, the others move as particles
+        n_particles = self.pop_size - n_offspring
+        X, personal = self.particle_position[:n_particles], self.pbest_X[:n_particles]
+        previous_velocity = self.particle_velocity[:n_particles]
+        leaders = archive.X[archive.select_leaders(n_particles, rng, self.leader)]
         w, c1, c2 = (self._scheduled(value, move) for value in (self.w, self.c1, self.c2))
         r1, r2 = rng.random(X.shape), rng.random(X.shape)
-        velocity = w * self.particle_velocity + c1 * r1 * (personal - X) + c2 * r2 * (leaders - X)
+        velocity = w * previous_velocity + c1 * r1 * (personal - X) + c2 * r2 * (leaders - X)
         if self.max_velocity is not None:
             limit = self.max_velocity * (problem.xu - problem.xl)
             velocity = np.clip(velocity, -limit, limit)
@@ -436,8 +466,8 @@ class MOPSO(Algorithm):
             # exploration (particles drawn afresh each move all kept being thrown off and
             # DTLZ3 stalled on 2 seeds of 5, docs/MOPSO.md). No draw when share is 0, which
             # keeps the paper preset's random stream as it was.
-            exploring = np.arange(len(X)) < share * len(X)
-            velocity[exploring] = smpso_velocity(X[exploring], self.particle_velocity[exploring],
+            exploring = np.arange(n_particles) < share * self.pop_size
+            velocity[exploring] = smpso_velocity(X[exploring], previous_velocity[exploring],
                                                  personal[exploring], leaders[exploring], problem.xl,
                                                  problem.xu, rng)
         X_new, velocity = apply_bounds(X + velocity, velocity, problem.xl, problem.xu, self.boundary)
@@ -448,6 +478,9 @@ class MOPSO(Algorithm):
             operator = PolynomialMutation(prob=self.mutation_rate, prob_var=1.0 / problem.n_var,
                                           eta=self.mutation_eta)
             X_new = operator.do(problem, Population.new("X", X_new), random_state=rng).get("X")
+        if n_offspring:
+            X_new = np.vstack([X_new, self._archive_offspring(n_offspring)])
+            velocity = np.vstack([velocity, np.zeros((n_offspring, problem.n_var))])
         self.particle_velocity = velocity
         return Population.new("X", round_integers(X_new, self.is_integer, problem.xl, problem.xu))
 
@@ -480,6 +513,35 @@ class MOPSO(Algorithm):
         else:
             replace = ~old_wins
         self.pbest_X[replace], self.pbest_F[replace], self.pbest_CV[replace] = X[replace], F[replace], CV[replace]
+
+    def _n_offspring(self) -> int:
+        """Slots of the swarm filled by archive offspring each move: round(``recombination`` × N), at most N − 1."""
+        if not self.recombination:
+            return 0
+        return min(self.pop_size - 1, int(round(self.recombination * self.pop_size)))
+
+    def _archive_offspring(self, n: int) -> np.ndarray:
+        """``n`` children of archive members: simulated binary crossover, then polynomial mutation.
+
+        Each child has two parents drawn by the leader rule (:meth:`GridArchive.select_leaders`,
+        so members of sparse cells are preferred, as for leaders), pymoo's SBX (probability
+        :data:`CROSSOVER_PROBABILITY`, η = :data:`CROSSOVER_ETA`, one child per pair) and
+        pymoo's polynomial mutation of every child (1/n_var per variable, η = ``mutation_eta``).
+
+        Why (issue 21, docs/MOPSO.md): a particle moves all its variables along one line
+        towards its attractors, so it cannot combine the good distance variables of two
+        members (WFG4's separable 30-minimum shift), and a swarm whose archive has
+        collapsed onto one point has every attractor on that point (ZDT2's f1 = 0 end):
+        only a mutated copy of a converged member enters such an archive. Crossover of
+        archive members does both, as NSGA-II's variation does; its children of a
+        one-member archive are mutated copies of it.
+        """
+        archive, problem, rng = self.leader_archive, self.problem, self.random_state
+        pairs = archive.select_leaders(2 * n, rng, self.leader).reshape(n, 2)
+        crossover = SBX(prob=CROSSOVER_PROBABILITY, eta=CROSSOVER_ETA, n_offsprings=1)
+        children = crossover.do(problem, Population.new("X", archive.X), parents=pairs, random_state=rng)
+        mutation = PolynomialMutation(prob=1.0, prob_var=1.0 / problem.n_var, eta=self.mutation_eta)
+        return mutation.do(problem, children, random_state=rng).get("X")
 
     def _exploring_share(self) -> float:
         """Share of the swarm that makes SMPSO's move (:func:`smpso_velocity`) this move.
