@@ -319,24 +319,37 @@ def _one_blas_thread():
     return controller.limit(limits=1, user_api="blas")
 
 
+_WRAPPER: dict = {}
+
+
 def _python_model_class():
-    """The pyfunc wrapper class (defined on first use: MLflow is imported only here)."""
+    """The pyfunc wrapper class (defined on first use: MLflow is imported only here; once per process)."""
+    import warnings
+
+    if "class" in _WRAPPER:
+        return _WRAPPER["class"]
     import mlflow.pyfunc
 
-    class MosdDetector(mlflow.pyfunc.PythonModel):
-        """mosd's fitted detector; ``predict(rows, params=the state of the previous row)`` (state_names)."""
+    with warnings.catch_warnings():
+        # MLflow's advice to add type hints to predict, shown through its own "once" filter: the
+        # signature is given explicitly; catch_warnings restores showwarning afterwards
+        warnings.showwarning = lambda *args, **kwargs: None
 
-        def load_context(self, context):
-            self.fitted = load_fitted(context.artifacts["state"])
+        class MosdDetector(mlflow.pyfunc.PythonModel):
+            """mosd's fitted detector; ``predict(rows, params=the state of the previous row)`` (state_names)."""
 
-        def predict(self, context, model_input, params=None):
-            import pandas as pd
+            def load_context(self, context):
+                self.fitted = load_fitted(context.artifacts["state"])
 
-            frame = model_input if isinstance(model_input, pd.DataFrame) else pd.DataFrame(model_input)
-            names = state_names(self.fitted)
-            state = {k: v for k, v in (params or {}).items() if k in names and v is not None}
-            return self.fitted.predict_frame(frame, state)
+            def predict(self, context, model_input, params=None):
+                import pandas as pd
 
+                frame = model_input if isinstance(model_input, pd.DataFrame) else pd.DataFrame(model_input)
+                names = state_names(self.fitted)
+                state = {k: v for k, v in (params or {}).items() if k in names and v is not None}
+                return self.fitted.predict_frame(frame, state)
+
+    _WRAPPER["class"] = MosdDetector
     return MosdDetector
 
 
@@ -365,14 +378,31 @@ def log_model(state_file: str, tracking_uri: str, run_id: str) -> str:
     import mlflow
     import pandas as pd
 
+    import logging
+    import os
+    import warnings
+
     fitted = load_fitted(state_file)
     example = fitted.example() if hasattr(fitted, "example") else pd.DataFrame([fitted.mean], columns=list(fitted.tags))
     mlflow.set_tracking_uri(tracking_uri)
     nested = mlflow.active_run() is not None
-    with mlflow.start_run(run_id=run_id, nested=nested):
-        info = mlflow.pyfunc.log_model(name=MODEL_NAME, python_model=_python_model_class()(),
-                                       artifacts={"state": str(state_file)}, signature=signature(fitted, example),
-                                       input_example=example, pip_requirements=["mosd", "pandas", "numpy", "scipy"])
+    # MLflow's hints while logging (type hints, integer columns, cloudpickle, validating the example, a progress
+    # bar) are for its own authors' models: in a run (a sweep logs in-process) they would be noise on stderr
+    os.environ.setdefault("MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR", "false")
+    quiet = [logging.getLogger(name) for name in ("mlflow", "mlflow.pyfunc", "mlflow.models", "mlflow.types")]
+    levels = [logger.level for logger in quiet]
+    try:
+        for logger in quiet:
+            logger.setLevel(logging.ERROR)
+        with warnings.catch_warnings(), mlflow.start_run(run_id=run_id, nested=nested):
+            # not a filter: MLflow's helpers set their own ("once"); catch_warnings restores showwarning
+            warnings.showwarning = lambda *args, **kwargs: None
+            info = mlflow.pyfunc.log_model(name=MODEL_NAME, python_model=_python_model_class()(),
+                                           artifacts={"state": str(state_file)}, signature=signature(fitted, example),
+                                           input_example=example, pip_requirements=["mosd", "pandas", "numpy", "scipy"])
+    finally:
+        for logger, level in zip(quiet, levels):
+            logger.setLevel(level)
     return info.model_uri
 
 
