@@ -500,10 +500,13 @@ def monitor_benchmark(quick: bool = False) -> dict:
                 model.predict(frame)
         contenders["bibmon"] = bibmon_predict
     best = {name: float("inf") for name in contenders}
-    for _ in range(repeats):  # in turns: a burst of load hits every contender alike
-        for name, fn in contenders.items():
+    names = list(contenders)
+    for i in range(repeats):
+        # in turns, a burst of load hits every contender alike; the order rotates, so that none always
+        # follows bibmon, whose two OpenBLAS threads go on spinning for a while after its products
+        for name in names[i % len(names):] + names[:i % len(names)]:
             t0 = time.perf_counter()
-            fn()
+            contenders[name]()
             best[name] = min(best[name], time.perf_counter() - t0)
     out["load_average_1min_after"] = os.getloadavg()[0]
     out["monitor_rows_per_s"] = len(frame) / best["monitor"]
