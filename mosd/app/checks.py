@@ -129,8 +129,8 @@ def check_mlflow_server(uri: str, experiment: str, timeout: float = SERVER_TIMEO
     shown = redacted(uri)
     allowed = ("allowed: a running MLflow tracking server (mlflow server --host 127.0.0.1 ...), "
                "another tracking.uri, or tracking=none")
-    request = _mlflow_request(uri, f"{MLFLOW_PROBE}?{urllib.parse.urlencode({'experiment_name': experiment})}")
-    try:
+    try:  # a malformed URI (ValueError) or an unreadable certificate (OSError) is answered like no server
+        request = _mlflow_request(uri, f"{MLFLOW_PROBE}?{urllib.parse.urlencode({'experiment_name': experiment})}")
         with urllib.request.urlopen(request, timeout=timeout, context=_mlflow_tls()) as response:
             status, kind, body = response.status, response.headers.get_content_type(), response.read(MAX_ANSWER_BYTES)
     except urllib.error.HTTPError as exc:  # an answer all the same: MLflow's errors come with a status
