@@ -270,8 +270,7 @@ def test_tep_run_logs_a_model_whose_monitor_alarms_give_the_run_s_test_rates(tmp
 
     from mosd.data.tep import TennesseeEastman, bibmon_directory
 
-    if bibmon_directory() is None:
-        pytest.skip('the TE files need pip install ".[te]"')
+    assert bibmon_directory() is not None, 'the TE files are a test dependency: pip install ".[test]"'
     outputs = tmp_path / "out"
     run = _mosd(["+experiment=tep", "optimizer.pop_size=8", "optimizer.n_gen=2", "optimizer.n_jobs=1",
                  "progress=false", "study.figures=false"], tmp_path, outputs)
