@@ -1004,7 +1004,8 @@ def _run_dir_with_results(run_dir: Path) -> list[Path]:
 
 def test_a_run_whose_artifacts_did_not_fit_is_failed_and_mosd_log_completes_it_once(tmp_path, monkeypatch, capsys):
     """The artifact store fills up while a run's files are copied in: the run is FAILED and tagged, not
-    FINISHED; ``mosd log`` completes that same run, and a second ``mosd log`` adds nothing.
+    FINISHED; ``mosd log`` completes that same run, and a second ``mosd log`` adds nothing. The run's
+    model, which the store took at the time, is not logged a second time.
 
     The full disk is injected where MLflow writes an artifact: the copy of a PNG starts, leaves a file
     cut short and fails with ENOSPC, as ``shutil.copy`` does on a full file system.
@@ -1014,11 +1015,17 @@ def test_a_run_whose_artifacts_did_not_fit_is_failed_and_mosd_log_completes_it_o
     from mlflow.store.artifact.local_artifact_repo import LocalArtifactRepository
     from mlflow.tracking import MlflowClient
 
+    from mlflow.entities import LoggedModelStatus
+
     from mosd.app import pending
+    from mosd.app.chart_model import FittedChart
     from mosd.app.tracker import RunTracker
 
     run_dir = tmp_path / "run"
     files = _run_dir_with_results(run_dir)
+    model = FittedChart(columns=("residual_a",), mean=np.array([0.3]), std=np.array([2.0]), subgroup="window", n=5,
+                        burn_in=20, chart="SSDEWMA", lam=0.25, K=1.0, limit="theoretical",
+                        limit_value=np.nan).save(run_dir / "model")
     copy = LocalArtifactRepository.log_artifact
 
     def disk_full(self, local_file, artifact_path=None):
@@ -1035,12 +1042,13 @@ def test_a_run_whose_artifacts_did_not_fit_is_failed_and_mosd_log_completes_it_o
     params = {"optimizer.n_gen": "3"}
     metrics = [("far", 0.01, 0), ("hypervolume", 0.5, 1), ("hypervolume", 0.6, 2), ("delay", float("nan"), 0)]
     tracker.log(params=params, metrics=metrics, artifacts=files)
+    tracker.log_model(model)
     with pytest.raises(store.TrackingError, match="No space left on device"):
         tracker.finish("FINISHED")
     client = MlflowClient(tracking_uri=settings.uri)
     run = client.get_run(tracker.run_id)
     assert run.info.status == "FAILED" and tracker.status == "FAILED"
-    pending.mark_not_logged(run_dir, "disk full", pending.pending_request(tracker, params, metrics, files),
+    pending.mark_not_logged(run_dir, "disk full", pending.pending_request(tracker, params, metrics, files, model),
                             tracker.status)
     assert "No space left on device" in run.data.tags["mosd.logging_error"]
     assert f"python -m mosd log {run_dir}" in run.data.tags["mosd.logging_error"]
@@ -1055,7 +1063,11 @@ def test_a_run_whose_artifacts_did_not_fit_is_failed_and_mosd_log_completes_it_o
     assert pending.log_main([str(run_dir)]) == 0
     assert pending.log_main([str(run_dir)]) == 0
     out = capsys.readouterr().out.splitlines()
-    assert out[0].endswith(f"-> MLflow run {tracker.run_id}") and "logged already" in out[1], out
+    assert out[0].endswith(f"-> MLflow run {tracker.run_id}") and "logged already" in out[2], out
+    assert tracker.model_uri and out[1] == out[3] and f"model {tracker.model_uri} (runs:/" in out[1], out
+    ready = [m.model_uri for m in client.search_logged_models([run.info.experiment_id])
+             if m.status == LoggedModelStatus.READY]
+    assert ready == [tracker.model_uri]
 
     runs = client.search_runs([client.get_experiment_by_name("mosd").experiment_id])
     assert [r.info.run_id for r in runs] == [tracker.run_id]
@@ -1216,6 +1228,65 @@ def test_a_full_artifact_store_gives_a_failed_run_that_mosd_log_completes(tmp_pa
         assert {p.name for p in run_dir.glob("*.png")} | {"summary.json", "pareto.csv"} <= stored
     finally:
         stop_process_group(server)
+
+
+#: ``python -c`` of the main command with an artifact store that takes no file: every write MLflow's local
+#: artifact repository makes (the run's files and the model's) fails with ENOSPC, as on a full disk
+FULL_ARTIFACT_STORE = """
+import errno, os, sys
+from mlflow.store.artifact.local_artifact_repo import LocalArtifactRepository
+
+def disk_full(self, *args, **kwargs):
+    raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), self.artifact_dir)
+
+LocalArtifactRepository.log_artifact = LocalArtifactRepository.log_artifacts = disk_full
+from mosd.app import main
+main()
+"""
+
+
+def test_mosd_log_logs_the_detector_model_the_full_artifact_store_did_not_take(tmp_path, capsys):
+    """The main command's chart model (issue 24) did not fit in the artifact store either: ``mosd log``
+    logs it to the same run from the run directory, prints its URI as the run's summary does, and a
+    second ``mosd log`` logs nothing; ``runs:/ID/detector`` then scores as the run's fitted chart."""
+    import mlflow
+    import pandas as pd
+    from mlflow.entities import LoggedModelStatus
+
+    from mosd.app import pending
+    from mosd.app.detector_model import load_fitted
+
+    run = mosd(["+fault=offset_var", "optimizer=mopso", "optimizer.pop_size=8", "optimizer.n_gen=2",
+                "budget.n_test=2", "budget.n_train=2", "budget.n_calibration=2", "progress=false"], cwd=tmp_path,
+               command=[sys.executable, "-c", FULL_ARTIFACT_STORE])
+    assert run.returncode == 3 and "No space left on device" in run.stdout, run.stderr[-3000:]
+    run_dir = next((tmp_path / "outputs" / "runs").iterdir())
+    tracking = f"sqlite:///{tmp_path / 'outputs' / 'mlflow.db'}"
+    client, runs = _runs(tracking)
+    run_id = runs[0].info.run_id
+
+    def ready_models():
+        return [m for m in client.search_logged_models([runs[0].info.experiment_id])
+                if m.source_run_id == run_id and m.status == LoggedModelStatus.READY]
+
+    assert [r.info.status for r in runs] == ["FAILED"] and not ready_models()
+
+    assert pending.log_main([str(run_dir)]) == 0
+    first = capsys.readouterr().out
+    assert pending.log_main([str(run_dir)]) == 0
+    second = capsys.readouterr().out
+    uri = re.search(rf"model (models:/\S+) \(runs:/{run_id}/detector\): python -m mosd monitor --model \1 ", first)
+    assert uri and "logged already" in second and uri.group(0) in second, first + second
+    assert [m.model_uri for m in ready_models()] == [uri.group(1)]  # twice run, once logged
+    assert client.get_run(run_id).info.status == "FINISHED"
+
+    fitted = load_fitted(run_dir / "model" / "chart_detector.npz")
+    rows = pd.DataFrame(np.random.default_rng(0).normal(size=(300, len(fitted.columns))) + 0.4,
+                        columns=list(fitted.columns))
+    mlflow.set_tracking_uri(tracking)
+    scored = mlflow.pyfunc.load_model(f"runs:/{run_id}/detector").predict(rows)
+    pd.testing.assert_frame_equal(scored, fitted.predict_frame(rows))
+    assert scored["alarm"].any()  # a comparison that alarms somewhere: not two empty answers
 
 
 def test_mosd_log_completes_the_run_an_older_pending_file_left_finished_and_empty(tmp_path, capsys):

@@ -406,6 +406,21 @@ def log_model(state_file: str, tracking_uri: str, run_id: str) -> str:
     return info.model_uri
 
 
+def logged_model_uri(tracking_uri: str, run_id: str) -> str | None:
+    """The ``models:/`` URI of the model ``detector`` that ``run_id`` logged completely, or None.
+
+    A model whose upload failed (a full artifact store) is left PENDING or FAILED by MLflow: not counted,
+    so that ``mosd log`` logs it again (:func:`mosd.app.pending.log_pending`).
+    """
+    from mlflow import MlflowClient
+    from mlflow.entities import LoggedModelStatus
+
+    client = MlflowClient(tracking_uri)
+    models = client.search_logged_models([client.get_run(run_id).info.experiment_id],
+                                         filter_string=f"source_run_id = '{run_id}' AND name = '{MODEL_NAME}'")
+    return next((m.model_uri for m in models if m.status == LoggedModelStatus.READY), None)
+
+
 def fitted_of_run(setup, result) -> FittedPCA | None:
     """The run's fitted pipeline, or None where no model is logged (not recorded PCA on measured signals)."""
     from ..detectors.pca import PCADetector

@@ -6,8 +6,9 @@ If the MLflow run exists (the store took the run but not all of its params,
 metrics or artifacts, e.g. a full artifact directory), it is ended FAILED with
 the tag ``mosd.logging_error`` (:class:`mosd.app.channel.Handler`), and
 ``python -m mosd log RUN_DIR`` completes that same run (:func:`log_pending`):
-it logs what the run does not hold yet, uploads the files again and ends it
-FINISHED. It is idempotent: run twice, it logs once.
+it logs what the run does not hold yet, uploads the files again, logs the
+run's model ``detector`` from the fitted pipeline saved in the run directory if
+the run lacks it, and ends it FINISHED. It is idempotent: run twice, it logs once.
 """
 from __future__ import annotations
 
@@ -37,18 +38,22 @@ NOT_LOGGED: list[Path] = []
 
 
 def pending_request(tracker, params: Mapping[str, str], metrics: Iterable[tuple[str, float, int]],
-                    files: Iterable[str | os.PathLike]) -> dict:
+                    files: Iterable[str | os.PathLike], model: str | os.PathLike | None = None) -> dict:
     """What :func:`log_pending` needs to log a :class:`~mosd.app.tracker.RunTracker`'s run later.
 
     ``run_id`` is the MLflow run the tracker created (None if the store did not
     take even that): ``mosd log`` completes it rather than making a second one.
+    ``model``: the fitted pipeline saved in the run directory
+    (:func:`mosd.app.detector_model.save_for_run`), logged as the run's model
+    ``detector`` if the run lacks it.
     """
     # the password of tracking.uri stays out of the file: `mosd log` takes it from the driver's
     # environment (PGPASSWORD, ~/.pgpass, MLFLOW_TRACKING_PASSWORD) or --tracking-uri
     settings = {**asdict(tracker.settings), "uri": redacted(tracker.settings.uri)}
     return {"settings": settings, "run_id": tracker.run_id, "run_name": tracker.run_name,
             "tags": tracker.tags, "parent_run_id": tracker.parent_run_id, "params": dict(params),
-            "metrics": [(k, float(v), int(step)) for k, v, step in metrics], "artifacts": [str(f) for f in files]}
+            "metrics": [(k, float(v), int(step)) for k, v, step in metrics], "artifacts": [str(f) for f in files],
+            "model": None if model is None else str(model)}
 
 
 def _update_summary(run_dir: Path, tracking: Mapping[str, Any]) -> None:
@@ -74,10 +79,11 @@ def mark_not_logged(run_dir: Path, error: str, pending: Mapping[str, Any], statu
     return path
 
 
-def log_pending(run_dir: str | os.PathLike, uri: str | None = None) -> tuple[str, bool, list[str]]:
+def log_pending(run_dir: str | os.PathLike, uri: str | None = None) -> tuple[str, bool, list[str], str | None]:
     """Log a run directory's ``mlflow_pending.json`` (a run whose logging failed).
 
-    Returns ``(run id, logged now, files that were to be logged and are gone)``.
+    Returns ``(run id, logged now, files that were to be logged and are gone,
+    the model's models:/ URI or None)``.
 
     The MLflow run the pending file names is completed when it is in the store
     (``uri``, default the run's own): only the params and metric values it
@@ -87,7 +93,9 @@ def log_pending(run_dir: str | os.PathLike, uri: str | None = None) -> tuple[str
     tagged with the same ``mosd.run_dir``). Otherwise a new run is made, and
     its id written to the pending file first, so that a ``mosd log`` that fails
     half-way is resumed, not repeated. A file gone from the run directory since
-    is named in the result, not silently skipped.
+    is named in the result, not silently skipped. The fitted pipeline the run
+    saved under ``model/`` is logged as the run's pyfunc model ``detector``
+    unless the run holds it complete already (the store took it at the time).
     The pending file is then renamed ``*.logged`` and ``summary.json`` records
     the id; a second ``mosd log`` finds it logged and logs nothing (``logged
     now`` False).
@@ -97,7 +105,8 @@ def log_pending(run_dir: str | os.PathLike, uri: str | None = None) -> tuple[str
     if not path.is_file():
         done = run_dir / LOGGED_FILE
         if done.is_file():
-            return json.loads(done.read_text()).get("run_id") or "", False, []
+            logged = json.loads(done.read_text())
+            return logged.get("run_id") or "", False, [], logged.get("model_uri")
         raise ConfigError(f"{run_dir} has no {PENDING_FILE}; allowed: a run directory whose run was not logged")
     pending = json.loads(path.read_text())
     stored = {**pending["settings"], "uri": without_password(pending["settings"]["uri"])}
@@ -119,8 +128,12 @@ def log_pending(run_dir: str | os.PathLike, uri: str | None = None) -> tuple[str
     params, metrics = store.not_yet_logged(run_id, pending["params"], [tuple(m) for m in pending["metrics"]])
     # the files where the run directory is now (it may have been moved since)
     recorded = Path(pending["tags"].get("mosd.run_dir") or run_dir)
-    files = [run_dir / Path(a).relative_to(recorded) if Path(a).is_relative_to(recorded) else Path(a)
-             for a in pending["artifacts"]]
+
+    def here(file: str) -> Path:
+        return run_dir / Path(file).relative_to(recorded) if Path(file).is_relative_to(recorded) else Path(file)
+
+    files = [here(a) for a in pending["artifacts"]]
+    model = None if pending.get("model") is None else here(pending["model"])
     # summary.json says where the run is logged before it is sent: the store's copy is the final one
     summary_path = run_dir / "summary.json"
     before = summary_path.read_bytes() if summary_path.is_file() else None
@@ -129,6 +142,13 @@ def log_pending(run_dir: str | os.PathLike, uri: str | None = None) -> tuple[str
     try:
         store.log(run_id, params, metrics, artifacts=[str(f) for f in files if f.exists()])
         gone = [str(f) for f in files if not f.exists()]
+        model_uri = None
+        if model is not None and model.exists():
+            from .detector_model import log_model, logged_model_uri
+
+            model_uri = logged_model_uri(settings.uri, run_id) or log_model(str(model), settings.uri, run_id)
+        elif model is not None:
+            gone.append(str(model))
     except BaseException:
         if before is not None:
             write_atomically(summary_path, lambda out: out.write(before), binary=True)
@@ -136,8 +156,10 @@ def log_pending(run_dir: str | os.PathLike, uri: str | None = None) -> tuple[str
                                     f"completes this run")
         raise
     store.complete(run_id, {"mosd.logged_later": "true"})
+    if model_uri is not None:  # a second `mosd log` prints it too
+        write_json(path, {**pending, "model_uri": model_uri})
     path.rename(run_dir / LOGGED_FILE)
-    return run_id, True, gone
+    return run_id, True, gone, model_uri
 
 
 def log_main(argv) -> int:
@@ -155,9 +177,12 @@ def log_main(argv) -> int:
     try:
         args = parser.parse_args(list(argv))
         for run_dir in args.run_dirs:
-            run_id, now, gone = log_pending(run_dir, args.tracking_uri)
+            run_id, now, gone, model_uri = log_pending(run_dir, args.tracking_uri)
             print(f"mosd log: {run_dir} -> MLflow run {run_id}" if now else
                   f"mosd log: {run_dir} was logged already (MLflow run {run_id}); nothing logged")
+            if model_uri:  # as the run's own summary gives it
+                print(f"          model {model_uri} (runs:/{run_id}/detector): "
+                      f"python -m mosd monitor --model {model_uri} DATA.csv")
             if gone:  # removed from the run directory since: said, not silently skipped
                 print(f"mosd log: not logged, no longer in {run_dir}: {', '.join(gone)}", file=sys.stderr)
     except (ConfigError, TrackingError) as exc:

@@ -206,7 +206,8 @@ def run(cfg, started: float | None = None, checked=None):
             except TrackingError as exc:
                 # the work is done and on disk: keep it, say how to log it later
                 not_logged = redacted(one_line(exc))
-                mark_not_logged(run_dir, not_logged, pending_request(tracker, params, logged, files), tracker.status)
+                mark_not_logged(run_dir, not_logged, pending_request(tracker, params, logged, files, model_file),
+                                 tracker.status)
                 tracking_line = f"mlflow    NOT LOGGED ({redacted(tracker.settings.uri)}): {not_logged}"
                 if tracker.run_id:
                     ended = (f"marked {tracker.status} (tag {LOGGING_ERROR_TAG})" if tracker.status
