@@ -8,7 +8,6 @@ from mosd.optim.benchmarks import (ABLATIONS, ALGORITHMS, DEFAULT_NAME, ISSUE14_
                                    smpso_available, target_rows)
 from mosd.validation import ConfigError
 
-needs_jmetal = pytest.mark.skipif(not smpso_available(), reason="jMetalPy not installed")
 
 
 def test_table_rows_per_problem_and_algorithm_and_markdown():
@@ -72,7 +71,6 @@ def test_targets_compare_with_the_named_reference():
     assert "| ZDT1 | 0.8500 | MOPSO (issue-14 default) | 0.8700 | 0.977 | ≥ 0.98 | **no** |" in format_targets(rows)
 
 
-@needs_jmetal
 def test_smpso_runs_on_the_pymoo_problem_reproducibly():
     problem = make_problem("zdt1")
     first = JMetalSMPSO(swarm_size=20, archive_size=20).solve(problem, 400, seed=4)
@@ -101,7 +99,6 @@ def test_main_refuses_an_unknown_algorithm_in_one_line(capsys):
 
 
 @pytest.mark.slow
-@needs_jmetal
 def test_default_meets_issue_21s_targets_on_zdt4_wfg4_osy_and_keeps_zdt1_zdt2_zdt3_dtlz2():
     """Issue 21 (a subset of python -m mosd.optim.benchmarks, 10,000 evaluations, seeds 1-5): ZDT4 >= 0.95 x
     the best peer, WFG4 >= 0.95 and OSY >= 0.97 x NSGA-II, and no loss of more than 2 % against the
