@@ -1246,10 +1246,13 @@ main()
 """
 
 
-def test_mosd_log_logs_the_detector_model_the_full_artifact_store_did_not_take(tmp_path, capsys):
+@pytest.mark.parametrize("model_entry", ["named", "absent"])
+def test_mosd_log_logs_the_detector_model_the_full_artifact_store_did_not_take(tmp_path, capsys, model_entry):
     """The main command's chart model (issue 24) did not fit in the artifact store either: ``mosd log``
     logs it to the same run from the run directory, prints its URI as the run's summary does, and a
-    second ``mosd log`` logs nothing; ``runs:/ID/detector`` then scores as the run's fitted chart."""
+    second ``mosd log`` logs nothing; ``runs:/ID/detector`` then scores as the run's fitted chart.
+    ``absent``: a pending file written before it had a ``model`` entry; the model saved under
+    ``model/`` in the run directory is logged all the same."""
     import mlflow
     import pandas as pd
     from mlflow.entities import LoggedModelStatus
@@ -1271,6 +1274,10 @@ def test_mosd_log_logs_the_detector_model_the_full_artifact_store_did_not_take(t
                 if m.source_run_id == run_id and m.status == LoggedModelStatus.READY]
 
     assert [r.info.status for r in runs] == ["FAILED"] and not ready_models()
+    if model_entry == "absent":
+        request = json.loads((run_dir / pending.PENDING_FILE).read_text())
+        assert request.pop("model").endswith("chart_detector.npz")
+        (run_dir / pending.PENDING_FILE).write_text(json.dumps(request))
 
     assert pending.log_main([str(run_dir)]) == 0
     first = capsys.readouterr().out

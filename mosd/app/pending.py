@@ -79,6 +79,15 @@ def mark_not_logged(run_dir: Path, error: str, pending: Mapping[str, Any], statu
     return path
 
 
+def _saved_model(run_dir: Path) -> Path | None:
+    """The fitted pipeline a run saved under ``model/``, for a pending file written before it named it."""
+    from .chart_model import STATE_FILE as CHART_FILE
+    from .detector_model import STATE_FILE as PCA_FILE
+
+    return next((run_dir / "model" / name for name in (CHART_FILE, PCA_FILE) if (run_dir / "model" / name).is_file()),
+                None)
+
+
 def log_pending(run_dir: str | os.PathLike, uri: str | None = None) -> tuple[str, bool, list[str], str | None]:
     """Log a run directory's ``mlflow_pending.json`` (a run whose logging failed).
 
@@ -95,7 +104,9 @@ def log_pending(run_dir: str | os.PathLike, uri: str | None = None) -> tuple[str
     half-way is resumed, not repeated. A file gone from the run directory since
     is named in the result, not silently skipped. The fitted pipeline the run
     saved under ``model/`` is logged as the run's pyfunc model ``detector``
-    unless the run holds it complete already (the store took it at the time).
+    unless the run holds it complete already (the store took it at the time);
+    a pending file written before it named the model: the one file under
+    ``model/`` there is (``chart_detector.npz`` or ``pca_detector.npz``).
     The pending file is then renamed ``*.logged`` and ``summary.json`` records
     the id; a second ``mosd log`` finds it logged and logs nothing (``logged
     now`` False).
@@ -133,7 +144,8 @@ def log_pending(run_dir: str | os.PathLike, uri: str | None = None) -> tuple[str
         return run_dir / Path(file).relative_to(recorded) if Path(file).is_relative_to(recorded) else Path(file)
 
     files = [here(a) for a in pending["artifacts"]]
-    model = None if pending.get("model") is None else here(pending["model"])
+    model = _saved_model(run_dir) if "model" not in pending else (
+        None if pending["model"] is None else here(pending["model"]))
     # summary.json says where the run is logged before it is sent: the store's copy is the final one
     summary_path = run_dir / "summary.json"
     before = summary_path.read_bytes() if summary_path.is_file() else None
