@@ -18,7 +18,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from mosd.app.chart_model import FittedChart, fitted_chart_of_run
+from mosd.app.chart_model import VARYING_LIMITS, FittedChart, fitted_chart_of_run
+from mosd.detectors.ewma_chart import EWMA, MSOEWMA
 from mosd.detectors.mean_variance import MDEWMA, SSDEWMA, SSEWMA, MaxEWMA
 from mosd.validation import ConfigError
 from test_detector_model import _mosd  # the same subprocess helper
@@ -59,19 +60,21 @@ def fitted_and_decisions(chart, subgroup="window"):
     ucl = np.broadcast_to(decided.threshold, decided.statistic.shape)[0]
     fitted = FittedChart(columns=columns, mean=np.atleast_1d(mean), std=np.atleast_1d(std), subgroup=subgroup,
                          n=N if subgroup == "window" else 3, burn_in=BURN_IN, chart=type(chart).__name__,
-                         lam=chart.lam, K=chart.K, limit=chart.limit,
-                         limit_value=np.nan if chart.limit == "theoretical" else float(ucl[0]))
+                         lam=chart.lam, K=chart.L if isinstance(chart, EWMA) else chart.K, limit=chart.limit,
+                         limit_value=np.nan if chart.limit in VARYING_LIMITS else float(ucl[0]))
     return fitted, decided, streams
 
 
 CASES = [(SSDEWMA, "phase1", "window"), (SSDEWMA, "theoretical", "window"), (SSDEWMA, "normalised", "window"),
          (MDEWMA, "phase1", "window"), (SSEWMA, "theoretical", "window"), (MaxEWMA, "normalised", "window"),
-         (SSDEWMA, "phase1", "channels")]
+         (SSDEWMA, "phase1", "channels"), (EWMA, "phase1", "window"), (EWMA, "asymptotic", "window"),
+         (EWMA, "time_varying", "window"), (EWMA, "time_varying", "channels")]
 
 
 @pytest.mark.parametrize("cls, limit, subgroup", CASES)
 def test_scoring_equals_the_chart_in_one_call_in_chunks_and_row_by_row(cls, limit, subgroup):
-    fitted, decided, streams = fitted_and_decisions(cls(lam=0.25, K=1.0, limit=limit), subgroup)
+    width = {"L": 1.0} if cls is EWMA else {"K": 1.0}
+    fitted, decided, streams = fitted_and_decisions(cls(lam=0.25, limit=limit, **width), subgroup)
     for run, stream in enumerate(streams):
         whole = fitted.score(stream)
         at = whole["subgroup"] > 0
@@ -128,10 +131,17 @@ def test_no_model_for_a_denoised_chart():
     assert fitted_chart_of_run(setup, result).columns == ("residual_y",)
     result.detector = SSDEWMA(denoiser=WaveletDenoiser())
     assert fitted_chart_of_run(setup, result) is None
+    result.detector = EWMA(lam=0.2, L=2.5, limit="time_varying")   # the EWMA chart: its L is the model's width
+    fitted = fitted_chart_of_run(setup, result)
+    assert (fitted.chart, fitted.K, np.isnan(fitted.limit_value)) == ("EWMA", 2.5, True)
+    assert fitted.state_names == ("samples_seen", "smooth_u_1", "pending_1", "pending_2", "pending_3", "pending_4")
+    result.detector = MSOEWMA()   # its wavelet prefilter filters the whole residual series
+    assert fitted_chart_of_run(setup, result) is None
 
 
 @pytest.mark.slow
-def test_main_command_logs_a_model_that_reproduces_its_test_evaluation(tmp_path, stop_process_group):
+@pytest.mark.parametrize("detector", ["ss_dewma", "ewma"])
+def test_main_command_logs_a_model_that_reproduces_its_test_evaluation(tmp_path, stop_process_group, detector):
     import mlflow
     import pandas as pd
     from omegaconf import OmegaConf
@@ -140,8 +150,8 @@ def test_main_command_logs_a_model_that_reproduces_its_test_evaluation(tmp_path,
     from mosd.metrics import DetectionReport
 
     outputs = tmp_path / "out"
-    run = _mosd(["+fault=offset_var", "optimizer=mopso", "optimizer.pop_size=8", "optimizer.n_gen=2",
-                 "budget.n_calibration=3", "budget.n_train=3", "budget.n_test=4", "progress=false"],
+    run = _mosd(["+fault=offset_var", f"detector={detector}", "optimizer=mopso", "optimizer.pop_size=8",
+                 "optimizer.n_gen=2", "budget.n_calibration=3", "budget.n_train=3", "budget.n_test=4", "progress=false"],
                 tmp_path, outputs)
     assert run.returncode == 0, run.stderr[-2000:]
     uri = re.search(r"model (models:/\S+) \(runs:/(\w+)/detector\)", run.stdout)

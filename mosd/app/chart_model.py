@@ -13,15 +13,20 @@ is not part of the model: the CESCKF is the plant's model in code (its dynamics,
 covariances), and a residual is what a plant's own observer, or a historian, gives; carrying the
 filter would tie the model to simulated data (README, "The main command's chart as an MLflow model").
 
+The two-sided EWMA chart (``detector=ewma``, :class:`~mosd.detectors.ewma_chart.EWMA`) is the same
+model with one smoothed feature: E_k, the EWMA of U_k (order 1), plotted |E_k|; its L is stored as
+``K`` (the limit width) and its limits are ``phase1``, ``asymptotic`` (constants: the run's value) and
+``time_varying`` (L·σ_{E_k}, computed per k as the chart does).
+
 Output, one row per input row: ``subgroup`` (the number k = 1, 2, ... of the subgroup this row
-completes, 0 on the rows that complete none), the features ``u`` and ``v`` (U_k, V_k of eqs. 19–20),
-the plotted ``statistic`` and its ``limit``, ``alarm`` (statistic > limit; False on rows that
-complete no subgroup), and the state after the row.
+completes, 0 on the rows that complete none), the features ``u`` and ``v`` (U_k, V_k of eqs. 19–20;
+``u`` alone for the EWMA chart), the plotted ``statistic`` and its ``limit``, ``alarm`` (statistic >
+limit; False on rows that complete no subgroup), and the state after the row.
 
 State. What the next row needs: ``samples_seen`` (rows since the stream's start: the burn-in
 and the position in the current subgroup), the smoothed U and V of the last ``order`` subgroups
-(``smooth_u_1``, ``smooth_u_2``, ``smooth_v_1``, ``smooth_v_2``) and the residuals of the
-unfinished subgroup (``pending_1`` ... ``pending_{n-1}``; only the first ``(samples_seen - burn_in)
+(``smooth_u_1``, ``smooth_u_2``, ``smooth_v_1``, ``smooth_v_2``; ``smooth_u_1`` for the EWMA chart)
+and the residuals of the unfinished subgroup (``pending_1`` ... ``pending_{n-1}``; only the first ``(samples_seen - burn_in)
 mod n`` count). Every output row carries it; ``predict`` takes it as params of the same names
 (default: a stream's start). The recursion is the one of the run's evaluation
 (:func:`mosd.detectors.statistics.ewma_time_major`: y_k = g x_k + Σ_lag f_lag y_{k−lag}, in that
@@ -30,7 +35,8 @@ statistics and the run's own alarms (tests/test_chart_model.py).
 
 Not logged (``fitted_chart_of_run`` returns None): a chart with a denoiser (the paper's wavelet
 needs the whole series: no decision exists before the series ends; ``wavelet_causal`` would need
-its window of past statistics as state), other detectors, other monitors.
+its window of past statistics as state), MS-OEWMA (its wavelet prefilter filters the whole residual
+series), other detectors, other monitors.
 """
 from __future__ import annotations
 
@@ -47,6 +53,10 @@ from ..validation import ConfigError
 STATE_FILE = "chart_detector.npz"
 #: charts this model reproduces (mosd.detectors.mean_variance): class name → (order, combine)
 CHARTS = ("SSDEWMA", "SSEWMA", "MDEWMA", "MaxEWMA")
+#: the two-sided EWMA chart on U_k alone (mosd.detectors.ewma_chart.EWMA): the same recursion, order 1, |E_k|
+EWMA_CHART = "EWMA"
+#: limits that change with k (computed from the chart), the others are the run's constant limit
+VARYING_LIMITS = ("theoretical", "time_varying")
 
 
 def check_columns(columns, tags) -> None:
@@ -71,32 +81,41 @@ class FittedChart:
     subgroup: str              # window | channels (mosd.monitors.subgroups)
     n: int                     # subgroup size
     burn_in: int
-    chart: str                 # a name of CHARTS
+    chart: str                 # a name of CHARTS, or EWMA_CHART
     lam: float
-    K: float
-    limit: str                 # phase1 | theoretical | normalised
-    limit_value: float         # the constant limit of phase1/normalised (the run's evaluation's); NaN for theoretical
+    K: float                   # the limit width: K_SD of the mean–variance charts, L of the EWMA chart
+    limit: str                 # phase1 | theoretical | normalised; EWMA: phase1 | asymptotic | time_varying
+    limit_value: float         # the constant limit (the run's evaluation's); NaN for VARYING_LIMITS
     fill: str = "none"         # no missing-value policy: a residual stream has no gaps (mosd monitor reads this)
 
     # -- building and storing ----------------------------------------------------------
     def _chart(self):
+        if self.chart == EWMA_CHART:
+            from ..detectors.ewma_chart import EWMA
+
+            return EWMA(lam=self.lam, L=self.K, limit=self.limit)
         from ..detectors import mean_variance
 
         return getattr(mean_variance, self.chart)(lam=self.lam, K=self.K, limit=self.limit)
 
     @property
     def order(self) -> int:
-        return int(self._chart().order)
+        return 1 if self.chart == EWMA_CHART else int(self._chart().order)
+
+    @property
+    def parts(self) -> tuple[str, ...]:
+        """The smoothed features: U and V, or U alone for the EWMA chart."""
+        return ("u",) if self.chart == EWMA_CHART else ("u", "v")
 
     @property
     def state_names(self) -> tuple[str, ...]:
-        smooth = tuple(f"smooth_{s}_{lag}" for s in ("u", "v") for lag in range(1, self.order + 1))
+        smooth = tuple(f"smooth_{s}_{lag}" for s in self.parts for lag in range(1, self.order + 1))
         pending = tuple(f"pending_{j}" for j in range(1, self.n)) if self.subgroup == "window" else ()
         return ("samples_seen", *smooth, *pending)
 
     @property
     def outputs(self) -> tuple[str, ...]:
-        return ("subgroup", "u", "v", "statistic", "limit", "alarm", *self.state_names)
+        return ("subgroup", *self.parts, "statistic", "limit", "alarm", *self.state_names)
 
     def initial_state(self) -> dict:
         return {name: (0 if name == "samples_seen" else 0.0) for name in self.state_names}
@@ -142,7 +161,7 @@ class FittedChart:
         state = {**self.initial_state(), **(state or {})}
         chart = self._chart()
         X = np.asarray(X, float).reshape(-1, len(self.columns))
-        rows, n, order = len(X), int(self.n), chart.order
+        rows, n, order, parts = len(X), int(self.n), self.order, self.parts
         seen = int(state["samples_seen"])
         if seen < 0:
             raise ConfigError(f"samples_seen={seen} is out of range; allowed: integers >= 0")
@@ -161,10 +180,10 @@ class FittedChart:
             first, z = done_before, (X[live] - self.mean) / self.std
             complete = len(z)
             closes = live
-        features = chart.features(z[None])[0] if complete else np.empty((2, 0))   # (2, k): U_k, V_k
+        features = chart.features(z[None])[0] if complete else np.empty((len(parts), 0))   # (parts, k): U_k, V_k
         gain, feedback = chart_coefficients(chart)
         smoothed = np.empty_like(features)
-        for s, name in enumerate(("u", "v")):
+        for s, name in enumerate(parts):
             past = [float(state[f"smooth_{name}_{lag}"]) for lag in range(1, order + 1)]
             series = features[s]
             out = smoothed[s]
@@ -176,10 +195,15 @@ class FittedChart:
                 past = [y, *past[:-1]]
                 out[k] = y
         number = first + np.arange(1, complete + 1)             # k of each completed subgroup
-        statistic = chart._combine(smoothed, axis=0) if complete else np.empty(0)
+        if not complete:
+            statistic = np.empty(0)
+        elif self.chart == EWMA_CHART:
+            statistic = np.abs(smoothed[0])                     # EWMA.raw_statistic
+        else:
+            statistic = chart._combine(smoothed, axis=0)
         if self.limit == "normalised" and complete:
             statistic = statistic / chart._scale(int(number[-1]))[number - 1]
-        if self.limit == "theoretical":
+        if self.limit in VARYING_LIMITS:
             limit = chart.control_limit(int(number[-1]))[number - 1] if complete else np.empty(0)
         else:
             limit = np.full(complete, self.limit_value)
@@ -188,9 +212,8 @@ class FittedChart:
         subgroup = np.zeros(rows, np.int64)
         subgroup[at] = number
         out["subgroup"] = subgroup
-        for name, values, empty in (("u", features[0], np.nan), ("v", features[1], np.nan),
-                                    ("statistic", statistic, np.nan), ("limit", limit, np.nan)):
-            column = np.full(rows, empty)
+        for name, values in (*zip(parts, features), ("statistic", statistic), ("limit", limit)):
+            column = np.full(rows, np.nan)
             column[at] = values
             out[name] = column
         alarm = np.zeros(rows, bool)
@@ -199,7 +222,7 @@ class FittedChart:
         # the state after every row: the last completed subgroup's smoothed values carried forward
         out["samples_seen"] = seen + np.arange(1, rows + 1, dtype=np.int64)
         last = np.maximum.accumulate(np.where(closes, np.cumsum(closes) - 1, -1)) if rows else np.zeros(0, int)
-        for s, name in enumerate(("u", "v")):
+        for s, name in enumerate(parts):
             history = [*(float(state[f"smooth_{name}_{lag}"]) for lag in range(order, 0, -1)), *smoothed[s]]
             history = np.asarray(history)                     # oldest first: the carried values, then this call's
             for lag in range(1, order + 1):
@@ -233,7 +256,7 @@ def chart_coefficients(chart) -> tuple[float, list[float]]:
     """Gain λ^order and feedback f_1..f_order of the chart's recursion, as the evaluation computes them."""
     from ..detectors.statistics import ewma_coefficients
 
-    gain, feedback = ewma_coefficients([chart.lam], chart.order)
+    gain, feedback = ewma_coefficients([chart.lam], getattr(chart, "order", 1))  # the EWMA chart: order 1
     return float(gain[0]), [float(f) for f in feedback[0]]
 
 
@@ -242,13 +265,16 @@ def fitted_chart_of_run(setup, result) -> FittedChart | None:
     from ..denoisers.base import NoDenoiser
     from ..monitors.subgroups import SubgroupMonitor
 
+    from ..detectors.ewma_chart import EWMA
+
     detector, monitor = result.detector, setup.experiment.monitor
-    if (type(detector).__name__ not in CHARTS or type(detector).__module__ != "mosd.detectors.mean_variance"
+    mean_variance = type(detector).__name__ in CHARTS and type(detector).__module__ == "mosd.detectors.mean_variance"
+    if (not (mean_variance or type(detector) is EWMA)   # MS-OEWMA's prefilter is another whole-series filter
             or not isinstance(detector.denoiser, NoDenoiser) or type(monitor) is not SubgroupMonitor
             or not hasattr(monitor, "std_")):
         return None
     limit_value = math.nan
-    if detector.limit != "theoretical":
+    if detector.limit not in VARYING_LIMITS:
         ucl = np.asarray(result.example["ucl"], float)
         if not np.all(ucl == ucl[0]):
             return None
@@ -257,5 +283,6 @@ def fitted_chart_of_run(setup, result) -> FittedChart | None:
     columns = tuple(f"residual_{names[c]}" if c < len(names) else f"residual_{c}" for c in monitor.channels)
     return FittedChart(columns=columns, mean=np.asarray(monitor.mean_, float), std=np.asarray(monitor.std_, float),
                        subgroup=str(monitor.subgroup), n=int(monitor.subgroup_size), burn_in=int(monitor.burn_in),
-                       chart=type(detector).__name__, lam=float(detector.lam), K=float(detector.K),
+                       chart=type(detector).__name__, lam=float(detector.lam),
+                       K=float(detector.L if type(detector) is EWMA else detector.K),
                        limit=str(detector.limit), limit_value=limit_value)
