@@ -1,11 +1,8 @@
 """Fixtures shared by several test modules."""
-import os
-import signal
-import subprocess
-
 import numpy as np
 import pytest
 
+from mosd.app import serving
 from mosd.types import SensorSamples, Trace
 
 
@@ -67,17 +64,7 @@ def fresh_python():
     return run
 
 
-def _stop_process_group(process: subprocess.Popen) -> None:
-    """SIGTERM to a server started with ``start_new_session=True`` and its children; SIGKILL after 20 s."""
-    os.killpg(process.pid, signal.SIGTERM)
-    try:
-        process.wait(timeout=20)
-    except subprocess.TimeoutExpired:
-        os.killpg(process.pid, signal.SIGKILL)
-        process.wait()
-
-
 @pytest.fixture
 def stop_process_group():
     """``stop_process_group(process)``: stop a test's server process group (mlflow server, its workers)."""
-    return _stop_process_group
+    return serving.stop_process_group

@@ -9,10 +9,8 @@
 from __future__ import annotations
 
 import json
-import os
 import re
 import subprocess
-import sys
 from types import SimpleNamespace
 
 import numpy as np
@@ -200,39 +198,13 @@ def test_main_command_logs_a_model_that_reproduces_its_test_evaluation(tmp_path,
 
 
 def _served_alarms(model, tracking, residual, names, stop_process_group):
-    import socket
-    import time
-    import urllib.request
+    from mosd.app.serving import predict_served, start_model_server
 
-    from test_detector_model import PACKAGE_PARENT
-
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    env = {**os.environ, "MLFLOW_TRACKING_URI": tracking,
-           "PYTHONPATH": os.pathsep.join(p for p in (PACKAGE_PARENT, os.environ.get("PYTHONPATH")) if p)}
-    server = subprocess.Popen([sys.executable, "-m", "mlflow", "models", "serve", "-m", model, "--host", "127.0.0.1",
-                               "--port", str(port), "--env-manager", "local"], env=env, stdout=subprocess.DEVNULL,
-                              stderr=subprocess.PIPE, start_new_session=True)
+    server, port = start_model_server(model, tracking, timeout=300, stderr=subprocess.PIPE)
     try:
-        deadline = time.monotonic() + 300
-        while True:
-            assert server.poll() is None, server.stderr.read().decode()[-2000:]
-            try:
-                urllib.request.urlopen(f"http://127.0.0.1:{port}/ping", timeout=2)
-                break
-            except OSError:
-                assert time.monotonic() < deadline, "the model server did not answer /ping"
-                time.sleep(1)
         state, alarms = None, []
         for start in range(0, len(residual), 100):
-            body = {"dataframe_split": {"columns": ["residual_x_p"],
-                                        "data": [[float(v)] for v in residual[start:start + 100]]}}
-            if state:
-                body["params"] = state
-            request = urllib.request.Request(f"http://127.0.0.1:{port}/invocations", json.dumps(body).encode(),
-                                             {"Content-Type": "application/json"})
-            rows = json.loads(urllib.request.urlopen(request, timeout=60).read())["predictions"]
+            rows = predict_served(port, ["residual_x_p"], [[float(v)] for v in residual[start:start + 100]], state)
             alarms += [bool(row["alarm"]) for row in rows if row["subgroup"] > 0]
             state = {k: rows[-1][k] for k in names}
         return np.array(alarms)

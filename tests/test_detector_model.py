@@ -220,47 +220,23 @@ def test_run_logs_the_model_and_monitor_reproduces_its_test_evaluation(logged_ru
 
 
 @pytest.mark.slow
-def test_mlflow_models_serve_gives_the_same_alarms(logged_run):
+def test_mlflow_models_serve_gives_the_same_alarms(logged_run, stop_process_group):
     """``mlflow models serve --env-manager local`` on 127.0.0.1: requests of 100 rows, state carried in params."""
-    import socket
-    import time
-    import urllib.request
+    from mosd.app.serving import predict_served, start_model_server
 
     r = logged_run
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    env = {**os.environ, "MLFLOW_TRACKING_URI": r["tracking"],
-           "PYTHONPATH": os.pathsep.join(p for p in (PACKAGE_PARENT, os.environ.get("PYTHONPATH")) if p)}
-    server = subprocess.Popen([sys.executable, "-m", "mlflow", "models", "serve", "-m", r["model"], "--host",
-                               "127.0.0.1", "--port", str(port), "--env-manager", "local"], env=env,
-                              stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, start_new_session=True)
+    server, port = start_model_server(r["model"], r["tracking"], timeout=300, stderr=subprocess.PIPE)
     try:
-        deadline = time.monotonic() + 300
-        while True:
-            assert server.poll() is None, server.stderr.read().decode()[-2000:]
-            try:
-                urllib.request.urlopen(f"http://127.0.0.1:{port}/ping", timeout=2)
-                break
-            except OSError:
-                assert time.monotonic() < deadline, "the model server did not answer /ping"
-                time.sleep(1)
         test = r["table"].iloc[900:].drop(columns=["time", "fault"])
         state, alarms = None, []
         for start in range(0, len(test), 100):
             chunk = test.iloc[start:start + 100]
-            body = {"dataframe_split": {"columns": list(chunk.columns), "data": chunk.to_numpy().tolist()}}
-            if state:
-                body["params"] = state
-            request = urllib.request.Request(f"http://127.0.0.1:{port}/invocations", json.dumps(body).encode(),
-                                             {"Content-Type": "application/json"})
-            rows = json.loads(urllib.request.urlopen(request, timeout=60).read())["predictions"]
+            rows = predict_served(port, list(chunk.columns), chunk.to_numpy().tolist(), state)
             alarms += [bool(row["alarm"]) for row in rows]
             state = {k: rows[-1][k] for k in STATE}
         assert np.array_equal(alarms, r["expected"])
     finally:
-        os.killpg(server.pid, 15)
-        server.wait(timeout=30)
+        stop_process_group(server)
 
 
 @pytest.mark.slow

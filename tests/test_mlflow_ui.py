@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import os
 import shutil
-import signal
 import subprocess
 import sys
 import tempfile
@@ -28,6 +27,7 @@ from pathlib import Path
 import pytest
 
 from mosd.app.mlflow_client import MlflowStore
+from mosd.app.serving import free_port, stop_process_group
 from mosd.app.settings import TrackingSettings
 
 #: the tag MLflow reads for an experiment's kind, and the kind of a training-runs experiment
@@ -74,14 +74,6 @@ def test_an_experiment_made_before_gets_the_kind_and_a_chosen_kind_is_kept(tmp_p
 # ---------------------------------------------------------------------------------------
 # the browser
 # ---------------------------------------------------------------------------------------
-def _free_port() -> int:
-    import socket
-
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def _env(outputs: Path) -> dict:
     from test_app import PACKAGE_PARENT
 
@@ -95,7 +87,7 @@ def _serve(store: Path, log: Path) -> tuple[subprocess.Popen, str]:
     """``mlflow server --workers 1`` on a free loopback port, once it answers /health."""
     mlflow_cli = shutil.which("mlflow", path=str(Path(sys.executable).parent)) or shutil.which("mlflow")
     assert mlflow_cli is not None, "the mlflow command is not installed"
-    port = _free_port()
+    port = free_port()
     server = subprocess.Popen([mlflow_cli, "server", "--workers", "1", "--host", "127.0.0.1", "--port", str(port),
                                "--backend-store-uri", f"sqlite:///{store}"], stdout=log.open("w"),
                               stderr=subprocess.STDOUT, start_new_session=True,
@@ -109,18 +101,9 @@ def _serve(store: Path, log: Path) -> tuple[subprocess.Popen, str]:
                 return server, url
         except OSError:
             if time.monotonic() > deadline:
-                _stop(server)
+                stop_process_group(server)
                 raise AssertionError(f"mlflow server did not answer within 180 s:\n{log.read_text()[-3000:]}")
             time.sleep(0.5)
-
-
-def _stop(process: subprocess.Popen) -> None:
-    os.killpg(process.pid, signal.SIGTERM)
-    try:
-        process.wait(timeout=20)
-    except subprocess.TimeoutExpired:
-        os.killpg(process.pid, signal.SIGKILL)
-        process.wait()
 
 
 def _browser(profile: Path):
@@ -184,7 +167,7 @@ def served_sweep(tmp_path_factory):
     try:
         yield root, url
     finally:
-        _stop(server)
+        stop_process_group(server)
 
 
 @pytest.fixture

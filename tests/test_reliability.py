@@ -28,6 +28,7 @@ import pytest
 
 from mosd.app import preflight as preflight_module
 from mosd.app import checks, mlflow_client, store
+from mosd.app.serving import free_port
 from mosd.app.settings import TrackingSettings
 from mosd.app.config import UsageError
 from mosd.validation import ConfigError
@@ -36,12 +37,6 @@ from test_app import FINAL_METRICS, mosd
 
 SMALL = ["optimizer.pop_size=10", "optimizer.n_gen=3", "budget.n_test=3", "budget.n_train=3",
          "budget.n_calibration=3", "optimizer.n_jobs=1", "progress=false"]
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def one_line_exit_2(result) -> str:

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import json
 import os
-import socket
 import subprocess
 import sys
 from pathlib import Path
@@ -22,6 +21,7 @@ import mosd as mosd_package
 from mosd.app import preflight as preflight_module
 from mosd.app.build import build
 from mosd.app.config import CONFIG_DIR
+from mosd.app.serving import free_port
 from mosd.detectors import SSDEWMA
 from mosd.optim import backends
 from mosd.optim.backends import DaskEvaluation, check_backend, check_scheduler
@@ -31,13 +31,6 @@ from mosd.validation import ConfigError
 PACKAGE_PARENT = str(Path(mosd_package.__file__).resolve().parents[1])
 TINY = ["+fault=offset", "optimizer.pop_size=10", "optimizer.n_gen=3", "budget.n_test=5", "budget.n_train=3",
         "budget.n_calibration=3", "tracking=none", "progress=false"]
-
-
-def _free_port() -> int:
-    """A port nothing listens on (bound and released: the kernel does not hand it out again at once)."""
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
 
 
 @pytest.fixture(scope="module")
@@ -104,7 +97,7 @@ def test_the_app_refuses_a_bad_backend_before_any_work(tmp_path, monkeypatch):
     with pytest.raises(ConfigError, match=r"optimizer\.backend='ray' is not allowed; allowed: loky, dask"):
         preflight_module.preflight(["+fault=offset", "optimizer.backend=ray", "tracking=none"])
     # an address where no scheduler listens: refused by preflight, before the simulation
-    port = _free_port()
+    port = free_port()
     with pytest.raises(ConfigError, match=rf"dask_address='tcp://127.0.0.1:{port}': no Dask scheduler answers"):
         preflight_module.preflight(["+fault=offset", "optimizer.backend=dask", "tracking=none",
                                     f"optimizer.dask_address=tcp://127.0.0.1:{port}"])
@@ -194,7 +187,7 @@ def test_a_failing_evaluation_propagates_and_close_leaves_a_foreign_cluster_up(l
 
 
 def test_unreachable_address_is_one_line(evaluator):
-    port = _free_port()
+    port = free_port()
     with pytest.raises(ConfigError, match=rf"optimizer\.dask_address='tcp://127.0.0.1:{port}': could not connect"):
         DaskEvaluation(evaluator, n_jobs=2, address=f"tcp://127.0.0.1:{port}", timeout=1.0)
 

@@ -21,7 +21,6 @@ import os
 import pwd
 import secrets
 import shutil
-import signal
 import subprocess
 import sys
 import tempfile
@@ -32,6 +31,7 @@ from pathlib import Path
 
 import pytest
 
+from mosd.app.serving import free_port
 from test_app import FINAL_METRICS, PACKAGE_PARENT
 
 pytestmark = pytest.mark.slow
@@ -40,14 +40,6 @@ BUDGET = ["optimizer.pop_size=6", "optimizer.n_gen=2", "budget.n_test=2", "budge
           "optimizer.n_jobs=1", "progress=false", "scenario.duration=3"]
 #: the unprivileged user that runs the server when the tests run as root
 SERVER_USER = "postgres"
-
-
-def _free_port() -> int:
-    import socket
-
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def _bindir() -> Path:
@@ -71,7 +63,7 @@ def throwaway_postgres(databases: tuple[str, ...] = ("direct", "server", "masked
     """``postgresql://mlflow:PASSWORD@127.0.0.1:PORT``: a fresh cluster, stopped and deleted afterwards."""
     bindir = _bindir()
     home = Path(tempfile.mkdtemp(prefix="mosd-pg-"))  # under /tmp: the server user can reach it
-    data, port, password = home / "data", _free_port(), secrets.token_hex(12)
+    data, port, password = home / "data", free_port(), secrets.token_hex(12)
     try:
         (home / "pw").write_text(password + "\n")
         if os.geteuid() == 0:
@@ -204,7 +196,7 @@ def test_a_password_in_the_uri_is_masked_everywhere_mosd_prints_or_records_it(po
 
 def test_mosd_writes_through_an_mlflow_server_on_postgresql(postgres, tmp_path, stop_process_group):
     mlflow_cli = _mlflow_cli()
-    port = _free_port()
+    port = free_port()
     url = f"http://127.0.0.1:{port}"
     log = tmp_path / "server.log"
     server = subprocess.Popen([mlflow_cli, "server", "--workers", "1", "--host", "127.0.0.1", "--port", str(port),

@@ -40,7 +40,6 @@ series), other detectors, other monitors.
 """
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -49,6 +48,7 @@ from typing import Mapping
 import numpy as np
 
 from ..validation import ConfigError
+from .model_files import read_arrays, save_arrays
 
 STATE_FILE = "chart_detector.npz"
 #: charts this model reproduces (mosd.detectors.mean_variance): class name → (order, combine)
@@ -121,22 +121,15 @@ class FittedChart:
         return {name: (0 if name == "samples_seen" else 0.0) for name in self.state_names}
 
     def save(self, directory: str | Path) -> Path:
-        directory = Path(directory)
-        directory.mkdir(parents=True, exist_ok=True)
         meta = {k: getattr(self, k) for k in ("subgroup", "n", "burn_in", "chart", "lam", "K", "limit",
                                               "limit_value", "fill")}
-        path = directory / STATE_FILE
-        np.savez(path, mean=self.mean, std=self.std, columns=np.array(self.columns), meta=np.array(json.dumps(meta)))
-        return path
+        return save_arrays(Path(directory) / STATE_FILE, meta, mean=self.mean, std=self.std,
+                           columns=np.array(self.columns))
 
     @classmethod
     def load(cls, path: str | Path) -> "FittedChart":
-        path = Path(path)
-        if path.is_dir():
-            path = path / STATE_FILE
-        with np.load(path, allow_pickle=False) as f:
-            return cls(columns=tuple(str(c) for c in f["columns"]), mean=f["mean"], std=f["std"],
-                       **json.loads(str(f["meta"])))
+        arrays, meta = read_arrays(path, STATE_FILE)
+        return cls(columns=tuple(str(c) for c in arrays.pop("columns")), **arrays, **meta)
 
     # -- scoring ------------------------------------------------------------------------
     def rows(self, frame) -> np.ndarray:

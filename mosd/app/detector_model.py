@@ -23,7 +23,6 @@ or wrap the model); the science core knows nothing of it.
 """
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Mapping
@@ -31,6 +30,7 @@ from typing import Mapping
 import numpy as np
 
 from ..validation import ConfigError
+from .model_files import read_arrays, save_arrays
 
 #: the carried state: output columns of every row and params of ``predict``
 STATE = ("ewma_t2", "ewma_spe", "run_length")
@@ -82,24 +82,15 @@ class FittedPCA:
 
     def save(self, directory: str | Path) -> Path:
         """Write the arrays and the design to ``directory/pca_detector.npz``; returns the file."""
-        directory = Path(directory)
-        directory.mkdir(parents=True, exist_ok=True)
         meta = {k: getattr(self, k) for k in ("n_fit", "n_components", "alpha", "lam", "persistence", "statistic",
                                               "t2_limit", "spe_limit", "t2_start", "spe_start", "fill")}
-        path = directory / STATE_FILE
-        np.savez(path, mean=self.mean, scale=self.scale, loadings=self.loadings, eigenvalues=self.eigenvalues,
-                 tags=np.array(self.tags), meta=np.array(json.dumps(meta)))
-        return path
+        return save_arrays(Path(directory) / STATE_FILE, meta, mean=self.mean, scale=self.scale,
+                           loadings=self.loadings, eigenvalues=self.eigenvalues, tags=np.array(self.tags))
 
     @classmethod
     def load(cls, path: str | Path) -> "FittedPCA":
-        path = Path(path)
-        if path.is_dir():
-            path = path / STATE_FILE
-        with np.load(path, allow_pickle=False) as f:
-            meta = json.loads(str(f["meta"]))
-            return cls(tags=tuple(str(t) for t in f["tags"]), mean=f["mean"], scale=f["scale"],
-                       loadings=f["loadings"], eigenvalues=f["eigenvalues"], **meta)
+        arrays, meta = read_arrays(path, STATE_FILE)
+        return cls(tags=tuple(str(t) for t in arrays.pop("tags")), **arrays, **meta)
 
     def _model(self):
         """A :class:`~mosd.detectors.pca.PCAModel` with these arrays (no refit)."""
@@ -545,19 +536,14 @@ def serve_benchmark(quick: bool = False, rows_per_request: int = 100) -> dict:
     and reports the median and the 90th percentile of the round trip in ms. The server's process group
     is stopped and the store removed whatever happens.
     """
-    import json as _json
     import os
-    import signal
-    import socket
-    import subprocess
-    import sys
     import tempfile
     import time
-    import urllib.request
 
     import pandas as pd
 
     from ..detectors.pca import PCADetector
+    from .serving import invocation, predictions, start_model_server, stop_process_group
 
     try:
         from ..data.tep import TennesseeEastman, bibmon_directory
@@ -577,7 +563,6 @@ def serve_benchmark(quick: bool = False, rows_per_request: int = 100) -> dict:
     fitted = FittedPCA.from_detector(PCADetector(n_components=9, alpha=0.01, fit_runs=1), calibration, tags)
     frame = pd.DataFrame(test.reshape(-1, len(tags)), columns=tags)
     n_requests = 20 if quick else 60
-    package_parent = str(Path(__file__).resolve().parents[2])
     import logging
     import warnings
 
@@ -596,48 +581,21 @@ def serve_benchmark(quick: bool = False, rows_per_request: int = 100) -> dict:
         run_id = client.create_run(experiment).info.run_id
         uri = log_model(str(fitted.save(Path(tmp) / "model")), tracking, run_id)
         client.set_terminated(run_id)
-        with socket.socket() as s:
-            s.bind(("127.0.0.1", 0))
-            port = s.getsockname()[1]
-        env = {**os.environ, "MLFLOW_TRACKING_URI": tracking,
-               "PYTHONPATH": os.pathsep.join(p for p in (package_parent, os.environ.get("PYTHONPATH")) if p)}
-        server = subprocess.Popen([sys.executable, "-m", "mlflow", "models", "serve", "-m", uri, "--host", "127.0.0.1",
-                                   "--port", str(port), "--env-manager", "local"], env=env,
-                                  stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+        t0 = time.monotonic()
+        server, port = start_model_server(uri, tracking)
         try:
-            t0 = time.monotonic()
-            while True:
-                if server.poll() is not None:
-                    raise RuntimeError(f"mlflow models serve exited with {server.returncode}")
-                try:
-                    urllib.request.urlopen(f"http://127.0.0.1:{port}/ping", timeout=2)
-                    break
-                except OSError:
-                    if time.monotonic() - t0 > 180:
-                        raise RuntimeError("mlflow models serve did not answer /ping within 180 s") from None
-                    time.sleep(0.5)
             started = time.monotonic() - t0
             state, times = None, []
             for i in range(n_requests + 1):
                 start = (i * rows_per_request) % (len(frame) - rows_per_request)
-                chunk = frame.iloc[start:start + rows_per_request]
-                body = {"dataframe_split": {"columns": tags, "data": chunk.to_numpy().tolist()}}
-                if state:
-                    body["params"] = state
-                request = urllib.request.Request(f"http://127.0.0.1:{port}/invocations", _json.dumps(body).encode(),
-                                                 {"Content-Type": "application/json"})
+                request = invocation(port, tags, frame.iloc[start:start + rows_per_request].to_numpy().tolist(), state)
                 t1 = time.perf_counter()
-                answer = _json.loads(urllib.request.urlopen(request, timeout=60).read())["predictions"]
+                answer = predictions(request)
                 if i:  # the first request loads what the server defers: not measured
                     times.append(time.perf_counter() - t1)
                 state = {k: answer[-1][k] for k in STATE}
         finally:
-            os.killpg(server.pid, signal.SIGTERM)
-            try:
-                server.wait(timeout=20)
-            except subprocess.TimeoutExpired:
-                os.killpg(server.pid, signal.SIGKILL)
-                server.wait()
+            stop_process_group(server)
     return {"serve_latency_ms": float(np.median(times)) * 1e3, "serve_latency_p90_ms": float(np.percentile(times, 90)) * 1e3,
             "serve_requests": n_requests, "serve_rows_per_request": rows_per_request, "serve_start_s": started,
             "serve_source": source, "load_average_1min": os.getloadavg()[0]}
