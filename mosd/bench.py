@@ -507,7 +507,7 @@ def bench_tep(quick: bool = False) -> tuple[list, dict]:
 
 def _with_monitor(r: dict, quick: bool) -> tuple[list, dict]:
     """bench_tep's rows and figures plus the logged model's scoring speed beside bibmon's (mosd.app.detector_model)."""
-    from .app.detector_model import monitor_benchmark
+    from .app.model_bench import monitor_benchmark
 
     m = monitor_benchmark(quick)
     load = f"load average {m['load_average_1min_before']:.1f} -> {m['load_average_1min_after']:.1f}"
@@ -542,7 +542,7 @@ def _with_monitor(r: dict, quick: bool) -> tuple[list, dict]:
 
 def bench_serve(quick: bool = False) -> tuple[list, dict]:
     """``mlflow models serve`` of a logged model: median latency of a request of 100 rows (mosd.app.detector_model)."""
-    from .app.detector_model import serve_benchmark
+    from .app.model_bench import serve_benchmark
 
     try:
         r = serve_benchmark(quick)

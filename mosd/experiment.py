@@ -95,6 +95,15 @@ class ExperimentResult:
         return self.test.summary()
 
 
+def first_replication(outputs: Residuals) -> Residuals:
+    """The first replication of an estimator's outputs (every per-replication array cut to R = 1)."""
+    def first(value):
+        return value[:1] if isinstance(value, np.ndarray) and value.ndim >= 2 else value
+
+    return replace(outputs, r=outputs.r[:1], fault_mask=outputs.fault_mask[:1], cov=first(outputs.cov),
+                   extra={k: first(v) for k, v in outputs.extra.items()}, fault_label=first(outputs.fault_label))
+
+
 def _truth(subgroups: Subgroups) -> Subgroups:
     """The fault truth of some points without the points (what workers need to score)."""
     return replace(subgroups, z=np.empty((0,)))
@@ -210,6 +219,11 @@ class Experiment:
             "dt": self.plant.dt,
             "seconds_per_point": float(np.median(np.diff(subgroups.t))) if subgroups.t is not None
             and len(subgroups.t) > 1 else float(self.plant.dt),
+            # what the run's deployed pipeline is built and checked with (mosd.app.model): the monitor's
+            # calibration points, the first test replication's estimator outputs and its decisions
+            "calibration_z": data.phase1.z,
+            "first_outputs": first_replication(test_res),
+            "decision": np.asarray(decided.decision[0]),
         }
         return report, example
 

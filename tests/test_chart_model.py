@@ -1,7 +1,9 @@
-"""The main command's tuned chart as an MLflow pyfunc model on a residual stream (issue 24, mosd.app.chart_model).
+"""The main command's tuned chart as the run's deployed pipeline on a residual stream (issues 24 and 28).
 
-* :class:`FittedChart` gives the statistics, limits and alarms of :meth:`Chart.decide` (bit for bit), for
-  every mean–variance chart and limit, in one call, in chunks and row by row with the state carried;
+* the pipeline (:class:`~mosd.monitors.subgroups.OnlineSubgroups` → :class:`~mosd.detectors.chart.OnlineChart`,
+  built by the components' ``online``) gives the statistics, limits and alarms of :meth:`Chart.decide` (bit
+  for bit, its limit included), for every mean–variance chart and limit, in one call, in chunks and row by
+  row with the state carried;
 * end to end (slow): the main command (small budget) logs a loadable model, and the model, in-process chunk
   by chunk through MLflow's params, through ``mosd monitor`` and through ``mlflow models serve``, alarms on
   the run's own test residuals where the run's test evaluation alarmed (its FAR and MDR in summary.json).
@@ -11,14 +13,15 @@ from __future__ import annotations
 import json
 import re
 import subprocess
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
-from mosd.app.chart_model import VARYING_LIMITS, FittedChart, fitted_chart_of_run
 from mosd.detectors.ewma_chart import EWMA, MSOEWMA
 from mosd.detectors.mean_variance import MDEWMA, SSDEWMA, SSEWMA, MaxEWMA
+from mosd.monitors.subgroups import SubgroupMonitor
+from mosd.streaming import NoStreamingForm, OnlinePipeline
+from mosd.types import Residuals
 from mosd.validation import ConfigError
 from test_detector_model import _mosd  # the same subprocess helper
 
@@ -33,34 +36,31 @@ def residual_runs(n_runs, length=420, seed=0, shift_at=None):
     return r
 
 
+def _residuals(r):
+    r = r if r.ndim == 3 else r[..., None]
+    return Residuals(r=r, fault_mask=np.zeros(r.shape[:2], bool), channels=tuple("abc"[:r.shape[-1]]))
+
+
 def fitted_and_decisions(chart, subgroup="window"):
-    """A FittedChart from Phase-I runs and the chart's own decisions on test runs."""
+    """The pipeline the components build from Phase-I runs, and the chart's own decisions on test runs."""
     calibration, test = residual_runs(3, seed=1), residual_runs(2, seed=2, shift_at=250)
     if subgroup == "window":
-        mean, std = calibration[:, BURN_IN:].mean(keepdims=True)[0], calibration[:, BURN_IN:].std(ddof=1, keepdims=True)[0]
-
-        def subgroups(r):
-            z = (r[:, BURN_IN:, None] - mean) / std
-            k = z.shape[1] // N
-            return z[:, :k * N, 0].reshape(len(r), k, N)
-        columns = ("residual_a",)
+        monitor = SubgroupMonitor(subgroup="window", n=N, channels=(0,), burn_in=BURN_IN)
         streams = test[..., None]
     else:  # three channels, each row one subgroup
         calibration = np.stack([calibration, residual_runs(3, seed=3), residual_runs(3, seed=4)], axis=-1)
         streams = np.stack([test, residual_runs(2, seed=5), residual_runs(2, seed=6, shift_at=250)], axis=-1)
-        mean = calibration[:, BURN_IN:].reshape(-1, 3).mean(axis=0)
-        std = calibration[:, BURN_IN:].reshape(-1, 3).std(axis=0, ddof=1)
+        monitor = SubgroupMonitor(subgroup="channels", channels=(0, 1, 2), burn_in=BURN_IN)
+    calibration_z = monitor.fit(_residuals(calibration)).transform(_residuals(calibration)).z
+    decided = chart.decide(calibration_z, monitor.transform(_residuals(streams)).z)
+    columns = tuple(f"residual_{c}" for c in "abc"[:streams.shape[-1]])
+    pipeline = OnlinePipeline([monitor.online(columns), chart.online(calibration_z)])
+    return pipeline, decided, streams
 
-        def subgroups(r):
-            return (r[:, BURN_IN:] - mean) / std
-        columns = ("residual_a", "residual_b", "residual_c")
-    decided = chart.decide(subgroups(calibration), subgroups(streams if subgroup == "channels" else test))
-    ucl = np.broadcast_to(decided.threshold, decided.statistic.shape)[0]
-    fitted = FittedChart(columns=columns, mean=np.atleast_1d(mean), std=np.atleast_1d(std), subgroup=subgroup,
-                         n=N if subgroup == "window" else 3, burn_in=BURN_IN, chart=type(chart).__name__,
-                         lam=chart.lam, K=chart.L if isinstance(chart, EWMA) else chart.K, limit=chart.limit,
-                         limit_value=np.nan if chart.limit in VARYING_LIMITS else float(ucl[0]))
-    return fitted, decided, streams
+
+def score(pipeline, stream, state=None):
+    """The pipeline's outputs for a stream (rows, channels)."""
+    return pipeline.update({name: stream[:, j] for j, name in enumerate(pipeline.inputs)}, state)
 
 
 CASES = [(SSDEWMA, "phase1", "window"), (SSDEWMA, "theoretical", "window"), (SSDEWMA, "normalised", "window"),
@@ -72,9 +72,9 @@ CASES = [(SSDEWMA, "phase1", "window"), (SSDEWMA, "theoretical", "window"), (SSD
 @pytest.mark.parametrize("cls, limit, subgroup", CASES)
 def test_scoring_equals_the_chart_in_one_call_in_chunks_and_row_by_row(cls, limit, subgroup):
     width = {"L": 1.0} if cls is EWMA else {"K": 1.0}
-    fitted, decided, streams = fitted_and_decisions(cls(lam=0.25, limit=limit, **width), subgroup)
+    pipeline, decided, streams = fitted_and_decisions(cls(lam=0.25, limit=limit, **width), subgroup)
     for run, stream in enumerate(streams):
-        whole = fitted.score(stream)
+        whole = score(pipeline, stream)
         at = whole["subgroup"] > 0
         assert np.array_equal(whole["subgroup"][at], np.arange(1, decided.statistic.shape[-1] + 1))
         assert np.array_equal(whole["statistic"][at], decided.statistic[run])        # bit for bit
@@ -84,18 +84,18 @@ def test_scoring_equals_the_chart_in_one_call_in_chunks_and_row_by_row(cls, limi
         for size in (1, 3, 7, 100):
             state, parts = None, []
             for start in range(0, len(stream), size):
-                out = fitted.score(stream[start:start + size], state)
-                state = {k: out[k][-1] for k in fitted.state_names}
+                out = score(pipeline, stream[start:start + size], state)
+                state = pipeline.final_state(out, state)
                 parts.append(out)
-            for key in fitted.outputs:  # every output, the state of every row included
+            for key in pipeline.outputs:  # every output, the state of every row included
                 assert np.array_equal(np.concatenate([p[key] for p in parts]), whole[key], equal_nan=True), (key, size)
 
 
 def test_without_the_carried_state_chunks_differ():
-    fitted, decided, streams = fitted_and_decisions(SSDEWMA(lam=0.25, K=1.0))
-    expected = fitted.score(streams[0])["alarm"]
+    pipeline, decided, streams = fitted_and_decisions(SSDEWMA(lam=0.25, K=1.0))
+    expected = score(pipeline, streams[0])["alarm"]
     # each chunk from a stream's start: the burn-in, the subgroups and the EWMA all restart
-    restarted = np.concatenate([fitted.score(streams[0][s:s + 60], {"samples_seen": BURN_IN})["alarm"]
+    restarted = np.concatenate([score(pipeline, streams[0][s:s + 60], {"samples_seen": BURN_IN})["alarm"]
                                 for s in range(0, len(streams[0]), 60)])
     assert not np.array_equal(restarted, expected)
 
@@ -103,38 +103,40 @@ def test_without_the_carried_state_chunks_differ():
 def test_columns_any_order_missing_extra_or_not_a_number_is_one_line(tmp_path):
     import pandas as pd
 
-    fitted, _, streams = fitted_and_decisions(SSDEWMA(lam=0.25, K=1.0), "channels")
-    fitted = FittedChart.load(fitted.save(tmp_path))
-    frame = pd.DataFrame(streams[0], columns=fitted.columns)
-    pd.testing.assert_frame_equal(fitted.predict_frame(frame), fitted.predict_frame(frame[list(fitted.columns[::-1])]))
+    pipeline, _, streams = fitted_and_decisions(SSDEWMA(lam=0.25, K=1.0), "channels")
+    pipeline = OnlinePipeline.load(pipeline.save(tmp_path))
+    frame = pd.DataFrame(streams[0], columns=pipeline.inputs)
+    pd.testing.assert_frame_equal(pipeline.predict_frame(frame),
+                                  pipeline.predict_frame(frame[list(pipeline.inputs[::-1])]))
     with pytest.raises(ConfigError, match=r"^input column 'residual_b' is missing"):
-        fitted.predict_frame(frame.drop(columns=["residual_b"]))
+        pipeline.predict_frame(frame.drop(columns=["residual_b"]))
     with pytest.raises(ConfigError, match=r"^input column 'time' is not an input of the model"):
-        fitted.predict_frame(frame.assign(time=1.0))
+        pipeline.predict_frame(frame.assign(time=1.0))
     text = frame.astype(object)
     text.iloc[7, 2] = "Bad"
     with pytest.raises(ConfigError, match=r"^input column 'residual_c' row 7 is 'Bad', not a finite number"):
-        fitted.predict_frame(text)
+        pipeline.predict_frame(text)
 
 
-def test_no_model_for_a_denoised_chart():
-    """The paper's whole-series wavelet decides nothing before the series ends: no streaming model."""
+def test_no_causal_form_for_a_whole_series_filter_and_the_state_names():
+    """The paper's whole-series wavelet decides nothing before the series ends: no streaming form, one line why."""
     from mosd.denoisers.wavelet import WaveletDenoiser
-    from mosd.monitors.subgroups import SubgroupMonitor
 
-    monitor = SubgroupMonitor()
+    calibration_z = np.random.default_rng(0).standard_normal((2, 40, N))
+    with pytest.raises(NoStreamingForm, match="filters the whole series"):
+        SSDEWMA(denoiser=WaveletDenoiser()).online(calibration_z)
+    with pytest.raises(NoStreamingForm, match="whole residual series"):
+        MSOEWMA().online(calibration_z)   # its wavelet prefilter filters the whole residual series
+    chart = EWMA(lam=0.2, L=2.5, limit="time_varying").online(calibration_z)   # the EWMA chart: L is its width
+    assert (chart.design["L"], np.isnan(chart.limit_value)) == (2.5, True)
+    monitor = SubgroupMonitor(n=N)
     monitor.mean_, monitor.std_ = np.zeros(1), np.ones(1)
-    setup = SimpleNamespace(experiment=SimpleNamespace(monitor=monitor, plant=SimpleNamespace(output_names=("y",))))
-    result = SimpleNamespace(detector=SSDEWMA(), example={"ucl": np.full(4, 2.5)})
-    assert fitted_chart_of_run(setup, result).columns == ("residual_y",)
-    result.detector = SSDEWMA(denoiser=WaveletDenoiser())
-    assert fitted_chart_of_run(setup, result) is None
-    result.detector = EWMA(lam=0.2, L=2.5, limit="time_varying")   # the EWMA chart: its L is the model's width
-    fitted = fitted_chart_of_run(setup, result)
-    assert (fitted.chart, fitted.K, np.isnan(fitted.limit_value)) == ("EWMA", 2.5, True)
-    assert fitted.state_names == ("samples_seen", "smooth_u_1", "pending_1", "pending_2", "pending_3", "pending_4")
-    result.detector = MSOEWMA()   # its wavelet prefilter filters the whole residual series
-    assert fitted_chart_of_run(setup, result) is None
+    pipeline = OnlinePipeline([monitor.online(("residual_y",)), chart])
+    assert pipeline.state_names == ("samples_seen", "pending_1", "pending_2", "pending_3", "pending_4", "smooth_u_1")
+    with pytest.raises(ConfigError, match=r"^state param samples_seen=-5 is out of range; allowed: integers in"):
+        pipeline.update({"residual_y": np.zeros(3)}, {"samples_seen": -5})
+    with pytest.raises(ConfigError, match=r"^state param smooth_u_1=1e\+308 is out of range"):
+        pipeline.update({"residual_y": np.zeros(3)}, {"smooth_u_1": 1e308})
 
 
 @pytest.mark.slow

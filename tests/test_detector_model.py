@@ -1,7 +1,8 @@
-"""The tuned recorded-data detector as an MLflow pyfunc model, and ``python -m mosd monitor`` (issue 24).
+"""The tuned recorded-data detector as an MLflow pyfunc model, and ``python -m mosd monitor`` (issues 24, 28).
 
-* :class:`mosd.app.detector_model.FittedPCA` alarms where :class:`PCADetector.decide` alarms (EWMA and
-  persistence included), in one call, in chunks and row by row with the state carried;
+* :class:`mosd.detectors.pca.OnlinePCA` (``PCADetector.online``) alarms where :class:`PCADetector.decide`
+  alarms (EWMA and persistence included), bit for bit, in one call, in chunks and row by row with the
+  state carried;
 * a missing or extra column is a one-line error naming it; column order does not matter;
 * end to end: a ``data=table`` run logs the model, its URI is in the summary, and ``mosd monitor`` on the
   test split's rows gives the run's own test FAR and MDR and the detector's alarms row by row.
@@ -18,8 +19,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mosd.app.detector_model import STATE, FittedPCA
 from mosd.detectors.pca import PCADetector
+from mosd.monitors.outputs import OnlineSelect
+from mosd.streaming import OnlinePipeline
 from mosd.validation import ConfigError
 
 PACKAGE_PARENT = str(Path(__file__).resolve().parents[1])
@@ -37,6 +39,27 @@ def plant(n=1200, seed=0):
     return X, label
 
 
+def _same(a, b):
+    return np.array_equal(a, b, equal_nan=a.dtype.kind == "f")
+
+
+class FittedPCA:
+    """The pipeline a PCA run deploys (OnlineSelect → OnlinePCA), scored on tag rows."""
+
+    def __init__(self, detector, calibration, tags=TAGS):
+        self.pipeline = OnlinePipeline([OnlineSelect(columns=tuple(tags), burn_in=0), detector.online(calibration, tags)])
+        self.pca = self.pipeline.stages[-1]
+
+    def score(self, X, state=None, top=True):
+        if top:
+            return self.pipeline.update({t: X[:, j] for j, t in enumerate(self.pipeline.inputs)}, state)
+        columns = {"point": np.ones(len(X), np.int64), **{f"z_{j + 1}": X[:, j] for j in range(X.shape[1])}}
+        return self.pca.update(columns, {**self.pca.initial_state(), **(state or {})}, top=False)
+
+    def state(self, out):
+        return {k: out[k][-1] for k in self.pipeline.state_names}
+
+
 DESIGNS = [dict(n_components=2, alpha=0.01, lam=1.0, persistence=1),
            dict(n_components=3, alpha=0.05, lam=0.3, persistence=3),
            dict(n_components=2, alpha=0.1, lam=0.7, persistence=2, statistic="spe")]
@@ -49,42 +72,44 @@ def test_scoring_equals_the_detector_in_one_call_in_chunks_and_row_by_row(design
     test = X[600:][None]
     detector = PCADetector(fit_runs=1, max_components=5, **design)
     expected = detector.decide(calibration, test).decision[0].astype(bool)
-    fitted = FittedPCA.from_detector(detector, calibration, TAGS)
+    fitted = FittedPCA(detector, calibration)
     whole = fitted.score(test[0])
     assert np.array_equal(whole["alarm"], expected)
     assert 0 < expected.sum() < expected.size               # something to get wrong either way
-    # row by row, each call from the previous row's state
-    state, alarms, t2 = None, [], []
+    # the detector's own statistic: the ratio to the limit, bit for bit (one arithmetic)
+    ratio = detector.population(calibration, test, detector.design()).statistic[0, 0]
+    assert np.array_equal(whole["ratio"], ratio)
+    # row by row, each call from the previous row's state: the same bits
+    state, parts = None, []
     for row in test[0]:
         out = fitted.score(row[None], state)
-        state = {k: out[k][-1] for k in STATE}
-        alarms.append(out["alarm"][0])
-        t2.append(out["t2_smoothed"][0])
-    assert np.array_equal(alarms, expected)
-    # one row's projection and a block's differ in BLAS rounding only (1e-15 relative)
-    np.testing.assert_allclose(t2, whole["t2_smoothed"], rtol=1e-12)
+        state = fitted.state(out)
+        parts.append(out)
+    for key in whole:
+        assert _same(np.concatenate([p[key] for p in parts]), whole[key]), key
     # chunks of 7 rows
     state, parts = None, []
     for start in range(0, len(test[0]), 7):
         out = fitted.score(test[0][start:start + 7], state)
-        state = {k: out[k][-1] for k in STATE}
-        parts.append(out["alarm"])
-    assert np.array_equal(np.concatenate(parts), expected)
+        state = fitted.state(out)
+        parts.append(out)
+    for key in whole:
+        assert _same(np.concatenate([p[key] for p in parts]), whole[key]), key
 
 
 def test_top_contributors_are_the_largest_of_the_model_s_contributions():
     """The blocked scoring names the variables PCAModel.contributions ranks first; top=False changes nothing else."""
     X, _ = plant()
     calibration = np.stack([X[:300], X[300:600]])
-    fitted = FittedPCA.from_detector(PCADetector(fit_runs=1, max_components=5, n_components=2), calibration, TAGS)
-    rows = np.concatenate([X[600:]] * 8)          # several blocks of BLOCK rows
+    fitted = FittedPCA(PCADetector(fit_runs=1, max_components=5, n_components=2), calibration)
+    rows = np.concatenate([X[600:]] * 8)
     out = fitted.score(rows)
-    c_t2, c_spe = fitted._model().contributions(rows, 2)
+    c_t2, c_spe = fitted.pca.model().contributions(rows, 2)
     for name, c in (("t2", c_t2), ("spe", c_spe)):
         expected = [";".join(TAGS[j] for j in order[:3]) for order in np.argsort(-c, axis=1, kind="stable")]
         assert list(out[f"top_{name}"]) == expected
     bare = fitted.score(rows, top=False)
-    for key in out:
+    for key in bare.keys() & out.keys():
         if key.startswith("top_"):
             assert set(bare[key]) == {""}
         else:
@@ -95,11 +120,13 @@ def test_spe_includes_what_lies_outside_the_loadings_when_fewer_fit_rows_than_ta
     from mosd.detectors.pca import _Projected
 
     X, _ = plant()
-    fitted = FittedPCA.from_detector(PCADetector(fit_runs=1, max_components=3, n_components=2),
-                                     np.stack([X[:5], X[5:10]]), TAGS)          # 5 rows, 6 tags: rank 5
-    assert fitted.loadings.shape[1] < len(TAGS)
-    expected = _Projected.of(fitted._model(), X[None, 600:]).spe[0, :, 1]
-    np.testing.assert_allclose(fitted.score(X[600:])["spe"], expected, rtol=1e-12)
+    fitted = FittedPCA(PCADetector(fit_runs=1, max_components=3, n_components=2), np.stack([X[:5], X[5:10]]))
+    assert fitted.pca.loadings.shape[1] < len(TAGS)                          # 5 rows, 6 tags: rank 5
+    model = fitted.pca.model()
+    expected = _Projected.of(model, X[None, 600:]).spe[0, :, 1]
+    assert np.array_equal(fitted.score(X[600:])["spe"], expected)
+    # SPE is the squared norm of the residual (I − Pₐ Pₐᵀ) z, the part outside the loadings included
+    np.testing.assert_allclose(expected, model.spe(X[600:], 2), rtol=1e-10)
 
 
 def test_without_the_carried_state_chunks_differ():
@@ -107,7 +134,7 @@ def test_without_the_carried_state_chunks_differ():
     X, _ = plant()
     calibration = np.stack([X[:300], X[300:600]])
     detector = PCADetector(fit_runs=1, max_components=5, **DESIGNS[1])
-    fitted = FittedPCA.from_detector(detector, calibration, TAGS)
+    fitted = FittedPCA(detector, calibration)
     expected = fitted.score(X[600:])["alarm"]
     restarted = np.concatenate([fitted.score(X[600 + s:600 + s + 3])["alarm"] for s in range(0, 600, 3)])
     assert not np.array_equal(restarted, expected)
@@ -118,14 +145,14 @@ def test_columns_any_order_missing_or_extra_is_one_line_naming_it(tmp_path):
 
     X, _ = plant()
     detector = PCADetector(fit_runs=1, max_components=5, n_components=2)
-    fitted = FittedPCA.load(FittedPCA.from_detector(detector, X[None, :600], TAGS).save(tmp_path))
+    fitted = OnlinePipeline.load(FittedPCA(detector, X[None, :600]).pipeline.save(tmp_path))
     frame = pd.DataFrame(X[600:700], columns=TAGS)
     out = fitted.predict_frame(frame)
     shuffled = fitted.predict_frame(frame[list(TAGS[::-1])])
     pd.testing.assert_frame_equal(out, shuffled)
     with pytest.raises(ConfigError, match=r"^input column 'tag3' is missing"):
         fitted.predict_frame(frame.drop(columns=["tag3"]))
-    with pytest.raises(ConfigError, match=r"^input column 'extra' is not a tag of the model"):
+    with pytest.raises(ConfigError, match=r"^input column 'extra' is not an input of the model"):
         fitted.predict_frame(frame.assign(extra=1.0))
     # a historian error code: no alarm on that row, the others are scored
     text = frame.astype(object)
@@ -233,7 +260,7 @@ def test_mlflow_models_serve_gives_the_same_alarms(logged_run, stop_process_grou
             chunk = test.iloc[start:start + 100]
             rows = predict_served(port, list(chunk.columns), chunk.to_numpy().tolist(), state)
             alarms += [bool(row["alarm"]) for row in rows]
-            state = {k: rows[-1][k] for k in STATE}
+            state = {k: rows[-1][k] for k in ("ewma_t2", "ewma_spe", "run_length", "samples_seen")}
         assert np.array_equal(alarms, r["expected"])
     finally:
         stop_process_group(server)

@@ -7,7 +7,8 @@ import pytest
 from mosd import kernels
 from mosd.denoisers import NoDenoiser, WaveletDenoiser
 from mosd.detectors import MDEWMA, SSDEWMA, SSEWMA, MaxEWMA, ewma_time_major
-from mosd.kernels.chart import fused_evaluation, mean_std, pairwise_sum
+from mosd.detectors.fused import fused_evaluation
+from mosd.kernels.chart import mean_std, pairwise_sum
 from mosd.optim.problem import CandidateEvaluator
 
 # numba is a dependency: without it these tests fail, they never skip

@@ -98,7 +98,6 @@ def _warm_model_logging() -> None:
         import scipy.signal  # noqa: F401  (the models' scoring: scipy.stats and the detectors, ~250 modules)
 
         from .. import detectors  # noqa: F401
-        from . import chart_model  # noqa: F401
         from .detector_model import _python_model_class
 
         _python_model_class()

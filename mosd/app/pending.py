@@ -81,11 +81,10 @@ def mark_not_logged(run_dir: Path, error: str, pending: Mapping[str, Any], statu
 
 def _saved_model(run_dir: Path) -> Path | None:
     """The fitted pipeline a run saved under ``model/``, for a pending file written before it named it."""
-    from .chart_model import STATE_FILE as CHART_FILE
-    from .detector_model import STATE_FILE as PCA_FILE
+    from .detector_model import LEGACY_FILES, STATE_FILE
 
-    return next((run_dir / "model" / name for name in (CHART_FILE, PCA_FILE) if (run_dir / "model" / name).is_file()),
-                None)
+    return next((run_dir / "model" / name for name in (STATE_FILE, *LEGACY_FILES)
+                 if (run_dir / "model" / name).is_file()), None)
 
 
 def log_pending(run_dir: str | os.PathLike, uri: str | None = None) -> tuple[str, bool, list[str], str | None]:

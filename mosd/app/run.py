@@ -34,6 +34,7 @@ import numpy as np
 
 from .build import build
 from .config import COMPONENTS, one_line
+from .deploy import STREAM_FILE, record_model, save_for_run
 from .files import NOT_WRITTEN, expected_files, lacking, write_run_files, write_status
 from .pending import NOT_LOGGED, mark_not_logged, pending_request
 from . import signals
@@ -179,8 +180,12 @@ def run(cfg, started: float | None = None, checked=None):
             tracker.send()
 
         t0 = time.perf_counter()
+        # the deployable pipeline and the first test replication's stream, before the files that log them
+        model_file, deployment = save_for_run(setup, result, run_dir)
+        stream_files = [run_dir / STREAM_FILE] if deployment.stream is not None else []
         files = write_run_files(run_dir, cfg, result, setup, labels, study_metrics, figures,
-                                on_text_files=log_early) + list(study_files)
+                                on_text_files=log_early) + list(study_files) + stream_files
+        record_model(run_dir, deployment, model_file)
         figures.close()
         timings["files_s"] = time.perf_counter() - t0
         if figures.fallback:
@@ -191,9 +196,6 @@ def run(cfg, started: float | None = None, checked=None):
             finals = [(k, v, 0) for k, v in {**timings, "wall_time_s": time.perf_counter() - started}.items()]
             logged.extend(finals)
             tracker.log(metrics=finals, artifacts=[f for f in files if f not in sent])
-            from .detector_model import save_for_run
-
-            model_file = save_for_run(setup, result, run_dir)
             if model_file is not None:
                 tracker.log_model(model_file)
             try:
@@ -222,13 +224,18 @@ def run(cfg, started: float | None = None, checked=None):
                 tracking_line = (f"mlflow    run {run_id}  experiment {tracker.settings.experiment!r}"
                                  f"  store {redacted(tracker.settings.uri)}\n          ({where}: {startup})")
                 if tracker.model_uri:
+                    record_model(run_dir, deployment, model_file, uri=tracker.model_uri)
                     tracking_line += (f"\n          model {tracker.model_uri} (runs:/{run_id}/detector): "
-                                      f"python -m mosd monitor --model {tracker.model_uri} DATA.csv")
+                                      f"python -m mosd monitor --model {tracker.model_uri} {STREAM_FILE}")
                 elif tracker.model_error:
                     tracking_line += f"\n          model NOT LOGGED: {tracker.model_error}"
+                elif deployment.reason:
+                    tracking_line += f"\n          no model: {deployment.reason}"
                 if tracker.note:
                     tracking_line += f"\n          store: {tracker.note}"
             signals.raise_pending()  # one that arrived while MLflow failed: the pending file is written
+        elif deployment.reason:
+            tracking_line = f"model     none: {deployment.reason}"
         writing = False
         done = True
         timings["wall_s"] = time.perf_counter() - started

@@ -23,11 +23,14 @@ The threshold comes from α alone, so calibration data are not used.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from scipy import stats
 
+from ..streaming import COUNT, FINITE, OnlineStage, StateVar, points_of, spread
 from ..validation import ConfigError, Interval, Param
-from .base import Decisions, Detector, persistent
+from .base import Decisions, Detector, persistent, run_lengths
 
 
 class AdaptiveChi2Detector(Detector):
@@ -53,6 +56,11 @@ class AdaptiveChi2Detector(Detector):
         """T_D = F⁻¹_{χ²(dof)}(1 − α)."""
         return stats.chi2.ppf(1.0 - np.asarray(alpha, float), self.dof)
 
+    def online(self, calibration_z=None, inputs=None) -> "OnlineAdaptiveChi2":
+        """This design's causal form (the threshold comes from α alone: calibration data are not used)."""
+        return OnlineAdaptiveChi2(chi2_threshold=float(self.a * self.chi2_threshold(self.alpha)), b=float(self.b),
+                                  lag=int(self.lag), persistence=int(self.persistence))
+
     def population(self, calibration_features: np.ndarray, features: np.ndarray, X: np.ndarray) -> Decisions:
         """Decisions of every design (α, a, b) in X (P, 3) on z (R, K, 2) = [λ_k, E_k/σ_N].
 
@@ -75,3 +83,53 @@ class AdaptiveChi2Detector(Detector):
         exceed = statistic > threshold  # False wherever a NaN is involved
         decision = persistent(exceed, self.persistence).astype(np.int8)
         return Decisions(statistic=statistic, threshold=threshold, decision=decision)
+
+
+@dataclass
+class OnlineAdaptiveChi2(OnlineStage):
+    """:class:`AdaptiveChi2Detector`'s causal form: points in (``point``, ``z_1`` = λ_k, ``z_2`` = E_k/σ_N);
+    ``statistic`` (λ_k), ``threshold`` (a·T_D + b·(E_{k−d}/σ_N)²), ``decision`` and ``alarm`` out.
+
+    State: the last d scaled observer residuals (``observer_1`` = E_{k−1}/σ_N, ...; null before the first
+    points, as the population's NaN) and ``run_length`` (consecutive exceedances).
+    """
+
+    chi2_threshold: float   # a·T_D
+    b: float
+    lag: int
+    persistence: int
+
+    @property
+    def inputs(self) -> tuple[str, ...]:
+        return ("point", "z_1", "z_2")
+
+    @property
+    def outputs(self) -> tuple[str, ...]:
+        return ("statistic", "threshold", "decision", "alarm")
+
+    def state_vars(self) -> dict[str, StateVar]:
+        out = {f"observer_{i}": StateVar(f"E/σ_N of the point {i} back (null: none yet).", FINITE, missing=True)
+               for i in range(1, self.lag + 1)}
+        out["run_length"] = StateVar("Consecutive points above the threshold.", COUNT)
+        return out
+
+    def initial_state(self) -> dict:
+        return {**{f"observer_{i}": np.nan for i in range(1, self.lag + 1)}, "run_length": 0}
+
+    def update(self, columns, state) -> dict[str, np.ndarray]:
+        rows, at, z = points_of(columns, 2)
+        d = self.lag
+        carried = np.array([float(state[f"observer_{i}"]) for i in range(d, 0, -1)])   # oldest first
+        history = np.concatenate([carried, z[:, 1]])
+        lagged = history[:len(at)]                       # E_{k−d}/σ_N of each point
+        observer_term = self.b * lagged**2 if self.b > 0 else np.zeros(len(at))
+        threshold = self.chi2_threshold + observer_term
+        with np.errstate(invalid="ignore"):
+            exceed = z[:, 0] > threshold
+        run = run_lengths(exceed, int(state["run_length"]))
+        alarm = run >= self.persistence
+        per_point = {"statistic": z[:, 0], "threshold": threshold, "decision": alarm.astype(np.int64),
+                     "alarm": alarm, "run_length": run}
+        for i in range(1, d + 1):                        # E of the point i back, after each point
+            per_point[f"observer_{i}"] = history[d - i + 1: d - i + 1 + len(at)]
+        return spread(rows, at, per_point, state)

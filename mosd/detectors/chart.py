@@ -39,13 +39,16 @@ every one within Monte Carlo error):
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
 
 from ..denoisers.base import NoDenoiser
+from ..streaming import FINITE, NoStreamingForm, OnlineStage, StateVar
 from ..validation import ConfigError, Param, check_choice
 from .base import Decisions, Detector
+from .statistics import ewma_continue, mean_and_sd
 
 
 def _denoiser(key: str, value, owner):
@@ -69,6 +72,10 @@ class Chart(Detector):
     limits: ClassVar[tuple[str, ...]] = ("phase1",)
     #: limits derived from the in-control law of the raw statistic: valid without denoising only
     model_limits: ClassVar[tuple[str, ...]] = ()
+    #: the smoothed features, in the order of :meth:`features` (empty: the chart has no causal form)
+    parts: ClassVar[tuple[str, ...]] = ()
+    #: how many times the features are smoothed (1: EWMA, 2: double EWMA)
+    order: ClassVar[int] = 1
 
     def __init__(self, limit: str = "phase1", denoiser=None):
         self._assign(locals())
@@ -139,6 +146,39 @@ class Chart(Detector):
         statistic = stats[:, n_calibration:]
         return Decisions(statistic, limits, (statistic > limits).astype(np.int8))
 
+    def statistic_of_smoothed(self, smoothed: np.ndarray) -> np.ndarray:
+        """The raw statistic from the smoothed features (parts first, shape (F, ...)): the part of
+        :meth:`raw_statistic` after the EWMA, which the causal form continues."""
+        raise NotImplementedError
+
+    # -- the causal form ----------------------------------------------------------------
+    def online(self, calibration_z: np.ndarray, inputs=None) -> OnlineChart:
+        """This tuned chart with its limit fitted on ``calibration_z`` (R, K, n) as an :class:`OnlineChart`.
+
+        Raises :class:`~mosd.streaming.NoStreamingForm` where no causal form exists: a denoiser (the
+        paper's wavelet needs the whole series; the causal wavelet's window of past statistics is not
+        carried as state yet) or a chart without ``parts`` (MS-OEWMA's whole-series prefilter).
+        """
+        if not self.parts:
+            raise NoStreamingForm(f"{type(self).__name__} filters the whole residual series before charting it: "
+                                  "no decision exists before the series ends")
+        if not isinstance(self.denoiser, NoDenoiser):
+            if not self.is_causal:
+                raise NoStreamingForm(f"the denoiser {type(self.denoiser).__name__} filters the whole series: no "
+                                      "decision exists before the series ends (denoise=none or wavelet_causal is online)")
+            raise NoStreamingForm(f"the causal denoiser {type(self.denoiser).__name__}'s window of past statistics is "
+                                  "not carried as state yet")
+        fitted = self.clone()
+        limit_value = np.nan
+        if self.limit not in ("theoretical", "time_varying"):
+            fitted.fit(np.asarray(calibration_z, float))
+            limit_value = float(fitted.control_limit(1)[0])
+        design = {**self.tunable_params(), "limit": self.limit}
+        design = {k: (float(v) if not isinstance(v, str) else v) for k, v in design.items()}
+        cls = type(self)
+        n = int(np.shape(calibration_z)[-1])
+        return OnlineChart(detector=f"{cls.__module__}.{cls.__qualname__}", design=design, limit_value=limit_value, n=n)
+
     # -- the limit --------------------------------------------------------------------
     def fit(self, z_phase1: np.ndarray) -> "Chart":
         """Set the control limit from fault-free Phase-I subgroups (R, K, n)."""
@@ -146,8 +186,7 @@ class Chart(Detector):
 
     def fit_statistic(self, l_phase1: np.ndarray) -> "Chart":
         """Set the limit from an already computed Phase-I plotted statistic (..., K)."""
-        self.center_ = float(np.mean(l_phase1))
-        self.scale_ = float(np.std(l_phase1, ddof=1))
+        self.center_, self.scale_ = mean_and_sd(l_phase1)
         return self
 
     def control_limit(self, n_points: int) -> np.ndarray:
@@ -167,3 +206,98 @@ class Chart(Detector):
     def __repr__(self) -> str:
         params = ", ".join(f"{k}={getattr(self, k):.6g}" for k in self.tunable)
         return f"{type(self).__name__}({params}, limit={self.limit!r}, denoiser={self.denoiser!r})"
+
+
+@dataclass
+class OnlineChart(OnlineStage):
+    """A tuned chart's causal form: standardised subgroups in (``subgroup``, ``z_1`` ... ``z_n``), decisions out.
+
+    On each row that completes subgroup k: the features (U_k, V_k of eqs. 19–20; U_k alone for the
+    EWMA chart) as ``u``/``v``, the plotted ``statistic`` and its ``limit``, ``alarm`` (statistic >
+    limit). Rows that complete no subgroup give NaN and no alarm. The recursion is the charts' one
+    (:func:`~mosd.detectors.statistics.ewma_continue`), continued from the carried state: the smoothed
+    features of the last ``order`` subgroups (``smooth_u_1``, ``smooth_u_2``, ``smooth_v_1``, ...).
+
+    Attributes
+    ----------
+    detector : str
+        The chart's class (``module.Class``).
+    design : dict
+        Its parameters (the tuned ones and the limit rule).
+    limit_value : float
+        The constant limit fitted on the calibration runs; NaN for a limit that changes with k.
+    n : int
+        Points per subgroup.
+    """
+
+    detector: str
+    design: dict
+    limit_value: float
+    n: int
+
+    def _chart(self) -> "Chart":
+        cached = self.__dict__.get("_chart_object")
+        if cached is None:
+            import importlib
+
+            module, _, name = self.detector.rpartition(".")
+            cached = self.__dict__["_chart_object"] = getattr(importlib.import_module(module), name)(**self.design)
+        return cached
+
+    @property
+    def parts(self) -> tuple[str, ...]:
+        return tuple(self._chart().parts)
+
+    @property
+    def order(self) -> int:
+        return int(self._chart().order)
+
+    @property
+    def inputs(self) -> tuple[str, ...]:
+        return ("subgroup", *(f"z_{j}" for j in range(1, self.n + 1)))
+
+    @property
+    def outputs(self) -> tuple[str, ...]:
+        return (*self.parts, "statistic", "limit", "alarm")
+
+    def state_vars(self) -> dict[str, StateVar]:
+        return {f"smooth_{part}_{lag}": StateVar(f"Smoothed {part} of the subgroup {lag} back.", FINITE)
+                for part in self.parts for lag in range(1, self.order + 1)}
+
+    def initial_state(self) -> dict:
+        return {name: 0.0 for name in self.state_vars()}
+
+    def update(self, columns, state) -> dict[str, np.ndarray]:
+        chart, parts, order = self._chart(), self.parts, self.order
+        number_of_row = np.asarray(columns["subgroup"], np.int64)
+        rows = len(number_of_row)
+        at = np.flatnonzero(number_of_row > 0)
+        complete = len(at)
+        z = np.column_stack([np.asarray(columns[f"z_{j}"], float) for j in range(1, self.n + 1)])[at]
+        features = chart.features(z[None])[0] if complete else np.empty((len(parts), 0))   # (parts, k)
+        past = np.array([[float(state[f"smooth_{part}_{lag}"]) for part in parts] for lag in range(1, order + 1)])
+        smoothed = ewma_continue(features.T, chart.lam, order, past)[0].T                 # (parts, k)
+        number = number_of_row[at]
+        statistic = chart.statistic_of_smoothed(smoothed) if complete else np.empty(0)
+        if self.design.get("limit") == "normalised" and complete:
+            statistic = statistic / chart._scale(int(number[-1]))[number - 1]
+        if np.isnan(self.limit_value):
+            limit = chart.control_limit(int(number[-1]))[number - 1] if complete else np.empty(0)
+        else:
+            limit = np.full(complete, self.limit_value)
+        out: dict[str, np.ndarray] = {}
+        for name, values in (*zip(parts, features), ("statistic", statistic), ("limit", limit)):
+            column = np.full(rows, np.nan)
+            column[at] = values
+            out[name] = column
+        out["alarm"] = np.zeros(rows, bool)
+        out["alarm"][at] = statistic > limit
+        # the state after every row: the last completed subgroup's smoothed values carried forward
+        closes = number_of_row > 0
+        last = np.maximum.accumulate(np.where(closes, np.cumsum(closes) - 1, -1)) if rows else np.zeros(0, int)
+        for s, part in enumerate(parts):
+            history = np.asarray([*(float(state[f"smooth_{part}_{lag}"]) for lag in range(order, 0, -1)),
+                                  *smoothed[s]])                # oldest first: the carried values, then this chunk's
+            for lag in range(1, order + 1):
+                out[f"smooth_{part}_{lag}"] = history[last + order - lag + 1]
+        return out

@@ -37,6 +37,7 @@ class EWMA(Chart):
     }
     limits = ("asymptotic", "time_varying", "phase1")
     model_limits = ("asymptotic", "time_varying")
+    parts, order = ("u",), 1
 
     def __init__(self, lam: float = 0.2, L: float = 3.0, limit: str = "asymptotic", denoiser=None):
         super().__init__(limit=limit, denoiser=denoiser)
@@ -47,6 +48,9 @@ class EWMA(Chart):
 
     def raw_statistic(self, features: np.ndarray) -> np.ndarray:
         return np.abs(ewma(features[..., 0, :], self.lam))
+
+    def statistic_of_smoothed(self, smoothed: np.ndarray) -> np.ndarray:
+        return np.abs(smoothed[0])
 
     def control_limit(self, n_points: int) -> np.ndarray:
         if self.limit == "asymptotic":
@@ -81,6 +85,7 @@ class MSOEWMA(EWMA):
     params = {"prefilter": Param(_prefilter, "The multiscale filter of the residual sequence (step 1); None: "
                                              "the default wavelet.", kind="Denoiser")}
     limits = ("phase1", "asymptotic", "time_varying")
+    parts = ()  # the prefilter needs the whole residual series: no causal form
 
     def __init__(self, lam: float = 0.3388, L: float = 4.8621, limit: str = "phase1", prefilter=None, denoiser=None):
         super().__init__(lam=lam, L=L, limit=limit, denoiser=denoiser)

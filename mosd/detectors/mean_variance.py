@@ -44,6 +44,7 @@ class _MeanVarianceChart(Chart):
 
     order: ClassVar[int] = 2
     combine: ClassVar[str] = "ss"
+    parts = ("u", "v")
     params = {
         "lam": Param(Interval(0.0, 1.0, open_low=True, open_high=True), "Smoothing parameter λ.", tunable=True),
         "K": Param(Interval(0.0, 10.0), "Control width K_SD (eq. 27 or 35).", tunable=True),
@@ -78,6 +79,9 @@ class _MeanVarianceChart(Chart):
         if self.limit == "normalised":
             raw = np.stack([c.normalise(r) for c, r in zip(charts, raw)])
         return self.denoiser.denoise(raw)
+
+    def statistic_of_smoothed(self, smoothed: np.ndarray) -> np.ndarray:
+        return self._combine(smoothed, axis=0)
 
     def _combine(self, smoothed: np.ndarray, axis: int = -2) -> np.ndarray:
         """Mean and variance parts (index 0 and 1 along ``axis``) → one statistic."""

@@ -7,12 +7,14 @@ is ``persistence`` here). Its example uses μ_T = 0.5.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
 
+from ..streaming import COUNT, OnlineStage, StateVar, points_of, spread
 from ..validation import ConfigError, Interval, Param, check_int
-from .base import Decisions, Detector, persistent
+from .base import Decisions, Detector, persistent, run_lengths
 
 
 def _labels(key: str, value, detector):
@@ -54,6 +56,12 @@ class ModeProbabilityDetector(Detector):
                               f"(one per fault model)")
         return np.asarray(self.labels)
 
+    def online(self, calibration_z, inputs=None) -> "OnlineModeProbability":
+        """This design's causal form on M mode probabilities (calibration data are not used)."""
+        n = int(np.shape(calibration_z)[-1])
+        return OnlineModeProbability(mu_T=float(self.mu_T), persistence=int(self.persistence),
+                                     labels=tuple(int(v) for v in self._labels(n - 1)), n=n)
+
     def population(self, calibration_features: np.ndarray, features: np.ndarray, X: np.ndarray) -> Decisions:
         """Decisions of every design (μ_T, persistence) in X (P, 2) on mode probabilities (R, K, M)."""
         mu = np.asarray(features, float)
@@ -73,3 +81,44 @@ class ModeProbabilityDetector(Detector):
         decision = np.where(declared, self._labels(faults.shape[-2])[winner], 0)
         statistic = np.broadcast_to(faults.max(axis=-2), decision.shape)
         return Decisions(statistic=statistic, threshold=threshold[:, None, None], decision=decision)
+
+
+@dataclass
+class OnlineModeProbability(OnlineStage):
+    """:class:`ModeProbabilityDetector`'s causal form: mode probabilities in (``point``, ``z_1`` = normal model,
+    ``z_{i+1}`` = fault model i); ``statistic`` (max_i μ_i), ``threshold`` (μ_T), ``decision`` (the fault declared,
+    0 none) and ``alarm`` out. State: ``run_length_i``, consecutive steps with μ_i > μ_T, per fault model."""
+
+    mu_T: float
+    persistence: int
+    labels: tuple
+    n: int
+
+    @property
+    def inputs(self) -> tuple[str, ...]:
+        return ("point", *(f"z_{j}" for j in range(1, self.n + 1)))
+
+    @property
+    def outputs(self) -> tuple[str, ...]:
+        return ("statistic", "threshold", "decision", "alarm")
+
+    def state_vars(self) -> dict[str, StateVar]:
+        return {f"run_length_{i}": StateVar(f"Consecutive steps with fault model {i}'s probability above μ_T.", COUNT)
+                for i in range(1, self.n)}
+
+    def initial_state(self) -> dict:
+        return {name: 0 for name in self.state_vars()}
+
+    def update(self, columns, state) -> dict[str, np.ndarray]:
+        rows, at, mu = points_of(columns, self.n)
+        faults = mu[:, 1:]                                                  # (k, M−1)
+        runs = np.column_stack([run_lengths(faults[:, i - 1] > self.mu_T, int(state[f"run_length_{i}"]))
+                                for i in range(1, self.n)]) if self.n > 1 else np.zeros((len(at), 0), np.int64)
+        held = runs >= self.persistence
+        # among the fault models that satisfy the rule, the most probable one is declared (as population does)
+        winner = np.argmax(np.where(held, faults, -1.0), axis=-1) if len(at) else np.zeros(0, np.int64)
+        decision = np.where(held.any(axis=-1), np.asarray(self.labels)[winner], 0).astype(np.int64)
+        per_point = {"statistic": faults.max(axis=-1) if len(at) else np.empty(0),
+                     "threshold": np.full(len(at), float(self.mu_T)), "decision": decision, "alarm": decision > 0}
+        per_point.update({f"run_length_{i}": runs[:, i - 1] for i in range(1, self.n)})
+        return spread(rows, at, per_point, state)

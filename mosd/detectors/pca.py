@@ -34,8 +34,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import linalg, special
 
+from ..streaming import COUNT, OnlineStage, StateVar, points_of, spread
 from ..validation import ConfigError, Interval, Param, check_choice
-from .base import Decisions, Detector, persistent
+from .base import Decisions, Detector, persistent, run_lengths
 
 STATISTICS = ("combined", "t2", "spe")
 LIMITS = ("theoretical", "empirical")
@@ -163,41 +164,74 @@ def empirical_limit(values: np.ndarray, alpha: float) -> float:
     return float(np.quantile(values, 1.0 - alpha))
 
 
-def ewma_from(x: np.ndarray, lam: float, start: float) -> np.ndarray:
-    """E_k = λ x_k + (1 − λ) E_{k−1} along the last axis, from E_{−1} = ``start``.
+def ewma_from(x: np.ndarray, lam: float, start: float, previous: float | None = None) -> np.ndarray:
+    """E_k = λ x_k + (1 − λ) E_{k−1} along the last axis, from E_{−1} = ``previous`` (default ``start``).
 
     A missing point (NaN) enters as ``start``, the in-control mean: what a
-    fault-free point adds on average.
+    fault-free point adds on average. ``previous``: the carried E of a stream scored in parts.
     """
     x = np.where(np.isfinite(x), x, start)
-    if lam >= 1.0:
+    if lam >= 1.0 or x.shape[-1] == 0:
         return x
     # imported here: scipy.signal pulls in scipy.stats (ARCHITECTURE: not on every run's start)
     from scipy.signal import lfilter
 
-    zi = np.full(x.shape[:-1] + (1,), (1.0 - lam) * start)
+    zi = np.full(x.shape[:-1] + (1,), (1.0 - lam) * (start if previous is None else previous))
     return lfilter([lam], [1.0, -(1.0 - lam)], x, axis=-1, zi=zi)[0]
+
+
+def project(Z: np.ndarray, loadings: np.ndarray) -> np.ndarray:
+    """Scores t = Z P (..., r), each summed over the variables in order: the same bits whatever the rows
+    (:mod:`mosd.kernels.projection`; the same sums in NumPy with the kernels off)."""
+    Z = np.asarray(Z, float)
+    flat = np.ascontiguousarray(Z.reshape(-1, Z.shape[-1]))
+    loadings = np.ascontiguousarray(loadings, dtype=float)
+    from .. import kernels
+
+    if kernels.enabled():
+        from ..kernels.projection import project as compiled
+
+        t = compiled(flat, loadings)
+    else:
+        t = np.zeros((flat.shape[0], loadings.shape[1]))
+        for i in range(flat.shape[1]):
+            t += flat[:, i:i + 1] * loadings[i]
+    return t.reshape(Z.shape[:-1] + (loadings.shape[1],))
 
 
 @dataclass
 class _Projected:
-    """T²(a) and SPE(a) of every point for every a, from cumulative sums over the scores."""
+    """T²(a) and SPE(a) of every point, for every a or for one: the one PCA scoring (the tuning's population,
+    the test evaluation and the deployed :class:`OnlinePCA` all run :meth:`of`)."""
 
-    t2: np.ndarray      # (R, K, r): T² with a = 1..r components at index a - 1
-    spe: np.ndarray     # (R, K, r): SPE with a = 1..r components at index a - 1
+    t2: np.ndarray      # (R, K, r): T² with a = 1..r components at index a - 1 (one a: (R, K, 1))
+    spe: np.ndarray     # (R, K, r): SPE with a = 1..r components at index a - 1 (one a: (R, K, 1))
     finite: np.ndarray  # (R, K): complete rows
 
     @classmethod
-    def of(cls, model: PCAModel, z: np.ndarray) -> "_Projected":
+    def of(cls, model: PCAModel, z: np.ndarray, components: int | None = None) -> "_Projected":
+        """Scores of the points z (..., m); ``components``: only T²(a) and SPE(a) for that a (same bits).
+
+        Both sums run over the components one after the other (cumulative sums): T² from the first
+        component up, SPE from the smallest down, so that a small SPE is not the difference of two
+        large numbers; a prefix of those sums is the same number whether the others are computed or not.
+        """
         finite = np.all(np.isfinite(z), axis=-1)
         Z = np.where(finite[..., None], model.standardise(z), 0.0)
-        t = Z @ model.loadings
-        t2 = np.cumsum(t**2 / model.eigenvalues, axis=-1)
-        # SPE(a) = Σ_{j>a} t_j² + what lies outside the loadings' span (0 when n > m): summed from
-        # the small end, so that a small SPE is not the difference of two large numbers
-        outside = np.maximum(np.sum(Z**2, axis=-1) - np.sum(t**2, axis=-1), 0.0)
-        tail = np.cumsum((t**2)[..., ::-1], axis=-1)[..., ::-1]
-        spe = np.concatenate([tail[..., 1:], np.zeros(t.shape[:-1] + (1,))], axis=-1) + outside[..., None]
+        t = project(Z, model.loadings)
+        squares = t**2
+        # what lies outside the loadings' span (0 when n > m)
+        outside = np.maximum(np.sum(Z**2, axis=-1) - np.sum(squares, axis=-1), 0.0)
+        if components is None:
+            t2 = np.cumsum(squares / model.eigenvalues, axis=-1)
+            tail = np.cumsum(squares[..., ::-1], axis=-1)[..., ::-1]
+            spe = np.concatenate([tail[..., 1:], np.zeros(t.shape[:-1] + (1,))], axis=-1) + outside[..., None]
+        else:
+            a = int(components)
+            t2 = np.cumsum(squares[..., :a] / model.eigenvalues[:a], axis=-1)[..., -1:]
+            rest = squares[..., a:][..., ::-1]
+            spe = (np.cumsum(rest, axis=-1)[..., -1:] if rest.shape[-1] else np.zeros(t.shape[:-1] + (1,)))
+            spe = spe + outside[..., None]
         nan = ~finite[..., None]
         return cls(np.where(nan, np.nan, t2), np.where(nan, np.nan, spe), finite)
 
@@ -300,6 +334,22 @@ class PCADetector(Detector):
             out[name] = (value, limit)
         return out
 
+    # -- the causal form ----------------------------------------------------------------
+    def online(self, calibration_z: np.ndarray, inputs) -> "OnlinePCA":
+        """This tuned design calibrated on ``calibration_z`` (R, K, m) as an :class:`OnlinePCA` on the columns ``inputs``."""
+        calibration_z = np.asarray(calibration_z, float)
+        model, fit_rows, _ = self._calibration(calibration_z)
+        a = int(self.n_components)
+        limits = self.statistics(calibration_z, calibration_z[:1, :1])
+        return OnlinePCA(tags=tuple(str(t) for t in inputs), mean=model.mean, scale=model.scale,
+                         loadings=model.loadings, eigenvalues=model.eigenvalues, n_fit=int(model.n), n_components=a,
+                         alpha=float(self.alpha), lam=float(self.lam), persistence=int(self.persistence),
+                         statistic=str(self.statistic), t2_limit=float(limits["t2_limit"]),
+                         spe_limit=float(limits["spe_limit"]),
+                         # the in-control mean the tuning starts its EWMA from (_design)
+                         t2_start=float(np.nanmean(fit_rows.t2[..., a - 1])),
+                         spe_start=float(np.nanmean(fit_rows.spe[..., a - 1])))
+
     # -- the decision -------------------------------------------------------------------
     def features(self, z: np.ndarray) -> np.ndarray:
         return np.asarray(z, float)
@@ -337,3 +387,135 @@ class PCADetector(Detector):
             above = statistic > 1.0
         alarm = persistent(above, self.tunable["persistence"].round(X[:, 3], clip=True).astype(int))
         return Decisions(statistic, np.ones((X.shape[0], 1, 1)), alarm.astype(np.int8))
+
+
+#: variables named per row in ``top_t2`` / ``top_spe``
+TOP = 3
+
+
+@dataclass
+class OnlinePCA(OnlineStage):
+    """A tuned :class:`PCADetector`'s causal form: tag rows in; T², SPE, their limits, the alarm and the top tags out.
+
+    The fitted pipeline of a recorded-data run: the standardisation (mean and standard deviation of the
+    fit rows), the PCA (loadings, eigenvalues), the tuned design (components a, α, EWMA λ, persistence)
+    and its calibrated limits. Scores are :meth:`_Projected.of` (the tuning's own arithmetic), the EWMA
+    is :func:`ewma_from` and the persistence count :func:`~mosd.detectors.base.run_lengths`, each
+    continued from the carried state: ``ewma_t2``, ``ewma_spe`` (the EWMAs; at a stream's start the mean
+    T²/SPE of the fit rows, where the tuning starts them) and ``run_length`` (consecutive points above the
+    limit). A row with a missing value has no scores and no alarm.
+
+    Outputs per row: ``t2``, ``spe`` (raw), ``t2_smoothed``, ``spe_smoothed``, ``t2_limit``, ``spe_limit``,
+    ``ratio`` (the alarmed statistic over its limit: the larger of the two for the combined rule),
+    ``alarm`` and ``top_t2``/``top_spe``: the :data:`TOP` variables contributing most (``tag;tag;tag``).
+    """
+
+    tags: tuple
+    mean: np.ndarray
+    scale: np.ndarray
+    loadings: np.ndarray      # (m, r): every component (the SPE tail sums over those left out)
+    eigenvalues: np.ndarray   # (r,)
+    n_fit: int
+    n_components: int
+    alpha: float
+    lam: float
+    persistence: int
+    statistic: str
+    t2_limit: float
+    spe_limit: float
+    t2_start: float
+    spe_start: float
+
+    @property
+    def inputs(self) -> tuple[str, ...]:
+        return ("point", *(f"z_{j}" for j in range(1, len(self.tags) + 1)))
+
+    @property
+    def outputs(self) -> tuple[str, ...]:
+        return ("t2", "spe", "t2_smoothed", "spe_smoothed", "t2_limit", "spe_limit", "ratio", "alarm", "top_t2",
+                "top_spe")
+
+    def state_vars(self) -> dict[str, StateVar]:
+        return {"ewma_t2": StateVar("EWMA of T² after the last row.", Interval(0.0, 1e150)),
+                "ewma_spe": StateVar("EWMA of SPE after the last row.", Interval(0.0, 1e150)),
+                "run_length": StateVar("Consecutive points above the limit.", COUNT)}
+
+    def initial_state(self) -> dict:
+        return {"ewma_t2": float(self.t2_start), "ewma_spe": float(self.spe_start), "run_length": 0}
+
+    def example_row(self) -> np.ndarray:
+        return np.asarray(self.mean, float)
+
+    def model(self) -> PCAModel:
+        """A :class:`PCAModel` with these arrays (no refit)."""
+        model = PCAModel.__new__(PCAModel)
+        model.names, model.n, model.m = tuple(self.tags), int(self.n_fit), len(self.tags)
+        model.mean, model.scale = np.asarray(self.mean, float), np.asarray(self.scale, float)
+        model.loadings, model.eigenvalues = np.asarray(self.loadings, float), np.asarray(self.eigenvalues, float)
+        return model
+
+    def update(self, columns, state, top: bool = True) -> dict[str, np.ndarray]:
+        rows, at, X = points_of(columns, len(self.tags))
+        return spread(rows, at, self.score(X, state, top), state)
+
+    def score(self, X: np.ndarray, state, top: bool = True) -> dict[str, np.ndarray]:
+        """Outputs and state after each row of X (rows, m: the tags in order), from ``state``."""
+        n, a = len(X), int(self.n_components)
+        model = self.__dict__.get("_model") or self.__dict__.setdefault("_model", self.model())
+        with _one_blas_thread():
+            proj = _Projected.of(model, X, components=a)
+        finite = proj.finite
+        out: dict[str, np.ndarray] = {}
+        ratios = []
+        for name, start, limit in (("t2", self.t2_start, self.t2_limit), ("spe", self.spe_start, self.spe_limit)):
+            values = getattr(proj, name)[:, 0]
+            smooth = ewma_from(values, self.lam, float(start), previous=float(state[f"ewma_{name}"]))
+            value = np.where(finite, smooth, np.nan)
+            out[name], out[f"{name}_smoothed"], out[f"{name}_limit"] = values, value, np.full(n, float(limit))
+            out[f"ewma_{name}"] = smooth
+            if self.statistic in ("combined", name):
+                with np.errstate(invalid="ignore"):
+                    ratios.append(value / limit)
+        ratio = ratios[0] if len(ratios) == 1 else np.fmax(ratios[0], ratios[1])
+        with np.errstate(invalid="ignore"):
+            above = ratio > 1.0
+        run = run_lengths(above, int(state["run_length"]))
+        out["ratio"], out["alarm"], out["run_length"] = ratio, run >= self.persistence, run
+        for name in ("t2", "spe"):
+            out[f"top_{name}"] = self._top(X, finite, name) if top else np.full(n, "", dtype=object)
+        return out
+
+    def _top(self, X: np.ndarray, finite: np.ndarray, name: str) -> np.ndarray:
+        """``tag;tag;tag`` per row, largest contribution first ('' where the row is not scored).
+
+        T²: c_i = z_i (Pₐ Λₐ⁻¹ Pₐᵀ z)_i; SPE: c_i = e_i², e = (I − Pₐ Pₐᵀ) z (:meth:`PCAModel.contributions`),
+        each one product with an (m, m) matrix made once.
+        """
+        maps = self.__dict__.get("_maps")
+        if maps is None:
+            a, P = int(self.n_components), np.asarray(self.loadings, float)
+            maps = self.__dict__["_maps"] = {
+                "t2": (P[:, :a] / np.asarray(self.eigenvalues)[:a]) @ P[:, :a].T,
+                "spe": np.eye(len(P)) - P[:, :a] @ P[:, :a].T}
+        Z = np.where(finite[:, None], (X - self.mean) / self.scale, 0.0)
+        with _one_blas_thread():
+            c = Z @ maps[name]
+        c = c * Z if name == "t2" else c * c
+        index = _largest(c, TOP)
+        tags = np.asarray(self.tags, dtype=object)
+        labels = [";".join(row) for row in tags[index].tolist()] if len(index) else []
+        out = np.array(labels, dtype=object) if labels else np.empty(0, dtype=object)
+        if not finite.all():
+            out[~finite] = ""
+        return out
+
+
+def _largest(c: np.ndarray, k: int) -> np.ndarray:
+    """Column indices of the k largest values of every row of c, largest first (c is overwritten)."""
+    rows = np.arange(len(c))
+    out = np.empty((len(c), min(k, c.shape[1])), np.intp)
+    for j in range(out.shape[1]):
+        out[:, j] = winner = np.argmax(c, axis=1)
+        if j + 1 < out.shape[1]:
+            c[rows, winner] = -np.inf
+    return out

@@ -40,14 +40,61 @@ def ewma(x: np.ndarray, lam: float, order: int = 1) -> np.ndarray:
     """EWMA applied ``order`` times along the last axis, started at 0.
 
     order=1 is eq. 21/22 (Y_k = (1−λ)Y_{k−1} + λU_k); order=2 is the double EWMA of
-    eqs. 23/24, i.e. the filter λ²/(1 − (1−λ)z⁻¹)², computed in one IIR pass.
+    eqs. 23/24, i.e. the filter λ²/(1 − (1−λ)z⁻¹)². The recursion is the charts' one
+    (:func:`ewma_continue`), so a plotted statistic, a tuning's population and a deployed chart
+    compute the same bits.
     """
-    # imported here: scipy.signal pulls in scipy.stats, ~1 s on a run's critical path for one call
-    from scipy.signal import lfilter
+    x = np.asarray(x, float)
+    columns = np.ascontiguousarray(x.reshape(-1, x.shape[-1]).T)  # time-major (K, M)
+    smoothed, _ = ewma_continue(columns, lam, order, np.zeros((order, columns.shape[1])))
+    return smoothed.T.reshape(x.shape)
 
-    pole = 1.0 - lam
-    a = np.poly(np.full(order, pole))
-    return lfilter([lam**order], a, x, axis=-1)
+
+def ewma_continue(columns: np.ndarray, lam: float, order: int, past: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The ``order``-fold EWMA of time-major ``columns`` (K, C) continued from ``past`` (order, C).
+
+    ``past`` holds y_{−1}, y_{−2}, ... of every column (zeros: a stream's start). Returns the
+    smoothed columns (K, C) and the new ``past``. Compiled (:func:`mosd.kernels.ewma.ewma_recursion`)
+    when the kernels are on, else the same arithmetic in NumPy; the one recursion of every chart.
+    """
+    columns = np.ascontiguousarray(columns, dtype=float)
+    gain, feedback = ewma_coefficients([lam], order)
+    past = np.array(past, float, copy=True).reshape(order, columns.shape[1])
+    out = np.empty_like(columns)
+    from .. import kernels
+
+    if kernels.enabled():
+        from ..kernels.ewma import ewma_recursion
+
+        ewma_recursion(columns, float(gain[0]), np.ascontiguousarray(feedback[0]), past, out)
+        return out, past
+    g, f = float(gain[0]), feedback[0]
+    scratch = np.empty(columns.shape[1])
+    for k in range(columns.shape[0]):
+        current = out[k]
+        np.multiply(g, columns[k], out=current)
+        for lag in range(order):
+            np.multiply(past[lag], f[lag], out=scratch)
+            current += scratch
+        past[1:] = past[:-1].copy()
+        past[0] = current
+    return out, past
+
+
+def mean_and_sd(values: np.ndarray) -> tuple[float, float]:
+    """Mean and standard deviation (ddof = 1) of every value: the Phase-I limit's E{l} and sd{l} (eq. 27).
+
+    One summation for every path — the test evaluation, the fused candidate evaluation and the
+    deployed chart: NumPy's pairwise algorithm written out (:func:`mosd.kernels.chart.mean_std`),
+    because ``np.mean`` of the same numbers can round differently when the array is a view at
+    another memory alignment (seen: 1 ulp between a limit fitted on a slice and on a copy).
+    """
+    flat = np.ascontiguousarray(values, dtype=float).ravel()
+    from .. import kernels
+    from ..kernels.chart import mean_std
+
+    center, scale = (mean_std if kernels.enabled() else mean_std.py_func)(flat)
+    return float(center), float(scale)
 
 
 def ewma_coefficients(lams, order: int = 1) -> tuple[np.ndarray, np.ndarray]:

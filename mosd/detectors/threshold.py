@@ -11,10 +11,19 @@ exceedances.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
+from ..streaming import COUNT, OnlineStage, StateVar, points_of, spread
 from ..validation import Interval, Param
-from .base import Decisions, Detector, persistent
+from .base import Decisions, Detector, persistent, run_lengths
+
+
+def largest_magnitude(z: np.ndarray) -> np.ndarray:
+    """max_j |z_j| of points z (..., n) -> (...)."""
+    z = np.abs(np.asarray(z, float))
+    return z[..., 0] if z.shape[-1] == 1 else np.max(z, axis=-1)
 
 
 class ThresholdDetector(Detector):
@@ -37,10 +46,14 @@ class ThresholdDetector(Detector):
                  persistence_max: int = 20):
         self._assign(locals())
 
+    def online(self, calibration_z, inputs=None) -> "OnlineThreshold":
+        """This design's causal form on points of ``calibration_z``'s width (calibration data are not used)."""
+        return OnlineThreshold(threshold=float(self.threshold), persistence=int(self.persistence),
+                               n=int(np.shape(calibration_z)[-1]))
+
     def features(self, z: np.ndarray) -> np.ndarray:
         """max_j |z_j| of points z (R, K, n) -> (R, K)."""
-        z = np.abs(np.asarray(z, float))
-        return z[..., 0] if z.shape[-1] == 1 else np.max(z, axis=-1)
+        return largest_magnitude(z)
 
     def population(self, calibration_features: np.ndarray, features: np.ndarray, X: np.ndarray) -> Decisions:
         """Decisions of every design in X (P, 2) = (threshold, persistence); calibration data are not used."""
@@ -52,3 +65,37 @@ class ThresholdDetector(Detector):
             exceeds = statistic > threshold
         decision = persistent(exceeds, lengths).astype(np.int8)
         return Decisions(statistic=statistic, threshold=threshold, decision=decision)
+
+
+@dataclass
+class OnlineThreshold(OnlineStage):
+    """:class:`ThresholdDetector`'s causal form: points in (``point``, ``z_1`` ... ``z_n``); ``statistic``
+    (max_j |z_j|), ``threshold``, ``decision`` and ``alarm`` out. State: ``run_length`` (consecutive exceedances)."""
+
+    threshold: float
+    persistence: int
+    n: int
+
+    @property
+    def inputs(self) -> tuple[str, ...]:
+        return ("point", *(f"z_{j}" for j in range(1, self.n + 1)))
+
+    @property
+    def outputs(self) -> tuple[str, ...]:
+        return ("statistic", "threshold", "decision", "alarm")
+
+    def state_vars(self) -> dict[str, StateVar]:
+        return {"run_length": StateVar("Consecutive points above the threshold.", COUNT)}
+
+    def initial_state(self) -> dict:
+        return {"run_length": 0}
+
+    def update(self, columns, state) -> dict[str, np.ndarray]:
+        rows, at, Z = points_of(columns, self.n)
+        statistic = largest_magnitude(Z) if len(Z) else np.empty(0)
+        with np.errstate(invalid="ignore"):
+            exceeds = statistic > self.threshold
+        run = run_lengths(exceeds, int(state["run_length"]))
+        alarm = run >= self.persistence
+        return spread(rows, at, {"statistic": statistic, "threshold": np.full(len(at), float(self.threshold)),
+                                 "decision": alarm.astype(np.int64), "alarm": alarm, "run_length": run}, state)

@@ -14,6 +14,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from ..streaming import NoStreamingForm
 from ..types import Residuals, Trace
 from ..validation import Component
 
@@ -30,6 +31,19 @@ class Estimator(Component):
     def fit(self, trace: Trace, model: Any, rng: np.random.Generator) -> "Estimator":
         """Train on ``trace`` (the estimator's own replications); the default does nothing."""
         return self
+
+    def residual_columns(self, outputs: Residuals) -> tuple[str, ...]:
+        """The name of each residual channel as a stream's column: ``residual_<channel>``."""
+        names = tuple(outputs.channels or ())
+        return tuple(f"residual_{names[c]}" if c < len(names) else f"residual_{c}" for c in range(outputs.r.shape[-1]))
+
+    def online(self, model: Any = None):
+        """The fitted estimator's causal form (:mod:`mosd.streaming`), or None when its outputs are its inputs.
+
+        Raises :class:`~mosd.streaming.NoStreamingForm` until the estimator is written as a recursion
+        with explicit state; a deployed pipeline then starts from the estimator's outputs.
+        """
+        raise NoStreamingForm(f"the estimator {type(self).__name__} has no streaming form yet")
 
     def estimate(self, trace: Trace, model: Any) -> Residuals:
         """Residuals (and further outputs in ``extra``) of every replication of ``trace``.

@@ -17,6 +17,14 @@ from .base import Estimator
 class MeasuredSignals(Estimator):
     """r = y: every measured variable is a residual channel (module docstring)."""
 
+    def residual_columns(self, outputs: Residuals) -> tuple[str, ...]:
+        """The measured variables by their own names (a recorded table's tags)."""
+        return tuple(outputs.channels)
+
+    def online(self, model: Any = None):
+        """None: the outputs are the measurements themselves (a deployed pipeline starts at the monitor)."""
+        return None
+
     def estimate(self, trace: Trace, model: Any = None) -> Residuals:
         names = tuple(trace.meta.get("variables") or (f"y{i + 1}" for i in range(trace.y.shape[-1])))
         return Residuals.of(trace, r=trace.y, channels=names)

@@ -1,9 +1,9 @@
-"""The population EWMA recursion of :func:`mosd.detectors.statistics.ewma_time_major`, compiled.
+"""The EWMA recursion of the charts, compiled, with its state: :func:`ewma_recursion`.
 
-The reference runs one Python iteration per time step over all (candidate,
-column) pairs; here the whole recursion is one compiled loop. The arithmetic is
-the reference's, in its order — y_k = g·x_k, then y_k += y_{k−lag}·f_lag for
-lag = 1..order — so the results are bit-identical.
+The NumPy reference (:func:`mosd.detectors.statistics._ewma_time_major_numpy`, the path with the
+kernels off and the tests' oracle) runs one Python iteration per time step over all (candidate,
+column) pairs; here the recursion is one compiled loop. The arithmetic is the reference's, in its
+order — y_k = g·x_k, then y_k += y_{k−lag}·f_lag for lag = 1..order — so the results are bit-identical.
 """
 from __future__ import annotations
 
@@ -12,8 +12,40 @@ from numba import njit
 
 
 @njit(cache=True, nogil=True)
+def ewma_recursion(x, gain, feedback, past, out):
+    """The ``order``-fold EWMA recursion with its state: the one implementation of the charts' arithmetic.
+
+    out[k, c] = gain·x[k, c], then += y_{k−lag, c}·feedback[lag−1] for lag = 1..order, in that order
+    (the reference's order, so every caller gets the same bits). The tuning's population
+    (:func:`ewma_population`), the fused candidate evaluation (:mod:`mosd.kernels.chart`) and the
+    deployed chart (:class:`mosd.detectors.chart.OnlineChart`) all run it.
+
+    Parameters
+    ----------
+    x : float64 (K, C), time-major
+    gain : float
+    feedback : float64 (order,)
+    past : float64 (order, C)
+        y_{−1}, y_{−2}, ... of every column on entry (zeros at a stream's start: adding 0·f changes
+        no value); the last ``order`` outputs on return.
+    out : float64 (K, C), may be a strided view
+    """
+    n_points, n_columns = x.shape
+    order = feedback.shape[0]
+    for k in range(n_points):
+        for c in range(n_columns):
+            y = gain * x[k, c]
+            for lag in range(order):
+                y += past[lag, c] * feedback[lag]
+            for lag in range(order - 1, 0, -1):
+                past[lag, c] = past[lag - 1, c]
+            past[0, c] = y
+            out[k, c] = y
+
+
+@njit(cache=True, nogil=True)
 def ewma_population(columns, gain, feedback):
-    """out[k, p, m] = gain[p]·columns[k, m] + Σ_lag out[k−lag, p, m]·feedback[p, lag−1].
+    """out[k, p, m] = gain[p]·columns[k, m] + Σ_lag out[k−lag, p, m]·feedback[p, lag−1], from a zero state.
 
     Parameters
     ----------
@@ -28,22 +60,14 @@ def ewma_population(columns, gain, feedback):
     n_points, n_columns = columns.shape
     n_candidates, order = feedback.shape
     out = np.empty((n_points, n_candidates, n_columns))
-    for k in range(n_points):
-        for p in range(n_candidates):
-            g = gain[p]
-            row = out[k, p]
-            x = columns[k]
-            for m in range(n_columns):
-                row[m] = g * x[m]
-            for lag in range(1, order + 1):
-                if k >= lag:
-                    f = feedback[p, lag - 1]
-                    past = out[k - lag, p]
-                    for m in range(n_columns):
-                        row[m] += past[m] * f
+    past = np.empty((order, n_columns))
+    for p in range(n_candidates):
+        past[:] = 0.0
+        ewma_recursion(columns, gain[p], feedback[p], past, out[:, p, :])
     return out
 
 
 def warm_up() -> None:
     """Load (or compile) the kernel."""
     ewma_population(np.zeros((3, 2)), np.ones(1), np.zeros((1, 2)))
+    ewma_recursion(np.zeros((3, 2)), 1.0, np.zeros(2), np.zeros((2, 2)), np.zeros((3, 2)))

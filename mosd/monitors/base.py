@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..streaming import NoStreamingForm, OnlineStage
 from ..types import Residuals, Subgroups
 from ..validation import Component, ConfigError
 
@@ -25,6 +26,16 @@ class Monitor(Component):
 
     def transform(self, outputs: Residuals) -> Subgroups:
         raise NotImplementedError
+
+    # -- the causal form (mosd.streaming) -------------------------------------------------
+    def stream(self, outputs: Residuals, residual_columns=()) -> dict[str, np.ndarray]:
+        """The columns this monitor reads over the first replication of ``outputs``, (N,) each, named
+        (``residual_columns``: the estimator's name for each residual channel)."""
+        raise NoStreamingForm(f"the monitor {type(self).__name__} has no streaming form")
+
+    def online(self, columns) -> OnlineStage:
+        """The fitted monitor's causal form on the stream's columns ``columns`` (:meth:`stream`'s names)."""
+        raise NoStreamingForm(f"the monitor {type(self).__name__} has no streaming form")
 
     def fault_scale(self, calibration: Residuals, channel: int) -> float:
         """σ of residual ``channel`` over fault-free calibration outputs (after the burn-in)."""

@@ -14,9 +14,11 @@ Two subgrouping modes feed the n-sample statistics of eqs. 19–20:
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
+from ..streaming import COUNT, FINITE, OnlineStage, StateVar
 from ..types import Residuals, Subgroups
 from ..validation import ConfigError, Interval, Param
 from .base import Monitor, _grid
@@ -87,6 +89,18 @@ class SubgroupMonitor(Monitor):
         return Subgroups(z=z, fault_mask=mask[:, last], fault_label=label[:, last],
                          fault_roles=residuals.fault_roles, t=t[last])
 
+    def stream(self, outputs: Residuals, residual_columns=()) -> dict[str, np.ndarray]:
+        """The monitored residual channels of the first replication, named as the estimator names them."""
+        return {(residual_columns[c] if c < len(residual_columns) else f"residual_{c}"):
+                np.asarray(outputs.r[0, :, c], float) for c in self.channels}
+
+    def online(self, columns) -> "OnlineSubgroups":
+        """The fitted monitor's causal form on the monitored channels' columns (:meth:`stream`)."""
+        self._check_fitted()
+        return OnlineSubgroups(columns=tuple(columns), mean=np.asarray(self.mean_, float),
+                               std=np.asarray(self.std_, float), subgroup=str(self.subgroup), n=int(self.subgroup_size),
+                               burn_in=int(self.burn_in))
+
     def _monitored(self, residuals: Residuals) -> np.ndarray:
         m = residuals.r.shape[-1]
         if max(self.channels) >= m:
@@ -96,3 +110,93 @@ class SubgroupMonitor(Monitor):
     def _check_fitted(self) -> None:
         if not hasattr(self, "std_"):
             raise RuntimeError("Monitor is not fitted: call fit(phase1_residuals) first")
+
+
+@dataclass
+class OnlineSubgroups(OnlineStage):
+    """:class:`SubgroupMonitor`'s causal form: residual rows in, a standardised subgroup on each row that completes one.
+
+    Inputs: the monitored residual channels, one column each (``columns``), from a stream's start (the
+    first ``burn_in`` rows are skipped, as in training). Outputs per row: ``subgroup``, the number
+    k = 1, 2, ... of the subgroup the row completes (0 on a row that completes none), and its
+    standardised points ``z_1`` ... ``z_n`` (NaN elsewhere; internal: they feed the detector).
+
+    State: ``samples_seen`` (rows since the stream's start) and, for ``window`` subgroups, the raw
+    residuals of the unfinished subgroup (``pending_1`` ... ``pending_{n-1}``; only the first
+    ``(samples_seen − burn_in) mod n`` count).
+    """
+
+    columns: tuple
+    mean: np.ndarray
+    std: np.ndarray
+    subgroup: str
+    n: int
+    burn_in: int
+    accepts_missing = False  # a residual stream has no gaps; a subgroup with one has no U_k, V_k
+
+    @property
+    def inputs(self) -> tuple[str, ...]:
+        return tuple(self.columns)
+
+    @property
+    def points(self) -> tuple[str, ...]:
+        return tuple(f"z_{j}" for j in range(1, self.n + 1))
+
+    @property
+    def outputs(self) -> tuple[str, ...]:
+        return ("subgroup", *self.points)
+
+    @property
+    def internal(self) -> tuple[str, ...]:
+        return self.points
+
+    def state_vars(self) -> dict[str, StateVar]:
+        out = {"samples_seen": StateVar("Rows seen since the stream's start.", COUNT)}
+        if self.subgroup == "window":
+            out.update({f"pending_{j}": StateVar(f"Residual {j} of the unfinished subgroup.", FINITE)
+                        for j in range(1, self.n)})
+        return out
+
+    def initial_state(self) -> dict:
+        return {name: (0 if name == "samples_seen" else 0.0) for name in self.state_vars()}
+
+    def example_row(self) -> np.ndarray:
+        return np.asarray(self.mean, float)
+
+    def update(self, columns, state) -> dict[str, np.ndarray]:
+        X = np.column_stack([np.asarray(columns[c], float) for c in self.columns]) if self.columns else np.empty((0, 0))
+        rows, n = len(X), int(self.n)
+        seen = int(state["samples_seen"])
+        after = seen + np.arange(rows) - self.burn_in           # sample index past the burn-in (< 0: in it)
+        live = after >= 0
+        done_before = max(seen - self.burn_in, 0)               # post-burn-in samples before this chunk
+        if self.subgroup == "window":
+            held = done_before % n                              # samples of the unfinished subgroup carried in
+            pending = np.array([float(state[f"pending_{j}"]) for j in range(1, n)])[:held]
+            raw = np.concatenate([pending, X[live, 0]])         # post-burn-in samples from the subgroup's start
+            first = (done_before - held) // n                   # subgroups completed before this chunk
+            complete = len(raw) // n
+            z = ((raw[:complete * n, None] - self.mean) / self.std)[:, 0].reshape(complete, n)
+            closes = live & ((after + 1) % n == 0)
+        else:
+            first, z = done_before, (X[live] - self.mean) / self.std
+            complete = len(z)
+            closes = live
+        at = np.flatnonzero(closes)
+        out = {"subgroup": np.zeros(rows, np.int64)}
+        out["subgroup"][at] = first + np.arange(1, complete + 1)
+        for j, name in enumerate(self.points):
+            column = np.full(rows, np.nan)
+            column[at] = z[:, j]
+            out[name] = column
+        out["samples_seen"] = seen + np.arange(1, rows + 1, dtype=np.int64)
+        if self.subgroup == "window":
+            position = np.where(live, after % n, -1)            # index of the row's sample in its subgroup
+            base = done_before - held                           # post-burn-in index of raw[0]
+            for j in range(1, n):
+                source = after - position + (j - 1) - base      # raw index of the subgroup's j-th sample
+                valid = live & (position < n - 1) & (j - 1 <= position)
+                column = np.zeros(rows)
+                column[valid] = raw[source[valid]]
+                out[f"pending_{j}"] = column
+        return out

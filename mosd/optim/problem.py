@@ -91,12 +91,12 @@ class CandidateEvaluator:
         return objective_values(self.objectives, decided.decision, self.truth)
 
     def fused(self):
-        """The compiled fused evaluation (:func:`mosd.kernels.chart.fused_evaluation`) when it applies, else None.
+        """The compiled fused evaluation (:func:`mosd.detectors.fused.fused_evaluation`) when it applies, else None.
 
         Whether it applies is asked on every call (kernels may be switched off
         for a comparison); the plan on this evaluator's data is built once.
         """
-        from ..kernels.chart import applies, fused_evaluation
+        from ..detectors.fused import applies, fused_evaluation
 
         if not applies(self.detector, self.objectives):
             return None
@@ -172,14 +172,14 @@ def uses_threads(detector, objectives, n_jobs: int, backend: str = "loky") -> bo
     """Whether a tuning of ``detector`` will evaluate on threads rather than loky processes.
 
     The loky backend with ``n_jobs > 1`` and the compiled fused evaluation
-    applying (:func:`mosd.kernels.chart.applies`, the one decision), known
+    applying (:func:`mosd.detectors.fused.applies`, the one decision), known
     before the data exist (the detector and objectives alone), so that a caller
     does not start worker processes it will not use. :attr:`TuningProblem.in_threads`
     is this, and the evaluator's data fitting the kernel.
     """
     if backend != "loky" or n_jobs <= 1:
         return False
-    from ..kernels.chart import applies
+    from ..detectors.fused import applies
 
     return applies(detector, objectives)
 

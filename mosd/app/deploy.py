@@ -1,0 +1,130 @@
+"""A finished run's deployable pipeline and its test stream: built from the components' causal forms, no list.
+
+:func:`deployable` asks each stage of the run for its causal form (:mod:`mosd.streaming`):
+``Estimator.online``, ``Monitor.online`` and ``Detector.online``. No component is named here: a new
+detector that implements ``online`` is deployed with no change to the app. Where a stage has none the
+answer is one line saying why (the run's summary prints it):
+
+* the estimator has none yet (papers 000–003's filters and observers): the pipeline starts at the
+  monitor and the model's input is the estimator's output stream (residuals, mode probabilities, ...);
+  the summary says so;
+* the monitor or the detector has none (paper 000's whole-series wavelet, MS-OEWMA's prefilter):
+  no model.
+
+The run's first test replication — the model's input columns, the time and the run's own decision on
+each row — is written as ``test_stream.parquet``; ``python -m mosd monitor --model URI
+test_stream.parquet`` reproduces its ``alarm`` column exactly. Before anything is saved, the pipeline
+scores that stream in-process and must give the run's own decisions on every row: a disagreement is
+reported (no model) rather than deployed.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..streaming import NoStreamingForm, OnlinePipeline
+
+STREAM_FILE = "test_stream.parquet"
+
+
+@dataclass
+class Deployable:
+    """What :func:`deployable` found: the pipeline (or None and why), the test stream, a note on its input."""
+
+    pipeline: OnlinePipeline | None
+    reason: str | None = None
+    note: str | None = None
+    stream: object = None   # pandas.DataFrame: time, the input columns, the run's decision and alarm
+
+
+def deployable(setup, result) -> Deployable:
+    """The run's pipeline and test stream (module docstring)."""
+    experiment = setup.experiment
+    example = getattr(result, "example", None) or {}
+    outputs = example.get("first_outputs")
+    if outputs is None or "calibration_z" not in example:
+        return Deployable(None, "the run kept no test stream")
+    estimator, monitor, detector = experiment.estimator, experiment.monitor, result.detector
+    note = None
+    stages = []
+    try:
+        stage = estimator.online(getattr(experiment, "model", None))
+        if stage is not None:  # pragma: no cover - no estimator streams its raw inputs yet
+            stages.append(stage)
+    except NoStreamingForm as exc:
+        note = f"model input: the estimator's outputs ({exc})"
+    try:
+        columns = monitor.stream(outputs, estimator.residual_columns(outputs))
+        monitor_stage = monitor.online(tuple(columns))
+        detector_stage = detector.online(np.asarray(example["calibration_z"]), tuple(columns))
+    except NoStreamingForm as exc:
+        return Deployable(None, str(exc))
+    stages += [monitor_stage, detector_stage]
+    pipeline = OnlinePipeline(stages, fill=str(getattr(getattr(experiment, "data", None), "fill", "none")))
+    stream = _stream(pipeline, columns, outputs, np.asarray(example["decision"]))
+    scored = pipeline.update({k: stream[k].to_numpy() for k in pipeline.inputs})
+    name = "decision" if "decision" in scored else "alarm"
+    got, expected = np.asarray(scored[name]), stream[name].to_numpy()
+    if not np.array_equal(got, expected):
+        row = int(np.flatnonzero(got != expected)[0])
+        return Deployable(None, f"its streaming form disagrees with the run's own decision at row {row} of the "
+                                f"first test replication (a bug: please report it)", note, stream)
+    return Deployable(pipeline, None, note, stream)
+
+
+def _stream(pipeline: OnlinePipeline, columns: dict, outputs, decision: np.ndarray):
+    """Time, the input columns and the run's own decision/alarm on each row (0/False off the points)."""
+    import pandas as pd
+
+    rows = len(next(iter(columns.values())))
+    index_name = "subgroup" if "subgroup" in pipeline.stages[-2].outputs else "point"
+    points = pipeline.stages[-2].update({k: np.asarray(v) for k, v in columns.items()},
+                                        pipeline.stages[-2].initial_state())[index_name]
+    at = np.flatnonzero(points > 0)
+    per_row = np.zeros(rows, np.int64)
+    per_row[at] = decision[points[at] - 1]
+    t = np.asarray(outputs.t, float) if outputs.t is not None else np.arange(rows, dtype=float)
+    frame = pd.DataFrame({"t": t, **{k: np.asarray(v, float) for k, v in columns.items()}})
+    frame["decision"] = per_row
+    frame["alarm"] = per_row > 0
+    return frame
+
+
+def save_for_run(setup, result, run_dir) -> tuple[Path | None, Deployable]:
+    """Save the run's pipeline under ``run_dir/model/`` and its test stream beside it (module docstring).
+
+    Returns the model file (None: no model) and what :func:`deployable` found.
+    """
+    from .atomic import write_atomically
+
+    found = deployable(setup, result)
+    run_dir = Path(run_dir)
+    if found.stream is not None:
+        write_atomically(run_dir / STREAM_FILE, lambda out: found.stream.to_parquet(out, index=False), binary=True)
+    if found.pipeline is None:
+        return None, found
+    return found.pipeline.save(run_dir / "model"), found
+
+
+def record_model(run_dir, found: Deployable, model_file: Path | None, uri: str | None = None) -> None:
+    """Say in ``summary.json`` what was deployed: ``model`` (the MLflow model URI once logged, else null), the
+    saved file, the test stream, and why there is no model or what its input is."""
+    import json
+
+    from .atomic import write_json
+
+    path = Path(run_dir) / "summary.json"
+    try:
+        summary = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return
+    summary["model"] = uri
+    summary["deployment"] = {
+        "model_file": None if model_file is None else str(Path(model_file).relative_to(run_dir)),
+        "test_stream": STREAM_FILE if found.stream is not None else None,
+        **({"no_model": found.reason} if found.reason else {}),
+        **({"input": found.note} if found.note else {}),
+    }
+    write_json(path, summary)

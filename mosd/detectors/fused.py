@@ -1,0 +1,169 @@
+"""The fused candidate evaluation of a mean–variance chart: when the compiled kernel replaces the NumPy path.
+
+The arithmetic is :func:`mosd.kernels.chart.alarm_counts` (one compiled loop per candidate that
+keeps one candidate's (R, K) statistic and returns per-run alarm counts); this module decides
+whether it reproduces a detector, its denoiser, its limit rule and the objectives exactly, and
+turns its counts into the objectives. It lives with the detectors because it knows them; the
+kernels know no component.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .. import kernels
+from ..denoisers.base import NoDenoiser
+from ..denoisers.wavelet import WaveletDenoiser
+from ..kernels.wavelet import plan
+from ..validation import check_in
+from .chart import Chart
+from .mean_variance import _MeanVarianceChart
+from .statistics import ewma_coefficients
+
+_FUSED_OBJECTIVES = ("far", "mdr")
+
+
+class FusedChartEvaluation:
+    """Objectives (P, n_obj) of a population of chart designs through :func:`alarm_counts`.
+
+    Built by :func:`fused_evaluation`, which returns None unless the detector,
+    its denoiser, the limit rule and the objectives are exactly what the kernel
+    reproduces; the caller then keeps the reference path.
+    """
+
+    def __init__(self, detector, calibration_features, features, fault_mask, objectives, wavelet_plan):
+        self.detector = detector
+        self.objectives = tuple(objectives)
+        n_calibration = calibration_features.shape[0]
+        both = np.concatenate([calibration_features, features], axis=0)  # (C, 2, K), as Chart.population stacks them
+        self.u = np.ascontiguousarray(both[:, 0, :].T)
+        self.v = np.ascontiguousarray(both[:, 1, :].T)
+        self.n_calibration = n_calibration
+        n_points = both.shape[-1]
+        self.faulty = np.ascontiguousarray(np.broadcast_to(np.asarray(fault_mask, bool), (features.shape[0], n_points)))
+        self.n_faulty = self.faulty.sum(axis=-1)
+        self.n_healthy = (~self.faulty).sum(axis=-1)
+        self.denoise = wavelet_plan is not None
+        if wavelet_plan is None:
+            wavelet_plan = plan(WaveletDenoiser())  # placeholder arguments, unused
+        self.wavelet_arguments = wavelet_plan.arguments(n_points)
+
+    def counts(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Per-run (healthy alarms, target-fault misses), each (P, R_train)."""
+        params = _validated(self.detector, X)
+        gains, feedback = ewma_coefficients(params["lam"], self.detector.order)
+        widths = np.asarray(params["K"], float)
+        from ..kernels.chart import alarm_counts
+
+        return alarm_counts(self.u, self.v, self.n_calibration, gains, feedback, widths,
+                            self.detector.combine == "max", self.faulty, self.denoise, *self.wavelet_arguments)
+
+    def __call__(self, X: np.ndarray) -> np.ndarray:
+        import warnings
+
+        alarms, misses = self.counts(X)
+        columns = []
+        for name in self.objectives:
+            numerator, count = (alarms, self.n_healthy) if name == "far" else (misses, self.n_faulty)
+            # mosd.metrics.detection._share, then the nan-mean of mosd.metrics.registry.objective_values
+            with np.errstate(invalid="ignore", divide="ignore"):
+                per_run = np.where(count > 0, numerator / np.maximum(count, 1), np.nan)
+            with np.errstate(invalid="ignore"), warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)
+                mean = np.nanmean(per_run, axis=-1)
+            columns.append(np.where(np.isfinite(mean), mean, np.inf))
+        return np.stack(columns, axis=-1)
+
+
+def _validated(detector, X: np.ndarray) -> dict:
+    """Each tunable parameter's column of X, validated and rounded as ``Detector.with_params`` does.
+
+    Same checks and the same values as ``detector.candidates(X)``, without copying
+    the detector once per row (which cost as much as the compiled evaluation):
+    a column inside its interval is taken whole; a column with a value outside
+    goes through ``check_in`` value by value, which raises its message.
+    """
+    X = np.atleast_2d(np.asarray(X, float))
+    params = {}
+    for column, (name, interval) in enumerate(detector.tunable.items()):
+        values = X[:, column]
+        values = interval.round(values)
+        low_ok = values > interval.low if interval.open_low else values >= interval.low
+        high_ok = values < interval.high if interval.open_high else values <= interval.high
+        if not np.all(low_ok & high_ok):
+            values = np.array([check_in(f"detector.{name}", value, interval) for value in values], float)
+        params[name] = values
+    return params
+
+
+def supports(detector, objectives) -> bool:
+    """True when the fused kernel reproduces this detector and these objectives, whatever the data.
+
+    A mean–variance chart with the Phase-I limit whose statistic, limit and
+    decision code is the base classes' own (no override in a subclass), order
+    1 or 2, combined by ``ss`` or ``max``, no denoiser or a whole-series
+    wavelet the kernel supports, and objectives among FAR and MDR.
+    :func:`fused_evaluation` adds the checks on the data.
+    """
+    cls = type(detector)
+    if not isinstance(detector, _MeanVarianceChart) or getattr(detector, "limit", None) != "phase1":
+        return False
+    same = [(name, owner) for owner, names in ((Chart, ("population", "population_limits", "fit_statistic",
+                                                         "_phase1_limit", "plotted")),
+                                                (_MeanVarianceChart, ("population_statistics", "_combine",
+                                                                      "control_limit", "normalise", "features")))
+            for name in names]
+    if any(getattr(cls, name) is not getattr(owner, name) for name, owner in same):
+        return False
+    if detector.order not in (1, 2) or detector.combine not in ("ss", "max"):
+        return False
+    if not set(objectives) <= set(_FUSED_OBJECTIVES):
+        return False
+    denoiser = detector.denoiser
+    return type(denoiser) is NoDenoiser or (type(denoiser) is WaveletDenoiser and plan(denoiser) is not None)
+
+
+def applies(detector, objectives) -> bool:
+    """Whether the compiled fused evaluation replaces the NumPy path: the one decision.
+
+    Kernels on (:func:`mosd.kernels.enabled`) and :func:`supports`. The tuning
+    problem's evaluator (``CandidateEvaluator.fused``), the choice of threads over
+    processes (``mosd.optim.problem.uses_threads``, ``TuningProblem.in_threads``)
+    and the experiment's early worker pool all ask this; :func:`fused_evaluation`
+    then checks the data.
+    """
+    return kernels.enabled() and supports(detector, objectives)
+
+
+def fused_evaluation(detector, calibration_features, features, truth, objectives):
+    """A :class:`FusedChartEvaluation` when the kernel reproduces this set-up exactly, else None.
+
+    :func:`applies` (kernels on; the detector and objectives :func:`supports`),
+    then the data: features (R, 2, K) of floats, a fault mask of the runs, a
+    wavelet plan that fits K points and finite features for a wavelet.
+    """
+    if not applies(detector, objectives):
+        return None
+    calibration_features = np.asarray(calibration_features)
+    features = np.asarray(features)
+    if (calibration_features.ndim != 3 or features.ndim != 3 or calibration_features.shape[1:] != features.shape[1:]
+            or features.shape[1] != 2 or calibration_features.dtype != float or features.dtype != float
+            or calibration_features.shape[0] < 1):
+        return None
+    n_points = features.shape[-1]
+    if calibration_features.shape[0] * n_points < 2:
+        return None
+    fault_mask = getattr(truth, "fault_mask", None)
+    if fault_mask is None or np.broadcast_shapes(np.shape(fault_mask), features.shape[::2]) != features.shape[::2]:
+        return None
+    denoiser = detector.denoiser
+    if type(denoiser) is NoDenoiser:
+        wavelet_plan = None
+    elif type(denoiser) is WaveletDenoiser:
+        wavelet_plan = plan(denoiser)
+        if wavelet_plan is None or not wavelet_plan.fits(n_points):
+            return None
+        if not (np.all(np.isfinite(calibration_features)) and np.all(np.isfinite(features))):
+            return None  # the reference raises on non-finite statistics; let it
+    else:
+        return None
+    return FusedChartEvaluation(detector, calibration_features, features, fault_mask, objectives, wavelet_plan)
