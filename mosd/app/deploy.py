@@ -27,6 +27,8 @@ import numpy as np
 from ..streaming import NoStreamingForm, OnlinePipeline
 
 STREAM_FILE = "test_stream.parquet"
+#: the DataFrame attribute (kept in the Parquet file) naming a test stream's reference columns
+REFERENCE_ATTR = "mosd_reference"
 
 
 @dataclass
@@ -89,6 +91,8 @@ def _stream(pipeline: OnlinePipeline, columns: dict, outputs, decision: np.ndarr
     frame = pd.DataFrame({"t": t, **{k: np.asarray(v, float) for k, v in columns.items()}})
     frame["decision"] = per_row
     frame["alarm"] = per_row > 0
+    # the columns that are not the model's inputs: mosd monitor keeps them beside its output (as run_<name>)
+    frame.attrs[REFERENCE_ATTR] = ["t", "decision", "alarm"]
     return frame
 
 

@@ -23,6 +23,8 @@ import sys
 from pathlib import Path
 from typing import Sequence
 
+import numpy as np
+
 from ..validation import ConfigError
 from .settings import default_tracking_uri, redacted
 
@@ -101,6 +103,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser().parse_args(argv)
     try:
         from ..data.table import _read
+        from .deploy import REFERENCE_ATTR
 
         if args.chunk < 1:
             raise ConfigError(f"--chunk={args.chunk} is out of range; allowed: integers >= 1")
@@ -110,12 +113,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         except ConfigError as exc:
             raise ConfigError(str(exc).replace("data.path=", "DATA=")) from None
         frame.columns = [str(c) for c in frame.columns]
+        # a run's test_stream.parquet: its time and the run's own decisions come along as run_<name>
+        reference = [c for c in frame.attrs.get(REFERENCE_ATTR, ()) if c in frame.columns and c not in args.keep]
         missing = [c for c in args.keep if c not in frame.columns]
         if missing:
             raise ConfigError(f"--keep {missing[0]!r} is not a column of {path}; allowed: {', '.join(frame.columns[:8])}")
         tracking = args.tracking_uri or os.environ.get("MLFLOW_TRACKING_URI") or default_tracking_uri()
         model = _load(args.model, tracking)
-        tags = frame.drop(columns=args.keep)
+        tags = frame.drop(columns=[*args.keep, *reference])
         # MLflow's schema enforcement would drop an extra column with a warning: here it is a mistake
         names = model.metadata.get_input_schema().input_names()
         for kind, found in (("is missing", [n for n in names if n not in tags.columns]),
@@ -126,7 +131,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         fill = getattr(getattr(model.unwrap_python_model(), "fitted", None), "fill", "none")
         if fill != "none":
             # the training data's policy for historian error codes and gaps (mosd.data.table), on the whole file
-            import numpy as np
             import pandas as pd
 
             from ..data.table import _fill
@@ -152,6 +156,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     for column in args.keep:
         out.insert(0, column, frame[column].to_numpy())
+    for column in reversed(reference):
+        out.insert(0, column if column == "t" else f"run_{column}", frame[column].to_numpy())
     alarms = out["alarm"].to_numpy(bool)
     if "subgroup" in out.columns:  # a chart decides once per completed subgroup
         decided = int((out["subgroup"].to_numpy() > 0).sum())
@@ -162,12 +168,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     if alarms.any():
         first = int(alarms.argmax())
         row = out.iloc[first]
-        if "statistic" in out.columns:  # a chart on a residual stream (mosd.app.chart_model)
-            print(f"first alarm at row {first} (subgroup {row['subgroup']}): statistic {row['statistic']:.4g} "
-                  f"(limit {row['limit']:.4g})")
+        if "statistic" in out.columns:  # a chart or a threshold on a residual stream
+            where = f" (subgroup {row['subgroup']})" if "subgroup" in out.columns else ""
+            print(f"first alarm at row {first}{where}: statistic {row['statistic']:.4g} (limit {row['limit']:.4g})")
         else:
             print(f"first alarm at row {first}: T² {row['t2']:.4g} (limit {row['t2_limit']:.4g}), SPE "
                   f"{row['spe']:.4g} (limit {row['spe_limit']:.4g}); top T² {row['top_t2']}, top SPE {row['top_spe']}")
+    if "alarm" in reference:
+        same = int(np.sum(out["run_alarm"].to_numpy(bool) == alarms))
+        print(f"the run's own alarms: {same} of {len(out)} rows agree"
+              + ("" if same == len(out) else " (the model does not reproduce its run)"))
     if args.out:
         out.to_csv(args.out, index=False)
         print(f"per-row output: {args.out}")

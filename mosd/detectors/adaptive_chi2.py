@@ -88,7 +88,7 @@ class AdaptiveChi2Detector(Detector):
 @dataclass
 class OnlineAdaptiveChi2(OnlineStage):
     """:class:`AdaptiveChi2Detector`'s causal form: points in (``point``, ``z_1`` = λ_k, ``z_2`` = E_k/σ_N);
-    ``statistic`` (λ_k), ``threshold`` (a·T_D + b·(E_{k−d}/σ_N)²), ``decision`` and ``alarm`` out.
+    ``statistic`` (λ_k), ``limit`` (a·T_D + b·(E_{k−d}/σ_N)²), ``decision`` and ``alarm`` out.
 
     State: the last d scaled observer residuals (``observer_1`` = E_{k−1}/σ_N, ...; null before the first
     points, as the population's NaN) and ``run_length`` (consecutive exceedances).
@@ -105,7 +105,7 @@ class OnlineAdaptiveChi2(OnlineStage):
 
     @property
     def outputs(self) -> tuple[str, ...]:
-        return ("statistic", "threshold", "decision", "alarm")
+        return ("statistic", "limit", "decision", "alarm")
 
     def state_vars(self) -> dict[str, StateVar]:
         out = {f"observer_{i}": StateVar(f"E/σ_N of the point {i} back (null: none yet).", FINITE, missing=True)
@@ -128,7 +128,7 @@ class OnlineAdaptiveChi2(OnlineStage):
             exceed = z[:, 0] > threshold
         run = run_lengths(exceed, int(state["run_length"]))
         alarm = run >= self.persistence
-        per_point = {"statistic": z[:, 0], "threshold": threshold, "decision": alarm.astype(np.int64),
+        per_point = {"statistic": z[:, 0], "limit": threshold, "decision": alarm.astype(np.int64),
                      "alarm": alarm, "run_length": run}
         for i in range(1, d + 1):                        # E of the point i back, after each point
             per_point[f"observer_{i}"] = history[d - i + 1: d - i + 1 + len(at)]

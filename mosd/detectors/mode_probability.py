@@ -86,7 +86,7 @@ class ModeProbabilityDetector(Detector):
 @dataclass
 class OnlineModeProbability(OnlineStage):
     """:class:`ModeProbabilityDetector`'s causal form: mode probabilities in (``point``, ``z_1`` = normal model,
-    ``z_{i+1}`` = fault model i); ``statistic`` (max_i μ_i), ``threshold`` (μ_T), ``decision`` (the fault declared,
+    ``z_{i+1}`` = fault model i); ``statistic`` (max_i μ_i), ``limit`` (μ_T), ``decision`` (the fault declared,
     0 none) and ``alarm`` out. State: ``run_length_i``, consecutive steps with μ_i > μ_T, per fault model."""
 
     mu_T: float
@@ -100,7 +100,7 @@ class OnlineModeProbability(OnlineStage):
 
     @property
     def outputs(self) -> tuple[str, ...]:
-        return ("statistic", "threshold", "decision", "alarm")
+        return ("statistic", "limit", "decision", "alarm")
 
     def state_vars(self) -> dict[str, StateVar]:
         return {f"run_length_{i}": StateVar(f"Consecutive steps with fault model {i}'s probability above μ_T.", COUNT)
@@ -119,6 +119,6 @@ class OnlineModeProbability(OnlineStage):
         winner = np.argmax(np.where(held, faults, -1.0), axis=-1) if len(at) else np.zeros(0, np.int64)
         decision = np.where(held.any(axis=-1), np.asarray(self.labels)[winner], 0).astype(np.int64)
         per_point = {"statistic": faults.max(axis=-1) if len(at) else np.empty(0),
-                     "threshold": np.full(len(at), float(self.mu_T)), "decision": decision, "alarm": decision > 0}
+                     "limit": np.full(len(at), float(self.mu_T)), "decision": decision, "alarm": decision > 0}
         per_point.update({f"run_length_{i}": runs[:, i - 1] for i in range(1, self.n)})
         return spread(rows, at, per_point, state)

@@ -70,7 +70,7 @@ class ThresholdDetector(Detector):
 @dataclass
 class OnlineThreshold(OnlineStage):
     """:class:`ThresholdDetector`'s causal form: points in (``point``, ``z_1`` ... ``z_n``); ``statistic``
-    (max_j |z_j|), ``threshold``, ``decision`` and ``alarm`` out. State: ``run_length`` (consecutive exceedances)."""
+    (max_j |z_j|), ``limit`` (the threshold), ``decision`` and ``alarm`` out. State: ``run_length`` (consecutive exceedances)."""
 
     threshold: float
     persistence: int
@@ -82,7 +82,7 @@ class OnlineThreshold(OnlineStage):
 
     @property
     def outputs(self) -> tuple[str, ...]:
-        return ("statistic", "threshold", "decision", "alarm")
+        return ("statistic", "limit", "decision", "alarm")
 
     def state_vars(self) -> dict[str, StateVar]:
         return {"run_length": StateVar("Consecutive points above the threshold.", COUNT)}
@@ -97,5 +97,5 @@ class OnlineThreshold(OnlineStage):
             exceeds = statistic > self.threshold
         run = run_lengths(exceeds, int(state["run_length"]))
         alarm = run >= self.persistence
-        return spread(rows, at, {"statistic": statistic, "threshold": np.full(len(at), float(self.threshold)),
+        return spread(rows, at, {"statistic": statistic, "limit": np.full(len(at), float(self.threshold)),
                                  "decision": alarm.astype(np.int64), "alarm": alarm, "run_length": run}, state)
