@@ -69,10 +69,19 @@ CASES = [(SSDEWMA, "phase1", "window"), (SSDEWMA, "theoretical", "window"), (SSD
          (EWMA, "time_varying", "window"), (EWMA, "time_varying", "channels")]
 
 
-@pytest.mark.parametrize("cls, limit, subgroup", CASES)
-def test_scoring_equals_the_chart_in_one_call_in_chunks_and_row_by_row(cls, limit, subgroup):
+def _causal_wavelet():
+    from mosd.denoisers.wavelet import WaveletDenoiser
+
+    return WaveletDenoiser(window=48)   # 80 subgroups a run: prefixes (k < 47) and full windows both
+
+
+@pytest.mark.parametrize("cls, limit, subgroup, denoiser", [(*case, None) for case in CASES]
+                         + [(SSDEWMA, "phase1", "window", "causal"), (EWMA, "phase1", "channels", "causal"),
+                            (MaxEWMA, "normalised", "window", "causal")])
+def test_scoring_equals_the_chart_in_one_call_in_chunks_and_row_by_row(cls, limit, subgroup, denoiser):
     width = {"L": 1.0} if cls is EWMA else {"K": 1.0}
-    pipeline, decided, streams = fitted_and_decisions(cls(lam=0.25, limit=limit, **width), subgroup)
+    chart = cls(lam=0.25, limit=limit, denoiser=_causal_wavelet() if denoiser else None, **width)
+    pipeline, decided, streams = fitted_and_decisions(chart, subgroup)
     for run, stream in enumerate(streams):
         whole = score(pipeline, stream)
         at = whole["subgroup"] > 0

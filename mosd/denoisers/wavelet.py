@@ -375,6 +375,27 @@ class WaveletDenoiser(Component):
             unit = [select_threshold(source, self.threshold)[:, None]] * len(details)
         return [np.where(u, t * s, 0.0) for t, s, u in zip(unit, safe, usable)]
 
+    def causal_tail(self, history: np.ndarray, n_new: int, first: int) -> np.ndarray:
+        """The causal denoised values of the last ``n_new`` points of ``history`` (a stream's causal form).
+
+        ``history`` holds, oldest first, up to ``window − 1`` earlier raw values and then the new ones; its
+        first value is point ``first`` (0-based) of the stream. Point k's value is the last of the
+        denoised x[max(0, k−w+1) .. k] (points before ``min_length − 1`` pass through): what
+        :meth:`denoise` gives for the whole series, window by window, bit for bit.
+        """
+        history = np.asarray(history, float)
+        w, out = self.window, np.empty(n_new)
+        ends = np.arange(len(history) - n_new, len(history))            # positions of the new points in history
+        lengths = np.minimum(first + ends + 1, w)                       # the window (or prefix) of each
+        for length in np.unique(lengths):
+            at = np.flatnonzero(lengths == length)
+            if length < self.min_length:
+                out[at] = history[ends[at]]
+                continue
+            windows = np.stack([history[e - length + 1:e + 1] for e in ends[at]])
+            out[at] = self._denoise_rows(windows)[:, -1]
+        return out
+
     def _denoise_causal(self, rows: np.ndarray) -> np.ndarray:
         """Causal sliding-window denoising of every row (see class docstring)."""
         n_rows, n = rows.shape

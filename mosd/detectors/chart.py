@@ -155,9 +155,9 @@ class Chart(Detector):
     def online(self, calibration_z: np.ndarray, inputs=None) -> OnlineChart:
         """This tuned chart with its limit fitted on ``calibration_z`` (R, K, n) as an :class:`OnlineChart`.
 
-        Raises :class:`~mosd.streaming.NoStreamingForm` where no causal form exists: a denoiser (the
-        paper's wavelet needs the whole series; the causal wavelet's window of past statistics is not
-        carried as state yet) or a chart without ``parts`` (MS-OEWMA's whole-series prefilter).
+        Raises :class:`~mosd.streaming.NoStreamingForm` where no causal form exists: a whole-series
+        denoiser (the paper's wavelet needs the whole series; the causal wavelet streams, its window of
+        earlier statistics carried as state) or a chart without ``parts`` (MS-OEWMA's whole-series prefilter).
         """
         if not self.parts:
             raise NoStreamingForm(f"{type(self).__name__} filters the whole residual series before charting it: "
@@ -165,9 +165,10 @@ class Chart(Detector):
         if not isinstance(self.denoiser, NoDenoiser):
             if not self.is_causal:
                 raise NoStreamingForm(f"the denoiser {type(self.denoiser).__name__} filters the whole series: no "
-                                      "decision exists before the series ends (denoise=none or wavelet_causal is online)")
-            raise NoStreamingForm(f"the causal denoiser {type(self.denoiser).__name__}'s window of past statistics is "
-                                  "not carried as state yet")
+                                      "decision exists before the series ends (with denoise=none or "
+                                      "denoise=wavelet_causal the chart streams)")
+            if not callable(getattr(self.denoiser, "causal_tail", None)):
+                raise NoStreamingForm(f"the causal denoiser {type(self.denoiser).__name__} has no streaming form")
         fitted = self.clone()
         limit_value = np.nan
         if self.limit not in ("theoretical", "time_varying"):
@@ -177,7 +178,12 @@ class Chart(Detector):
         design = {k: (float(v) if not isinstance(v, str) else v) for k, v in design.items()}
         cls = type(self)
         n = int(np.shape(calibration_z)[-1])
-        return OnlineChart(detector=f"{cls.__module__}.{cls.__qualname__}", design=design, limit_value=limit_value, n=n)
+        denoiser = {}
+        if not isinstance(self.denoiser, NoDenoiser):
+            kind = type(self.denoiser)
+            denoiser = {"class": f"{kind.__module__}.{kind.__qualname__}", "params": self.denoiser.get_params()}
+        return OnlineChart(detector=f"{cls.__module__}.{cls.__qualname__}", design=design, limit_value=limit_value, n=n,
+                           denoiser=denoiser)
 
     # -- the limit --------------------------------------------------------------------
     def fit(self, z_phase1: np.ndarray) -> "Chart":
@@ -234,15 +240,25 @@ class OnlineChart(OnlineStage):
     design: dict
     limit_value: float
     n: int
+    denoiser: dict = None   # a causal denoiser: {"class": "module.Class", "params": {...}}; empty: none
 
     def _chart(self) -> "Chart":
         cached = self.__dict__.get("_chart_object")
         if cached is None:
             import importlib
 
-            module, _, name = self.detector.rpartition(".")
-            cached = self.__dict__["_chart_object"] = getattr(importlib.import_module(module), name)(**self.design)
+            def build(path, params):
+                module, _, name = path.rpartition(".")
+                return getattr(importlib.import_module(module), name)(**params)
+
+            denoiser = build(self.denoiser["class"], self.denoiser["params"]) if self.denoiser else None
+            cached = self.__dict__["_chart_object"] = build(self.detector, {**self.design, "denoiser": denoiser})
         return cached
+
+    @property
+    def window(self) -> int:
+        """Raw statistics the causal denoiser's window carries (0 without one)."""
+        return int(self._chart().denoiser.window) - 1 if self.denoiser else 0
 
     @property
     def parts(self) -> tuple[str, ...]:
@@ -261,8 +277,11 @@ class OnlineChart(OnlineStage):
         return (*self.parts, "statistic", "limit", "alarm")
 
     def state_vars(self) -> dict[str, StateVar]:
-        return {f"smooth_{part}_{lag}": StateVar(f"Smoothed {part} of the subgroup {lag} back.", FINITE)
-                for part in self.parts for lag in range(1, self.order + 1)}
+        out = {f"smooth_{part}_{lag}": StateVar(f"Smoothed {part} of the subgroup {lag} back.", FINITE)
+               for part in self.parts for lag in range(1, self.order + 1)}
+        out.update({f"raw_{lag}": StateVar(f"The statistic before denoising, {lag} subgroups back.", FINITE)
+                    for lag in range(1, self.window + 1)})
+        return out
 
     def initial_state(self) -> dict:
         return {name: 0.0 for name in self.state_vars()}
@@ -281,6 +300,12 @@ class OnlineChart(OnlineStage):
         statistic = chart.statistic_of_smoothed(smoothed) if complete else np.empty(0)
         if self.design.get("limit") == "normalised" and complete:
             statistic = statistic / chart._scale(int(number[-1]))[number - 1]
+        raw = statistic
+        if self.window and complete:   # the causal denoiser: its window of earlier statistics, then these
+            seen = int(number[0]) - 1                                       # subgroups before this chunk
+            carried = np.array([float(state[f"raw_{lag}"]) for lag in range(min(seen, self.window), 0, -1)])
+            history = np.concatenate([carried, raw])
+            statistic = chart.denoiser.causal_tail(history, complete, seen - len(carried))
         if np.isnan(self.limit_value):
             limit = chart.control_limit(int(number[-1]))[number - 1] if complete else np.empty(0)
         else:
@@ -300,4 +325,9 @@ class OnlineChart(OnlineStage):
                                   *smoothed[s]])                # oldest first: the carried values, then this chunk's
             for lag in range(1, order + 1):
                 out[f"smooth_{part}_{lag}"] = history[last + order - lag + 1]
+        if self.window:
+            w = self.window
+            history = np.asarray([*(float(state[f"raw_{lag}"]) for lag in range(w, 0, -1)), *raw])
+            for lag in range(1, w + 1):
+                out[f"raw_{lag}"] = history[last + w - lag + 1]
         return out
