@@ -9,7 +9,7 @@ answer is one line saying why (the run's summary prints it):
   monitor and the model's input is the estimator's output stream (residuals, mode probabilities, ...);
   the summary says so;
 * the monitor or the detector has none (paper 000's whole-series wavelet, MS-OEWMA's prefilter):
-  no model.
+  no model (the test stream is still written when the monitor streams).
 
 The run's first test replication — the model's input columns, the time and the run's own decision on
 each row — is written as ``test_stream.parquet``; ``python -m mosd monitor --model URI
@@ -60,12 +60,15 @@ def deployable(setup, result) -> Deployable:
     try:
         columns = monitor.stream(outputs, estimator.residual_columns(outputs))
         monitor_stage = monitor.online(tuple(columns))
-        detector_stage = detector.online(np.asarray(example["calibration_z"]), tuple(columns))
     except NoStreamingForm as exc:
         return Deployable(None, str(exc))
+    stream = _stream(monitor_stage, columns, outputs, np.asarray(example["decision"]))
+    try:
+        detector_stage = detector.online(np.asarray(example["calibration_z"]), tuple(columns))
+    except NoStreamingForm as exc:
+        return Deployable(None, str(exc), None, stream)
     stages += [monitor_stage, detector_stage]
     pipeline = OnlinePipeline(stages, fill=str(getattr(getattr(experiment, "data", None), "fill", "none")))
-    stream = _stream(pipeline, columns, outputs, np.asarray(example["decision"]))
     scored = pipeline.update({k: stream[k].to_numpy() for k in pipeline.inputs})
     name = "decision" if "decision" in scored else "alarm"
     got, expected = np.asarray(scored[name]), stream[name].to_numpy()
@@ -76,14 +79,14 @@ def deployable(setup, result) -> Deployable:
     return Deployable(pipeline, None, note, stream)
 
 
-def _stream(pipeline: OnlinePipeline, columns: dict, outputs, decision: np.ndarray):
+def _stream(monitor_stage, columns: dict, outputs, decision: np.ndarray):
     """Time, the input columns and the run's own decision/alarm on each row (0/False off the points)."""
     import pandas as pd
 
     rows = len(next(iter(columns.values())))
-    index_name = "subgroup" if "subgroup" in pipeline.stages[-2].outputs else "point"
-    points = pipeline.stages[-2].update({k: np.asarray(v) for k, v in columns.items()},
-                                        pipeline.stages[-2].initial_state())[index_name]
+    index_name = "subgroup" if "subgroup" in monitor_stage.outputs else "point"
+    points = monitor_stage.update({k: np.asarray(v) for k, v in columns.items()},
+                                  monitor_stage.initial_state())[index_name]
     at = np.flatnonzero(points > 0)
     per_row = np.zeros(rows, np.int64)
     per_row[at] = decision[points[at] - 1]
