@@ -289,6 +289,8 @@ def test_the_options_command_lists_a_group_and_refuses_an_unknown_one(capsys):
     assert out.startswith("### `detector`") and "`ss_dewma`" in out and "### `plant`" not in out
     assert mosd.app.main(["options", "detectors"]) == 2
     assert capsys.readouterr().err.strip().startswith("mosd: error: options group 'detectors' is unknown; allowed: ")
+    assert mosd.app.main(["options", "--no-such-flag"]) == 2
+    assert capsys.readouterr().err.strip() == "mosd: error: options: unrecognized arguments: --no-such-flag"
 
 
 def _readme_option_rows() -> list[tuple[str, str, str]]:

@@ -126,8 +126,15 @@ def markdown(found: dict[str, list[Option]]) -> str:
     return "\n".join(out)
 
 
+class _Parser(argparse.ArgumentParser):
+    """Argument errors are one line and exit 2, as everywhere in the app."""
+
+    def error(self, message: str):
+        self.exit(2, f"mosd: error: options: {message}\n")
+
+
 def main(argv: Sequence[str]) -> int:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="mosd options", description="Every option of the config groups: class, description, keys with their "
         "defaults and allowed values (derived from conf/ and the classes' declarations).")
     parser.add_argument("groups", nargs="*", metavar="GROUP", help="config groups to list (default: all)")
