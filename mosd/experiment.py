@@ -144,13 +144,36 @@ class Experiment:
                               "allowed: an absolute fault with this estimator")
 
     # -- stages -----------------------------------------------------------------------
-    def simulate(self, fault, n_reps: int, stream: str, fault_scale: float = 1.0):
-        return Scenario(self.plant, self.noise, fault, self.duration).simulate(self.seed, n_reps, stream=stream,
-                                                                               fault_scale=fault_scale)
+    #: the fault-free calibration outputs the unit of relative faults comes from (set by calibrate/prepare)
+    _calibration: Residuals | None = None
 
-    def residuals(self, fault, n_reps: int, stream: str, fault_scale: float = 1.0) -> Residuals:
+    def fault_scale(self, fault) -> float:
+        """The unit of ``fault``'s magnitudes: σ of the fault-free residual for a relative fault, else 1.
+
+        The experiment owns the scale: a relative fault (``fault.relative``, e.g.
+        :class:`~mosd.faults.sensor.SensorFault`) is in units of the in-control σ
+        of its channel's calibration residual (:meth:`Monitor.fault_scale`), so
+        ``a = 2`` means 2σ whoever simulates it. Calibrates first when
+        :meth:`calibrate` has not run yet.
+        """
+        relative = [m for m in (fault.members if fault is not None else ()) if m.relative]
+        if not relative:
+            return 1.0
+        channels = sorted({m.channel for m in relative})
+        if len(channels) > 1:
+            raise ConfigError(f"fault.faults: relative faults on channels {channels} share one unit; "
+                              "allowed: relative faults on one channel")
+        calibration = self._calibration if self._calibration is not None else self.calibrate()
+        return self.monitor.fault_scale(calibration, channels[0])
+
+    def simulate(self, fault, n_reps: int, stream: str):
+        """Replications of a seed stream; a relative fault in σ of the fault-free residual (:meth:`fault_scale`)."""
+        return Scenario(self.plant, self.noise, fault, self.duration).simulate(self.seed, n_reps, stream=stream,
+                                                                               fault_scale=self.fault_scale(fault))
+
+    def residuals(self, fault, n_reps: int, stream: str) -> Residuals:
         """Simulate a seed stream and run the estimator on it."""
-        return self.estimator.estimate(self.simulate(fault, n_reps, stream, fault_scale), self.model)
+        return self.estimator.estimate(self.simulate(fault, n_reps, stream), self.model)
 
     def fit_estimator(self) -> None:
         """Train the estimator on its own seed stream (no-op for estimators without ``fit``)."""
@@ -166,6 +189,7 @@ class Experiment:
         self.fit_estimator()
         phase1_res = self.residuals(None, self.budget.n_calibration, "calibration")
         self.monitor.fit(phase1_res)
+        self._calibration = phase1_res
         return phase1_res
 
     def prepare(self, calibration: Residuals | None = None, fault=None) -> PreparedData:
@@ -177,15 +201,16 @@ class Experiment:
         """
         fault = fault or self.fault
         phase1_res = self.calibrate() if calibration is None else calibration
-        sigma = self.monitor.fault_scale(phase1_res, fault.channel) if fault.relative else 1.0
-        train_res = self.residuals(fault, self.budget.n_train, "training", fault_scale=sigma)
+        self._calibration = phase1_res
+        sigma = self.fault_scale(fault)
+        train_res = self.residuals(fault, self.budget.n_train, "training")
         return PreparedData(sigma=sigma, phase1=self.monitor.transform(phase1_res),
                             train=self.monitor.transform(train_res), phase1_residuals=phase1_res,
                             train_residuals=train_res)
 
     def test_data(self, data: PreparedData, n_test: int | None = None, fault=None) -> tuple[Subgroups, Residuals]:
         """Fresh test replications (seed stream ``test``) of ``fault`` (default: the experiment's)."""
-        test_res = self.residuals(fault or self.fault, n_test or self.budget.n_test, "test", fault_scale=data.sigma)
+        test_res = self.residuals(fault or self.fault, n_test or self.budget.n_test, "test")
         return self.monitor.transform(test_res), test_res
 
     def evaluator(self, data: PreparedData, detector=None):

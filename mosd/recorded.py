@@ -47,8 +47,8 @@ class RecordedExperiment(Experiment):
         self.seed = check_int("seed", seed, 0, 2**63 - 1)
         self.objectives = check_objectives(objectives)
 
-    def simulate(self, fault, n_reps: int, stream: str, fault_scale: float = 1.0):
-        """The recorded runs of split ``stream`` (``fault``, ``n_reps`` and ``fault_scale`` do not apply)."""
+    def simulate(self, fault, n_reps: int, stream: str):
+        """The recorded runs of split ``stream`` (``fault`` and ``n_reps`` do not apply)."""
         return self.data.trace(stream)
 
     def fit_estimator(self) -> None:

@@ -67,12 +67,14 @@ class Scenario:
         return np.arange(self.n_samples) * self.plant.dt
 
     def simulate(
-        self, seed: int, n_reps: int, stream: str | int = "training", fault_scale: float = 1.0, first: int = 0
+        self, seed: int, n_reps: int, stream: str | int = "training", fault_scale: float | None = None, first: int = 0
     ) -> Trace:
         """Simulate replications ``first .. first+n_reps-1`` of a seed stream.
 
         ``fault_scale`` is the unit of relative faults (σ of the faulty
-        channel's residual, see :mod:`mosd.faults.sensor`).
+        channel's fault-free residual, see :mod:`mosd.faults.sensor`): required
+        for one (no default unit is right; :meth:`mosd.experiment.Experiment.simulate`
+        computes it), ignored by absolute faults.
         """
         n_reps = check_int("n_reps", n_reps, 1)
         rngs = replication_rngs(seed, stream, n_reps, first)

@@ -130,3 +130,27 @@ def test_the_worker_pool_adapter_sees_and_stops_lokys_workers():
     assert os.getpid() not in found["seen"] and found["total"] == 6
     assert found["sentinels"] == found["seen"]  # a stopped joblib sweep waits on them (mosd.app.signals)
     assert found["hangup_blocked"] == [True, True]  # SIGHUP to the group no longer kills the trackers
+
+
+def test_the_unverified_tls_context_checks_neither_certificate_nor_host():
+    import ssl
+
+    from mosd.app.compat import unverified_tls_context
+
+    context = unverified_tls_context()
+    assert isinstance(context, ssl.SSLContext)
+    assert context.verify_mode == ssl.CERT_NONE and context.check_hostname is False
+
+
+def test_no_private_call_outside_the_adapters():
+    """``ssl._…``, ``atexit._…``, ``hydra._internal`` are reached in compat.py (and the optimiser's workers.py) only."""
+    import re
+    from pathlib import Path
+
+    package = Path(__file__).resolve().parents[1] / "mosd"
+    private = re.compile(r"\b(ssl|atexit)\._[a-z]|hydra\._internal")
+    found = [f"{path.relative_to(package)}:{n}" for path in sorted(package.rglob("*.py"))
+             if path.name not in ("compat.py", "workers.py")
+             for n, line in enumerate(path.read_text().splitlines(), 1)
+             if private.search(line.split("#")[0])]
+    assert not found, found

@@ -78,7 +78,7 @@ def test_groups_are_the_documented_ones():
 @pytest.mark.parametrize("group,option", OPTIONS, ids=[f"{g}={o}" for g, o in OPTIONS])
 def test_every_option_composes_and_builds(composer, group, option):
     context = _fault_override(group, option)
-    plus = group == "experiment" or (group == "fault" and not context)
+    plus = group in ("experiment", "debug") or (group == "fault" and not context)
     choice = f"+{group}={option}" if plus else f"{group}={option}"
     cfg = composer(*context, choice)
     setup = _build_module.build(cfg)
@@ -243,21 +243,91 @@ def test_preflight_accepts_the_main_command_and_a_sweep():
     _preflight_module.preflight(["-m", "+fault=offset,variance", "optimizer=mopso,nsga2", "hydra/launcher=joblib"])
 
 
-def test_pyproject_ships_conf_inside_the_package():
-    tomllib = pytest.importorskip("tomllib")
+def test_the_packages_are_found_and_conf_ships_inside_the_package():
+    """setup.py finds every package and config group: a new one needs no edit (issue 28 item 3)."""
+    import importlib.util
+
+    import tomllib
+    from setuptools import find_packages
+
     setuptools = tomllib.loads((README.parent / "pyproject.toml").read_text())["tool"]["setuptools"]
-    assert setuptools["package-dir"]["mosd.conf"] == "conf"
-    assert {"mosd.conf", *(f"mosd.conf.{g}" for g in GROUPS)} <= set(setuptools["packages"])
+    assert "packages" not in setuptools and "package-dir" not in setuptools  # no hand-kept list left
+    spec = importlib.util.spec_from_file_location("mosd_setup", README.parent / "setup.py")
+    setup_module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(setup_module)  # defines packages(); setup() runs only as __main__
+    nested = sorted(".".join(p.relative_to(CONF).parts) for p in CONF.rglob("*") if p.is_dir())
+    assert "debug.tiny" in nested
+    assert set(setup_module.packages()) == {*find_packages(str(README.parent), include=["mosd", "mosd.*"]),
+                                            "mosd.conf", *(f"mosd.conf.{g}" for g in nested)}
 
 
-def test_readme_documents_every_key():
+def test_the_options_listing_derives_every_option_and_key():
+    """``mosd options``: every YAML of every group, its class and every key with the class's allowed values."""
+    from mosd.app.options import listing, markdown
+
+    found = listing()
+    assert set(found) == set(GROUPS)
+    for group, opts in found.items():
+        assert [o.name for o in opts] == _config_module.options(group)
+        for opt in opts:
+            node = OmegaConf.load(CONF / group / f"{opt.name}.yaml")
+            assert opt.target == (node.get("_target_") if group != "experiment" else None)
+            if group != "experiment":
+                assert [k.name for k in opt.keys] == [k for k in node if not k.startswith("_")]
+    ewma = {k.name: k for k in next(o for o in found["detector"] if o.name == "ewma").keys}
+    assert ewma["lam"].declared == "float in (0, 1]" and ewma["lam"].default == "0.2"
+    assert ewma["lam"].comment == "smoothing lambda"
+    text = markdown(found)
+    assert "| `cusum` | `mosd.detectors.cusum.Cusum` |" in text and "### `debug`" in text
+
+
+def test_the_options_command_lists_a_group_and_refuses_an_unknown_one(capsys):
+    import mosd.app
+
+    assert mosd.app.main(["options", "detector"]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("### `detector`") and "`ss_dewma`" in out and "### `plant`" not in out
+    assert mosd.app.main(["options", "detectors"]) == 2
+    assert capsys.readouterr().err.strip().startswith("mosd: error: options group 'detectors' is unknown; allowed: ")
+    assert mosd.app.main(["options", "--no-such-flag"]) == 2
+    assert capsys.readouterr().err.strip() == "mosd: error: options: unrecognized arguments: --no-such-flag"
+
+
+def _readme_option_rows() -> list[tuple[str, str, str]]:
+    """(group, option, class cell) of every row of the README's option tables (``| option | ...`` headers)."""
+    rows, group, in_table = [], None, False
+    for line in README.read_text().splitlines():
+        heading = re.match(r"^### `(\w+)`", line)
+        if heading:
+            group, in_table = heading.group(1), False
+        elif line.startswith("| option |"):
+            in_table = True
+        elif not line.startswith("|"):
+            in_table = False
+        elif in_table and group and not line.startswith("|---"):
+            cells = [c.strip() for c in line.strip("|").split("|")]
+            rows.append((group, re.match(r"`([\w.]+)`", cells[0]).group(1), cells[1]))
+    return rows
+
+
+def test_the_readme_option_tables_agree_with_the_configs():
+    """The README's tables are a selection, never a registry: each row names an existing option and its class.
+
+    The complete list is derived (``python -m mosd options``): a new component is one module and one YAML.
+    """
+    rows = _readme_option_rows()
+    assert len(rows) >= 30 and {g for g, _, _ in rows} >= {"plant", "estimator", "detector", "optimizer"}
+    for group, option, cell in rows:
+        assert option in _config_module.options(group), f"README lists {group}={option}, which conf/ lacks"
+        target = OmegaConf.load(CONF / group / f"{option}.yaml").get("_target_")
+        named = re.search(r"`([A-Za-z_]\w*(?:\.\w+){2,})`", cell)
+        if target and named:
+            assert named.group(1) == target, f"README: {group}={option} is {named.group(1)}, conf/ says {target}"
+    assert "python -m mosd options" in README.read_text()
+
+
+def test_readme_documents_the_top_level_keys():
     text = README.read_text()
-    for group, option in OPTIONS:
-        assert f"`{option}`" in text, f"README misses option {group}={option}"
-        if group == "experiment":  # a preset sets keys of other groups, documented with them
-            continue
-        for key in (k for k in OmegaConf.load(CONF / group / f"{option}.yaml") if not k.startswith("_")):
-            assert f"`{key}`" in text, f"README misses key {group}.{key}"
     for key in ("seed", "scenario.duration", "budget.n_train", "budget.n_test", "budget.n_calibration",
                 "selection.rule", "selection.alpha", "progress", "outputs_root"):
         assert f"`{key}`" in text, f"README misses key {key}"

@@ -126,9 +126,9 @@ def test_compiled_closed_loop_simulation_is_bit_identical():
 
     plant, noise = MouldOscillator(), GaussianNoise()
     scenario = Scenario(plant, noise, SensorFault(kind="offset_var", b=2.0, onset=0.3), duration=0.6)
-    got = scenario.simulate(4, 3, stream="test")
+    got = scenario.simulate(4, 3, stream="test", fault_scale=0.01)
     with kernels.disabled():
-        ref = scenario.simulate(4, 3, stream="test")
+        ref = scenario.simulate(4, 3, stream="test", fault_scale=0.01)
     for name in ("x", "y", "u", "fault_mask"):
         assert np.array_equal(getattr(got, name), getattr(ref, name)), name
 

@@ -119,3 +119,21 @@ def test_no_module_imports_itself_back():
                     seen.add(nxt)
                     stack.append((nxt, path + [nxt]))
     assert not circles, circles[:5]
+
+
+#: kernel modules that still reach up into the components they serve: the lead's streaming contract
+#: (issue 28 item 1) makes the chart kernel the one implementation, called by the detectors; then empty
+KERNELS_REACHING_UP = {"mosd.kernels.chart"}
+
+
+def test_kernels_are_below_the_components():
+    """The compiled kernels are the arithmetic the components call (denoisers.wavelet → kernels.wavelet is
+    downward); a kernel imports no component, only numba, NumPy, the validation contract and other kernels."""
+    components = tuple(f"mosd.{kind}" for kind in ("plants", "noise", "faults", "estimators", "monitors",
+                                                   "detectors", "denoisers", "data", "metrics"))
+    reaching_up = set()
+    for path in sorted((PACKAGE / "kernels").glob("*.py")):
+        module = "mosd.kernels" if path.stem == "__init__" else f"mosd.kernels.{path.stem}"
+        if {name for name in _imports(path) if name.startswith(components)}:
+            reaching_up.add(module)
+    assert reaching_up == KERNELS_REACHING_UP, sorted(reaching_up ^ KERNELS_REACHING_UP)

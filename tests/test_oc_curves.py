@@ -71,14 +71,15 @@ def test_faulty_subgroups_inject_the_sensor_faults_of_the_plant():
     t = dt * np.arange(1, T * n + 1)
     for kind, size in (("offset", 0.5), ("drift", 2.0)):
         g, active = sensor_fault_signals(SensorFault(kind, onset=0.0, a=size), t,
-                                         [np.random.default_rng(r) for r in range(R)], n_outputs=1)
+                                         [np.random.default_rng(r) for r in range(R)], n_outputs=1,
+                                         scale=1.0)  # standardised points: σ = 1
         assert active.all()
         np.testing.assert_allclose(oc.faulty_subgroups(base, kind, size, dt), base + g[..., 0].reshape(R, T, n),
                                    rtol=1e-12, atol=1e-15, err_msg=kind)
     wide = np.random.default_rng(45).standard_normal((4, 5000, n))
     t = dt * np.arange(1, 5000 * n + 1)
     g, _ = sensor_fault_signals(SensorFault("variance", onset=0.0, b=1.5), t,
-                                [np.random.default_rng(100 + r) for r in range(4)], n_outputs=1)
+                                [np.random.default_rng(100 + r) for r in range(4)], n_outputs=1, scale=1.0)
     plant = (wide + g[..., 0].reshape(wide.shape)).std()
     study = oc.faulty_subgroups(wide, "variance", 1.5, dt).std()
     se = 1.5 / math.sqrt(2 * wide.size)  # standard error of a normal sample's standard deviation

@@ -82,16 +82,18 @@ def test_a_value_outside_a_declared_interval_names_the_config_key_and_the_declar
     component = _default(cls)
     checked = 0
     for name, param in cls.params.items():
-        if not isinstance(param.domain, Interval) or param.sequence:
+        if not isinstance(param.domain, Interval):
             continue
         interval = param.interval(component)
         if interval.high == math.inf:
             bad = interval.low - 1.0
         else:
             bad = interval.high + 1.0 if not interval.integer else int(interval.high) + 1
+        # a sequence parameter: one bad element among good ones (the default's own values)
+        value = (*(getattr(component, name) or ())[1:], bad) if param.sequence else bad
         with pytest.raises(ConfigError, match=rf"^{cls.config_group}\.{name}=.* is out of range; allowed: "
                                               rf"(integers in )?[\[(]"):
-            component.with_params(**{name: bad})
+            component.with_params(**{name: value})
         checked += 1
     assert checked or not any(isinstance(p.domain, Interval) for p in cls.params.values())
 

@@ -7,7 +7,8 @@ script) runs one experiment; ``python -m mosd +experiment=NAME`` a paper's prese
 comparison table (:mod:`mosd.app.report`); ``mosd log RUN_DIR`` logs a run
 whose MLflow logging failed (:func:`mosd.app.pending.log_main`); ``mosd monitor
 --model URI DATA.csv`` scores a file with a run's logged detector model
-(:mod:`mosd.app.monitor`, :mod:`mosd.app.detector_model`).
+(:mod:`mosd.app.monitor`, :mod:`mosd.app.detector_model`); ``mosd options [GROUP]`` lists every
+option of the config groups, derived from ``conf/`` and the classes (:mod:`mosd.app.options`).
 
 Modules by job (docs/ARCHITECTURE.md has their import graph):
 
@@ -81,6 +82,10 @@ def _command(argv: list[str], from_command_line: bool) -> int:
         from .pending import log_main
 
         return log_main(argv[1:])
+    if argv[:1] == ["options"]:
+        from .options import main as options_main
+
+        return options_main(argv[1:])
     from .files import NOT_WRITTEN
     from .pending import EXIT_NOT_LOGGED, NOT_LOGGED
     from .signals import ignore_stop_signals, install_signal_handlers, name
@@ -153,6 +158,9 @@ def _transient(text: str | None) -> None:
 
 
 def _main(argv: list[str], started: float) -> int:
+    from .config import with_debug_last
+
+    argv = with_debug_last(argv)
     # Hydra's informational modes (help, config printing) check nothing: no transient line for them
     informational = {"--help", "-h", "--hydra-help", "--version", "--info", "-i", "--cfg", "-c",
                      "--shell-completion", "-sc", "--experimental-rerun"}

@@ -101,7 +101,9 @@ def _mlflow_tls():
     import ssl
 
     if os.environ.get("MLFLOW_TRACKING_INSECURE_TLS", "").strip().lower() in ("true", "1"):
-        return ssl._create_unverified_context()
+        from .compat import unverified_tls_context
+
+        return unverified_tls_context()
     cafile, client_cert = (os.environ.get("MLFLOW_TRACKING_SERVER_CERT_PATH"),
                            os.environ.get("MLFLOW_TRACKING_CLIENT_CERT_PATH"))
     if not (cafile or client_cert):

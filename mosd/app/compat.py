@@ -11,6 +11,10 @@ adapter, :mod:`mosd.optim.workers`: the science core cannot import the app.)
 * :func:`run_exit_handlers` — ``atexit._run_exitfuncs``: the fast exit
   (:func:`mosd.app.exit_now`) runs the registered cleanup handlers, then skips
   the interpreter's teardown. The standard library has no public way to run them.
+* :func:`unverified_tls_context` — ``ssl._create_unverified_context``: preflight's
+  look at a tracking server honours MLflow's ``MLFLOW_TRACKING_INSECURE_TLS`` as
+  MLflow's client does (no certificate check, no host name check); the standard
+  library's public way to build that context is this private factory.
 * :data:`MLFLOW_CORE_TABLES`, :data:`MLFLOW_MIGRATION_LEFTOVER`,
   :data:`MLFLOW_VERSION_TABLE` — what :mod:`mosd.app.store` reads of MLflow's sqlite
   schema (with the standard library, read-only: importing MLflow costs seconds,
@@ -48,6 +52,13 @@ def run_exit_handlers() -> None:
     import atexit
 
     atexit._run_exitfuncs()
+
+
+def unverified_tls_context():
+    """An SSL context that checks neither the certificate nor the host name (private API, see the module)."""
+    import ssl
+
+    return ssl._create_unverified_context()
 
 
 def sweep_jobs(parsed: Sequence[Any]) -> list[list[str]]:

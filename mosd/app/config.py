@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Sequence
 
 from ..validation import ConfigError  # noqa: F401  (re-exported for the app's modules)
 
@@ -45,6 +46,29 @@ class UsageError(Exception):
 def options(group: str) -> list[str]:
     """The options of a config group (the YAML files in ``conf/<group>/``)."""
     return sorted(p.stem for p in (CONFIG_DIR / group).glob("*.yaml"))
+
+
+def with_debug_last(overrides: Sequence[str]) -> list[str]:
+    """The overrides with ``debug=NAME`` composed last, after a preset, and the preset's own part of it.
+
+    ``debug=tiny`` (conf/debug/tiny.yaml) must override a preset's budgets, but
+    Hydra merges a ``+experiment=NAME`` after every entry of the defaults list; so
+    ``debug=NAME`` (with or without ``+``, anywhere on the line) becomes
+    ``+debug=NAME`` at the end, followed by ``+debug/NAME=PRESET`` when
+    ``conf/debug/NAME/PRESET.yaml`` exists (the preset's own study and training
+    sizes: keys only that preset's components have). A sweep over ``debug`` is
+    left as written.
+    """
+    debug = [o for o in overrides if o.split("=", 1)[0].lstrip("+") == "debug" and "," not in o]
+    if not debug:
+        return list(overrides)
+    rest = [o for o in overrides if o not in debug]
+    name = debug[-1].split("=", 1)[1]
+    presets = [o.split("=", 1)[1] for o in rest if o.split("=", 1)[0].lstrip("+") == "experiment"]
+    out = [*rest, f"+debug={name}"]
+    if presets and (CONFIG_DIR / "debug" / name / f"{presets[-1]}.yaml").is_file():
+        out.append(f"+debug/{name}={presets[-1]}")
+    return out
 
 
 def groups() -> list[str]:

@@ -12,7 +12,7 @@ from __future__ import annotations
 from typing import Sequence
 
 from ..validation import ConfigError, check_choice
-from .config import CONFIG_DIR, CONFIG_NAME, one_line, options
+from .config import CONFIG_DIR, CONFIG_NAME, one_line, options, with_debug_last
 
 
 def compose_preset(name: str, overrides: Sequence[str] = ()):
@@ -30,7 +30,7 @@ def compose_preset(name: str, overrides: Sequence[str] = ()):
     check_choice("experiment", name, options("experiment"))
     with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3", job_name="mosd"):
         try:
-            return compose(CONFIG_NAME, overrides=[f"+experiment={name}", "tracking=none", *overrides])
+            return compose(CONFIG_NAME, overrides=with_debug_last([f"+experiment={name}", "tracking=none", *overrides]))
         except (HydraException, OmegaConfBaseException) as exc:
             raise ConfigError(f"+experiment={name} {' '.join(overrides)}: {one_line(exc)}") from None
 

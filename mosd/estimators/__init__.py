@@ -1,20 +1,9 @@
-"""Estimators and residual generators (the contract in :mod:`.base`); one module per family."""
+"""Estimators and residual generators (the contract in :mod:`.base`); one module per family, exported by
+existing (:mod:`mosd.exports`)."""
 from ..exports import lazy
 from .base import Estimator
 from .cubature import CESCKF, CubatureKalmanFilter, EmbeddedCubatureRule, FilterResult, SphericalRadialRule
 from .residuals import DedicatedObserverResidual, InnovationResidual
 
-#: the other components of the kind, imported on first use (mosd.exports)
-_LAZY = {
-    "AsyncIMMFusion": "async_imm",
-    "AltitudeKalmanFilter": "ekf",
-    "EntropyIsolationFilter": "entropy_filter",
-    "FixedGainFilter": "entropy_filter",
-    "MeasuredSignals": "measured",
-    "MultiStepNeuralObserver": "neural_observer",
-    "PCAResidual": "pca",
-}
-__getattr__, __dir__, __all__ = lazy(__name__, _LAZY, [
-    "CESCKF", "CubatureKalmanFilter", "DedicatedObserverResidual", "EmbeddedCubatureRule", "Estimator",
-    "FilterResult", "InnovationResidual", "SphericalRadialRule",
-])
+#: every module's components, found by a scan of the sources and imported on first use (mosd.exports)
+__getattr__, __dir__ = lazy(__name__, globals())

@@ -4,8 +4,10 @@ A fault has an ``onset`` (s) and ``active(t)``; its ``role`` says whether a
 detector should find it (``"target"``) or ignore it (``"nuisance"``: an alarm
 while only a nuisance fault is active counts as a false alarm, paper 002's
 isolation problem). ``relative = True`` means its magnitudes are in units of the
-monitored residual's in-control σ from calibration (paper 000), which the
-experiment passes to the plant as ``fault_scale``; absolute faults ignore it.
+monitored residual's in-control σ from calibration (paper 000): the experiment
+computes it (:meth:`mosd.experiment.Experiment.fault_scale`) and passes it to the
+plant as ``fault_scale``, and a relative fault simulated without it is refused;
+absolute faults ignore it.
 How a fault acts (on a sensor, an actuator, the state) is the plant's business:
 each plant documents the fault classes it accepts.
 

@@ -20,8 +20,18 @@ from .base import Fault
 FAULT_KINDS = ("offset", "variance", "offset_var", "drift")
 
 
+def unit_of(fault, scale: float | None) -> float:
+    """``scale`` for a relative fault (required: no default unit can be right), 1 for an absolute one or None."""
+    if fault is None or not fault.relative:
+        return 1.0
+    if scale is None:
+        raise ValueError(f"{fault!r} is relative (in σ of the fault-free residual) but no fault_scale was given; "
+                         "simulate it through mosd.experiment.Experiment, which computes it (fault_scale)")
+    return float(scale)
+
+
 def sensor_fault_signals(fault, t: np.ndarray, rngs: Sequence[np.random.Generator], n_outputs: int,
-                         scale: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+                         scale: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The additive sensor-fault signal g of every replication, and where the fault is active.
 
     The one injection of a sensor fault (a :class:`SensorFault`, a
@@ -40,8 +50,10 @@ def sensor_fault_signals(fault, t: np.ndarray, rngs: Sequence[np.random.Generato
         One per replication, in order (replication r's ``signal`` draws from ``rngs[r]``).
     n_outputs : int
         Number of output channels n_y.
-    scale : float
-        σ of the faulty channel's residual (the unit of a relative fault's magnitudes).
+    scale : float or None
+        σ of the faulty channel's fault-free residual, the unit of a relative fault's magnitudes
+        (:meth:`mosd.experiment.Experiment.fault_scale` computes it); None refuses a relative
+        fault, an absolute one ignores it.
 
     Returns
     -------
@@ -51,6 +63,7 @@ def sensor_fault_signals(fault, t: np.ndarray, rngs: Sequence[np.random.Generato
         True where the fault is active.
     """
     t = np.asarray(t, float)
+    scale = unit_of(fault, scale)
     g = np.zeros((len(rngs), t.shape[0], int(n_outputs)))
     mask = np.zeros((len(rngs), t.shape[0]), dtype=bool)
     if fault is not None:

@@ -1,13 +1,7 @@
-"""Noise models (the contract in :mod:`.base`); one module per model."""
+"""Noise models (the contract in :mod:`.base`); one module per model, exported by existing (:mod:`mosd.exports`)."""
 from ..exports import lazy
 from .base import NoiseModel
 from .gaussian import GaussianNoise
 
-#: the other components of the kind, imported on first use (mosd.exports)
-_LAZY = {
-    "BoundedNoise": "bounded",
-    "ContinuousWhiteNoise": "continuous",
-}
-__getattr__, __dir__, __all__ = lazy(__name__, _LAZY, [
-    "GaussianNoise", "NoiseModel",
-])
+#: every module's components, found by a scan of the sources and imported on first use (mosd.exports)
+__getattr__, __dir__ = lazy(__name__, globals())

@@ -1,14 +1,7 @@
-"""Plants (the contract in :mod:`.base`); one module per plant."""
+"""Plants (the contract in :mod:`.base`); one module per plant, exported by existing (:mod:`mosd.exports`)."""
 from ..exports import lazy
 from .base import ClosedLoopPlant, Plant
 from .mould_oscillator import MouldOscillator, SpeedPI
 
-#: the other components of the kind, imported on first use (mosd.exports)
-_LAZY = {
-    "FlappingWingMAV": "flapping_wing",
-    "NetworkedTarget": "networked_target",
-    "ScalarNonlinearPlant": "scalar_nonlinear",
-}
-__getattr__, __dir__, __all__ = lazy(__name__, _LAZY, [
-    "ClosedLoopPlant", "MouldOscillator", "Plant", "SpeedPI",
-])
+#: every module's components, found by a scan of the sources and imported on first use (mosd.exports)
+__getattr__, __dir__ = lazy(__name__, globals())

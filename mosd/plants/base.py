@@ -21,7 +21,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ..faults.sensor import sensor_fault_signals
+from ..faults.sensor import sensor_fault_signals, unit_of
 from ..types import Trace
 from ..validation import Component, ConfigError
 
@@ -36,8 +36,13 @@ class Plant(Component):
     output_names: tuple[str, ...] = ()
 
     def simulate(self, n_samples: int, noise, fault, rngs: Sequence[np.random.Generator],
-                 fault_scale: float = 1.0) -> Trace:
-        """``len(rngs)`` replications of ``n_samples`` samples (``fault`` None: fault-free)."""
+                 fault_scale: float | None = None) -> Trace:
+        """``len(rngs)`` replications of ``n_samples`` samples (``fault`` None: fault-free).
+
+        ``fault_scale`` is the unit of a relative fault (σ of the faulty channel's fault-free
+        residual: :meth:`mosd.experiment.Experiment.fault_scale`); a relative fault without it is
+        refused (:func:`mosd.faults.sensor.unit_of`), an absolute fault ignores it.
+        """
         raise NotImplementedError
 
     def model(self, noise) -> Any:
@@ -62,9 +67,9 @@ class ClosedLoopPlant(Plant):
     """
 
     def simulate(self, n_samples: int, noise, fault, rngs: Sequence[np.random.Generator],
-                 fault_scale: float = 1.0) -> Trace:
+                 fault_scale: float | None = None) -> Trace:
         """Order within sample k: y_k = h(x_k) + v_k (+ g_k); the controller maps y_k to u_k;
-        x_{k+1} = f(x_k, u_k) + w_k. ``fault_scale`` is σ of the faulty channel's residual."""
+        x_{k+1} = f(x_k, u_k) + w_k. ``fault_scale`` is σ of the faulty channel's fault-free residual."""
         n_reps, N = len(rngs), int(n_samples)
         t = np.arange(N) * self.dt
         draws = [noise.draw(rng, N) for rng in rngs]
@@ -89,7 +94,7 @@ class ClosedLoopPlant(Plant):
                 uk = controller(yk)
                 u[:, k] = uk
                 xk = self.f(xk, uk) + w[:, k]
-        meta = {"fault": repr(fault), "fault_scale": float(fault_scale), "output_names": tuple(self.output_names),
+        meta = {"fault": repr(fault), "fault_scale": unit_of(fault, fault_scale), "output_names": tuple(self.output_names),
                 "dt": self.dt}
         return Trace(t=t, u=u, x=x, y=y, fault_mask=mask, meta=meta)
 

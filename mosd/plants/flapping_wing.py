@@ -18,7 +18,7 @@ from typing import Sequence
 import numpy as np
 from scipy import linalg, optimize
 
-from ..faults.sensor import sensor_fault_signals
+from ..faults.sensor import sensor_fault_signals, unit_of
 from ..types import Trace
 from ..validation import ConfigError, Interval, Param
 from .base import Plant
@@ -259,7 +259,7 @@ class FlappingWingMAV(Plant):
 
     # -- the verbs ---------------------------------------------------------------------
     def simulate(self, n_samples: int, noise, fault, rngs: Sequence[np.random.Generator],
-                 fault_scale: float = 1.0) -> Trace:
+                 fault_scale: float | None = None) -> Trace:
         """``len(rngs)`` flights of ``n_samples`` logged samples (``fault`` None: fault-free).
 
         Draw order per replication (so that a flight never depends on the
@@ -329,7 +329,7 @@ class FlappingWingMAV(Plant):
             bias = decay * bias + bias_step_sigma * bias_noise[:, k] + w_proc[:, k, 5]
         y = y + v_meas
         y[..., channel] += g
-        meta = {"fault": repr(fault), "fault_scale": float(fault_scale), "output_names": self.output_names,
+        meta = {"fault": repr(fault), "fault_scale": unit_of(fault, fault_scale), "output_names": self.output_names,
                 "dt": self.dt, "trim_input": self.trim_input.tolist(),
                 # the autopilot's altitude (m) and forward-speed (m/s) references at the logging instants
                 "reference": reference_log}

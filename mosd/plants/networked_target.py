@@ -257,7 +257,7 @@ class NetworkedTarget(Plant):
             P0=self.initial_cov * np.eye(2), dt=self.fusion_period, fault_directions=B.copy())
 
     def simulate(self, n_samples: int, noise, fault, rngs: Sequence[np.random.Generator],
-                 fault_scale: float = 1.0) -> Trace:
+                 fault_scale: float | None = None) -> Trace:
         """Exact simulation of ``len(rngs)`` replications over ``n_samples`` fusion instants.
 
         Per replication, the generator draws, in this order: the process noise

@@ -24,6 +24,7 @@ from typing import Sequence
 import numpy as np
 
 from ..faults.random_amplitude import RandomAmplitudeFault
+from ..faults.sensor import unit_of
 from ..types import Trace
 from ..validation import ConfigError, Interval, Param
 from .base import Plant
@@ -107,7 +108,7 @@ class ScalarNonlinearPlant(Plant):
                               "allowed: RandomAmplitudeFault (mosd.faults.random_amplitude)")
 
     def simulate(self, n_samples: int, noise, fault, rngs: Sequence[np.random.Generator],
-                 fault_scale: float = 1.0) -> Trace:
+                 fault_scale: float | None = None) -> Trace:
         """``len(rngs)`` runs; ``fault`` None is fault-free, ``fault_scale`` is ignored (absolute faults).
 
         Draws per run, in this order: x_0, the noise (ω, v), the missing-sample
@@ -132,7 +133,7 @@ class ScalarNonlinearPlant(Plant):
             w[r], v[r] = wr[:, 0], vr[:, 0]
             uniforms[r] = rng.random(N)
             if fault is not None:
-                g[r] = fault.signal(t, fault_scale, rng)
+                g[r] = fault.signal(t, unit_of(fault, fault_scale), rng)
         gap_start = None if self.gap_onset is None else int(round(self.gap_onset / self.dt))
         missing = missing_mask(uniforms, self.missing_rate, self.missing_mechanism, self.burst_length, gap_start)
         x = np.empty((n_reps, N))

@@ -72,6 +72,19 @@ def _designs_text(system: str) -> str:
                           f"allowed: a system with a designs file") from None
 
 
+#: what a report says, in one line, for a system whose preset has never been run to a recorded design
+NO_RECORDED_DESIGN = ("no recorded design yet for {system}: run python -m mosd +experiment={system}, then record its "
+                      "chosen design as \"tuned\" in mosd/systems/designs/{system}.json")
+
+
+def has_recorded_design(system: str) -> bool:
+    """True when ``mosd/systems/designs/<system>.json`` exists and holds a ``"tuned"`` design."""
+    try:
+        return TUNED in recorded_designs(system)
+    except ConfigError:
+        return False
+
+
 def recorded_designs(system: str) -> dict[str, dict]:
     """The designs recorded for ``system`` (``mosd/systems/designs/<system>.json``), by name.
 
@@ -151,7 +164,8 @@ class Study(abc.ABC):
         ``experiment`` is there for a system whose reference designs depend on the set-up (paper
         000's Table 3 charts differ per fault).
         """
-        paper = recorded_designs(self.system).get("paper") if self.system else None
+        # a new system runs before anything is recorded: no designs file, no reference designs
+        paper = recorded_designs(self.system).get("paper") if has_recorded_design(self.system) else None
         return {"paper": detector.with_params(**paper)} if paper else {}
 
     def run(self, experiment, result, out_dir) -> tuple[dict[str, float], list[Path]]:

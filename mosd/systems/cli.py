@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any, Callable, Iterable, Sequence
 
 from ..validation import ConfigError
-from .base import TUNED, recorded_designs
+from .base import NO_RECORDED_DESIGN, TUNED, has_recorded_design, recorded_designs
 
 
 class ReportParser(argparse.ArgumentParser):
@@ -35,7 +35,12 @@ def report_parser(prog: str, description: str, out: str, seed: bool = True) -> R
 
 
 def design_options(parser: argparse.ArgumentParser, system: str) -> None:
-    """One option per parameter of the system's recorded tuned design, defaulting to it (``mu_T`` → ``--mu-T``)."""
+    """One option per parameter of the system's recorded tuned design, defaulting to it (``mu_T`` → ``--mu-T``).
+
+    None for a system with no recorded design yet (:func:`tuned_design` then says so).
+    """
+    if not has_recorded_design(system):
+        return
     for name, value in recorded_designs(system)[TUNED].items():
         parser.add_argument("--" + name.replace("_", "-"), dest=name, type=type(value), default=value,
                             help=f"tuned {name} (default {value:g}: the recorded design, "
@@ -43,7 +48,15 @@ def design_options(parser: argparse.ArgumentParser, system: str) -> None:
 
 
 def tuned_design(args: argparse.Namespace, system: str) -> dict[str, Any]:
-    """The tuned design the command line asked for (:func:`design_options`)."""
+    """The tuned design the command line asked for (:func:`design_options`).
+
+    Raises
+    ------
+    ConfigError
+        "no recorded design yet" (one line, exit 2 in :func:`run_report`) when the system has none.
+    """
+    if not has_recorded_design(system):
+        raise ConfigError(NO_RECORDED_DESIGN.format(system=system))
     return {name: getattr(args, name) for name in recorded_designs(system)[TUNED]}
 
 

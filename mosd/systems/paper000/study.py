@@ -70,9 +70,9 @@ class Study(base.Study):
         """Phase-I limits on the calibration runs, then every design's per-run metrics on the same test runs."""
         calibration = experiment.calibrate()
         fault = experiment.fault
-        sigma = experiment.monitor.fault_scale(calibration, fault.channel) if fault.relative else 1.0
         phase1 = experiment.monitor.transform(calibration)
-        test = experiment.monitor.transform(experiment.residuals(fault, self.n_runs, "test", fault_scale=sigma))
+        # a relative fault in σ of the calibration residual: the experiment scales it
+        test = experiment.monitor.transform(experiment.residuals(fault, self.n_runs, "test"))
         reports, params, causal = {}, {}, {}
         for name, detector in designs.items():
             decided = detector.decide(phase1.z, test.z)
