@@ -320,6 +320,29 @@ def _read_arrays(path: str | Path, file_name: str) -> tuple[dict[str, np.ndarray
         return {k: f[k] for k in f.files if k != "meta"}, json.loads(str(f["meta"]))
 
 
+def describe(component) -> dict:
+    """A component as ``{"class": "module.Class", "params": {...}}`` (JSON): what :func:`build` makes again."""
+    cls = type(component)
+
+    def plain(value):
+        if isinstance(value, np.ndarray):
+            return value.tolist()
+        if isinstance(value, (tuple, list)):
+            return [plain(v) for v in value]
+        return value.item() if isinstance(value, np.generic) else value
+
+    return {"class": f"{cls.__module__}.{cls.__qualname__}",
+            "params": {k: plain(v) for k, v in component.get_params().items()}}
+
+
+def build(description: Mapping):
+    """The component :func:`describe` described (mosd's own classes only)."""
+    module, _, name = description["class"].rpartition(".")
+    if not module.startswith("mosd."):
+        raise ConfigError(f"component class {description['class']!r} is not mosd's; allowed: mosd.* classes")
+    return getattr(importlib.import_module(module), name)(**description["params"])
+
+
 def points_of(columns: Mapping[str, np.ndarray], n: int, index: str = "point") -> tuple[int, np.ndarray, np.ndarray]:
     """(rows, the row indices that are points, their values (k, n)) of a monitor stage's output columns."""
     number = np.asarray(columns[index], np.int64)

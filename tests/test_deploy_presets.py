@@ -1,7 +1,7 @@
 """Every preset deploys what it tuned, or says why not (issue 28).
 
 For the main command and each of ``paper001``, ``paper002``, ``paper003``, ``tep`` and ``paper000
-denoise=wavelet_causal``, run small: ``summary.json["model"]`` holds the logged model's URI and
+denoise=wavelet_causal`` and the worked example ``two_tank``, run with ``debug=tiny``: ``summary.json["model"]`` holds the logged model's URI and
 ``mosd monitor`` on the run's ``test_stream.parquet`` reproduces the run's own ``alarm`` column on every
 row. ``paper000`` (the paper's whole-series wavelet) logs no model and its summary says why in one line.
 """
@@ -14,15 +14,15 @@ import pytest
 
 from test_detector_model import _mosd  # the subprocess helper (MOSD_OUTPUTS, this checkout first)
 
-SMALL = ["optimizer.pop_size=8", "optimizer.n_gen=2", "optimizer.n_jobs=1", "progress=false", "study=null"]
-SIMULATED = ["budget.n_calibration=3", "budget.n_train=3", "budget.n_test=3"]
+SMALL = ["debug=tiny", "progress=false", "study=null"]
 PRESETS = {
-    "main": ["+fault=offset_var", "optimizer=mopso", *SIMULATED],
-    "paper001": ["+experiment=paper001", *SIMULATED],
-    "paper002": ["+experiment=paper002", *SIMULATED],
-    "paper003": ["+experiment=paper003", "budget.n_test=3"],
+    "main": ["+fault=offset_var", "optimizer=mopso"],
+    "paper001": ["+experiment=paper001"],
+    "paper002": ["+experiment=paper002"],
+    "paper003": ["+experiment=paper003"],
     "tep": ["+experiment=tep"],
-    "paper000_causal": ["+experiment=paper000", "denoise=wavelet_causal", *SIMULATED],
+    "paper000_causal": ["+experiment=paper000", "denoise=wavelet_causal"],
+    "two_tank": ["+experiment=two_tank"],
 }
 
 
@@ -56,7 +56,7 @@ def test_preset_logs_a_model_that_reproduces_its_test_stream(tmp_path, preset):
 
 @pytest.mark.slow
 def test_paper000_says_why_it_has_no_model(tmp_path):
-    run, run_dir, summary, _ = _run(tmp_path, ["+experiment=paper000", *SIMULATED])
+    run, run_dir, summary, _ = _run(tmp_path, ["+experiment=paper000"])
     assert summary["model"] is None
     reason = summary["deployment"]["no_model"]
     assert "filters the whole series" in reason and "\n" not in reason

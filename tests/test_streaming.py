@@ -259,3 +259,28 @@ def test_a_new_detector_in_one_module_is_deployed_without_the_app_knowing_it(tmp
     assert found.reason is None and found.pipeline is not None
     assert np.array_equal(found.stream["decision"].to_numpy(), decided.decision[0])
     assert np.array_equal(found.pipeline.update({"error": error[0]})["decision"], decided.decision[0])
+
+
+def test_an_estimator_streams_raw_measurements_and_inputs_as_its_batch_estimate():
+    """The two-tank Luenberger observer: y and u in, the batch residuals out, bit for bit, in any chunks."""
+    from mosd.estimators.luenberger import LuenbergerObserver
+    from mosd.faults.sensor import SensorFault
+    from mosd.noise.gaussian import GaussianNoise
+    from mosd.plants.two_tank import TwoTank
+    from mosd.scenario import Scenario
+    from mosd.streaming import describe
+
+    plant = TwoTank()
+    noise = GaussianNoise(process_cov=[1e-8, 1e-8], measurement_cov=[1e-6, 1e-6], n_x=2, n_y=2)
+    fault = SensorFault(kind="offset", channel=1, a=0.01, onset=60.0)
+    trace = Scenario(plant, noise, fault, 200.0).simulate(3, 2, stream="test", fault_scale=1.0)
+    model, observer = plant.model(noise), LuenbergerObserver(poles=(0.9, 0.95))
+    batch = observer.estimate(trace, model).r
+    source = {"plant": describe(plant), "noise": describe(noise), "input_names": plant.input_names}
+    first = Scenario(plant, noise, fault, 200.0).simulate(3, 1, stream="test", fault_scale=1.0)
+    stage = observer.online(model, source, first)
+    pipeline = OnlinePipeline([stage])
+    columns = observer.raw_stream(first, model, plant.input_names)
+    assert set(columns) == {"y_h1", "y_h2", "u_q"}
+    whole = check_chunks(pipeline, columns)
+    assert np.array_equal(np.column_stack([whole["residual_h1"], whole["residual_h2"]]), batch[0])

@@ -49,11 +49,10 @@ def deployable(setup, result) -> Deployable:
     if outputs is None or "calibration_z" not in example:
         return Deployable(None, "the run kept no test stream")
     estimator, monitor, detector = experiment.estimator, experiment.monitor, result.detector
-    note = None
-    stages = []
+    note, stages, raw = None, [], None
     try:
-        stage = estimator.online(getattr(experiment, "model", None))
-        if stage is not None:  # pragma: no cover - no estimator streams its raw inputs yet
+        raw, stage = _estimator_stage(experiment, estimator)
+        if stage is not None:
             stages.append(stage)
     except NoStreamingForm as exc:
         note = f"model input: the estimator's outputs ({exc})"
@@ -62,7 +61,8 @@ def deployable(setup, result) -> Deployable:
         monitor_stage = monitor.online(tuple(columns))
     except NoStreamingForm as exc:
         return Deployable(None, str(exc))
-    stream = _stream(monitor_stage, columns, outputs, np.asarray(example["decision"]))
+    index = _points(monitor_stage, columns)
+    stream = _stream(index, raw if stages else columns, outputs, np.asarray(example["decision"]))
     try:
         detector_stage = detector.online(np.asarray(example["calibration_z"]), tuple(columns))
     except NoStreamingForm as exc:
@@ -79,14 +79,33 @@ def deployable(setup, result) -> Deployable:
     return Deployable(pipeline, None, note, stream)
 
 
-def _stream(monitor_stage, columns: dict, outputs, decision: np.ndarray):
+def _estimator_stage(experiment, estimator):
+    """(the raw columns of the first test replication, the estimator's causal form), or (None, None) when
+    its outputs are the data themselves; :class:`NoStreamingForm` when it has no causal form."""
+    from ..streaming import describe
+
+    plant, noise = getattr(experiment, "plant", None), getattr(experiment, "noise", None)
+    if plant is None or noise is None or getattr(experiment, "data", None) is not None:
+        stage = estimator.online(getattr(experiment, "model", None))   # recorded data: measured signals or none
+        return None, stage
+    input_names = tuple(getattr(plant, "input_names", ()) or ())
+    source = {"plant": describe(plant), "noise": describe(noise), "input_names": input_names}
+    # the first test replication again (seed streams: replication 0 whatever the batch), raw
+    trace = experiment.simulate(experiment.fault, 1, "test")
+    stage = estimator.online(experiment.model, source, trace)
+    return (estimator.raw_stream(trace, experiment.model, input_names) if stage is not None else None), stage
+
+
+def _points(monitor_stage, columns: dict) -> np.ndarray:
+    """The point number of each row (0 off the points), as the monitor's causal form numbers them."""
+    return monitor_stage.update({k: np.asarray(v) for k, v in columns.items()}, monitor_stage.initial_state())["point"]
+
+
+def _stream(points: np.ndarray, columns: dict, outputs, decision: np.ndarray):
     """Time, the input columns and the run's own decision/alarm on each row (0/False off the points)."""
     import pandas as pd
 
-    rows = len(next(iter(columns.values())))
-    index_name = "subgroup" if "subgroup" in monitor_stage.outputs else "point"
-    points = monitor_stage.update({k: np.asarray(v) for k, v in columns.items()},
-                                  monitor_stage.initial_state())[index_name]
+    rows = len(points)
     at = np.flatnonzero(points > 0)
     per_row = np.zeros(rows, np.int64)
     per_row[at] = decision[points[at] - 1]

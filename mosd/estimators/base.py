@@ -37,12 +37,19 @@ class Estimator(Component):
         names = tuple(outputs.channels or ())
         return tuple(f"residual_{names[c]}" if c < len(names) else f"residual_{c}" for c in range(outputs.r.shape[-1]))
 
-    def online(self, model: Any = None):
+    def online(self, model: Any = None, source=None, trace: Trace | None = None):
         """The fitted estimator's causal form (:mod:`mosd.streaming`), or None when its outputs are its inputs.
 
-        Raises :class:`~mosd.streaming.NoStreamingForm` until the estimator is written as a recursion
-        with explicit state; a deployed pipeline then starts from the estimator's outputs.
+        ``source`` describes the plant and noise the model is rebuilt from where the stream runs
+        (:func:`mosd.streaming.describe`, with the plant's ``input_names``); ``trace`` holds the first test
+        replication (its raw columns: :meth:`raw_stream`). Raises :class:`~mosd.streaming.NoStreamingForm`
+        until the estimator is written as a recursion with explicit state; a deployed pipeline then
+        starts from the estimator's outputs.
         """
+        raise NoStreamingForm(f"the estimator {type(self).__name__} has no streaming form yet")
+
+    def raw_stream(self, trace: Trace, model: Any, input_names) -> dict:
+        """The first replication's raw columns the causal form reads (only for an estimator that has one)."""
         raise NoStreamingForm(f"the estimator {type(self).__name__} has no streaming form yet")
 
     def estimate(self, trace: Trace, model: Any) -> Residuals:

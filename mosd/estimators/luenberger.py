@@ -8,13 +8,28 @@ longer (the gain absorbs less of it); fast ones track model error better.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from scipy.signal import place_poles
 
 from ..model import StateSpaceModel
+from ..streaming import FINITE, OnlineStage, StateVar, build
 from ..types import Residuals, Trace
 from ..validation import ConfigError, Interval, Param
 from .base import Estimator
+
+
+def observer_step(model: StateSpaceModel, x_hat: np.ndarray, y: np.ndarray, u: np.ndarray, gain: np.ndarray):
+    """(r_k, x̂_{k+1}) from x̂_k (R, n_x), y_k (R, n_y), u_k (R, n_u): the one arithmetic of the batch
+    estimate and the causal form. The correction L r is summed over the outputs in order (no BLAS: its
+    rounding would depend on how many replications share the product)."""
+    r = y - model.h(x_hat)
+    known = np.where(np.isnan(r), 0.0, r)
+    correction = np.zeros_like(x_hat)
+    for j in range(gain.shape[1]):
+        correction += known[:, j:j + 1] * gain[:, j]
+    return r, model.f(x_hat, u) + correction
 
 
 def jacobian(function, point: np.ndarray, step: float = 1e-7) -> np.ndarray:
@@ -59,11 +74,96 @@ class LuenbergerObserver(Estimator):
         """The residuals of every replication, all output channels."""
         y, u = np.asarray(trace.y, float), np.asarray(trace.u, float)
         n_reps, n_samples, _ = y.shape
-        gain = self.gain(model, u[:, 0].mean(axis=0))
+        gain = self.gain(model, self._u0(u))
         x_hat = np.broadcast_to(np.asarray(model.x0, float), (n_reps, model.n_x)).copy()
         r = np.empty_like(y)
         for k in range(n_samples):
-            r[:, k] = y[:, k] - model.h(x_hat)
-            correction = np.where(np.isnan(r[:, k]), 0.0, r[:, k]) @ gain.T
-            x_hat = model.f(x_hat, u[:, k]) + correction
+            r[:, k], x_hat = observer_step(model, x_hat, y[:, k], u[:, k], gain)
         return Residuals.of(trace, r=r, channels=model.output_names)
+
+    @staticmethod
+    def _u0(u: np.ndarray) -> np.ndarray:
+        """The input the gain is placed at: zero, so that the gain is the model's alone (the same for the
+        calibration, training and test runs and for a stream; a mean over a batch's first inputs made it
+        depend on the batch). For the two-tank cascade ∂f/∂x does not depend on the inflow at all."""
+        return np.zeros(np.shape(u)[-1])
+
+    # -- the causal form ----------------------------------------------------------------
+    def online(self, model: StateSpaceModel = None, source=None, trace: Trace | None = None) -> "OnlineLuenberger":
+        """The observer as a stream of raw measurements and inputs (``y_<output>``, ``u_<input>`` per row).
+
+        ``source`` describes the plant and noise (:func:`mosd.streaming.describe`) the model is rebuilt
+        from; ``trace`` the runs whose first input the batch estimate placed the gain at.
+        """
+        if source is None or trace is None:
+            return super().online(model)
+        gain = self.gain(model, self._u0(np.asarray(trace.u, float)))
+        inputs = tuple(source.get("input_names") or (f"u{i}" for i in range(np.shape(trace.u)[-1])))
+        return OnlineLuenberger(plant=source["plant"], noise=source["noise"], gain=gain,
+                                x0=np.asarray(model.x0, float), outputs=tuple(model.output_names), inputs=inputs)
+
+    def raw_stream(self, trace: Trace, model: StateSpaceModel, input_names) -> dict[str, np.ndarray]:
+        """The first replication's measurements and inputs as the causal form's columns."""
+        y, u = np.asarray(trace.y, float)[0], np.asarray(trace.u, float)[0]
+        columns = {f"y_{name}": y[:, j] for j, name in enumerate(model.output_names)}
+        columns.update({f"u_{name}": u[:, j] for j, name in enumerate(input_names)})
+        return columns
+
+
+@dataclass
+class OnlineLuenberger(OnlineStage):
+    """:class:`LuenbergerObserver`'s causal form: ``y_<output>`` and ``u_<input>`` in, ``residual_<output>`` out.
+
+    The plant's model is rebuilt from its description (``plant``, ``noise``); the state is x̂ (``x_hat_<i>``),
+    started at the model's x̂_0.
+    """
+
+    plant: dict
+    noise: dict
+    gain: np.ndarray
+    x0: np.ndarray
+    outputs_of_plant: tuple = ()
+    inputs_of_plant: tuple = ()
+
+    def __init__(self, plant, noise, gain, x0, outputs=(), inputs=(), outputs_of_plant=(), inputs_of_plant=()):
+        self.plant, self.noise = dict(plant), dict(noise)
+        self.gain, self.x0 = np.asarray(gain, float), np.asarray(x0, float)
+        self.outputs_of_plant = tuple(outputs_of_plant or outputs)
+        self.inputs_of_plant = tuple(inputs_of_plant or inputs)
+
+    def _model(self) -> StateSpaceModel:
+        cached = self.__dict__.get("_model_object")
+        if cached is None:
+            cached = self.__dict__["_model_object"] = build(self.plant).model(build(self.noise))
+        return cached
+
+    @property
+    def inputs(self) -> tuple[str, ...]:
+        return (*(f"y_{n}" for n in self.outputs_of_plant), *(f"u_{n}" for n in self.inputs_of_plant))
+
+    @property
+    def outputs(self) -> tuple[str, ...]:
+        return tuple(f"residual_{n}" for n in self.outputs_of_plant)
+
+    def state_vars(self) -> dict[str, StateVar]:
+        return {f"x_hat_{i}": StateVar(f"The observer's estimate of state {i}.", FINITE) for i in range(len(self.x0))}
+
+    def initial_state(self) -> dict:
+        return {f"x_hat_{i}": float(v) for i, v in enumerate(self.x0)}
+
+    def example_row(self) -> np.ndarray:
+        model = self._model()
+        return np.concatenate([np.asarray(model.h(self.x0[None]))[0], np.zeros(len(self.inputs_of_plant))])
+
+    def update(self, columns, state) -> dict[str, np.ndarray]:
+        model = self._model()
+        y = np.column_stack([np.asarray(columns[f"y_{n}"], float) for n in self.outputs_of_plant])
+        u = np.column_stack([np.asarray(columns[f"u_{n}"], float) for n in self.inputs_of_plant])
+        x_hat = np.array([[float(state[f"x_hat_{i}"]) for i in range(len(self.x0))]])
+        r, states = np.empty_like(y), np.empty((len(y), len(self.x0)))
+        for k in range(len(y)):
+            residual, x_hat = observer_step(model, x_hat, y[k:k + 1], u[k:k + 1], self.gain)
+            r[k], states[k] = residual[0], x_hat[0]
+        out = {f"residual_{n}": r[:, j] for j, n in enumerate(self.outputs_of_plant)}
+        out.update({f"x_hat_{i}": states[:, i] for i in range(len(self.x0))})
+        return out

@@ -21,7 +21,7 @@ class MeasuredSignals(Estimator):
         """The measured variables by their own names (a recorded table's tags)."""
         return tuple(outputs.channels)
 
-    def online(self, model: Any = None):
+    def online(self, model: Any = None, source=None, trace=None):
         """None: the outputs are the measurements themselves (a deployed pipeline starts at the monitor)."""
         return None
 

@@ -144,11 +144,11 @@ class OnlineSubgroups(OnlineStage):
 
     @property
     def outputs(self) -> tuple[str, ...]:
-        return ("subgroup", *self.points)
+        return ("subgroup", "point", *self.points)
 
     @property
     def internal(self) -> tuple[str, ...]:
-        return self.points
+        return ("point", *self.points)   # point: the subgroup's number, as any monitor names its points
 
     def state_vars(self) -> dict[str, StateVar]:
         out = {"samples_seen": StateVar("Rows seen since the stream's start.", COUNT)}
@@ -185,6 +185,7 @@ class OnlineSubgroups(OnlineStage):
         at = np.flatnonzero(closes)
         out = {"subgroup": np.zeros(rows, np.int64)}
         out["subgroup"][at] = first + np.arange(1, complete + 1)
+        out["point"] = out["subgroup"]
         for j, name in enumerate(self.points):
             column = np.full(rows, np.nan)
             column[at] = z[:, j]
