@@ -1014,14 +1014,19 @@ def test_a_run_whose_artifacts_did_not_fit_is_failed_and_mosd_log_completes_it_o
     from mlflow.entities import LoggedModelStatus
 
     from mosd.app import pending
-    from mosd.app.chart_model import FittedChart
     from mosd.app.tracker import RunTracker
+    from mosd.detectors.chart import OnlineChart
+    from mosd.monitors.subgroups import OnlineSubgroups
+    from mosd.streaming import OnlinePipeline
 
     run_dir = tmp_path / "run"
     files = _run_dir_with_results(run_dir)
-    model = FittedChart(columns=("residual_a",), mean=np.array([0.3]), std=np.array([2.0]), subgroup="window", n=5,
-                        burn_in=20, chart="SSDEWMA", lam=0.25, K=1.0, limit="theoretical",
-                        limit_value=np.nan).save(run_dir / "model")
+    model = OnlinePipeline([
+        OnlineSubgroups(columns=("residual_a",), mean=np.array([0.3]), std=np.array([2.0]), subgroup="window", n=5,
+                        burn_in=20),
+        OnlineChart(detector="mosd.detectors.mean_variance.SSDEWMA", design={"lam": 0.25, "K": 1.0,
+                                                                             "limit": "theoretical"},
+                    limit_value=float("nan"), n=5)]).save(run_dir / "model")
     copy = LocalArtifactRepository.log_artifact
 
     def disk_full(self, local_file, artifact_path=None):
@@ -1271,7 +1276,7 @@ def test_mosd_log_logs_the_detector_model_the_full_artifact_store_did_not_take(t
     assert [r.info.status for r in runs] == ["FAILED"] and not ready_models()
     if model_entry == "absent":
         request = json.loads((run_dir / pending.PENDING_FILE).read_text())
-        assert request.pop("model").endswith("chart_detector.npz")
+        assert request.pop("model").endswith("pipeline.npz")
         (run_dir / pending.PENDING_FILE).write_text(json.dumps(request))
 
     assert pending.log_main([str(run_dir)]) == 0
@@ -1283,9 +1288,9 @@ def test_mosd_log_logs_the_detector_model_the_full_artifact_store_did_not_take(t
     assert [m.model_uri for m in ready_models()] == [uri.group(1)]  # twice run, once logged
     assert client.get_run(run_id).info.status == "FINISHED"
 
-    fitted = load_fitted(run_dir / "model" / "chart_detector.npz")
-    rows = pd.DataFrame(np.random.default_rng(0).normal(size=(300, len(fitted.columns))) + 0.4,
-                        columns=list(fitted.columns))
+    fitted = load_fitted(run_dir / "model" / "pipeline.npz")
+    rows = pd.DataFrame(np.random.default_rng(0).normal(size=(300, len(fitted.inputs))) + 0.4,
+                        columns=list(fitted.inputs))
     mlflow.set_tracking_uri(tracking)
     scored = mlflow.pyfunc.load_model(f"runs:/{run_id}/detector").predict(rows)
     pd.testing.assert_frame_equal(scored, fitted.predict_frame(rows))
