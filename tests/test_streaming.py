@@ -284,3 +284,43 @@ def test_an_estimator_streams_raw_measurements_and_inputs_as_its_batch_estimate(
     assert set(columns) == {"y_h1", "y_h2", "u_q"}
     whole = check_chunks(pipeline, columns)
     assert np.array_equal(np.column_stack([whole["residual_h1"], whole["residual_h2"]]), batch[0])
+
+
+def test_model_files_written_before_the_pipeline_still_load(tmp_path):
+    """Nothing a user logged is lost: an old chart_detector.npz / pca_detector.npz loads as the same stages."""
+    import json
+
+    from mosd.app.detector_model import load_fitted
+    from mosd.detectors.mean_variance import SSDEWMA
+    from mosd.monitors.subgroups import SubgroupMonitor
+
+    rng = np.random.default_rng(8)
+    mean, std = np.array([0.3]), np.array([2.0])
+    (tmp_path / "chart").mkdir()
+    np.savez(tmp_path / "chart" / "chart_detector.npz", meta=np.array(json.dumps(
+        {"subgroup": "window", "n": 5, "burn_in": 20, "chart": "SSDEWMA", "lam": 0.25, "K": 1.0, "limit": "phase1",
+         "limit_value": 2.5, "fill": "none"})), mean=mean, std=std, columns=np.array(["residual_a"]))
+    old = load_fitted(tmp_path / "chart" / "chart_detector.npz")
+    monitor = SubgroupMonitor(n=5, burn_in=20)
+    monitor.mean_, monitor.std_ = mean, std
+    chart = SSDEWMA(lam=0.25, K=1.0).online(rng.standard_normal((2, 50, 5)))
+    chart.limit_value = 2.5
+    new = OnlinePipeline([monitor.online(("residual_a",)), chart])
+    stream = {"residual_a": 0.3 + 2.0 * rng.standard_normal(400)}
+    a, b = old.update(stream), new.update(stream)
+    assert old.state_names == new.state_names and all(_same(a[k], b[k]) for k in new.outputs)
+
+    detector = PCADetector(n_components=2, alpha=0.05, max_components=3)
+    X = rng.normal(size=(300, 4))
+    pca = detector.online(X[None], tuple("abcd"))
+    (tmp_path / "pca").mkdir()
+    meta = {k: getattr(pca, k) for k in ("n_fit", "n_components", "alpha", "lam", "persistence", "statistic",
+                                         "t2_limit", "spe_limit", "t2_start", "spe_start")}
+    np.savez(tmp_path / "pca" / "pca_detector.npz", meta=np.array(json.dumps({**meta, "fill": "hold"})),
+             mean=pca.mean, scale=pca.scale, loadings=pca.loadings, eigenvalues=pca.eigenvalues,
+             tags=np.array(list("abcd")))
+    old = load_fitted(tmp_path / "pca" / "pca_detector.npz")
+    assert old.fill == "hold" and old.inputs == tuple("abcd")
+    rows = {t: X[:, j] for j, t in enumerate("abcd")}
+    assert np.array_equal(old.update(rows)["ratio"], OnlinePipeline([OutputMonitor().online(tuple("abcd")), pca])
+                          .update(rows)["ratio"])
