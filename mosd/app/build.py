@@ -169,6 +169,36 @@ def _takes(target_path: str, name: str) -> bool:
     return name in accepted or open_ended
 
 
+#: the pipeline recorded data needs (conf/experiment/tep.yaml sets it for data=tep): no plant model in it
+RECORDED_PIPELINE = {"estimator": "measured", "monitor": "signals", "detector": "pca"}
+#: estimators that need no plant model: they run on recorded data (the measured signals, PCA residuals)
+MODEL_FREE_ESTIMATORS = ("mosd.estimators.measured.MeasuredSignals", "mosd.estimators.pca.PCAResidual")
+
+
+def _option_name(group: str, target: str) -> str:
+    """The config option (``conf/<group>/NAME.yaml``) whose ``_target_`` is ``target``, else the class name."""
+    from .config import CONFIG_DIR
+
+    for name in options(group):
+        for line in (CONFIG_DIR / group / f"{name}.yaml").read_text().splitlines():
+            if line.startswith("_target_:") and line.split(":", 1)[1].split("#")[0].strip() == target:
+                return f"{group}={name}"
+    return f"{group}._target_={target}"
+
+
+def check_recorded_pipeline(cfg) -> None:
+    """Recorded data (data=...) has no plant model: an estimator that needs one is refused in one line naming
+    the pipeline to use (before, the run died in the estimator: ``'NoneType' object has no attribute 'n_y'``)."""
+    target = str(cfg.estimator.get("_target_"))
+    if target in MODEL_FREE_ESTIMATORS:
+        return
+    pipeline = " ".join(f"{k}={v}" for k, v in RECORDED_PIPELINE.items())
+    source = _option_name("data", str(cfg.data.get("_target_")))
+    raise ConfigError(f"{source} is recorded data without a plant model, which {_option_name('estimator', target)} "
+                      f"needs; allowed: {pipeline} (the measured variables, PCA on them; +experiment=tep sets it "
+                      f"for data=tep), or estimator=pca")
+
+
 def build(cfg) -> Setup:
     """Validate a composed config and build every component (no simulation, no output)."""
     check_keys(cfg)
@@ -190,6 +220,7 @@ def build(cfg) -> Setup:
     from .settings import TrackingSettings
 
     if recorded:
+        check_recorded_pipeline(cfg)
         data = instantiate_section("data", cfg.data)
     else:
         plant = instantiate_section("plant", cfg.plant)

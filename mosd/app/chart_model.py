@@ -48,6 +48,7 @@ from typing import Mapping
 import numpy as np
 
 from ..validation import ConfigError
+from . import model_state
 from .model_files import read_arrays, save_arrays
 
 STATE_FILE = "chart_detector.npz"
@@ -151,7 +152,7 @@ class FittedChart:
 
     def score(self, X: np.ndarray, state: Mapping | None = None) -> dict[str, np.ndarray]:
         """Per row of X (rows, channels in the model's order): subgroup, features, statistic, limit, alarm, state."""
-        state = {**self.initial_state(), **(state or {})}
+        state = model_state.checked_state(self, state)  # declared domains (mosd.app.model_state)
         chart = self._chart()
         X = np.asarray(X, float).reshape(-1, len(self.columns))
         rows, n, order, parts = len(X), int(self.n), self.order, self.parts

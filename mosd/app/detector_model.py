@@ -30,6 +30,7 @@ from typing import Mapping
 import numpy as np
 
 from ..validation import ConfigError
+from . import model_state
 from .model_files import read_arrays, save_arrays
 
 #: the carried state: output columns of every row and params of ``predict``
@@ -151,7 +152,7 @@ class FittedPCA:
         """
         from scipy.signal import lfilter
 
-        state = {**self.initial_state(), **(state or {})}
+        state = model_state.checked_state(self, state)  # declared domains (mosd.app.model_state)
         X = np.asarray(X, float).reshape(-1, len(self.tags))
         (n, m), a = X.shape, self.n_components
         fast = self._fast
@@ -338,7 +339,7 @@ def _python_model_class():
                 frame = model_input if isinstance(model_input, pd.DataFrame) else pd.DataFrame(model_input)
                 names = state_names(self.fitted)
                 state = {k: v for k, v in (params or {}).items() if k in names and v is not None}
-                return self.fitted.predict_frame(frame, state)
+                return model_state.predict(self.fitted, frame, state)  # state domains, strict JSON, 400s
 
     _WRAPPER["class"] = MosdDetector
     return MosdDetector

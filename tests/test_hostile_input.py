@@ -1,0 +1,256 @@
+"""Nothing lost, third pass (issue 34): recorded data, ``mosd monitor`` and the served model under bad input.
+
+Every test here failed on main at 954534b:
+
+* recorded data is validated before any work: a time column that goes back (a shuffled export gave a
+  720 s step for a 60 s one) is refused, or sorted with ``sort=True`` and said on stdout; a malformed
+  timestamp, a header-only or one-row table, a one-row split and a calibration with no more rows than
+  tags are one line each; ``data=table`` without the measured-signals pipeline names the pipeline;
+* ``mosd monitor`` checks ``--out`` and the store before scoring, creates nothing when the store is
+  mistyped, reads ``-`` from stdin, keeps the ``--keep`` order;
+* the model's state params are checked against their declared domains (mosd.app.model_state): the
+  served model answers 400 naming the param, and its answers are strict JSON (``null``, not ``NaN``);
+* the model's ``.npz`` is written atomically; a half-upload's FAILED model record is removed.
+"""
+from __future__ import annotations
+
+import json
+import re
+import os
+import subprocess
+import sys
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from mosd.app import model_state
+from mosd.app.chart_model import FittedChart
+from mosd.app.detector_model import STATE, FittedPCA
+from mosd.data.table import Table
+from mosd.detectors.pca import PCADetector
+from mosd.validation import ConfigError
+
+ROOT = Path(__file__).resolve().parents[1]
+TAGS = tuple(f"TI-{i}" for i in range(6))
+
+
+def plant(n=1200, seed=0) -> pd.DataFrame:
+    """Correlated tags, one-minute timestamps, a labelled shift of two tags in two windows."""
+    rng = np.random.default_rng(seed)
+    tags = rng.normal(size=(n, 2)) @ rng.normal(size=(2, len(TAGS))) + 0.3 * rng.normal(size=(n, len(TAGS)))
+    label = np.zeros(n, int)
+    for start in (700, 1000):
+        label[start:start + 120] = 3
+    tags[label == 3, 0] += 1.5
+    tags[label == 3, 4] -= 1.5
+    frame = pd.DataFrame(tags, columns=TAGS)
+    frame.insert(0, "time", pd.date_range("2024-01-01", periods=n, freq="1min"))
+    frame["fault"] = label
+    return frame
+
+
+def one_line(text: str) -> str:
+    lines = [line for line in text.strip().splitlines() if line.strip()]
+    assert len(lines) == 1, text
+    return lines[0]
+
+
+def _env(outputs: Path) -> dict:
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("MOSD_", "MLFLOW_"))}
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(ROOT), env.get("PYTHONPATH")) if p)
+    env["MOSD_OUTPUTS"] = str(outputs)
+    return env
+
+
+def mosd(args, cwd: Path, stdin: bytes | None = None, timeout: float = 600) -> subprocess.CompletedProcess:
+    out = subprocess.run([sys.executable, "-m", "mosd", *args], cwd=cwd, env=_env(cwd / "outputs"),
+                         capture_output=True, input=stdin, timeout=timeout)
+    out.stdout, out.stderr = out.stdout.decode(), out.stderr.decode()
+    return out
+
+
+# -- 1. recorded data validated before any work ----------------------------------------------------------
+def test_a_shuffled_time_column_is_refused_naming_the_row(tmp_path):
+    path = tmp_path / "shuffled.csv"
+    plant().sample(frac=1.0, random_state=1).to_csv(path, index=False)
+    with pytest.raises(ConfigError) as info:
+        Table(str(path), time_column="time", label_column="fault")
+    message = str(info.value)
+    assert "\n" not in message and "column 'time' goes back at row" in message and "data.sort=true" in message
+
+
+def test_sort_true_sorts_the_rows_by_time_and_says_so_on_stdout(tmp_path, capsys):
+    frame = plant()
+    frame.sample(frac=1.0, random_state=1).to_csv(tmp_path / "shuffled.csv", index=False)
+    frame.to_csv(tmp_path / "ordered.csv", index=False)
+    ordered = Table(str(tmp_path / "ordered.csv"), time_column="time", label_column="fault")
+    assert "sorted" not in capsys.readouterr().out
+    table = Table(str(tmp_path / "shuffled.csv"), time_column="time", label_column="fault", sort=True)
+    said = capsys.readouterr().out
+    assert "rows of" in said and "were out of time order; sorted by column 'time' (data.sort=true)" in said
+    assert table.dt == 60.0  # the shuffled file gave a 720 s step
+    for split in ("calibration", "training", "test"):
+        np.testing.assert_array_equal(table.trace(split).y, ordered.trace(split).y)
+        np.testing.assert_array_equal(table.trace(split).fault_label, ordered.trace(split).fault_label)
+
+
+def test_a_repeated_time_is_refused_even_with_sort(tmp_path):
+    frame = plant(200)
+    frame.loc[50, "time"] = frame.loc[49, "time"]
+    frame.to_csv(tmp_path / "twice.csv", index=False)
+    for sort in (False, True):
+        with pytest.raises(ConfigError, match=r"column 'time' row 50 repeats the time of row 49"):
+            Table(str(tmp_path / "twice.csv"), time_column="time", sort=sort)
+
+
+@pytest.mark.parametrize("bad,shown", [("2024-13-45 99:00", "'2024-13-45 99:00'"), ("", "an empty cell"),
+                                       ("Bad", "'Bad'")])
+def test_a_malformed_timestamp_is_one_line_naming_the_row_and_the_value(tmp_path, bad, shown):
+    frame = plant(200).astype({"time": str})
+    frame.loc[17, "time"] = bad
+    frame.to_csv(tmp_path / "stamps.csv", index=False)
+    with pytest.raises(ConfigError) as info:
+        Table(str(tmp_path / "stamps.csv"), time_column="time")
+    message = str(info.value)
+    assert "\n" not in message and f"column 'time' row 17 holds {shown}, not a time" in message
+
+
+def test_numeric_seconds_with_a_gap_are_refused_naming_the_row(tmp_path):
+    frame = plant(200)
+    frame["time"] = np.arange(200) * 60.0
+    frame.loc[33, "time"] = np.nan
+    frame.to_csv(tmp_path / "seconds.csv", index=False)
+    with pytest.raises(ConfigError, match=r"column 'time' row 33 holds an empty cell, not a time"):
+        Table(str(tmp_path / "seconds.csv"), time_column="time")
+
+
+@pytest.mark.parametrize("rows,what", [(0, "a header and no data row"), (1, "1 data row"), (5, "5 data rows")])
+def test_too_short_a_table_is_one_line(tmp_path, rows, what):
+    plant(rows + 1).iloc[:rows].to_csv(tmp_path / "short.csv", index=False)
+    with pytest.raises(ConfigError) as info:
+        Table(str(tmp_path / "short.csv"), time_column="time", label_column="fault")
+    message = str(info.value)
+    assert "\n" not in message and f"has {what}; allowed: a table with at least 6 rows (2 per split" in message
+
+
+def test_a_split_of_one_row_is_refused(tmp_path):
+    plant(200).to_csv(tmp_path / "plant.csv", index=False)
+    with pytest.raises(ConfigError, match=r"data.splits.test=\[199, 200\] gives 1 row \(row 199\) of 200; "
+                                          r"allowed: at least 2 rows per split"):
+        Table(str(tmp_path / "plant.csv"), time_column="time",
+              splits={"calibration": [0, 150], "training": [150, 199], "test": [199, 200]})
+
+
+def test_more_tags_than_calibration_rows_is_refused_and_few_rows_per_tag_warn(tmp_path):
+    rng = np.random.default_rng(1)
+    wide = pd.DataFrame(rng.normal(size=(240, 150)), columns=[f"tag{i}" for i in range(150)])
+    wide.to_csv(tmp_path / "wide.csv", index=False)
+    with pytest.raises(ConfigError) as info:  # 120 calibration rows, 150 tags
+        Table(str(tmp_path / "wide.csv"))
+    message = str(info.value)
+    assert "\n" not in message
+    assert "120 fault-free complete rows" in message and "for 150 tags" in message and "singular" in message
+    # 120 rows for 60 tags: accepted, with one warning line (2 per tag < 5)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        Table(str(tmp_path / "wide.csv"), tags=[f"tag{i}" for i in range(60)])
+    lines = [str(w.message) for w in caught if "per tag" in str(w.message)]
+    assert len(lines) == 1 and "\n" not in lines[0] and "120 fault-free complete rows" in lines[0]
+    with warnings.catch_warnings(record=True) as caught:  # 120 rows for 20 tags: no warning
+        warnings.simplefilter("always")
+        Table(str(tmp_path / "wide.csv"), tags=[f"tag{i}" for i in range(20)])
+    assert not [w for w in caught if "per tag" in str(w.message)]
+
+
+def test_data_table_without_the_measured_signals_pipeline_names_it(tmp_path):
+    path = tmp_path / "plant.csv"
+    plant().to_csv(path, index=False)
+    data = ["data=table", f"data.path={path}", "data.time_column=time", "data.label_column=fault"]
+    run = mosd([*data, "estimator=dedicated_observer", "tracking=none", "progress=false"], tmp_path)
+    line = one_line(run.stderr)
+    assert run.returncode == 2 and "Traceback" not in run.stderr and "AttributeError" not in line
+    assert "estimator=measured monitor=signals detector=pca" in line and "estimator=dedicated_observer" in line
+
+
+# -- 3. the served model's state -------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def fitted_pca() -> tuple[FittedPCA, pd.DataFrame]:
+    frame = plant()
+    X = frame[list(TAGS)].to_numpy()
+    detector = PCADetector(n_components=2, alpha=0.01, lam=0.3, persistence=2, max_components=4)
+    return FittedPCA.from_detector(detector, X[None, :600], TAGS, fill="hold"), frame
+
+
+@pytest.mark.parametrize("name,value,problem", [
+    ("run_length", -5, "is out of range"), ("run_length", 2.5, "is not an integer"),
+    ("ewma_t2", 1e308, "is out of range"), ("ewma_t2", float("nan"), "is not finite"),
+    ("ewma_spe", -1.0, "is out of range"), ("ewma_spe", float("inf"), "is not finite"),
+    ("run_length", "five", "is not a number"), ("run_length", True, "is not a number"),
+])
+def test_impossible_pca_state_is_refused_naming_the_param(fitted_pca, name, value, problem):
+    fitted, frame = fitted_pca
+    rows = frame[list(TAGS)].iloc[700:720]
+    with pytest.raises(ConfigError) as info:
+        fitted.predict_frame(rows, {name: value})
+    message = str(info.value)
+    assert "\n" not in message and message.startswith(f"param {name}={value!r} {problem}; allowed: ")
+    assert model_state.domain_of(name).describe() in message
+
+
+def test_the_domains_hold_every_state_the_model_itself_gives(fitted_pca):
+    """Chunked scoring passes each chunk's last state back: every such state is in its domain, and the
+    boundary values (0, an integer float) are accepted."""
+    fitted, frame = fitted_pca
+    rows = frame[list(TAGS)]
+    whole = fitted.predict_frame(rows)
+    assert whole["alarm"].any()
+    for name in STATE:
+        for value in whole[name]:
+            assert model_state.domain_of(name).problem(value) is None
+    state = {"ewma_t2": 0.0, "ewma_spe": 0.0, "run_length": 3.0}
+    assert fitted.predict_frame(rows.iloc[:5], state)["run_length"].dtype.kind == "i"
+
+
+def test_impossible_chart_state_is_refused_naming_the_param():
+    chart = FittedChart(columns=("residual_x",), mean=np.array([0.0]), std=np.array([1.0]), subgroup="window", n=5,
+                        burn_in=10, chart="SSDEWMA", lam=0.2, K=3.0, limit="phase1", limit_value=2.0)
+    rows = pd.DataFrame({"residual_x": np.random.default_rng(0).normal(size=40)})
+    assert chart.predict_frame(rows)["subgroup"].max() == 6
+    for name, value, problem in [("samples_seen", -1, "is out of range"), ("smooth_u_1", float("inf"), "is not finite"),
+                                 ("pending_2", 1e200, "is out of range"), ("samples_seen", 3.5, "is not an integer")]:
+        with pytest.raises(ConfigError, match=rf"^param {name}={re.escape(repr(value))} {problem}; allowed: "):
+            chart.predict_frame(rows, {name: value})
+
+
+def test_strict_json_gives_null_for_missing_cells(fitted_pca):
+    fitted, frame = fitted_pca
+    rows = frame[list(TAGS)].iloc[:10].astype(object)
+    rows.iloc[3, 1] = "Bad"
+    out = model_state.strict_json(fitted.predict_frame(rows))
+    text = json.dumps(out.to_dict(orient="records"), allow_nan=False)  # raises on a NaN
+    record = json.loads(text)[3]
+    assert record["t2"] is None and record["alarm"] is False and record["top_t2"] == ""
+    assert json.loads(text)[2]["t2"] == pytest.approx(out["t2"].iloc[2])
+
+
+def test_the_model_file_is_written_atomically(fitted_pca, tmp_path, monkeypatch):
+    """A write that fails half-way (a full disk) keeps the previous file whole and leaves no temporary file."""
+    from mosd.app import model_files
+
+    fitted, _ = fitted_pca
+    saved = fitted.save(tmp_path)
+    before = saved.read_bytes()
+
+    def full_disk(out, *args, **kwargs):
+        out.write(b"PK\x03\x04 half")
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(model_files.np, "savez", full_disk)
+    with pytest.raises(OSError, match="No space left"):
+        fitted.save(tmp_path)
+    assert saved.read_bytes() == before and sorted(p.name for p in tmp_path.iterdir()) == [saved.name]
+    monkeypatch.undo()
+    assert FittedPCA.load(saved).t2_limit == fitted.t2_limit
