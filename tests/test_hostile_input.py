@@ -254,3 +254,128 @@ def test_the_model_file_is_written_atomically(fitted_pca, tmp_path, monkeypatch)
     assert saved.read_bytes() == before and sorted(p.name for p in tmp_path.iterdir()) == [saved.name]
     monkeypatch.undo()
     assert FittedPCA.load(saved).t2_limit == fitted.t2_limit
+
+
+# -- 2. mosd monitor: --out and the store checked before scoring; stdin; --keep order ------------------
+@pytest.fixture(scope="module")
+def logged_model(tmp_path_factory, fitted_pca):
+    """The fitted PCA logged as a run's model ``detector`` in a sqlite store, and a file of rows to score."""
+    from mlflow import MlflowClient
+
+    from mosd.app.detector_model import log_model
+
+    tmp = tmp_path_factory.mktemp("logged")
+    fitted, frame = fitted_pca
+    state_file = fitted.save(tmp / "model")
+    tracking = f"sqlite:///{tmp / 'mlflow.db'}"
+    client = MlflowClient(tracking)
+    run_id = client.create_run(client.create_experiment("hostile")).info.run_id
+    uri = log_model(str(state_file), tracking, run_id)
+    client.set_terminated(run_id)
+    rows = tmp / "rows.csv"
+    frame.iloc[600:900].to_csv(rows, index=False)
+    return dict(tmp=tmp, uri=uri, tracking=tracking, rows=rows, fitted=fitted, frame=frame)
+
+
+def _monitor_in_process(monkeypatch, capsys, args):
+    """``mosd monitor`` in this process with scoring and model loading made to fail: a check must come first."""
+    from mosd.app import monitor
+
+    def never(*args, **kwargs):
+        raise AssertionError("scored or loaded before the check")
+
+    monkeypatch.setattr(monitor, "score_file", never)
+    monkeypatch.setattr(monitor, "_load", never)
+    code = monitor.main(args)
+    return code, capsys.readouterr()
+
+
+@pytest.mark.parametrize("where,said", [
+    ("directory", "is a directory"), ("missing parent", "does not exist"), ("proc", "is not writable"),
+    ("sysfs", "is not writable"), ("parent is a file", "is not a directory")])
+def test_monitor_refuses_an_output_path_it_cannot_write_before_scoring(tmp_path, monkeypatch, capsys, where, said):
+    rows = tmp_path / "rows.csv"
+    plant(50).to_csv(rows, index=False)
+    (tmp_path / "file").write_text("x")
+    out = {"directory": str(tmp_path), "missing parent": str(tmp_path / "nowhere" / "alarms.csv"),
+           "proc": "/proc/mosd-alarms.csv", "sysfs": "/sys/mosd-alarms.csv",
+           "parent is a file": str(tmp_path / "file" / "alarms.csv")}[where]
+    code, captured = _monitor_in_process(monkeypatch, capsys, [str(rows), "--model", "models:/m-0", "--out", out,
+                                                                "--tracking-uri", f"sqlite:///{tmp_path / 'x.db'}"])
+    line = one_line(captured.err)
+    assert code == 2 and line.startswith(f"mosd monitor: error: --out={out!r}") and said in line
+    assert not (tmp_path / "x.db").exists() and not (tmp_path / "nowhere").exists()
+
+
+@pytest.mark.parametrize("kind", ["sqlite", "file", "bare path", "empty directory"])
+def test_a_mistyped_tracking_uri_creates_nothing_and_names_the_store(tmp_path, monkeypatch, capsys, kind):
+    rows = tmp_path / "rows.csv"
+    plant(50).to_csv(rows, index=False)
+    (tmp_path / "empty").mkdir()
+    store = {"sqlite": tmp_path / "mlrunz" / "mlflow.db", "file": tmp_path / "mlrunz", "bare path": tmp_path / "mlrunz",
+             "empty directory": tmp_path / "empty"}[kind]
+    uri = {"sqlite": f"sqlite:///{store}", "file": store.as_uri()}.get(kind, str(store))
+    before = sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*"))
+    code, captured = _monitor_in_process(monkeypatch, capsys, [str(rows), "--model", "models:/m-0123",
+                                                                "--tracking-uri", uri])
+    line = one_line(captured.err)
+    assert code == 2 and f"tracking store {store}" in line and ("does not exist" in line or "holds no MLflow" in line)
+    assert sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*")) == before  # nothing created
+
+
+def test_a_model_that_does_not_load_creates_nothing(logged_model, tmp_path):
+    r = logged_model
+    before = sorted(str(p) for p in r["tmp"].rglob("*"))
+    run = mosd(["monitor", "--model", "models:/m-0123456789", str(r["rows"]), "--tracking-uri", r["tracking"],
+                "--out", str(tmp_path / "alarms.csv")], tmp_path)
+    line = one_line(run.stderr)
+    assert run.returncode == 2 and "models:/m-0123456789" in line
+    assert sorted(str(p) for p in r["tmp"].rglob("*")) == before and not list(tmp_path.iterdir())
+
+
+def test_monitor_reads_stdin_and_keeps_the_keep_order(logged_model, tmp_path):
+    r = logged_model
+    common = ["--model", r["uri"], "--tracking-uri", r["tracking"], "--keep", "fault", "--keep", "time", "--chunk", "7"]
+    from_file = mosd(["monitor", str(r["rows"]), *common, "--out", str(tmp_path / "file.csv")], tmp_path)
+    assert from_file.returncode == 0, from_file.stderr
+    piped = mosd(["monitor", "-", *common, "--out", str(tmp_path / "stdin.csv")], tmp_path,
+                 stdin=r["rows"].read_bytes())
+    assert piped.returncode == 0, piped.stderr
+    assert piped.stdout.startswith("stdin: 300 rows, ") and piped.stderr == ""
+    a, b = pd.read_csv(tmp_path / "file.csv"), pd.read_csv(tmp_path / "stdin.csv")
+    assert list(a.columns[:3]) == ["fault", "time", "t2"]  # the order given, before the model's columns
+    pd.testing.assert_frame_equal(a, b)
+    assert a["alarm"].any() and (a["fault"] == r["frame"]["fault"].iloc[600:900].to_numpy()).all()
+
+
+# -- 3. the served model: 400 naming the param, strict JSON ---------------------------------------------
+def test_the_scoring_server_answers_400_naming_the_param_and_strict_json(logged_model):
+    """MLflow's scoring server (``invocations``, what ``mlflow models serve`` runs per request): an impossible
+    state is HTTP 400 with the one line naming the param; an answer with a missing cell is strict JSON."""
+    import mlflow
+    from mlflow.exceptions import MlflowException
+    from mlflow.pyfunc import scoring_server
+
+    r = logged_model
+    mlflow.set_tracking_uri(r["tracking"])
+    model = mlflow.pyfunc.load_model(r["uri"])
+    rows = r["frame"][list(TAGS)].iloc[700:705].astype(object)
+    rows.iloc[2, 1] = None  # a missing value (JSON null): no statistic on that row
+
+    def post(params):
+        body = {"dataframe_split": {"columns": list(TAGS), "data": rows.to_numpy().tolist()}, "params": params}
+        return scoring_server.invocations(json.dumps(body), "application/json", model, None)
+
+    for params, name in [({"run_length": -5}, "run_length"), ({"ewma_t2": 1e308}, "ewma_t2")]:
+        with pytest.raises(MlflowException) as info:
+            post({"ewma_t2": 1.0, "ewma_spe": 1.0, "run_length": 0, **params})
+        assert info.value.get_http_status_code() == 400
+        assert f"param {name}={params[name]!r} is out of range; allowed: " in info.value.message
+    answer = post({"ewma_t2": 1.0, "ewma_spe": 1.0, "run_length": 0})
+    assert answer.status == 200
+
+    def refuse(token):
+        raise ValueError(f"{token} is not JSON")
+
+    records = json.loads(answer.response, parse_constant=refuse)["predictions"]
+    assert records[2]["t2"] is None and records[2]["alarm"] is False and records[1]["t2"] > 0

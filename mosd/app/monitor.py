@@ -118,6 +118,9 @@ def check_store(model_uri: str, tracking_uri: str) -> None:
         if not path.is_dir():
             what = "does not exist" if not path.exists() else "is not a directory"
             raise ConfigError(f"tracking store {path.resolve()} {what} (--tracking-uri={shown}); {allowed}")
+        if not any(path.glob("*/meta.yaml")):  # MLflow's file store: a meta.yaml per experiment
+            raise ConfigError(f"tracking store {path.resolve()} holds no MLflow store (--tracking-uri={shown}); "
+                              f"{allowed}")
 
 
 def read_data(data: str):
