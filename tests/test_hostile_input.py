@@ -409,3 +409,57 @@ def test_chunked_scoring_agrees_within_the_readme_s_tolerance(m, lam):
         assert np.array_equal(np.concatenate([p["alarm"] for p in parts]), whole["alarm"])
         for key in ("t2", "spe", "t2_smoothed", "spe_smoothed", "ratio"):
             np.testing.assert_allclose(np.concatenate([p[key] for p in parts]), whole[key], rtol=1e-13, atol=0)
+
+
+def test_a_half_upload_in_mosd_log_leaves_no_failed_model_record(tmp_path, fitted_pca, monkeypatch, capsys):
+    """``mosd log`` whose model upload fails (a full artifact store) leaves MLflow a FAILED model record; the
+    next ``mosd log`` logs the model whole and removes that record: the run shows one model, READY."""
+    from mlflow import MlflowClient
+    from mlflow.entities import LoggedModelStatus
+    from mlflow.store.artifact.local_artifact_repo import LocalArtifactRepository
+
+    from mosd.app import pending
+    from mosd.app.mlflow_client import MlflowStore
+    from mosd.app.settings import TrackingSettings
+
+    fitted, _ = fitted_pca
+    run_dir = tmp_path / "run"
+    model = fitted.save(run_dir / "model")
+    settings = TrackingSettings(f"sqlite:///{tmp_path / 'mlflow.db'}", (tmp_path / "artifacts").as_uri(), "mosd")
+    store = MlflowStore(settings)
+    run_id = store.create_run("r", {"mosd.role": "job", "mosd.run_dir": str(run_dir)})
+    store.end(run_id, "FAILED", "the artifact store was full")
+    request = {"settings": {"uri": settings.uri, "artifact_root": settings.artifact_root, "experiment": "mosd"},
+               "run_id": run_id, "run_name": "r", "tags": {"mosd.role": "job", "mosd.run_dir": str(run_dir)},
+               "parent_run_id": None, "params": {"seed": "0"}, "metrics": [["far", 0.01, 0]], "artifacts": [],
+               "model": str(model)}
+    (run_dir / pending.PENDING_FILE).write_text(json.dumps(request))
+    original = LocalArtifactRepository.log_artifacts
+
+    def half_then_full(self, local_dir, artifact_path=None):
+        names = sorted(p.name for p in Path(local_dir).iterdir())
+        (Path(self.artifact_dir) / (artifact_path or "")).mkdir(parents=True, exist_ok=True)
+        (Path(self.artifact_dir) / (artifact_path or "") / names[0]).write_bytes(b"half")
+        raise OSError(28, "No space left on device", self.artifact_dir)
+
+    monkeypatch.setattr(LocalArtifactRepository, "log_artifacts", half_then_full)
+    assert pending.log_main([str(run_dir)]) != 0
+    client = MlflowClient(settings.uri)
+
+    def statuses():
+        experiment = client.get_run(run_id).info.experiment_id
+        return sorted(str(m.status) for m in client.search_logged_models([experiment]) if m.source_run_id == run_id)
+
+    assert statuses() and LoggedModelStatus.READY not in statuses()  # the half-upload's record
+    monkeypatch.setattr(LocalArtifactRepository, "log_artifacts", original)
+    capsys.readouterr()
+    assert pending.log_main([str(run_dir)]) == 0, capsys.readouterr().err
+    assert statuses() == [str(LoggedModelStatus.READY)]
+    assert client.get_run(run_id).info.status == "FINISHED"
+
+
+def test_hydra_cfg_output_masks_the_tracking_password(tmp_path):
+    for mode in (["--cfg", "job"], ["--cfg", "all"], ["--info", "config"]):
+        run = mosd([*mode, "+fault=offset", "tracking.uri=postgresql://mosd:s3cret@localhost/db"], tmp_path)
+        assert run.returncode == 0, run.stderr
+        assert "s3cret" not in run.stdout + run.stderr and "postgresql://mosd:***@localhost/db" in run.stdout
