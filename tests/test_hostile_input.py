@@ -463,3 +463,83 @@ def test_hydra_cfg_output_masks_the_tracking_password(tmp_path):
         run = mosd([*mode, "+fault=offset", "tracking.uri=postgresql://mosd:s3cret@localhost/db"], tmp_path)
         assert run.returncode == 0, run.stderr
         assert "s3cret" not in run.stdout + run.stderr and "postgresql://mosd:***@localhost/db" in run.stdout
+
+
+# -- 5. tls:// Dask addresses are checked like tcp:// ones ----------------------------------------------
+def _self_signed(tmp_path: Path) -> tuple[str, str]:
+    """A self-signed certificate for 127.0.0.1 and its key (cryptography: a dependency of MLflow)."""
+    import datetime
+    import ipaddress
+
+    from cryptography import x509
+    from cryptography.hazmat.primitives import hashes, serialization
+    from cryptography.hazmat.primitives.asymmetric import ec
+    from cryptography.x509.oid import NameOID
+
+    key = ec.generate_private_key(ec.SECP256R1())
+    name = x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, "mosd-test")])
+    now = datetime.datetime.now(datetime.timezone.utc)
+    cert = (x509.CertificateBuilder().subject_name(name).issuer_name(name).public_key(key.public_key())
+            .serial_number(x509.random_serial_number()).not_valid_before(now - datetime.timedelta(minutes=5))
+            .not_valid_after(now + datetime.timedelta(hours=1))
+            .add_extension(x509.BasicConstraints(ca=True, path_length=None), critical=True)
+            .add_extension(x509.SubjectAlternativeName([x509.IPAddress(ipaddress.ip_address("127.0.0.1")),
+                                                        x509.DNSName("localhost")]), critical=False)
+            .sign(key, hashes.SHA256()))
+    cert_file, key_file = tmp_path / "cert.pem", tmp_path / "key.pem"
+    cert_file.write_bytes(cert.public_bytes(serialization.Encoding.PEM))
+    key_file.write_bytes(key.private_bytes(serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8,
+                                           serialization.NoEncryption()))
+    return str(cert_file), str(key_file)
+
+
+def test_tls_dask_addresses_are_checked_like_tcp_ones(tmp_path):
+    import socket
+    import threading
+
+    import dask.config
+
+    from mosd.optim.backends import check_scheduler
+
+    with pytest.raises(ConfigError, match=r"'tls://127.0.0.1' has no host and port; allowed: .*tls://host:8786"):
+        check_scheduler("tls://127.0.0.1")
+    closed = socket.create_server(("127.0.0.1", 0))
+    port = closed.getsockname()[1]
+    closed.close()
+    with pytest.raises(ConfigError, match=rf"'tls://127.0.0.1:{port}': no Dask scheduler answers there"):
+        check_scheduler(f"tls://127.0.0.1:{port}", timeout=2)
+    # something listens, speaking HTTP: without the Dask config's TLS settings, one line says what is missing
+    listener = socket.create_server(("127.0.0.1", 0))
+
+    def answer():
+        while True:
+            try:
+                conn, _ = listener.accept()
+            except OSError:
+                return
+            conn.sendall(b"HTTP/1.1 200 OK\r\n\r\nhello")
+
+    threading.Thread(target=answer, daemon=True).start()
+    address = f"tls://127.0.0.1:{listener.getsockname()[1]}"
+    try:
+        with pytest.raises(ConfigError, match=r"is a TLS address but the Dask config has no TLS settings"):
+            check_scheduler(address, timeout=2)
+        cert, key = _self_signed(tmp_path)
+        tls = {"distributed.comm.tls.ca-file": cert, "distributed.comm.tls.client.cert": cert,
+               "distributed.comm.tls.client.key": key}
+        with dask.config.set(tls):
+            with pytest.raises(ConfigError) as info:
+                check_scheduler(address, timeout=2)
+    finally:
+        listener.close()
+    assert "\n" not in str(info.value) and f"'{address}' accepts connections but is not a Dask scheduler" in str(info.value)
+    # a Dask scheduler over TLS, the client's settings in the Dask config: passes
+    from distributed import LocalCluster
+    from distributed.security import Security
+
+    security = Security(tls_ca_file=cert, tls_scheduler_cert=cert, tls_scheduler_key=key, tls_client_cert=cert,
+                        tls_client_key=key, tls_worker_cert=cert, tls_worker_key=key, require_encryption=True)
+    with LocalCluster(n_workers=0, processes=False, protocol="tls", security=security, dashboard_address=None) as c:
+        assert c.scheduler_address.startswith("tls://")
+        with dask.config.set(tls):
+            check_scheduler(c.scheduler_address, timeout=10)
