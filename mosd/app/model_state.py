@@ -147,12 +147,17 @@ def bad_request(exc: BaseException) -> BaseException:
 
 def predict(fitted, frame, params: Mapping | None):
     """The served model's answer: the rows scored (the model's ``score`` checks the state with
-    :func:`checked_state`), missing cells as JSON ``null``.
+    :func:`checked_state`), missing cells as JSON ``null``, no NumPy overflow warnings.
 
     A :class:`ConfigError` (a state out of its domain, a missing or an extra column) becomes MLflow's
     INVALID_PARAMETER_VALUE: the scoring server answers 400 with the one line.
     """
+    import numpy as np
+
     try:
-        return strict_json(fitted.predict_frame(frame, params))
+        # a row whose statistic overflows (an input near 1e308) is not scored (non-finite: no alarm, the EWMA
+        # holds its in-control mean): NumPy's overflow warnings on the way say nothing a client can act on
+        with np.errstate(over="ignore", invalid="ignore"):
+            return strict_json(fitted.predict_frame(frame, params))
     except ConfigError as exc:
         raise bad_request(exc) from exc

@@ -225,10 +225,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             import numpy as np
             import pandas as pd
 
-            from ..data.table import _fill
+            from ..data.table import MAX_ABS, _fill
 
             values = np.column_stack([pd.to_numeric(tags[c], errors="coerce").to_numpy(dtype=float, na_value=np.nan)
                                       for c in tags.columns])
+            values[np.abs(values) > MAX_ABS] = np.nan  # an error code such as 1e308, as the training data read it
             values, _, kept = _fill(values, np.zeros(len(values), int), fill)
             frame = frame.iloc[kept]
             tags = pd.DataFrame(values, columns=tags.columns, index=frame.index)

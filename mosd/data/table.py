@@ -6,7 +6,9 @@ columns to monitor. Splits are row ranges (fractions of the rows, or row
 numbers) taken in time order, one run per split.
 
 Historian error codes. Exports put strings such as ``Inp OutRange``, ``Bad``
-or ``Scan Timeout`` into numeric columns. With ``errors="strict"`` the first
+or ``Scan Timeout`` into numeric columns (and some a number such as ``1e308`` or
+``-1.7e308``: any cell beyond ±:data:`MAX_ABS` is taken as such a code, since
+its square, in the variance and the statistics, would overflow). With ``errors="strict"`` the first
 such cell stops the run with one line naming the file, the column, the row
 and the text. With ``errors="nan"`` (the default) every cell that is not a
 number becomes missing, and ``fill`` decides what happens next:
@@ -62,6 +64,8 @@ MIN_SPLIT_ROWS = 2
 MIN_ROWS_PER_TAG = 1
 #: ... and below which it warns (module docstring; docs/systems/tep.md)
 WARN_ROWS_PER_TAG = 5
+#: a cell beyond ±MAX_ABS is an error code, not a measurement: its square (the variance, T², SPE) would overflow
+MAX_ABS = 1e150
 
 
 class Table(RecordedData):
@@ -185,15 +189,21 @@ class Table(RecordedData):
         import pandas as pd
 
         if pd.api.types.is_numeric_dtype(column.dtype) and not pd.api.types.is_bool_dtype(column.dtype):
-            return column.to_numpy(dtype=float, na_value=np.nan)
-        numbers = pd.to_numeric(column, errors="coerce")
-        text = column.astype("string").str.strip()
-        bad = numbers.isna() & column.notna() & (text != "")
+            numbers = column.to_numpy(dtype=float, na_value=np.nan)
+            bad = np.abs(numbers) > MAX_ABS
+        else:
+            converted = pd.to_numeric(column, errors="coerce")
+            text = column.astype("string").str.strip()
+            numbers = converted.to_numpy(dtype=float, na_value=np.nan)
+            bad = (converted.isna() & column.notna() & (text != "")).to_numpy(dtype=bool) | (np.abs(numbers) > MAX_ABS)
         if bad.any() and self.errors == "strict":
-            row = int(np.flatnonzero(bad.to_numpy())[0])
-            raise ConfigError(f"{self.path}: column {name!r} row {row} holds {str(column.iloc[row])!r}, not a number; "
-                              "allowed: numbers (data.errors=nan reads historian error codes as missing values)")
-        return numbers.to_numpy(dtype=float, na_value=np.nan)
+            row = int(np.flatnonzero(bad)[0])
+            raise ConfigError(f"{self.path}: column {name!r} row {row} holds {str(column.iloc[row])!r}, not a number "
+                              f"within ±{MAX_ABS:g}; allowed: numbers (data.errors=nan reads historian error codes "
+                              "and such values as missing values)")
+        if bad.any():
+            numbers = np.where(bad, np.nan, numbers)
+        return numbers
 
     def _labels(self, column, name: str) -> np.ndarray:
         import pandas as pd
