@@ -543,3 +543,51 @@ def test_tls_dask_addresses_are_checked_like_tcp_ones(tmp_path):
         assert c.scheduler_address.startswith("tls://")
         with dask.config.set(tls):
             check_scheduler(c.scheduler_address, timeout=10)
+
+
+# -- 4. stderr carries only mosd's own lines --------------------------------------------------------------
+LEAK = """
+import multiprocessing as mp, os, sys
+from multiprocessing import resource_tracker
+from mosd.app.sweep import quiet_resource_trackers
+if sys.argv[1] == "quiet":
+    with quiet_resource_trackers():
+        resource_tracker.ensure_running()
+lock = mp.get_context("spawn").Lock()   # a named semaphore, registered with the tracker
+os._exit(0)                             # ended as joblib's abort ends a job worker: never unregistered
+"""
+
+
+@pytest.mark.parametrize("mode", ["plain", "quiet"])
+def test_the_resource_tracker_of_a_stopped_sweep_does_not_warn(mode):
+    """``plain`` is the tracker as before (the warning a stopped joblib sweep printed); ``quiet`` as the sweep
+    starts it now (mosd.app.sweep.quiet_resource_trackers): the semaphore is cleaned up all the same."""
+    out = subprocess.run([sys.executable, "-c", LEAK, mode], env=_env(Path("/nonexistent")), capture_output=True,
+                         text=True, timeout=60)
+    assert out.returncode == 0
+    if mode == "plain":
+        assert "leaked semaphore objects to clean up at shutdown" in out.stderr  # what the test guards against
+    else:
+        assert out.stderr == ""
+
+
+WORKER_SIGINT = """
+import os, signal, time
+from mosd.optim.workers import memmapping_executor, pool_pids
+executor = memmapping_executor(2, 60)
+assert len({f.result() for f in [executor.submit(lambda: (time.sleep(1.0), os.getpid())[1]) for _ in range(2)]}) == 2
+before = sorted(pool_pids())  # both workers started and idle, as between two generations
+for pid in before:
+    os.kill(pid, signal.SIGINT)          # a Ctrl-C reaches the whole process group
+time.sleep(1.0)
+print(executor.submit(sum, [1, 2]).result(), sorted(pool_pids()) == before)
+"""
+
+
+def test_evaluation_workers_ignore_a_ctrl_c_to_the_process_group():
+    """The run's handler stops its workers with SIGTERM; a KeyboardInterrupt in each worker printed a
+    traceback on stderr (cut off by that SIGTERM) and broke the pool."""
+    out = subprocess.run([sys.executable, "-c", WORKER_SIGINT], env=_env(Path("/nonexistent")), capture_output=True,
+                         text=True, timeout=120)
+    assert out.returncode == 0 and out.stdout.split() == ["3", "True"], out.stderr[-2000:]
+    assert "Traceback" not in out.stderr and "KeyboardInterrupt" not in out.stderr, out.stderr[-2000:]
