@@ -591,3 +591,29 @@ def test_evaluation_workers_ignore_a_ctrl_c_to_the_process_group():
                          text=True, timeout=120)
     assert out.returncode == 0 and out.stdout.split() == ["3", "True"], out.stderr[-2000:]
     assert "Traceback" not in out.stderr and "KeyboardInterrupt" not in out.stderr, out.stderr[-2000:]
+
+
+def test_the_rows_per_tag_rule_is_what_the_far_measures():
+    """docs/systems/tep.md, "How many calibration rows": 20 tags, 3 latent factors, 30 seeds. At 1.1 rows per
+    tag the in-control test FAR is far above its target; from 5 (WARN_ROWS_PER_TAG) it is within 10 %."""
+    from mosd.data.table import WARN_ROWS_PER_TAG
+
+    nominal = 1 - 0.99**2  # T² or SPE above its α = 0.01 limit
+
+    def mean_far(rows_per_tag: float, m: int = 20) -> float:
+        fars = []
+        for seed in range(30):
+            rng = np.random.default_rng(seed)
+            W = rng.normal(size=(3, m))
+            W /= np.linalg.norm(W, axis=0)
+
+            def draw(n):
+                return rng.normal(size=(n, 3)) @ W + 0.3 * rng.normal(size=(n, m))
+
+            n = int(rows_per_tag * m)
+            detector = PCADetector(n_components=3, alpha=0.01, max_components=min(m - 1, n - 1))
+            fars.append(detector.decide(draw(n)[None], draw(4000)[None]).decision[0].mean())
+        return float(np.mean(fars))
+
+    assert mean_far(1.1) > 2.5 * nominal
+    assert abs(mean_far(WARN_ROWS_PER_TAG) / nominal - 1) < 0.1
