@@ -19,7 +19,6 @@ import re
 import os
 import subprocess
 import sys
-import warnings
 from pathlib import Path
 
 import numpy as np
@@ -144,7 +143,7 @@ def test_a_split_of_one_row_is_refused(tmp_path):
               splits={"calibration": [0, 150], "training": [150, 199], "test": [199, 200]})
 
 
-def test_more_tags_than_calibration_rows_is_refused_and_few_rows_per_tag_warn(tmp_path):
+def test_more_tags_than_calibration_rows_is_refused_and_few_rows_per_tag_warn(tmp_path, caplog):
     rng = np.random.default_rng(1)
     wide = pd.DataFrame(rng.normal(size=(240, 150)), columns=[f"tag{i}" for i in range(150)])
     wide.to_csv(tmp_path / "wide.csv", index=False)
@@ -154,15 +153,14 @@ def test_more_tags_than_calibration_rows_is_refused_and_few_rows_per_tag_warn(tm
     assert "\n" not in message
     assert "120 fault-free complete rows" in message and "for 150 tags" in message and "singular" in message
     # 120 rows for 60 tags: accepted, with one warning line (2 per tag < 5)
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
+    with caplog.at_level("WARNING", logger="mosd.data"):
         Table(str(tmp_path / "wide.csv"), tags=[f"tag{i}" for i in range(60)])
-    lines = [str(w.message) for w in caught if "per tag" in str(w.message)]
+    lines = [r.getMessage() for r in caplog.records if "per tag" in r.getMessage()]
     assert len(lines) == 1 and "\n" not in lines[0] and "120 fault-free complete rows" in lines[0]
-    with warnings.catch_warnings(record=True) as caught:  # 120 rows for 20 tags: no warning
-        warnings.simplefilter("always")
+    caplog.clear()
+    with caplog.at_level("WARNING", logger="mosd.data"):  # 120 rows for 20 tags: no warning
         Table(str(tmp_path / "wide.csv"), tags=[f"tag{i}" for i in range(20)])
-    assert not [w for w in caught if "per tag" in str(w.message)]
+    assert not [r for r in caplog.records if "per tag" in r.getMessage()]
 
 
 def test_data_table_without_the_measured_signals_pipeline_names_it(tmp_path):

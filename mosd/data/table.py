@@ -157,10 +157,9 @@ class Table(RecordedData):
                               "allowed: tags that vary")
         if constant.any():
             dropped = [n for n, c in zip(names, constant) if c]
-            message = f"data: {len(dropped)} tags of {self.path} are constant over the calibration rows, dropped: " \
-                      + ", ".join(dropped)
-            warnings.warn(message, stacklevel=2)
-            log.warning(message)
+            # one line (a logged warning: warnings.warn would add the caller's file, line and source)
+            log.warning(f"data: {len(dropped)} tags of {self.path} are constant over the calibration rows, dropped: "
+                        + ", ".join(dropped))
         self.dropped = tuple(n for n, c in zip(names, constant) if c)
         self.output_names = tuple(n for n, c in zip(names, constant) if not c)
         self._check_rows_per_tag(values[calibration][normal][:, ~constant])
@@ -288,8 +287,7 @@ class Table(RecordedData):
         if rows < WARN_ROWS_PER_TAG * tags:
             message = (f"{where} (fewer than {WARN_ROWS_PER_TAG} per tag): the monitor's limits are estimated "
                        f"loosely and the false-alarm rate may exceed its target (docs/systems/tep.md)")
-            warnings.warn(message, stacklevel=3)
-            log.warning(message)
+            log.warning(message)  # one line
 
     def _split_ranges(self, splits: Mapping[str, Sequence[float]], n_rows: int) -> dict[str, tuple[int, int]]:
         unknown = set(splits) - set(SPLITS)
