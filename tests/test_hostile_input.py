@@ -615,3 +615,28 @@ def test_the_rows_per_tag_rule_is_what_the_far_measures():
 
     assert mean_far(1.1) > 2.5 * nominal
     assert abs(mean_far(WARN_ROWS_PER_TAG) / nominal - 1) < 0.1
+
+
+def test_values_near_1e308_are_error_codes_not_overflows(tmp_path, fitted_pca):
+    """An export's 1e308 (or -1.7e308) is read as a missing value (and filled) or, with errors=strict, one line;
+    the served model scores a row holding one without a NumPy warning (the row has no statistic)."""
+    import warnings
+
+    frame = plant(300)
+    frame.loc[[10, 200], "TI-1"] = [1e308, -1.7e308]
+    frame.to_csv(tmp_path / "huge.csv", index=False)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # an overflow warning fails the test
+        table = Table(str(tmp_path / "huge.csv"), time_column="time", fill="hold")
+    values = table.values(str(tmp_path / "huge.csv"))
+    column = list(table.output_names).index("TI-1")
+    assert np.isfinite(values).all() and values[10, column] == values[9, column]
+    with pytest.raises(ConfigError, match=r"column 'TI-1' row 10 holds '1e\+308', not a number within ±1e\+150"):
+        Table(str(tmp_path / "huge.csv"), time_column="time", errors="strict")
+    fitted, rows = fitted_pca
+    rows = rows[list(TAGS)].iloc[600:610].copy()
+    rows.iloc[3, 2] = 1e308
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        out = model_state.predict(fitted, rows, None)
+    assert out["t2"].iloc[3] is None and out["t2"].iloc[4] is not None and not out["alarm"].iloc[3]
