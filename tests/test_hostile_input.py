@@ -547,8 +547,8 @@ def test_tls_dask_addresses_are_checked_like_tcp_ones(tmp_path):
 LEAK = """
 import multiprocessing as mp, os, sys
 from multiprocessing import resource_tracker
-from mosd.app.sweep import quiet_resource_trackers
 if sys.argv[1] == "quiet":
+    from mosd.app.sweep import quiet_resource_trackers
     with quiet_resource_trackers():
         resource_tracker.ensure_running()
 lock = mp.get_context("spawn").Lock()   # a named semaphore, registered with the tracker
