@@ -32,7 +32,6 @@ Hydra and MLflow live here only, imported when needed, so ``import mosd.app`` is
 from __future__ import annotations
 
 import contextlib
-
 import sys
 import time
 from typing import Sequence
