@@ -39,7 +39,13 @@ class NoStreamingForm(Exception):
 
 @dataclass(frozen=True)
 class StateVar:
-    """One scalar of a stage's carried state: its meaning and its allowed values."""
+    """One scalar of a stage's carried state: its meaning and its allowed values.
+
+    A state no stream can reach (a negative count, a NaN, an EWMA of 1e308) would give a decision computed
+    from it (``run_length = -5`` delays every alarm by five points); :meth:`check` refuses it with one line
+    naming the param, its value and its domain. Counts are integers in [0, 2**53] (a float carries every
+    integer up to 2**53); a real state is bounded far below overflow so that its square stays finite.
+    """
 
     doc: str
     domain: Interval = Interval(-math.inf, math.inf, open_low=True, open_high=True)
@@ -50,27 +56,45 @@ class StateVar:
     def integer(self) -> bool:
         return self.domain.integer
 
+    def describe(self) -> str:
+        kind = "integers" if self.integer else "finite numbers"
+        high = "2**53" if self.domain.high == MAX_COUNT else f"{self.domain.high:g}"
+        return f"{kind} in [{self.domain.low:g}, {high}] ({self.doc.rstrip('.')})"
+
+    def problem(self, value) -> str | None:
+        """None when ``value`` is in the domain, else what is wrong with it."""
+        if isinstance(value, bool):
+            return "is not a number"
+        try:
+            number = float(value)
+        except (TypeError, ValueError):
+            return "is not a number"
+        if not math.isfinite(number):
+            return "is not finite"
+        if self.integer and not number.is_integer():
+            return "is not an integer"
+        if number not in self.domain:
+            return "is out of range"
+        return None
+
     def check(self, name: str, value) -> float | int:
         """``value`` as a number of this variable's domain, or a one-line :class:`ConfigError` naming ``name``."""
         if self.missing and (value is None or (isinstance(value, float) and math.isnan(value))):
             return math.nan
-        try:
-            number = float(value)
-        except (TypeError, ValueError):
-            raise ConfigError(f"state param {name}={value!r} is not a number; allowed: {self.domain}") from None
-        if not math.isfinite(number) or number not in self.domain:
-            raise ConfigError(f"state param {name}={value!r} is out of range; allowed: {self.domain}")
-        if self.integer:
-            if not number.is_integer():
-                raise ConfigError(f"state param {name}={value!r} is not an integer; allowed: {self.domain}")
-            return int(number)
-        return number
+        problem = self.problem(value)
+        if problem is not None:
+            raise ConfigError(f"param {name}={value!r} {problem}; allowed: {self.describe()}")
+        return int(float(value)) if self.integer else float(value)
 
 
+#: the largest integer a float param carries exactly
+MAX_COUNT = 2**53
 #: finite reals: a smoothed statistic or a filter's state (a bound far below overflow: squares stay finite)
 FINITE = Interval(-1e150, 1e150)
+#: a sum of squares (an EWMA of T² or SPE, a CUSUM): non-negative, its ratio to a limit finite
+SQUARES = Interval(0.0, 1e300)
 #: a count of rows or points
-COUNT = Interval(0, 2**62, integer=True)
+COUNT = Interval(0, MAX_COUNT, integer=True)
 
 
 class OnlineStage:
@@ -112,7 +136,7 @@ class OnlineStage:
         out = dict(self.initial_state())
         variables = self.state_vars()
         for name, value in (state or {}).items():
-            if name in variables:
+            if name in variables and (value is not None or variables[name].missing):
                 out[name] = variables[name].check(name, value)
         return out
 
@@ -188,7 +212,7 @@ class OnlinePipeline:
         known = set(self.state_names)
         unknown = [k for k in (state or {}) if k not in known]
         if unknown:
-            raise ConfigError(f"state param {unknown[0]!r} is not a state of the model; allowed: "
+            raise ConfigError(f"param {unknown[0]!r} is not a state of the model; allowed: "
                               f"{', '.join(self.state_names) or 'none'}")
         out = {}
         for stage in self.stages:
@@ -207,6 +231,13 @@ class OnlinePipeline:
             for name in (*stage.outputs, *stage.state_vars()):
                 flowing[name] = result[name] = _per_row(out[name], rows)
         return {name: result[name] for name in self.outputs}
+
+    def state_var(self, name: str) -> StateVar:
+        """The declaration of state ``name`` (a KeyError names a state the pipeline does not carry)."""
+        for stage in self.stages:
+            if name in stage.state_vars():
+                return stage.state_vars()[name]
+        raise KeyError(f"state {name!r} is not carried by this pipeline; it carries {', '.join(self.state_names)}")
 
     def final_state(self, result: Mapping[str, np.ndarray], state: Mapping | None = None) -> dict:
         """The state after the last row of ``result`` (``state`` when it has no row)."""

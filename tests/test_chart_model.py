@@ -142,9 +142,9 @@ def test_no_causal_form_for_a_whole_series_filter_and_the_state_names():
     monitor.mean_, monitor.std_ = np.zeros(1), np.ones(1)
     pipeline = OnlinePipeline([monitor.online(("residual_y",)), chart])
     assert pipeline.state_names == ("samples_seen", "pending_1", "pending_2", "pending_3", "pending_4", "smooth_u_1")
-    with pytest.raises(ConfigError, match=r"^state param samples_seen=-5 is out of range; allowed: integers in"):
+    with pytest.raises(ConfigError, match=r"^param samples_seen=-5 is out of range; allowed: integers in"):
         pipeline.update({"residual_y": np.zeros(3)}, {"samples_seen": -5})
-    with pytest.raises(ConfigError, match=r"^state param smooth_u_1=1e\+308 is out of range"):
+    with pytest.raises(ConfigError, match=r"^param smooth_u_1=1e\+308 is out of range"):
         pipeline.update({"residual_y": np.zeros(3)}, {"smooth_u_1": 1e308})
 
 

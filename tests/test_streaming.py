@@ -149,11 +149,11 @@ def test_state_params_are_checked_against_their_declared_domains():
     outputs = _outputs({"chi2": np.ones((1, 10)), "observer_residual_scaled": np.ones((1, 10))})
     monitor = OutputMonitor(outputs=["chi2", "observer_residual_scaled"])
     pipeline, columns = _pipeline(monitor, AdaptiveChi2Detector(lag=1), outputs, monitor.transform(outputs).z)
-    for state, message in (({"run_length": -5}, r"^state param run_length=-5 is out of range; allowed: integers in"),
-                           ({"run_length": 2.5}, r"^state param run_length=2.5 is not an integer"),
-                           ({"observer_1": 1e308}, r"^state param observer_1=1e\+308 is out of range"),
-                           ({"observer_1": "x"}, r"^state param observer_1='x' is not a number"),
-                           ({"ewma_t2": 1.0}, r"^state param 'ewma_t2' is not a state of the model; allowed: "
+    for state, message in (({"run_length": -5}, r"^param run_length=-5 is out of range; allowed: integers in \[0, 2\*\*53\]"),
+                           ({"run_length": 2.5}, r"^param run_length=2.5 is not an integer"),
+                           ({"observer_1": 1e308}, r"^param observer_1=1e\+308 is out of range"),
+                           ({"observer_1": "x"}, r"^param observer_1='x' is not a number"),
+                           ({"ewma_t2": 1.0}, r"^param 'ewma_t2' is not a state of the model; allowed: "
                                               r"samples_seen, observer_1, run_length")):
         with pytest.raises(ConfigError, match=message):
             pipeline.update(columns, state)

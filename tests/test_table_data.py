@@ -7,7 +7,6 @@ import json
 import os
 import subprocess
 import sys
-import warnings
 from pathlib import Path
 
 import numpy as np
@@ -49,14 +48,14 @@ def labelled_frame(n=1200, seed=0):
     return frame
 
 
-def test_real_export_loads_fits_and_names_the_tags_behind_the_alarms(real_csv):
+def test_real_export_loads_fits_and_names_the_tags_behind_the_alarms(real_csv, caplog):
     raw = pd.read_csv(real_csv, index_col=0)
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
+    with caplog.at_level("WARNING", logger="mosd.data"):
         table = Table(str(real_csv), time_column=0, errors="nan", fill="hold")
+    caught = [r.getMessage() for r in caplog.records]
     assert table.dt == 300.0  # 5-minute samples
     assert len(table.output_names) + len(table.dropped) == raw.shape[1] == 108
-    assert table.dropped and any("constant" in str(w.message) for w in caught)
+    assert table.dropped and any("constant" in line and "\n" not in line for line in caught)
     assert "tag2" in table.output_names  # its 'Inp OutRange' cells are held, the column kept
     result = monitor_table(table, PCADetector(n_components=9, alpha=0.01, fit_runs=None))
     assert result["n_rows"] == raw.shape[0] - int(round(0.5 * raw.shape[0]))
@@ -79,12 +78,13 @@ def test_strict_policy_names_file_column_row_and_text(real_csv):
 
 @pytest.mark.parametrize("fill", ["hold", "interpolate", "drop", "none"])
 def test_fill_policies_against_pandas(tmp_path, fill):
-    frame = pd.DataFrame({"a": [1.0, None, 3.0, "Bad", 5.0, 6.0, 7.0, 8.0, 9.5],
-                          "b": [2.0, 2.5, "Scan Timeout", 4.0, 4.5, 7.0, 6.0, 5.0, 3.0]})
+    # 12 rows, 9 complete: every split keeps 2 rows or more and the calibration more rows than tags (issue 34)
+    frame = pd.DataFrame({"a": [1.0, None, 3.0, "Bad", 5.0, 6.0, 7.0, 8.0, 9.5, 10.0, 11.0, 12.5],
+                          "b": [2.0, 2.5, "Scan Timeout", 4.0, 4.5, 7.0, 6.0, 5.0, 3.0, 2.0, 1.0, 0.5]})
     path = tmp_path / "gaps.csv"
     frame.to_csv(path, index=False)
-    table = Table(str(path), fill=fill, splits={"calibration": [0, 3], "training": [3, 6], "test": [6, 9]}
-                  if fill != "drop" else {"calibration": [0, 2], "training": [2, 4], "test": [4, 6]})
+    table = Table(str(path), fill=fill, splits={"calibration": [0, 6], "training": [6, 9], "test": [9, 12]}
+                  if fill != "drop" else {"calibration": [0, 3], "training": [3, 6], "test": [6, 9]})
     numeric = frame.apply(pd.to_numeric, errors="coerce")
     expected = {"hold": numeric.ffill().bfill(), "interpolate": numeric.interpolate(limit_direction="both"),
                 "drop": numeric.dropna(), "none": numeric}[fill].to_numpy()
@@ -163,11 +163,10 @@ def test_bad_tables_are_one_line(tmp_path):
     frame.assign(fault=["x"] + [0] * 199).to_csv(path, index=False)
     with pytest.raises(ConfigError, match="column 'fault' row 0 holds 'x', not a fault id"):
         Table(str(path), label_column="fault")
-    # fewer calibration rows than components: named with the file and the rows
+    # no more calibration rows than tags (4 for 8; so also no more than the components): refused by the
+    # table, before any fit, naming the file and the counts (issue 34)
     frame.to_csv(path, index=False)
-    small = Table(str(path), time_column="time", label_column="fault",
-                  splits={"calibration": [0, 4], "training": [4, 100], "test": [100, 200]})
-    experiment = RecordedExperiment(small, MeasuredSignals(), OutputMonitor(), PCADetector(n_components=5))
-    with pytest.raises(ConfigError, match=r"calibration .*plant.csv rows 0-3.* has 4 complete rows, not more than "
-                                          r"detector.n_components=5"):
-        experiment.prepare()
+    with pytest.raises(ConfigError, match=r"data.splits.calibration: 4 fault-free complete rows of .*plant.csv for 8 "
+                                          r"tags: the covariance is singular"):
+        Table(str(path), time_column="time", label_column="fault",
+              splits={"calibration": [0, 4], "training": [4, 100], "test": [100, 200]})

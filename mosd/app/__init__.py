@@ -32,6 +32,7 @@ Hydra and MLflow live here only, imported when needed, so ``import mosd.app`` is
 """
 from __future__ import annotations
 
+import contextlib
 import sys
 import time
 from typing import Sequence
@@ -203,7 +204,10 @@ def _main(argv: list[str], started: float) -> int:
     sys.argv = [saved[0] if saved else "mosd", *argv]
     try:
         _LAUNCHED = True
-        task()
+        from .compat import redacted_stdout
+
+        with redacted_stdout() if not checking else contextlib.nullcontext():  # --cfg: no password shown
+            task()
     finally:
         sys.argv = saved
     return 0

@@ -169,6 +169,46 @@ def _takes(target_path: str, name: str) -> bool:
     return name in accepted or open_ended
 
 
+#: the pipeline recorded data needs (conf/experiment/tep.yaml sets it for data=tep): no plant model in it
+RECORDED_PIPELINE = {"estimator": "measured", "monitor": "signals", "detector": "pca"}
+#: estimators that need no plant model: they run on recorded data (the measured signals, PCA residuals)
+MODEL_FREE_ESTIMATORS = ("mosd.estimators.measured.MeasuredSignals", "mosd.estimators.pca.PCAResidual")
+#: the monitor of recorded data: the estimator's outputs handed on unchanged (monitor=signals)
+RECORDED_MONITOR = "mosd.monitors.outputs.OutputMonitor"
+
+
+def _option_name(group: str, target: str) -> str:
+    """The config options (``conf/<group>/NAME.yaml``) whose ``_target_`` is ``target`` (``monitor=channels|window``
+    when several share it), else ``group._target_=target``."""
+    from .config import CONFIG_DIR
+
+    names = []
+    for name in options(group):
+        for line in (CONFIG_DIR / group / f"{name}.yaml").read_text().splitlines():
+            if line.startswith("_target_:") and line.split(":", 1)[1].split("#")[0].strip() == target:
+                names.append(name)
+    return f"{group}={'|'.join(names)}" if names else f"{group}._target_={target}"
+
+
+def check_recorded_pipeline(cfg) -> None:
+    """Recorded data (data=...) has no plant model and no simulated runs: an estimator that needs the model, or a
+    monitor that is not the measured signals' (the subgroup monitors need a run's burn-in and σ of a simulated
+    residual), is refused in one line naming the pipeline to use (before, the run died in the estimator:
+    ``'NoneType' object has no attribute 'n_y'``, or in the monitor with NumPy warnings)."""
+    pipeline = " ".join(f"{k}={v}" for k, v in RECORDED_PIPELINE.items())
+    source = _option_name("data", str(cfg.data.get("_target_")))
+    allowed = (f"allowed: {pipeline} (the measured variables, PCA on them; +experiment=tep sets it for data=tep), "
+               "or estimator=pca monitor=signals with a detector of its outputs")
+    estimator = str(cfg.estimator.get("_target_"))
+    if estimator not in MODEL_FREE_ESTIMATORS:
+        raise ConfigError(f"{source} is recorded data without a plant model, which "
+                          f"{_option_name('estimator', estimator)} needs; {allowed}")
+    monitor = str(cfg.monitor.get("_target_"))
+    if monitor != RECORDED_MONITOR:
+        raise ConfigError(f"{source} is recorded data: {_option_name('monitor', monitor)} does not apply to its "
+                          f"measured variables; {allowed}")
+
+
 def build(cfg) -> Setup:
     """Validate a composed config and build every component (no simulation, no output)."""
     check_keys(cfg)
@@ -190,6 +230,7 @@ def build(cfg) -> Setup:
     from .settings import TrackingSettings
 
     if recorded:
+        check_recorded_pipeline(cfg)
         data = instantiate_section("data", cfg.data)
     else:
         plant = instantiate_section("plant", cfg.plant)

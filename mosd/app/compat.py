@@ -100,3 +100,48 @@ def composition_error(exc: BaseException) -> tuple[str, Any] | None:
             and getattr(cause, "full_key", None)):
         return "key", str(cause.full_key)
     return None
+
+
+class _RedactingStdout:
+    """A text stream that writes every complete line of it through :func:`mosd.app.settings.redacted`."""
+
+    def __init__(self, stream):
+        self._stream, self._pending = stream, ""
+
+    def write(self, text: str) -> int:
+        from .settings import redacted
+
+        self._pending += text
+        if "\n" in self._pending:
+            lines, self._pending = self._pending.rsplit("\n", 1)
+            self._stream.write(redacted(lines) + "\n")
+        return len(text)
+
+    def flush(self) -> None:
+        from .settings import redacted
+
+        if self._pending:
+            self._stream.write(redacted(self._pending))
+            self._pending = ""
+        self._stream.flush()
+
+    def __getattr__(self, name):  # isatty, encoding, fileno: the real stream's
+        return getattr(self._stream, name)
+
+
+def redacted_stdout():
+    """Hydra's ``--cfg``/``--info`` print the composed config on stdout with ``print``, with no hook for a
+    filter: a password in ``tracking.uri`` is masked on its way out (a context manager)."""
+    import contextlib
+    import sys
+
+    @contextlib.contextmanager
+    def redacting():
+        stream = _RedactingStdout(sys.stdout)
+        try:
+            with contextlib.redirect_stdout(stream):
+                yield
+        finally:
+            stream.flush()
+
+    return redacting()

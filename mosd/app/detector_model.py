@@ -28,19 +28,11 @@ LEGACY_FILES = ("chart_detector.npz", "pca_detector.npz")
 
 
 def predict(pipeline: OnlinePipeline, frame, state=None):
-    """The pipeline's output for the rows of ``frame`` from ``state``; a bad input or state is an MLflow
-    ``INVALID_PARAMETER_VALUE`` (a 400 from ``mlflow models serve``) with the one-line message."""
-    from ..validation import ConfigError
+    """The pipeline's output for the rows of ``frame`` from ``state`` (:func:`mosd.app.model_state.predict`:
+    strict JSON, a bad input or state an HTTP 400 with its one line)."""
+    from .model_state import predict as checked
 
-    try:
-        return pipeline.predict_frame(frame, state)
-    except ConfigError as exc:
-        try:
-            from mlflow.exceptions import MlflowException
-            from mlflow.protos.databricks_pb2 import INVALID_PARAMETER_VALUE
-        except ImportError:  # pragma: no cover - MLflow is a dependency
-            raise exc from None
-        raise MlflowException(str(exc), error_code=INVALID_PARAMETER_VALUE) from None
+    return checked(pipeline, frame, state)
 
 
 _WRAPPER: dict = {}
@@ -71,7 +63,7 @@ def _python_model_class():
                 frame = model_input if isinstance(model_input, pd.DataFrame) else pd.DataFrame(model_input)
                 names = state_names(self.fitted)
                 state = {k: v for k, v in (params or {}).items() if k in names}
-                return predict(self.fitted, frame, state)
+                return predict(self.fitted, frame, state)  # state domains, strict JSON, 400s
 
     _WRAPPER["class"] = MosdDetector
     return MosdDetector

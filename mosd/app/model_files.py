@@ -1,7 +1,9 @@
 """The file a fitted model (:mod:`mosd.app.detector_model`, :mod:`mosd.app.chart_model`) is saved in and loaded from.
 
 One ``.npz`` file per model: its arrays, and its scalar design as JSON under ``meta``; read
-without pickles, so loading a model runs no code from the file.
+without pickles, so loading a model runs no code from the file. Written whole or not at all
+(:func:`mosd.app.atomic.write_atomically`), like every other file of a run: a full disk leaves
+the previous file or none, never one cut short that ``mosd log`` would then upload.
 """
 from __future__ import annotations
 
@@ -11,12 +13,13 @@ from typing import Mapping
 
 import numpy as np
 
+from .atomic import write_atomically
+
 
 def save_arrays(path: Path, meta: Mapping, **arrays: np.ndarray) -> Path:
     """A fitted model's arrays and its scalar design (``meta``, as JSON) in one ``.npz`` file (no pickles)."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    np.savez(path, meta=np.array(json.dumps(meta)), **arrays)
-    return path
+    return write_atomically(path, lambda out: np.savez(out, meta=np.array(json.dumps(meta)), **arrays), binary=True)
 
 
 def read_arrays(path: str | Path, file_name: str) -> tuple[dict[str, np.ndarray], dict]:

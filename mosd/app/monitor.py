@@ -12,8 +12,17 @@ historian error code such as ``Bad``) is a missing value, and the run's
 (``hold``, ``interpolate``, ``drop``); with ``none`` (and for TE) a row with a
 missing value gets no alarm and the EWMA takes the in-control mean there.
 
-Exit codes: 0 done; 2 a mistake (one line: no such model or file, a missing or
-an extra column).
+Before any scoring, and before MLflow is imported: ``--out`` must be a file in an existing,
+writable directory (a real write is tried, as :func:`mosd.app.checks.writable_dir_problem` does),
+and a ``models:/`` or ``runs:/`` model's store must exist (a sqlite file holding an MLflow store, a
+store directory): a mistyped ``--tracking-uri`` is one line naming the store's path, and creates
+nothing (MLflow would create an empty store there). ``DATA`` may be ``-``: the file comes on stdin
+(CSV, or Parquet by its magic bytes). ``--keep`` columns come first in the output, in the order given.
+The output file is written whole or not at all (:mod:`mosd.app.atomic`).
+
+Exit codes: 0 done; 2 a mistake (one line: no such model, store or file, an output path that
+cannot be written, a missing or an extra column, a state param out of its domain); 1 the output
+could not be written after scoring (disk full; nothing is left half-written).
 """
 from __future__ import annotations
 
@@ -39,7 +48,8 @@ class _Parser(argparse.ArgumentParser):
 
 def parser() -> argparse.ArgumentParser:
     p = _Parser(prog=PROG, description="Score a CSV/Parquet file with a run's logged detector model.")
-    p.add_argument("data", help="a .csv (.csv.gz) or .parquet file: one row per sample, the model's tag columns")
+    p.add_argument("data", help="a .csv (.csv.gz) or .parquet file: one row per sample, the model's tag columns "
+                   "(- : read it from stdin)")
     p.add_argument("--model", required=True, help="the model URI (models:/M-ID or runs:/RUN_ID/detector, "
                    "printed in the run's summary)")
     p.add_argument("--out", default=None, help="write the per-row output (statistics, limits, alarm, top "
@@ -51,6 +61,93 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--chunk", type=int, default=1000, help="rows per predict call (state carried across)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     return p
+
+
+def check_out(out: str | None) -> Path | None:
+    """``--out`` as a path a file can be written to, or a one-line ConfigError (nothing is left behind)."""
+    if out is None:
+        return None
+    import tempfile
+
+    path = Path(out).expanduser()
+    allowed = "allowed: a file path in an existing, writable directory"
+    if path.is_dir():
+        raise ConfigError(f"--out={out!r} is a directory; {allowed}")
+    parent = path.parent.resolve()
+    if not parent.is_dir():
+        what = "does not exist" if not parent.exists() else "is not a directory"
+        raise ConfigError(f"--out={out!r}: {parent} {what}; {allowed}")
+    try:  # a real write: os.access says yes to root on a read-only mount, and /proc takes no new file
+        fd, name = tempfile.mkstemp(prefix=".mosd-write-check-", dir=parent)
+        try:
+            os.write(fd, b"mosd")
+        finally:
+            os.close(fd)
+            os.unlink(name)
+    except OSError as exc:
+        raise ConfigError(f"--out={out!r}: {parent} is not writable ({exc.strerror or exc}); {allowed}") from None
+    return path
+
+
+def check_store(model_uri: str, tracking_uri: str) -> None:
+    """The store a ``models:/`` or ``runs:/`` URI is read from exists and holds an MLflow store (one line naming it).
+
+    Without this, MLflow creates what a mistyped ``--tracking-uri`` names (a directory, an empty sqlite
+    store) and then blames the model id. Servers (http, databases) are left to MLflow: nothing is created.
+    """
+    from urllib.parse import urlparse
+
+    from .store import refusal, sqlite_path, sqlite_store_state
+
+    if not model_uri.startswith(("models:/", "runs:/")):
+        return  # a model directory: the store is not read
+    allowed = "allowed: the store the mosd run logged to (tracking.uri of the run; --tracking-uri or $MLFLOW_TRACKING_URI)"
+    shown = redacted(tracking_uri)
+    parsed = urlparse(tracking_uri)
+    if parsed.scheme == "sqlite":
+        path = sqlite_path(tracking_uri)
+        if path is None:
+            raise ConfigError(f"--tracking-uri={shown!r} is an in-memory store: it holds no model; {allowed}")
+        state = sqlite_store_state(path)
+        if state.state == "missing":
+            raise ConfigError(f"tracking store {path.resolve()} does not exist (--tracking-uri={shown}); {allowed}")
+        if state.state == "empty":
+            raise ConfigError(f"tracking store {path.resolve()} holds no MLflow store (--tracking-uri={shown}); {allowed}")
+        if state.state != "ok":
+            raise ConfigError(refusal(path.resolve(), state))
+    elif parsed.scheme in ("", "file"):
+        path = Path(parsed.path if parsed.scheme == "file" else tracking_uri).expanduser()
+        if not path.is_dir():
+            what = "does not exist" if not path.exists() else "is not a directory"
+            raise ConfigError(f"tracking store {path.resolve()} {what} (--tracking-uri={shown}); {allowed}")
+        if not any(path.glob("*/meta.yaml")):  # MLflow's file store: a meta.yaml per experiment
+            raise ConfigError(f"tracking store {path.resolve()} holds no MLflow store (--tracking-uri={shown}); "
+                              f"{allowed}")
+
+
+def read_data(data: str):
+    """The DATA argument as a DataFrame: a CSV/Parquet file, or ``-`` for stdin (one-line errors naming DATA)."""
+    from ..data.table import _read
+
+    if data != "-":
+        try:
+            return _read(Path(data).expanduser())
+        except ConfigError as exc:
+            raise ConfigError(str(exc).replace("data.path=", "DATA=")) from None
+    import io
+
+    import pandas as pd
+
+    raw = sys.stdin.buffer.read()
+    if not raw:
+        raise ConfigError("DATA='-': stdin is empty; allowed: a CSV or Parquet file on stdin")
+    try:
+        if raw[:4] == b"PAR1":
+            return pd.read_parquet(io.BytesIO(raw))
+        return pd.read_csv(io.BytesIO(raw), compression="gzip" if raw[:2] == b"\x1f\x8b" else None)
+    except Exception as exc:
+        raise ConfigError(f"DATA='-' (stdin) cannot be read: {type(exc).__name__}: {' '.join(str(exc).split())}; "
+                          "allowed: a CSV or Parquet file on stdin") from None
 
 
 def _load(uri: str, tracking_uri: str):
@@ -102,23 +199,23 @@ def score_file(model, frame, chunk: int = 1000, progress: bool = False):
 def main(argv: Sequence[str] | None = None) -> int:
     args = parser().parse_args(argv)
     try:
-        from ..data.table import _read
-        from .deploy import REFERENCE_ATTR
-
         if args.chunk < 1:
             raise ConfigError(f"--chunk={args.chunk} is out of range; allowed: integers >= 1")
-        path = Path(args.data).expanduser()
-        try:
-            frame = _read(path)
-        except ConfigError as exc:
-            raise ConfigError(str(exc).replace("data.path=", "DATA=")) from None
+        out_path = check_out(args.out)
+        tracking = args.tracking_uri or os.environ.get("MLFLOW_TRACKING_URI") or default_tracking_uri()
+        check_store(args.model, tracking)
+        path = "stdin" if args.data == "-" else Path(args.data).expanduser()
+        frame = read_data(args.data)
         frame.columns = [str(c) for c in frame.columns]
         # a run's test_stream.parquet: its time and the run's own decisions come along as run_<name>
+        from .deploy import REFERENCE_ATTR
+
         reference = [c for c in frame.attrs.get(REFERENCE_ATTR, ()) if c in frame.columns and c not in args.keep]
+        if len(set(args.keep)) != len(args.keep):
+            raise ConfigError("--keep names a column twice; allowed: distinct columns")
         missing = [c for c in args.keep if c not in frame.columns]
         if missing:
             raise ConfigError(f"--keep {missing[0]!r} is not a column of {path}; allowed: {', '.join(frame.columns[:8])}")
-        tracking = args.tracking_uri or os.environ.get("MLFLOW_TRACKING_URI") or default_tracking_uri()
         model = _load(args.model, tracking)
         tags = frame.drop(columns=[*args.keep, *reference])
         # MLflow's schema enforcement would drop an extra column with a warning: here it is a mistake
@@ -133,10 +230,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             # the training data's policy for historian error codes and gaps (mosd.data.table), on the whole file
             import pandas as pd
 
-            from ..data.table import _fill
+            from ..data.table import MAX_ABS, _fill
 
             values = np.column_stack([pd.to_numeric(tags[c], errors="coerce").to_numpy(dtype=float, na_value=np.nan)
                                       for c in tags.columns])
+            values[np.abs(values) > MAX_ABS] = np.nan  # an error code such as 1e308, as the training data read it
             values, _, kept = _fill(values, np.zeros(len(values), int), fill)
             frame = frame.iloc[kept]
             tags = pd.DataFrame(values, columns=tags.columns, index=frame.index)
@@ -154,10 +252,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ConfigError as exc:
         print(f"mosd monitor: error: {redacted(str(exc))}", file=sys.stderr)
         return 2
-    for column in args.keep:
-        out.insert(0, column, frame[column].to_numpy())
-    for column in reversed(reference):
-        out.insert(0, column if column == "t" else f"run_{column}", frame[column].to_numpy())
+    for position, column in enumerate(args.keep):  # first, in the order given
+        out.insert(position, column, frame[column].to_numpy())
+    for position, column in enumerate(reference, start=len(args.keep)):
+        out.insert(position, column if column == "t" else f"run_{column}", frame[column].to_numpy())
     alarms = out["alarm"].to_numpy(bool)
     if "subgroup" in out.columns:  # a chart decides once per completed subgroup
         decided = int((out["subgroup"].to_numpy() > 0).sum())
@@ -168,7 +266,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if alarms.any():
         first = int(alarms.argmax())
         row = out.iloc[first]
-        if "statistic" in out.columns:  # a chart or a threshold on a residual stream
+        if "statistic" in out.columns:  # a chart, a threshold or a CUSUM on a stream
             where = f" (subgroup {row['subgroup']})" if "subgroup" in out.columns else ""
             print(f"first alarm at row {first}{where}: statistic {row['statistic']:.4g} (limit {row['limit']:.4g})")
         else:
@@ -178,7 +276,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         same = int(np.sum(out["run_alarm"].to_numpy(bool) == alarms))
         print(f"the run's own alarms: {same} of {len(out)} rows agree"
               + ("" if same == len(out) else " (the model does not reproduce its run)"))
-    if args.out:
-        out.to_csv(args.out, index=False)
+    if out_path is not None:
+        from .atomic import write_atomically
+
+        try:
+            write_atomically(out_path, lambda f: out.to_csv(f, index=False))
+        except OSError as exc:  # checked writable before scoring; a disk that filled up since
+            print(f"mosd monitor: error: --out={args.out!r} could not be written ({exc.strerror or exc}); "
+                  "nothing was written", file=sys.stderr)
+            return 1
         print(f"per-row output: {args.out}")
     return 0

@@ -9,6 +9,9 @@ the tag ``mosd.logging_error`` (:class:`mosd.app.channel.Handler`), and
 it logs what the run does not hold yet, uploads the files again, logs the
 run's model ``detector`` from the fitted pipeline saved in the run directory if
 the run lacks it, and ends it FINISHED. It is idempotent: run twice, it logs once.
+A model record whose upload failed (MLflow leaves it FAILED or PENDING: the run's
+own attempt, or a ``mosd log`` that failed half-way) is deleted once the model is
+logged whole (:func:`drop_unfinished_models`): the run shows one model, the good one.
 """
 from __future__ import annotations
 
@@ -158,6 +161,7 @@ def log_pending(run_dir: str | os.PathLike, uri: str | None = None) -> tuple[str
             from .detector_model import log_model, logged_model_uri
 
             model_uri = logged_model_uri(settings.uri, run_id) or log_model(str(model), settings.uri, run_id)
+            drop_unfinished_models(settings.uri, run_id)  # the record a failed upload left beside the good one
         elif model is not None:
             gone.append(str(model))
     except BaseException:
@@ -171,6 +175,22 @@ def log_pending(run_dir: str | os.PathLike, uri: str | None = None) -> tuple[str
         write_json(path, {**pending, "model_uri": model_uri})
     path.rename(run_dir / LOGGED_FILE)
     return run_id, True, gone, model_uri
+
+
+def drop_unfinished_models(uri: str, run_id: str) -> int:
+    """Delete the run's ``detector`` model records whose upload did not finish (FAILED, PENDING); returns how many."""
+    from mlflow import MlflowClient
+    from mlflow.entities import LoggedModelStatus
+
+    from .detector_model import MODEL_NAME
+
+    client = MlflowClient(uri)
+    models = client.search_logged_models([client.get_run(run_id).info.experiment_id],
+                                         filter_string=f"source_run_id = '{run_id}' AND name = '{MODEL_NAME}'")
+    unfinished = [m for m in models if m.status != LoggedModelStatus.READY]
+    for model in unfinished:
+        client.delete_logged_model(model.model_id)
+    return len(unfinished)
 
 
 def log_main(argv) -> int:

@@ -8,6 +8,7 @@ parent run id in a file in the sweep directory (or an environment variable,
 from __future__ import annotations
 
 import atexit
+import contextlib
 import json
 import os
 from pathlib import Path
@@ -60,6 +61,31 @@ def record_job_outcomes(sweep_dir: str | os.PathLike) -> bool:
     return not_written
 
 
+#: the warnings filter the resource trackers start with: their "leaked semaphore/folder objects" warnings
+TRACKER_WARNINGS = "ignore:resource_tracker:UserWarning"
+
+
+@contextlib.contextmanager
+def quiet_resource_trackers():
+    """Resource trackers started in this section do not warn about the objects they clean up.
+
+    A stopped joblib sweep ends its job workers with SIGKILL (joblib's abort), so the semaphores they
+    registered are left to the trackers, which unlink them at exit and say so on stderr ("There appear
+    to be 1 leaked semaphore objects to clean up at shutdown"): nothing a user can act on, the cleanup
+    is done. The trackers are separate interpreters started with this process's environment, so the
+    filter goes in through ``PYTHONWARNINGS`` while they start, and this process's value is restored.
+    """
+    before = os.environ.get("PYTHONWARNINGS")
+    os.environ["PYTHONWARNINGS"] = ",".join(w for w in (before, TRACKER_WARNINGS) if w)
+    try:
+        yield
+    finally:
+        if before is None:
+            os.environ.pop("PYTHONWARNINGS", None)
+        else:
+            os.environ["PYTHONWARNINGS"] = before
+
+
 def under_joblib_launcher(hydra_cfg) -> bool:
     """True when ``hydra_cfg`` (the ``hydra`` section) names the joblib launcher: its jobs run in loky workers."""
     return "joblib" in str(hydra_cfg.launcher.get("_target_", "")).lower()
@@ -86,7 +112,8 @@ class SweepCallback(Callback):
 
             # a stop signal must reach the jobs in the launcher's workers before the launcher kills them
             signals.jobs_run_in_pool()
-            start_resource_trackers()
+            with quiet_resource_trackers():
+                start_resource_trackers()
         settings = TrackingSettings.from_config(dict(config.tracking), config.outputs_root)
         if settings is None:
             return

@@ -6,7 +6,9 @@ columns to monitor. Splits are row ranges (fractions of the rows, or row
 numbers) taken in time order, one run per split.
 
 Historian error codes. Exports put strings such as ``Inp OutRange``, ``Bad``
-or ``Scan Timeout`` into numeric columns. With ``errors="strict"`` the first
+or ``Scan Timeout`` into numeric columns (and some a number such as ``1e308`` or
+``-1.7e308``: any cell beyond ±:data:`MAX_ABS` is taken as such a code, since
+its square, in the variance and the statistics, would overflow). With ``errors="strict"`` the first
 such cell stops the run with one line naming the file, the column, the row
 and the text. With ``errors="nan"`` (the default) every cell that is not a
 number becomes missing, and ``fill`` decides what happens next:
@@ -22,6 +24,21 @@ A tag that is constant over the calibration rows (after filling) carries no
 information and would break the standardisation: it is dropped with a warning.
 Rows labelled faulty inside the calibration range are left out of it (the
 calibration is fault-free by definition).
+
+What is checked before any work (one line each, naming the file, the row and the value):
+
+* the time column parses (every cell a timestamp, or every cell a number of seconds) and
+  strictly increases: a shuffled export would give a wrong sample step, hence wrong delays,
+  reported as right. ``sort=True`` sorts the rows by time instead, and says so on stdout;
+  a repeated time is refused either way;
+* the table has data rows, and every split at least :data:`MIN_SPLIT_ROWS` of them;
+* the calibration has more fault-free rows than tags (:data:`MIN_ROWS_PER_TAG`): with
+  ``n <= m`` rows for ``m`` tags the sample covariance is singular (rank ``n - 1 < m``), the
+  residual space of the PCA is not estimated at all and the SPE limit built from its
+  eigenvalues (Jackson & Mudholkar 1979) is too low: the monitor's limits cannot be trusted
+  (a 600-row calibration of 1,994 tags gave a test false-alarm rate of 0.73). Below
+  :data:`WARN_ROWS_PER_TAG` rows per tag the run goes on with a one-line warning
+  (docs/systems/tep.md, "How many calibration rows").
 """
 from __future__ import annotations
 
@@ -41,6 +58,14 @@ log = logging.getLogger("mosd.data")
 ERRORS = ("strict", "nan")
 FILLS = ("hold", "interpolate", "drop", "none")
 DEFAULT_SPLITS = {"calibration": [0.0, 0.5], "training": [0.5, 0.75], "test": [0.75, 1.0]}
+#: rows every split needs: a split of one row has no step, no spread and no run to score
+MIN_SPLIT_ROWS = 2
+#: fault-free calibration rows per tag below which the run is refused (n <= m: singular covariance)
+MIN_ROWS_PER_TAG = 1
+#: ... and below which it warns (module docstring; docs/systems/tep.md)
+WARN_ROWS_PER_TAG = 5
+#: a cell beyond ±MAX_ABS is an error code, not a measurement: its square (the variance, T², SPE) would overflow
+MAX_ABS = 1e150
 
 
 class Table(RecordedData):
@@ -66,22 +91,36 @@ class Table(RecordedData):
         (numbers in [0, 1]) or row numbers (stop exclusive); disjoint.
     dt : float
         Seconds per sample when there is no time column.
+    sort : bool
+        Sort the rows by the time column (stable) instead of refusing a time that goes back;
+        the number of rows out of order is printed on stdout.
     """
 
     def __init__(self, path: str | None = None, time_column: str | int | None = None, label_column: str | None = None,
                  tags: str | Sequence[str] = "all", errors: str = "nan", fill: str = "hold",
-                 splits: Mapping[str, Sequence[float]] | None = None, dt: float = 1.0):
+                 splits: Mapping[str, Sequence[float]] | None = None, dt: float = 1.0, sort: bool = False):
         if path is None or str(path) in ("", "???"):
             raise ConfigError("data.path is not set; allowed: a .csv or .parquet file (data.path=FILE)")
         self.path = str(path)
         self.errors = check_choice("data.errors", errors, ERRORS)
         self.fill = check_choice("data.fill", fill, FILLS)
-        self.time_column, self.label_column = time_column, label_column
+        if not isinstance(sort, bool):
+            raise ConfigError(f"data.sort={sort!r} is not allowed; allowed: true, false")
+        self.time_column, self.label_column, self.sort = time_column, label_column, sort
         frame = _read(Path(self.path).expanduser())
         columns = [str(c) for c in frame.columns]
         frame.columns = columns
+        if len(frame) < len(SPLITS) * MIN_SPLIT_ROWS:
+            what = "a header and no data row" if len(frame) == 0 else f"{len(frame)} data row{'s' * (len(frame) > 1)}"
+            raise ConfigError(f"data.path={self.path!r} has {what}; allowed: a table with at least "
+                              f"{len(SPLITS) * MIN_SPLIT_ROWS} rows ({MIN_SPLIT_ROWS} per split: "
+                              f"{', '.join(SPLITS)})")
         time_name = self._column("data.time_column", time_column, columns) if time_column is not None else None
         label_name = self._column("data.label_column", label_column, columns) if label_column is not None else None
+        seconds = None
+        if time_name:
+            seconds = self._seconds(frame[time_name], time_name)
+            frame, seconds = self._in_time_order(frame, seconds, time_name)
         reserved = {time_name, label_name}
         if isinstance(tags, str):
             if tags != "all":
@@ -96,7 +135,7 @@ class Table(RecordedData):
                               "time and label columns")
         values = np.column_stack([self._numeric(frame[name], name) for name in names])
         labels = self._labels(frame[label_name], label_name) if label_name else np.zeros(len(frame), int)
-        self.dt = self._dt(frame[time_name], time_name) if time_name else _positive("data.dt", dt)
+        self.dt = float(np.median(np.diff(seconds))) if time_name else _positive("data.dt", dt)
         values, labels, kept = _fill(values, labels, self.fill)
         self._rows = kept  # the file's data-row number of every row kept
         self._ranges = self._split_ranges(splits or DEFAULT_SPLITS, len(values))
@@ -118,12 +157,12 @@ class Table(RecordedData):
                               "allowed: tags that vary")
         if constant.any():
             dropped = [n for n, c in zip(names, constant) if c]
-            message = f"data: {len(dropped)} tags of {self.path} are constant over the calibration rows, dropped: " \
-                      + ", ".join(dropped)
-            warnings.warn(message, stacklevel=2)
-            log.warning(message)
+            # one line (a logged warning: warnings.warn would add the caller's file, line and source)
+            log.warning(f"data: {len(dropped)} tags of {self.path} are constant over the calibration rows, dropped: "
+                        + ", ".join(dropped))
         self.dropped = tuple(n for n, c in zip(names, constant) if c)
         self.output_names = tuple(n for n, c in zip(names, constant) if not c)
+        self._check_rows_per_tag(values[calibration][normal][:, ~constant])
         self._values = values[:, ~constant]
         self._labels = labels
         n_faults = int(labels.max()) if labels.size else 0
@@ -149,15 +188,21 @@ class Table(RecordedData):
         import pandas as pd
 
         if pd.api.types.is_numeric_dtype(column.dtype) and not pd.api.types.is_bool_dtype(column.dtype):
-            return column.to_numpy(dtype=float, na_value=np.nan)
-        numbers = pd.to_numeric(column, errors="coerce")
-        text = column.astype("string").str.strip()
-        bad = numbers.isna() & column.notna() & (text != "")
+            numbers = column.to_numpy(dtype=float, na_value=np.nan)
+            bad = np.abs(numbers) > MAX_ABS
+        else:
+            converted = pd.to_numeric(column, errors="coerce")
+            text = column.astype("string").str.strip()
+            numbers = converted.to_numpy(dtype=float, na_value=np.nan)
+            bad = (converted.isna() & column.notna() & (text != "")).to_numpy(dtype=bool) | (np.abs(numbers) > MAX_ABS)
         if bad.any() and self.errors == "strict":
-            row = int(np.flatnonzero(bad.to_numpy())[0])
-            raise ConfigError(f"{self.path}: column {name!r} row {row} holds {str(column.iloc[row])!r}, not a number; "
-                              "allowed: numbers (data.errors=nan reads historian error codes as missing values)")
-        return numbers.to_numpy(dtype=float, na_value=np.nan)
+            row = int(np.flatnonzero(bad)[0])
+            raise ConfigError(f"{self.path}: column {name!r} row {row} holds {str(column.iloc[row])!r}, not a number "
+                              f"within ±{MAX_ABS:g}; allowed: numbers (data.errors=nan reads historian error codes "
+                              "and such values as missing values)")
+        if bad.any():
+            numbers = np.where(bad, np.nan, numbers)
+        return numbers
 
     def _labels(self, column, name: str) -> np.ndarray:
         import pandas as pd
@@ -171,23 +216,78 @@ class Table(RecordedData):
                               "not a fault id; allowed: integers >= 0 (0 or empty = normal)")
         return numbers.fillna(0).to_numpy(dtype=float).astype(int)
 
-    def _dt(self, column, name: str) -> float:
+    def _seconds(self, column, name: str) -> np.ndarray:
+        """The time column as seconds from its first row: numbers as they are, or timestamps (one line naming
+        the first cell that is neither)."""
         import pandas as pd
 
-        if pd.api.types.is_numeric_dtype(column.dtype):
-            seconds = column.to_numpy(dtype=float)
+        allowed = "allowed: timestamps in one format (as pandas.to_datetime reads them) or numbers (seconds)"
+        if pd.api.types.is_numeric_dtype(column.dtype) and not pd.api.types.is_bool_dtype(column.dtype):
+            seconds = column.to_numpy(dtype=float, na_value=np.nan)
+            bad = ~np.isfinite(seconds)
+        elif pd.api.types.is_datetime64_any_dtype(column.dtype):
+            bad = column.isna().to_numpy()
+            seconds = (column - column[~bad].iloc[0]).dt.total_seconds().to_numpy() if not bad.all() else None
         else:
-            try:
-                stamps = pd.to_datetime(column, errors="raise")
-            except (ValueError, TypeError) as exc:
-                raise ConfigError(f"{self.path}: column {name!r} is not a time column ({exc}); allowed: timestamps or "
-                                  "numbers (seconds)") from None
-            seconds = (stamps - stamps.iloc[0]).dt.total_seconds().to_numpy()
+            with warnings.catch_warnings():
+                # pandas' "could not infer format" advice: the format is the first cell's, every cell is checked
+                warnings.simplefilter("ignore", UserWarning)
+                try:
+                    stamps = pd.to_datetime(column, errors="coerce")
+                except (ValueError, TypeError, OverflowError):  # mixed time zones, and the like
+                    stamps = pd.Series(pd.NaT, index=column.index)
+            bad = stamps.isna().to_numpy()
+            seconds = None
+            if not bad.all():
+                try:
+                    seconds = (stamps - stamps[~bad].iloc[0]).dt.total_seconds().to_numpy()
+                except (TypeError, AttributeError):  # time zones mixed with naive stamps: not one clock
+                    bad = np.ones(len(column), bool)
+        if bad.any():
+            row = int(np.flatnonzero(bad)[0])
+            value = column.iloc[row]
+            shown = "an empty cell" if value is None or (isinstance(value, float) and np.isnan(value)) \
+                or str(value).strip() in ("", "NaT", "nan") else repr(str(value))
+            raise ConfigError(f"{self.path}: column {name!r} row {row} holds {shown}, not a time; {allowed}")
+        return np.asarray(seconds, float)
+
+    def _in_time_order(self, frame, seconds: np.ndarray, name: str):
+        """The frame in strictly increasing time: as it is, or sorted when ``sort`` is set (said on stdout)."""
         steps = np.diff(seconds)
-        steps = steps[np.isfinite(steps)]
-        if steps.size == 0 or not np.median(steps) > 0:
-            raise ConfigError(f"{self.path}: column {name!r} does not increase; allowed: a time column in sample order")
-        return float(np.median(steps))
+        if np.all(steps > 0):
+            return frame, seconds
+        if self.sort:
+            order = np.argsort(seconds, kind="stable")
+            moved = int(np.count_nonzero(order != np.arange(len(order))))
+            frame, seconds = frame.iloc[order].reset_index(drop=True), seconds[order]
+            if moved:
+                print(f"data: {moved} of {len(order)} rows of {self.path} were out of time order; sorted by "
+                      f"column {name!r} (data.sort=true)")
+            steps = np.diff(seconds)
+            if np.all(steps > 0):
+                return frame, seconds
+        row = int(np.flatnonzero(steps <= 0)[0]) + 1
+        if steps[row - 1] == 0:
+            raise ConfigError(f"{self.path}: column {name!r} row {row} repeats the time of row {row - 1} "
+                              f"({frame[name].iloc[row]!r}); allowed: one row per time")
+        if not np.all(steps > 0):
+            raise ConfigError(f"{self.path}: column {name!r} goes back at row {row} ({frame[name].iloc[row]!r} after "
+                              f"{frame[name].iloc[row - 1]!r}); allowed: strictly increasing time, or data.sort=true "
+                              "to sort the rows by time")
+        return frame, seconds
+
+    def _check_rows_per_tag(self, calibration: np.ndarray) -> None:
+        """Refuse a calibration with no more fault-free rows than tags, warn below WARN_ROWS_PER_TAG per tag."""
+        rows, tags = int(np.count_nonzero(np.all(np.isfinite(calibration), axis=1))), calibration.shape[1]
+        where = f"data.splits.calibration: {rows} fault-free complete rows of {self.path} for {tags} tags"
+        if rows <= MIN_ROWS_PER_TAG * tags:
+            raise ConfigError(f"{where}: the covariance is singular and the monitor's limits cannot be trusted; "
+                              f"allowed: more calibration rows than tags (a longer data.splits.calibration, or "
+                              f"fewer data.tags; {WARN_ROWS_PER_TAG} rows per tag or more to trust the limits)")
+        if rows < WARN_ROWS_PER_TAG * tags:
+            message = (f"{where} (fewer than {WARN_ROWS_PER_TAG} per tag): the monitor's limits are estimated "
+                       f"loosely and the false-alarm rate may exceed its target (docs/systems/tep.md)")
+            log.warning(message)  # one line
 
     def _split_ranges(self, splits: Mapping[str, Sequence[float]], n_rows: int) -> dict[str, tuple[int, int]]:
         unknown = set(splits) - set(SPLITS)
@@ -207,6 +307,9 @@ class Table(RecordedData):
             if not 0 <= start < stop <= n_rows:
                 raise ConfigError(f"data.splits.{split}={list(pair)} gives rows {start}-{stop - 1} of {n_rows}; "
                                   f"allowed: a non-empty range within 0..{n_rows}")
+            if stop - start < MIN_SPLIT_ROWS:
+                raise ConfigError(f"data.splits.{split}={list(pair)} gives {stop - start} row (row {start}) of "
+                                  f"{n_rows}; allowed: at least {MIN_SPLIT_ROWS} rows per split")
             ranges[split] = (start, stop)
         return ranges
 

@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import linalg, special
 
-from ..streaming import COUNT, OnlineStage, StateVar, points_of, spread
+from ..streaming import COUNT, SQUARES, OnlineStage, StateVar, points_of, spread
 from ..validation import ConfigError, Interval, Param, check_choice
 from .base import Decisions, Detector, persistent, run_lengths
 
@@ -436,8 +436,8 @@ class OnlinePCA(OnlineStage):
                 "top_spe")
 
     def state_vars(self) -> dict[str, StateVar]:
-        return {"ewma_t2": StateVar("EWMA of T² after the last row.", Interval(0.0, 1e150)),
-                "ewma_spe": StateVar("EWMA of SPE after the last row.", Interval(0.0, 1e150)),
+        return {"ewma_t2": StateVar("EWMA of T² after the last row, a sum of squares.", SQUARES),
+                "ewma_spe": StateVar("EWMA of SPE after the last row, a sum of squares.", SQUARES),
                 "run_length": StateVar("Consecutive points above the limit.", COUNT)}
 
     def initial_state(self) -> dict:

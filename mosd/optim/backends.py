@@ -79,18 +79,20 @@ def check_backend(backend: str = "loky", dask_address: str | None = None) -> tup
 
 
 def check_scheduler(address: str, timeout: float = 5.0) -> None:
-    """Raise ConfigError unless a Dask scheduler answers at a ``tcp://host:port`` address within ``timeout``.
+    """Raise ConfigError unless a Dask scheduler answers at a ``tcp://`` or ``tls://host:port`` address within ``timeout``.
 
     Something accepting TCP connections is not enough (an HTTP server, a proxy, a
     Dask worker): Dask's own comm handshake, then the scheduler's ``identity``
     call, must answer with ``type == "Scheduler"`` before the deadline. The probe
     runs in a daemon thread with its own event loop, so that a service that sends
     nothing, garbage (Dask then reads a frame length of exabytes) or an endless
-    stream costs ``timeout`` seconds at most and never the run. Addresses of other
-    schemes (``tls://``, ``ucx://``, ``inproc://``) are left to Dask.
+    stream costs ``timeout`` seconds at most and never the run. A ``tls://`` address is
+    checked the same way, the handshake made with the TLS settings of the Dask config
+    (``distributed.comm.tls``: what the run's client connects with); without them, one line
+    says so. Addresses of other schemes (``ucx://``, ``inproc://``) are left to Dask.
     """
     parts = urlsplit(address if "://" in address else f"tcp://{address}")
-    if parts.scheme != "tcp":
+    if parts.scheme not in ("tcp", "tls"):
         return
     try:
         host, port = parts.hostname, parts.port
@@ -98,7 +100,7 @@ def check_scheduler(address: str, timeout: float = 5.0) -> None:
         host, port = None, None
     if not host or port is None:
         raise ConfigError(f"optimizer.dask_address={address!r} has no host and port; "
-                          "allowed: a scheduler address such as tcp://host:8786")
+                          f"allowed: a scheduler address such as {parts.scheme}://host:8786")
     allowed = "allowed: the address a running `dask scheduler` prints, or null for a local cluster"
     try:  # a refused or unroutable address says so plainly, without Dask's import
         with socket.create_connection((host, port), timeout=timeout):
@@ -110,8 +112,19 @@ def check_scheduler(address: str, timeout: float = 5.0) -> None:
         import distributed  # noqa: F401 - the probe's comm layer
     except ImportError:
         raise _missing_distributed() from None
+    connection_args: dict = {}
+    if parts.scheme == "tls":
+        from distributed.security import Security
+
+        # the Dask config's TLS settings: what distributed.Client(address) itself connects with
+        connection_args = Security().get_connection_args("client")
+        if connection_args.get("ssl_context") is None:
+            raise ConfigError(f"optimizer.dask_address={address!r} is a TLS address but the Dask config has no TLS "
+                              "settings (distributed.comm.tls.ca-file, .client.cert and .client.key, or "
+                              "DASK_DISTRIBUTED__COMM__TLS__* variables); allowed: those settings, or a tcp:// address")
     answer: dict = {}
-    probe = threading.Thread(target=_identify, args=(f"tcp://{host}:{port}", timeout, answer), daemon=True)
+    probe = threading.Thread(target=_identify, args=(f"{parts.scheme}://{host}:{port}", timeout, answer,
+                                                     connection_args), daemon=True)
     probe.start()
     probe.join(timeout + 1.0)  # the probe's own deadline is timeout; this bounds a probe stuck outside its loop
     identity, error = answer.get("identity"), answer.get("error")
@@ -130,12 +143,12 @@ def check_scheduler(address: str, timeout: float = 5.0) -> None:
                           + (f" (its scheduler: {scheduler})" if scheduler else "") + f"; {allowed}")
 
 
-def _identify(address: str, timeout: float, answer: dict) -> None:
+def _identify(address: str, timeout: float, answer: dict, connection_args: dict | None = None) -> None:
     """Dask's handshake and the ``identity`` call at ``address`` within ``timeout`` s; the reply or error into ``answer``."""
     from distributed.comm import connect
 
     async def identify():
-        comm = await connect(address, timeout=timeout)
+        comm = await connect(address, timeout=timeout, **(connection_args or {}))
         try:
             await comm.write({"op": "identity", "reply": True})
             return await comm.read()

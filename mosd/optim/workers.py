@@ -39,12 +39,24 @@ def pin_threads() -> None:
         _PINNED["done"] = True
 
 
+def ignore_interrupt() -> None:
+    """A worker's initializer: SIGINT is ignored (a Ctrl-C reaches the whole process group).
+
+    The run's own handler stops the workers with SIGTERM (:func:`mosd.app.signals.kill_workers`); a
+    KeyboardInterrupt in each worker would print a traceback that the SIGTERM cuts off half-way.
+    """
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
 def memmapping_executor(n_workers: int, timeout: float):
-    """joblib's reusable memmapping executor with ``n_workers`` processes (started or resized on first use)."""
+    """joblib's reusable memmapping executor with ``n_workers`` processes (started or resized on first use);
+    its workers ignore SIGINT (:func:`ignore_interrupt`)."""
     from joblib.executor import get_memmapping_executor
 
     start_resource_trackers()
-    return get_memmapping_executor(n_workers, timeout=timeout)
+    return get_memmapping_executor(n_workers, timeout=timeout, initializer=ignore_interrupt)
 
 
 def start_resource_trackers() -> None:
