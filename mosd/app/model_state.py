@@ -46,7 +46,7 @@ class Domain:
 
     def describe(self) -> str:
         kind = "integers" if self.integer else "finite numbers"
-        high = f"2**53" if self.high == MAX_COUNT else f"{self.high:g}"
+        high = "2**53" if self.high == MAX_COUNT else f"{self.high:g}"
         return f"{kind} in [{self.low:g}, {high}] ({self.why})"
 
     def problem(self, value) -> str | None:
