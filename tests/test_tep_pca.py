@@ -175,3 +175,23 @@ def test_pca_residual_generator_outputs_t2_spe_and_scores():
     np.testing.assert_allclose(out.extra["spe"], stats["spe"], rtol=1e-9)
     with pytest.raises(ConfigError, match="estimator.n_components=40 is out of range"):
         PCAResidual(n_components=40, fit_runs=1).fit(calibration)
+
+
+def test_spe_limit_stays_above_the_mean_when_jackson_mudholkar_breaks_down():
+    """Very uneven residual eigenvalues make h0 <= 0: the limit is Box's scaled chi-square, above theta1."""
+    import math
+
+    from scipy import stats
+
+    from mosd.detectors.pca import spe_limit
+
+    lam = np.concatenate([[1.0], np.full(100, 0.01)])       # one large left-out eigenvalue and many small ones
+    theta1, theta2, theta3 = (float(np.sum(lam**i)) for i in (1, 2, 3))
+    assert 1.0 - 2.0 * theta1 * theta3 / (3.0 * theta2**2) <= 0.0
+    limit = spe_limit(lam, 0.01)
+    g, h = theta2 / theta1, theta1**2 / theta2
+    assert math.isclose(limit, g * stats.chi2.ppf(0.99, h), rel_tol=1e-12) and limit > theta1
+    # where h0 > 0 the Jackson-Mudholkar limit is unchanged, and close to Box's
+    even = np.linspace(1.0, 0.5, 10)
+    assert 0.95 < spe_limit(even, 0.01) / (np.sum(even**2) / np.sum(even) * stats.chi2.ppf(
+        0.99, np.sum(even)**2 / np.sum(even**2))) < 1.05
