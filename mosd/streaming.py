@@ -160,6 +160,19 @@ class OnlineStage:
         return cls(**values)
 
 
+class PointDecision(OnlineStage):
+    """A detector's causal form on a monitor's points: ``point`` and ``z_1`` ... ``z_n`` in (``n``: a field or a
+    property of the subclass); ``statistic``, ``limit``, ``decision`` (0 none, i fault i) and ``alarm`` out."""
+
+    @property
+    def inputs(self) -> tuple[str, ...]:
+        return ("point", *(f"z_{j}" for j in range(1, self.n + 1)))
+
+    @property
+    def outputs(self) -> tuple[str, ...]:
+        return ("statistic", "limit", "decision", "alarm")
+
+
 def _per_row(value, rows: int) -> np.ndarray:
     value = np.asarray(value)
     return value if value.shape[:1] == (rows,) else np.broadcast_to(value, (rows,) + value.shape)

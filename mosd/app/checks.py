@@ -37,6 +37,24 @@ MAX_ANSWER_BYTES = 1 << 20
 MIN_FREE_BYTES = 4 << 20
 
 
+def write_problem(directory: Path) -> str | None:
+    """Why a file cannot be written in the existing ``directory``, or None; leaves nothing behind.
+
+    A real write of real bytes: ``os.access`` says yes to root on a read-only mount's mode bits, ``/proc``
+    takes no new file, and an empty file is created even on a full disk (or beyond a quota or a file-size limit).
+    """
+    try:
+        fd, name = tempfile.mkstemp(prefix=".mosd-write-check-", dir=directory)
+        try:
+            os.write(fd, b"mosd")
+        finally:
+            os.close(fd)
+            os.unlink(name)
+    except OSError as exc:
+        return f"{directory} is not writable ({exc.strerror or exc})"
+    return None
+
+
 def writable_dir_problem(path: Path) -> str | None:
     """Why ``path`` cannot be (created as) a writable directory with room for a run, or None; leaves nothing behind."""
     path = path.expanduser().resolve()
@@ -45,16 +63,9 @@ def writable_dir_problem(path: Path) -> str | None:
         probe = probe.parent
     if not probe.is_dir():
         return f"{probe} is not a directory"
-    try:  # a real write of real bytes: os.access says yes to root on a read-only mount's mode bits,
-        # and an empty file is created even on a full disk (or beyond a quota or a file-size limit)
-        fd, name = tempfile.mkstemp(prefix=".mosd-write-check-", dir=probe)
-        try:
-            os.write(fd, b"mosd")
-        finally:
-            os.close(fd)
-            os.unlink(name)
-    except OSError as exc:
-        return f"{probe} is not writable ({exc.strerror or exc})"
+    problem = write_problem(probe)
+    if problem is not None:
+        return problem
     stats = os.statvfs(probe)
     free = stats.f_bavail * stats.f_frsize
     if free < MIN_FREE_BYTES:

@@ -67,8 +67,6 @@ def check_out(out: str | None) -> Path | None:
     """``--out`` as a path a file can be written to, or a one-line ConfigError (nothing is left behind)."""
     if out is None:
         return None
-    import tempfile
-
     path = Path(out).expanduser()
     allowed = "allowed: a file path in an existing, writable directory"
     if path.is_dir():
@@ -77,15 +75,11 @@ def check_out(out: str | None) -> Path | None:
     if not parent.is_dir():
         what = "does not exist" if not parent.exists() else "is not a directory"
         raise ConfigError(f"--out={out!r}: {parent} {what}; {allowed}")
-    try:  # a real write: os.access says yes to root on a read-only mount, and /proc takes no new file
-        fd, name = tempfile.mkstemp(prefix=".mosd-write-check-", dir=parent)
-        try:
-            os.write(fd, b"mosd")
-        finally:
-            os.close(fd)
-            os.unlink(name)
-    except OSError as exc:
-        raise ConfigError(f"--out={out!r}: {parent} is not writable ({exc.strerror or exc}); {allowed}") from None
+    from .checks import write_problem
+
+    problem = write_problem(parent)
+    if problem is not None:
+        raise ConfigError(f"--out={out!r}: {problem}; {allowed}")
     return path
 
 

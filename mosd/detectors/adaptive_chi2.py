@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import stats
 
-from ..streaming import COUNT, FINITE, OnlineStage, StateVar, points_of, spread
+from ..streaming import COUNT, FINITE, PointDecision, StateVar, points_of, spread
 from ..validation import ConfigError, Interval, Param
 from .base import Decisions, Detector, persistent, run_lengths
 
@@ -86,7 +86,7 @@ class AdaptiveChi2Detector(Detector):
 
 
 @dataclass
-class OnlineAdaptiveChi2(OnlineStage):
+class OnlineAdaptiveChi2(PointDecision):
     """:class:`AdaptiveChi2Detector`'s causal form: points in (``point``, ``z_1`` = λ_k, ``z_2`` = E_k/σ_N);
     ``statistic`` (λ_k), ``limit`` (a·T_D + b·(E_{k−d}/σ_N)²), ``decision`` and ``alarm`` out.
 
@@ -99,13 +99,7 @@ class OnlineAdaptiveChi2(OnlineStage):
     lag: int
     persistence: int
 
-    @property
-    def inputs(self) -> tuple[str, ...]:
-        return ("point", "z_1", "z_2")
-
-    @property
-    def outputs(self) -> tuple[str, ...]:
-        return ("statistic", "limit", "decision", "alarm")
+    n = 2  # [λ_k, E_k/σ_N]
 
     def state_vars(self) -> dict[str, StateVar]:
         out = {f"observer_{i}": StateVar(f"E/σ_N of the point {i} back (null: none yet).", FINITE, missing=True)

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..streaming import COUNT, OnlineStage, StateVar, points_of, spread
+from ..streaming import COUNT, PointDecision, StateVar, points_of, spread
 from ..validation import Interval, Param
 from .base import Decisions, Detector, persistent, run_lengths
 
@@ -72,7 +72,7 @@ class Cusum(Detector):
 
 
 @dataclass
-class OnlineCusum(OnlineStage):
+class OnlineCusum(PointDecision):
     """:class:`Cusum`'s causal form: points in (``point``, ``z_1`` ... ``z_n``); ``statistic`` (max(S⁺, S⁻)),
     ``limit`` (h), ``decision`` and ``alarm`` out. State: ``cusum_upper``, ``cusum_lower``, ``run_length``."""
 
@@ -80,14 +80,6 @@ class OnlineCusum(OnlineStage):
     h: float
     persistence: int
     n: int
-
-    @property
-    def inputs(self) -> tuple[str, ...]:
-        return ("point", *(f"z_{j}" for j in range(1, self.n + 1)))
-
-    @property
-    def outputs(self) -> tuple[str, ...]:
-        return ("statistic", "limit", "decision", "alarm")
 
     def state_vars(self) -> dict[str, StateVar]:
         return {"cusum_upper": StateVar("S⁺ after the last point.", Interval(0.0, 1e150)),

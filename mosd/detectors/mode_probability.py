@@ -12,7 +12,7 @@ from typing import Sequence
 
 import numpy as np
 
-from ..streaming import COUNT, OnlineStage, StateVar, points_of, spread
+from ..streaming import COUNT, PointDecision, StateVar, points_of, spread
 from ..validation import ConfigError, Interval, Param, check_int
 from .base import Decisions, Detector, persistent, run_lengths
 
@@ -84,7 +84,7 @@ class ModeProbabilityDetector(Detector):
 
 
 @dataclass
-class OnlineModeProbability(OnlineStage):
+class OnlineModeProbability(PointDecision):
     """:class:`ModeProbabilityDetector`'s causal form: mode probabilities in (``point``, ``z_1`` = normal model,
     ``z_{i+1}`` = fault model i); ``statistic`` (max_i μ_i), ``limit`` (μ_T), ``decision`` (the fault declared,
     0 none) and ``alarm`` out. State: ``run_length_i``, consecutive steps with μ_i > μ_T, per fault model."""
@@ -93,14 +93,6 @@ class OnlineModeProbability(OnlineStage):
     persistence: int
     labels: tuple
     n: int
-
-    @property
-    def inputs(self) -> tuple[str, ...]:
-        return ("point", *(f"z_{j}" for j in range(1, self.n + 1)))
-
-    @property
-    def outputs(self) -> tuple[str, ...]:
-        return ("statistic", "limit", "decision", "alarm")
 
     def state_vars(self) -> dict[str, StateVar]:
         return {f"run_length_{i}": StateVar(f"Consecutive steps with fault model {i}'s probability above μ_T.", COUNT)

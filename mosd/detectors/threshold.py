@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..streaming import COUNT, OnlineStage, StateVar, points_of, spread
+from ..streaming import COUNT, PointDecision, StateVar, points_of, spread
 from ..validation import Interval, Param
 from .base import Decisions, Detector, persistent, run_lengths
 
@@ -68,21 +68,13 @@ class ThresholdDetector(Detector):
 
 
 @dataclass
-class OnlineThreshold(OnlineStage):
+class OnlineThreshold(PointDecision):
     """:class:`ThresholdDetector`'s causal form: points in (``point``, ``z_1`` ... ``z_n``); ``statistic``
     (max_j |z_j|), ``limit`` (the threshold), ``decision`` and ``alarm`` out. State: ``run_length`` (consecutive exceedances)."""
 
     threshold: float
     persistence: int
     n: int
-
-    @property
-    def inputs(self) -> tuple[str, ...]:
-        return ("point", *(f"z_{j}" for j in range(1, self.n + 1)))
-
-    @property
-    def outputs(self) -> tuple[str, ...]:
-        return ("statistic", "limit", "decision", "alarm")
 
     def state_vars(self) -> dict[str, StateVar]:
         return {"run_length": StateVar("Consecutive points above the threshold.", COUNT)}
