@@ -401,6 +401,8 @@ def test_every_documented_mosd_command_passes_the_cheap_checks():
     """Each ``python -m mosd ...`` line of the README parses and names existing options."""
     from hydra.core.override_parser.overrides_parser import OverridesParser
 
+    from mosd.app.config import with_debug_last
+
     root = Path(__file__).resolve().parents[1]
     commands = re.findall(r"^(?:\$ )?python -m mosd (?!report|log|\.)([^#\n]*)", (root / "README.md").read_text(), re.M)
     assert len(commands) >= 8
@@ -408,7 +410,8 @@ def test_every_documented_mosd_command_passes_the_cheap_checks():
         args = [a for a in line.split() if a not in ("-m", "--multirun")]
         if not any(a.startswith(("+fault", "+experiment", "fault=")) for a in args):
             continue  # the README's deliberate mistakes
-        parsed = OverridesParser.create().parse_overrides(args)
+        # as the app composes them: debug=NAME last, with a plus (mosd.app.config.with_debug_last)
+        parsed = OverridesParser.create().parse_overrides(with_debug_last(args))
         preflight_module.check_group_overrides(parsed)
 
 
