@@ -9,7 +9,10 @@ cells, and a velocity/position update (eqs. 38–39).
 
 One class, two presets:
 
-* ``MOPSO()`` — the robust default. It keeps the grid archive, eq. 37 and the
+* ``MOPSO()`` — the robust default, a swarm/recombination hybrid: each generation 30 % of
+  the evaluations are particle moves and 70 % are children of archive members (crossover
+  and mutation, ``recombination=0.7``), the share that made it robust (issues 21 and 33,
+  ``docs/MOPSO.md``). It keeps the grid archive, eq. 37 and the
   density-based (roulette) leader choice, and changes what measurements on ZDT1–4,
   ZDT6, a ZDT1 with its optimum inside the box, and DTLZ2 (:mod:`mosd.optim.benchmarks`,
   ``docs/MOPSO.md``) showed to matter: inertia and social coefficients that decrease
@@ -27,8 +30,11 @@ One class, two presets:
   members), which combine what particles cannot (WFG4's separable multimodal distance
   variables, OSY's disconnected feasible regions) and re-spread an archive that has
   collapsed onto one point (ZDT2) (issue 21).
-* ``MOPSO(**PAPER_PRESET)`` (``MOPSO.paper()``, ``optimizer=mopso_paper``) — paper
-  000's Table 2 literally: constriction w = 0.7298, c1 = c2 = 1.4962, velocities
+  While nothing feasible has been found, the archive holds a bounded set of the least
+  infeasible points instead of the single least infeasible one (``infeasible="diverse"``,
+  issue 33): leaders and parents stay diverse from an infeasible start (MW1).
+* ``MOPSO(**PAPER_PRESET)`` (``MOPSO.paper()``, ``optimizer=mopso_paper``) — the paper's
+  pure swarm, paper 000's Table 2 literally (every evaluation a particle move): constriction w = 0.7298, c1 = c2 = 1.4962, velocities
   reflected at the bounds, roulette-wheel leaders, Coello's mutation, random removal
   inside eq. 37; with the same seed it gives the same archive as this module did
   before the robust default.
@@ -308,8 +314,10 @@ def round_integers(X: np.ndarray, is_integer: np.ndarray | None, xl: np.ndarray,
 class MOPSO(Algorithm):
     """Grid-archive multi-objective PSO of Coello et al. 2004 as used by paper 000.
 
-    The defaults are the robust variant; ``MOPSO(**PAPER_PRESET)`` (or
-    :meth:`MOPSO.paper`) is paper 000's Table 2. Each move (eqs. 38–39, velocity first):
+    The defaults are the robust variant, a swarm/recombination hybrid (70 % of each
+    generation's evaluations are archive offspring, ``recombination``); ``MOPSO(**PAPER_PRESET)``
+    (or :meth:`MOPSO.paper`, ``optimizer=mopso_paper``) is paper 000's Table 2, the paper's
+    pure swarm. Each move (eqs. 38–39, velocity first):
 
         v ← w v + c1 r1 (pbest − x) + c2 r2 (leader − x),  v clamped to ±max_velocity Δ,
         (while the archive is small, SMPSO's move instead for some particles: ``exploration``)
@@ -390,6 +398,16 @@ class MOPSO(Algorithm):
         (:meth:`_archive_offspring`). Default 0.7 (issue 21, docs/MOPSO.md: 0.3–0.5 left
         WFG4 below 0.95 × NSGA-II). None: every slot is a particle (issue-14 default, paper
         preset).
+    infeasible : {"diverse", "least"}
+        What the archive holds while no feasible point has been found
+        (:class:`~mosd.optim.archive.GridArchive`). "diverse" (default): the ``archive_size``
+        least infeasible distinct points (constraint violation first, then crowding, as
+        NSGA-II's constrained domination ranks its population), leaders and parents drawn from
+        them by binary tournament on the violation; from the first feasible point on, the
+        archive is the feasible non-dominated set as before. "least" (Coello 2004, the paper
+        preset): the constrained dominance alone, which keeps only the least infeasible point,
+        so that one point is every leader and both parents of every offspring until a feasible
+        point is found (MW1: 60–100 generations, issue 33, docs/MOPSO.md).
     horizon : int or None
         Run length in generations (the initial swarm included) that scheduled
         coefficients and Coello's mutation refer to. None: taken from the termination if
