@@ -23,6 +23,11 @@ LEADER_RULES = ("roulette", "tournament")
 REMOVAL_RULES = ("crowding", "random")
 #: What the archive holds while nothing feasible has been found, see :meth:`GridArchive.update`.
 INFEASIBLE_RULES = ("diverse", "least")
+#: ``infeasible="diverse"``: the least-infeasible set holds this share of the capacity. Measured on MW1
+#: (docs/MOPSO.md): the whole capacity kept too little selection pressure on the violation (seeds 1–3 at
+#: 3,000 evaluations: a first feasible point at generation 30, 30 and never), half reached one on all ten
+#: seeds at 6,000 (generations 22–27).
+INFEASIBLE_SHARE = 0.5
 
 
 def dominance_matrix(F: np.ndarray, CV: np.ndarray) -> np.ndarray:
@@ -186,8 +191,8 @@ class GridArchive:
         objective) in truncation — they span the grid and the ends of the front.
     infeasible : {"diverse", "least"}
         What the archive holds while no feasible point has been found (:meth:`update`):
-        "diverse", up to ``capacity`` of the least infeasible points, constraint violation
-        first, then crowding, as NSGA-II's constrained domination ranks its population; "least"
+        "diverse", up to ⌈:data:`INFEASIBLE_SHARE` × ``capacity``⌉ of the least infeasible points,
+        constraint violation first, then crowding, as NSGA-II's constrained domination ranks its population; "least"
         (Coello 2004), the constrained dominance alone, which keeps only the least infeasible
         point.
     """
@@ -237,7 +242,7 @@ class GridArchive:
         member lies outside it, and eq. 37 truncates an over-full archive.
 
         While neither the members nor the candidates include a feasible point,
-        ``infeasible="diverse"`` keeps instead the ``capacity`` least infeasible distinct points
+        ``infeasible="diverse"`` keeps instead a bounded set of the least infeasible distinct points
         (:meth:`_keep_least_infeasible`): under the constrained dominance alone the least
         infeasible point dominates all others, and an archive of that one point makes it
         every particle's leader and both parents of every offspring (on MW1 for 60–100
@@ -272,7 +277,7 @@ class GridArchive:
 
     def _keep_least_infeasible(self, merged: Population, X: np.ndarray, F: np.ndarray, CV: np.ndarray,
                                distinct: np.ndarray) -> None:
-        """Members while nothing is feasible: the ``capacity`` distinct points of smallest CV.
+        """Members while nothing is feasible: the ⌈:data:`INFEASIBLE_SHARE` × capacity⌉ distinct points of smallest CV.
 
         Constraint violation first, as NSGA-II's constrained domination ranks an infeasible
         population; equal violations (a plateau of a discrete constraint) are ordered by
@@ -283,7 +288,8 @@ class GridArchive:
         instead of one point.
         """
         index = np.flatnonzero(distinct)
-        if len(index) > self.capacity:
+        bound = int(np.ceil(INFEASIBLE_SHARE * self.capacity))
+        if len(index) > bound:
             crowding = np.zeros(len(index))
             if len(index) > 2 and len(np.unique(CV[index])) < len(index):
                 span = np.ptp(F[index], axis=0)
@@ -291,7 +297,7 @@ class GridArchive:
                 D = np.sqrt(((Z[:, None, :] - Z[None, :, :]) ** 2).sum(axis=-1))
                 np.fill_diagonal(D, np.inf)
                 crowding = np.partition(D, 1, axis=1)[:, :2].sum(axis=1)
-            index = index[np.lexsort((-crowding, CV[index]))[: self.capacity]]
+            index = index[np.lexsort((-crowding, CV[index]))[:bound]]
             index.sort()
         self._set_members(merged[index], X[index], F[index], CV[index])
         self._regrid()
@@ -345,8 +351,11 @@ class GridArchive:
         feasible found yet) either rule becomes NSGA-II's constrained binary tournament: two
         members uniformly at random, the smaller constraint violation wins.
         """
-        if self.infeasible == "diverse" and len(self._CV) and not self.feasible:
-            a, b = random_state.integers(len(self._CV), size=(2, n))
+        if self.infeasible == "diverse" and len(self._CV) > 1 and not self.feasible:
+            # two distinct members, so the most infeasible one never wins
+            size = len(self._CV)
+            a = random_state.integers(size, size=n)
+            b = (a + 1 + random_state.integers(size - 1, size=n)) % size
             return np.where(self._CV[a] <= self._CV[b], a, b)
         labels, occupancy = self.cells()
         if rule == "tournament":
