@@ -208,6 +208,7 @@ class GridArchive:
         self._X, self._F, self._CV = np.empty((0, 0)), np.empty((0, 0)), np.empty(0)
         self.lower: np.ndarray | None = None
         self.upper: np.ndarray | None = None
+        self._cells: tuple[np.ndarray, np.ndarray] | None = None
 
     def __len__(self) -> int:
         return len(self.members)
@@ -324,6 +325,8 @@ class GridArchive:
         integers is several times faster than on rows (``axis=0``), which remains for grids
         too large for 63 bits.
         """
+        if self._cells is not None:
+            return self._cells
         coordinates = self.cell_coordinates()
         n_obj = coordinates.shape[1]
         if n_obj * np.log2(max(self.n_divisions, 2)) < 62:
@@ -331,7 +334,9 @@ class GridArchive:
             _, labels, occupancy = np.unique(coordinates @ weights, return_inverse=True, return_counts=True)
         else:
             _, labels, occupancy = np.unique(coordinates, axis=0, return_inverse=True, return_counts=True)
-        return labels.reshape(-1), occupancy
+        # kept until the members or the grid change (leaders are drawn twice per generation)
+        self._cells = (labels.reshape(-1), occupancy)
+        return self._cells
 
     def select_leaders(self, n: int, random_state: np.random.Generator,
                        rule: str = "roulette") -> np.ndarray:
@@ -373,12 +378,14 @@ class GridArchive:
     def _set_members(self, members: Population, X: np.ndarray, F: np.ndarray, CV: np.ndarray) -> None:
         # X, F and CV are kept as arrays too: Population.get walks every individual
         self.members, self._X, self._F, self._CV = members, X, F, CV
+        self._cells = None
 
     def _outside_grid(self) -> bool:
         return bool(np.any(self._F < self.lower) or np.any(self._F > self.upper))
 
     def _regrid(self) -> None:
         self.lower, self.upper = self._F.min(axis=0), self._F.max(axis=0)
+        self._cells = None
 
     def _truncate(self, random_state: np.random.Generator) -> None:
         """Eq. 37 down to ``capacity`` members.
@@ -418,7 +425,11 @@ class GridArchive:
     def _remove_crowded(self, labels, occupancy, protected, removable, excess, random_state):
         span = self.upper - self.lower
         Z = (self._F - self.lower) / np.where(span > 0, span, 1.0)
-        D = np.sqrt(((Z[:, None, :] - Z[None, :, :]) ** 2).sum(axis=-1))
+        # objective by objective, in the order a reduction over the last axis adds (same values, no (n, n, d) array)
+        D = (Z[:, None, 0] - Z[None, :, 0]) ** 2
+        for j in range(1, Z.shape[1]):
+            D += (Z[:, None, j] - Z[None, :, j]) ** 2
+        np.sqrt(D, out=D)
         # a tiny random jitter turns exact distance ties into a random order
         D += 1e-12 * random_state.random(D.shape)
         np.fill_diagonal(D, np.inf)

@@ -355,6 +355,7 @@ ABLATIONS: dict[str, Callable[[], object]] = {
     "default, mutation_eta=20": lambda: MOPSO(mutation_eta=20.0),
     "default, exploration=None": lambda: MOPSO(exploration=None),
     "default, leader=tournament": lambda: MOPSO(leader="tournament"),
+    "default, infeasible=least": lambda: MOPSO(infeasible="least"),
 }
 
 
