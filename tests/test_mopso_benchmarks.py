@@ -4,7 +4,8 @@ import pytest
 
 from mosd.optim.benchmarks import (ABLATIONS, ALGORITHMS, DEFAULT_NAME, ISSUE14_NAME, NSGA2_NAME, NSGA3_NAME,
                                    OPTIONAL, PAPER_NAME, SMPSO_NAME, JMetalSMPSO, benchmark_table, format_ratios,
-                                   format_table, format_targets, main, make_problem, normalisation, runs_on,
+                                   format_table, format_targets, generation_profile, main, make_problem,
+                                   normalisation, runs_on,
                                    smpso_available, target_rows)
 from mosd.validation import ConfigError
 
@@ -123,6 +124,18 @@ def test_main_prints_the_table_the_ratios_and_the_targets(capsys):
     assert "| algorithm | MW1 µs/eval |" in out and "| MW1 | HV |" in out and "load average" in out
     cpu = [row for row in out.splitlines() if row.startswith(f"| {DEFAULT_NAME} |")][-1]
     assert float(cpu.split("|")[2]) > 0.0
+
+
+def test_generation_profile_shows_the_infeasible_start(capsys):
+    rows = generation_profile("mw1", DEFAULT_NAME, seed=1, n_eval=600)
+    assert [row["generation"] for row in rows] == list(range(1, 7))
+    assert all(row["members"] == 50 and not row["feasible"] for row in rows)  # the least-infeasible half
+    assert rows[0]["leaders"] is None and all(row["leaders"] > 1 and row["parents"] > 1 for row in rows[1:])
+    assert all(a["least_cv"] >= b["least_cv"] for a, b in zip(rows, rows[1:]))
+    old = generation_profile("mw1", "default, infeasible=least", seed=1, n_eval=600)
+    assert all(row["members"] == row["leaders"] == 1 for row in old[1:])  # one point leads everything
+    assert main(["--profile", "mw1", "--n-eval", "300", "--algorithms", DEFAULT_NAME]) == 0
+    assert "| 2 | 50 | no | 9.5633 | 0 | 22 | 39 |" in capsys.readouterr().out  # generation 3 is not a listed one
 
 
 def test_main_refuses_an_unknown_algorithm_in_one_line(capsys):

@@ -488,6 +488,59 @@ def preset_table(setups, algorithms=(DEFAULT_NAME, ISSUE14_NAME), seeds=(1, 2, 3
     return rows
 
 
+def generation_profile(problem_name: str, algorithm: str = DEFAULT_NAME, seed: int = 1,
+                       n_eval: int | None = None) -> list[dict]:
+    """Per generation of one MOPSO run: what the archive holds and how many leaders and parents it gives.
+
+    Rows: ``generation``, ``members`` (archive size), ``feasible`` (whether they are feasible),
+    ``least_cv`` (the smallest constraint violation in the archive), ``feasible_evaluations``
+    (of the generation), ``leaders`` and ``parents`` (distinct archive members among the
+    particles' leaders and among the offspring's parents drawn for the generation). The table of
+    docs/MOPSO.md's issue-33 section (MW1 before and after the infeasible-start rule).
+    """
+    from .archive import GridArchive
+
+    factory = _resolve([algorithm])[algorithm]
+    instance = factory()
+    if not isinstance(instance, MOPSO):
+        raise ConfigError(f"benchmark.profile algorithm={algorithm!r} is not allowed; allowed: a MOPSO variant")
+    draws, rows = [], []
+
+    class Recording(GridArchive):
+        def select_leaders(self, n, random_state, rule="roulette"):
+            chosen = super().select_leaders(n, random_state, rule)
+            draws.append(len(np.unique(chosen)))
+            return chosen
+
+    def record(run):
+        archive, CV = run.leader_archive, run.pop.get("CV").reshape(-1)
+        leaders, parents = (draws + [None, None])[:2] if run.n_iter > 1 else (None, None)
+        rows.append({"generation": run.n_iter, "members": len(archive), "feasible": archive.feasible,
+                     "least_cv": float(archive.CV.min()), "feasible_evaluations": int((CV <= 0.0).sum()),
+                     "leaders": leaders, "parents": parents if run._n_offspring() else None})
+        draws.clear()
+
+    instance.setup(make_problem(problem_name), termination=("n_eval", n_eval or _benchmark(problem_name).n_eval),
+                   seed=seed, callback=record)
+    instance.leader_archive.__class__ = Recording  # the same archive, its leader draws counted
+    instance.run()
+    return rows
+
+
+def format_profile(rows: list[dict], generations=(1, 2, 5, 10, 15, 20, 25, 30, 40, 50, 60, 70, 80, 90, 100)) -> str:
+    """Markdown table of :func:`generation_profile` at ``generations`` and where the archive first turns feasible."""
+    first = next((row["generation"] for row in rows if row["feasible"]), None)
+    lines = ["| generation | archive members | feasible | least CV in archive | feasible evaluations "
+             "| distinct leaders | distinct parents |", "|---:|---:|---|---:|---:|---:|---:|"]
+    for row in rows:
+        if row["generation"] in generations or row["generation"] == first:
+            cells = [row["generation"], row["members"], "yes" if row["feasible"] else "no", f"{row['least_cv']:.4f}",
+                     row["feasible_evaluations"], "–" if row["leaders"] is None else row["leaders"],
+                     "–" if row["parents"] is None else row["parents"]]
+            lines.append("| " + " | ".join(str(c) for c in cells) + " |")
+    return "\n".join(lines)
+
+
 def _progress(stream, total: int, show: bool):
     if not show:
         yield from stream
@@ -609,7 +662,19 @@ def main(argv=None) -> int:
     parser.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     parser.add_argument("--cpu", action="store_true",
                         help="also print the optimisers' own CPU per evaluation (µs, beyond the problem's)")
+    parser.add_argument("--profile", default=None, choices=KNOWN_PROBLEMS, metavar="PROBLEM",
+                        help="instead: the per-generation archive profile of one run (seed 1) of each algorithm "
+                             "(default: the default and the previous infeasible rule)")
     args = parser.parse_args(argv)
+    if args.profile is not None:
+        try:
+            for name in args.algorithms or (DEFAULT_NAME, "default, infeasible=least"):
+                print(f"{name}, {args.profile.upper()}, seed 1:\n")
+                print(format_profile(generation_profile(args.profile, name, 1, args.n_eval)) + "\n")
+        except ConfigError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+        return 0
     try:
         algorithms = dict(_resolve(args.algorithms))
         if args.ablations:
