@@ -156,3 +156,11 @@ def test_default_meets_issue_21s_targets_on_zdt4_wfg4_osy_and_keeps_zdt1_zdt2_zd
         assert targets[problem]["reference"] == NSGA2_NAME and targets[problem]["met"], targets[problem]
     for problem in ("ZDT1", "ZDT2", "ZDT3", "DTLZ2"):
         assert targets[problem]["reference"] == ISSUE14_NAME and targets[problem]["met"], targets[problem]
+
+
+def test_tuning_benchmark_command_refuses_an_unknown_preset_in_one_line(capsys):
+    from mosd.app.tuning_benchmark import main as tuning_main
+
+    assert tuning_main(["paper009", "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "benchmark.presets='paper009'" in err and "allowed: paper000" in err

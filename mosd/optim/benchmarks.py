@@ -1,15 +1,20 @@
-"""How good is the MOPSO? Normalised hypervolume on the ZDT, DTLZ and WFG problems and OSY against its peers.
+"""How good is the MOPSO? Normalised hypervolume on the ZDT, DTLZ, WFG, MW and CTP problems and OSY against its peers.
 
-``python -m mosd.optim.benchmarks`` runs the suite of issue 21 against the peers in one
-invocation and prints the table with ratios and targets; :func:`benchmark_table` returns
-the rows, :func:`preset_table` does the same on the presets' own tuning problems.
+``python -m mosd.optim.benchmarks`` runs the suite of issue 21 and issue 33's constrained
+problems against the peers in one invocation and prints the table with ratios and targets
+(``--igd`` the IGD, ``--cpu`` the optimisers' own CPU per evaluation, ``--profile PROBLEM`` one
+run's archive generation by generation); :func:`benchmark_table` returns the rows,
+:func:`preset_table` does the same on the presets' own tuning problems, given their built
+set-ups (``python -m mosd.app.tuning_benchmark`` composes them: Hydra lives above this layer).
 
 Set-up (issue 21's protocol):
 
 * problems (:data:`PROBLEMS`) — pymoo's ZDT1, ZDT2, ZDT3 (30 variables), ZDT4, ZDT6
   (10 variables); DTLZ1 (7 variables), DTLZ2, DTLZ3, DTLZ4 (12), DTLZ7 (22), all with
   3 objectives; WFG1, WFG2, WFG4 with 2 objectives, k = 4 position and l = 20 distance
-  variables (Huband et al. 2006's set-up); OSY (6 variables, 6 constraints); optionally
+  variables (Huband et al. 2006's set-up); OSY (6 variables, 6 constraints); MW1, MW2, MW3,
+  MW7 (15 variables, 1–2 constraints) and CTP2, CTP3 (2 variables, 1 constraint), whose fronts
+  are scanned through pymoo's evaluate (:func:`mw_front`, :func:`ctp_front`); optionally
   ``"zdt1_shifted"`` (:class:`ShiftedZDT1`, ZDT1 with its optimum moved into the box);
 * budget — the same number of function evaluations for every algorithm: 50,000 on DTLZ1
   and DTLZ3, 10,000 elsewhere (:data:`N_EVAL`, as the issue's comparison);
