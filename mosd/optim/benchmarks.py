@@ -46,6 +46,7 @@ import logging
 import os
 import sys
 import time
+import warnings
 from dataclasses import dataclass
 from functools import lru_cache
 from typing import Callable
@@ -734,7 +735,10 @@ def _run(index: int, problem_name: str, factory: Callable[[], object], seed: int
     if hasattr(algorithm, "solve"):
         F = np.atleast_2d(algorithm.solve(problem, n_eval, seed))
     else:
-        result = minimize(problem, algorithm, ("n_eval", n_eval), seed=seed)
+        with warnings.catch_warnings():
+            # pymoo's CTP constraint divides 0 by 0 at f1 = 0, g = 1 (NaN: infeasible, as intended)
+            warnings.filterwarnings("ignore", "invalid value encountered in divide", RuntimeWarning)
+            result = minimize(problem, algorithm, ("n_eval", n_eval), seed=seed)
         F = np.empty((0, problem.n_obj)) if result.F is None else np.atleast_2d(result.F)
         if problem.has_constraints() and len(F):
             F = F[np.atleast_2d(result.CV).reshape(-1) <= 0.0]
