@@ -228,7 +228,7 @@ class GridArchive:
 
     @property
     def feasible(self) -> bool:
-        """Whether the members are feasible (they all are, or none is: a feasible point dominates every infeasible one)."""
+        """Whether the members are feasible (all or none are: a feasible point dominates every infeasible one)."""
         return bool(len(self._CV)) and bool(self._CV[0] <= 0.0)
 
     def update(self, candidates: Population, random_state: np.random.Generator,
@@ -278,7 +278,7 @@ class GridArchive:
 
     def _keep_least_infeasible(self, merged: Population, X: np.ndarray, F: np.ndarray, CV: np.ndarray,
                                distinct: np.ndarray) -> None:
-        """Members while nothing is feasible: the ⌈:data:`INFEASIBLE_SHARE` × capacity⌉ distinct points of smallest CV.
+        """Members while nothing is feasible: the ⌈:data:`INFEASIBLE_SHARE` × capacity⌉ least infeasible points.
 
         Constraint violation first, as NSGA-II's constrained domination ranks an infeasible
         population; equal violations (a plateau of a discrete constraint) are ordered by

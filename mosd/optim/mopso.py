@@ -34,10 +34,10 @@ One class, two presets:
   infeasible points instead of the single least infeasible one (``infeasible="diverse"``,
   issue 33): leaders and parents stay diverse from an infeasible start (MW1).
 * ``MOPSO(**PAPER_PRESET)`` (``MOPSO.paper()``, ``optimizer=mopso_paper``) — the paper's
-  pure swarm, paper 000's Table 2 literally (every evaluation a particle move): constriction w = 0.7298, c1 = c2 = 1.4962, velocities
-  reflected at the bounds, roulette-wheel leaders, Coello's mutation, random removal
-  inside eq. 37; with the same seed it gives the same archive as this module did
-  before the robust default.
+  pure swarm, paper 000's Table 2 literally (every evaluation a particle move): constriction
+  w = 0.7298, c1 = c2 = 1.4962, velocities reflected at the bounds, roulette-wheel leaders,
+  Coello's mutation, random removal inside eq. 37, Coello's constraint handling; with the
+  same seed it gives the same archive as this module did before the robust default.
 
 The archive (grid, eq. 37, leader choice) and the constrained dominance live in
 :mod:`mosd.optim.archive`; this module keeps the swarm.
