@@ -88,6 +88,15 @@ def test_components_never_import_upwards(kind):
         assert not bad, f"{path.name} imports {sorted(bad)}"
 
 
+def test_optimisers_never_import_upwards():
+    """mosd.optim sits below the pipeline, the systems and the app, lazily or not (issue 28 item 7): its
+    benchmark of the presets' tuning problems takes built set-ups, composed by mosd.app.tuning_benchmark."""
+    upward = ("mosd.experiment", "mosd.app", "mosd.paper", "mosd.systems", "mosd.bench")
+    for path in sorted((PACKAGE / "optim").glob("*.py")):
+        bad = {name for name in _imports(path) if name.startswith(upward)}
+        assert not bad, f"optim/{path.name} imports {sorted(bad)}"
+
+
 def _module_graph() -> dict[str, set[str]]:
     """Every mosd module -> the mosd modules it imports, at module level or inside a function."""
     modules = {}

@@ -4,7 +4,8 @@ import pytest
 
 from mosd.optim.benchmarks import (ABLATIONS, ALGORITHMS, DEFAULT_NAME, ISSUE14_NAME, NSGA2_NAME, NSGA3_NAME,
                                    OPTIONAL, PAPER_NAME, SMPSO_NAME, JMetalSMPSO, benchmark_table, format_ratios,
-                                   format_table, format_targets, main, make_problem, normalisation, runs_on,
+                                   format_table, format_targets, generation_profile, main, make_problem,
+                                   normalisation, runs_on,
                                    smpso_available, target_rows)
 from mosd.validation import ConfigError
 
@@ -68,7 +69,34 @@ def test_targets_compare_with_the_named_reference():
     zdt4, zdt1 = target_rows(rows)
     assert zdt4["reference"] == SMPSO_NAME and zdt4["ratio"] == pytest.approx(0.86 / 0.87) and zdt4["met"]
     assert zdt1["reference"] == ISSUE14_NAME and not zdt1["met"]  # 0.977 < 0.98
-    assert "| ZDT1 | 0.8500 | MOPSO (issue-14 default) | 0.8700 | 0.977 | ≥ 0.98 | **no** |" in format_targets(rows)
+    line = "| ZDT1 | HV | 0.8500 | MOPSO (issue-14 default) | 0.8700 | 0.977 | ≥ 0.98 | **no** |"
+    assert line in format_targets(rows)
+
+
+def test_igd_targets_are_upper_bounds_beside_the_hv_targets():
+    rows = [{"problem": "MW2", "algorithm": DEFAULT_NAME, "hv_median": 0.65, "igd_median": 0.030},
+            {"problem": "MW2", "algorithm": NSGA2_NAME, "hv_median": 0.66, "igd_median": 0.026}]
+    hv, igd = target_rows(rows)
+    assert (hv["metric"], igd["metric"]) == ("HV", "IGD") and hv["met"]  # 0.985 >= 0.98
+    assert igd["ratio"] == pytest.approx(0.030 / 0.026) and not igd["met"]  # 1.154 > 1.1
+    assert "| MW2 | IGD | 0.0300 | NSGA-II (pymoo) | 0.0260 | 1.154 | ≤ 1.10 | **no** |" in format_targets(rows)
+
+
+def test_constrained_fronts_lie_on_their_constraint_boundaries():
+    ideal, nadir, front = normalisation("mw1")  # g = 1: f2 = 1 - 0.85 f1 where the constraint allows it
+    assert np.allclose(ideal, [0.0, 0.15], atol=1e-4) and np.allclose(nadir, [1.0, 1.0], atol=1e-4)
+    assert np.allclose(front[:, 1], 1.0 - 0.85 * front[:, 0], atol=1e-4) and 0.3 < len(front) / 801 < 0.6
+    ideal, nadir, front = normalisation("mw7")  # radius 1.15 - 0.2 sin(4 atan(f2/f1))^8 where it is >= 1
+    assert np.allclose(nadir, 1.15, atol=1e-3) and np.all(np.hypot(*front.T) >= 1.0 - 1e-4)
+    problem = make_problem("ctp3")
+    # points on the line (f2 - 1) cos(-0.2 pi) = f1 sin(-0.2 pi), and the f1 = 0 end, where the least
+    # feasible f2 is 1.1146 (0.809 (f2 - 1) >= 0.1 |sin(10 pi 0.588 (f2 - 1))|^0.5 from there on)
+    ideal, nadir, front = normalisation("ctp3")
+    theta, inner = -0.2 * np.pi, front[:, 0] > 0.01
+    assert 10 <= inner.sum() <= 20 and np.allclose((front[inner, 1] - 1) * np.cos(theta),
+                                                   front[inner, 0] * np.sin(theta), atol=5e-3)
+    assert nadir[1] == pytest.approx(1.1146, abs=2e-4)
+    assert problem.n_var == 2 and problem.has_constraints()
 
 
 def test_smpso_runs_on_the_pymoo_problem_reproducibly():
@@ -91,6 +119,24 @@ def test_main_prints_the_table_the_ratios_and_the_targets(capsys):
     assert main(["--problems", "zdt1", "--seeds", "1", "--n-eval", "200", "--n-jobs", "1", "--no-progress",
                  "--algorithms", PAPER_NAME]) == 0
     assert f"| {PAPER_NAME} |" in capsys.readouterr().out
+    assert main(["--problems", "mw1", "--seeds", "1", "--n-eval", "200", "--n-jobs", "1", "--no-progress",
+                 "--algorithms", DEFAULT_NAME, NSGA2_NAME, "--cpu", "--igd"]) == 0
+    out = capsys.readouterr().out
+    assert "| algorithm | MW1 µs/eval |" in out and "| MW1 | HV |" in out and "load average" in out
+    cpu = [row for row in out.splitlines() if row.startswith(f"| {DEFAULT_NAME} |")][-1]
+    assert float(cpu.split("|")[2]) > 0.0
+
+
+def test_generation_profile_shows_the_infeasible_start(capsys):
+    rows = generation_profile("mw1", DEFAULT_NAME, seed=1, n_eval=600)
+    assert [row["generation"] for row in rows] == list(range(1, 7))
+    assert all(row["members"] == 50 and not row["feasible"] for row in rows)  # the least-infeasible half
+    assert rows[0]["leaders"] is None and all(row["leaders"] > 1 and row["parents"] > 1 for row in rows[1:])
+    assert all(a["least_cv"] >= b["least_cv"] for a, b in zip(rows, rows[1:]))
+    old = generation_profile("mw1", "default, infeasible=least", seed=1, n_eval=600)
+    assert all(row["members"] == row["leaders"] == 1 for row in old[1:])  # one point leads everything
+    assert main(["--profile", "mw1", "--n-eval", "300", "--algorithms", DEFAULT_NAME]) == 0
+    assert "| 2 | 50 | no | 9.5633 | 0 | 22 | 39 |" in capsys.readouterr().out  # generation 3 is not a listed one
 
 
 def test_main_refuses_an_unknown_algorithm_in_one_line(capsys):
@@ -111,3 +157,11 @@ def test_default_meets_issue_21s_targets_on_zdt4_wfg4_osy_and_keeps_zdt1_zdt2_zd
         assert targets[problem]["reference"] == NSGA2_NAME and targets[problem]["met"], targets[problem]
     for problem in ("ZDT1", "ZDT2", "ZDT3", "DTLZ2"):
         assert targets[problem]["reference"] == ISSUE14_NAME and targets[problem]["met"], targets[problem]
+
+
+def test_tuning_benchmark_command_refuses_an_unknown_preset_in_one_line(capsys):
+    from mosd.app.tuning_benchmark import main as tuning_main
+
+    assert tuning_main(["paper009", "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "benchmark.presets='paper009'" in err and "allowed: paper000" in err

@@ -1,15 +1,20 @@
-"""How good is the MOPSO? Normalised hypervolume on the ZDT, DTLZ and WFG problems and OSY against its peers.
+"""How good is the MOPSO? Normalised hypervolume on the ZDT, DTLZ, WFG, MW and CTP problems and OSY against its peers.
 
-``python -m mosd.optim.benchmarks`` runs the suite of issue 21 against the peers in one
-invocation and prints the table with ratios and targets; :func:`benchmark_table` returns
-the rows, :func:`preset_table` does the same on the presets' own tuning problems.
+``python -m mosd.optim.benchmarks`` runs the suite of issue 21 and issue 33's constrained
+problems against the peers in one invocation and prints the table with ratios and targets
+(``--igd`` the IGD, ``--cpu`` the optimisers' own CPU per evaluation, ``--profile PROBLEM`` one
+run's archive generation by generation); :func:`benchmark_table` returns the rows,
+:func:`preset_table` does the same on the presets' own tuning problems, given their built
+set-ups (``python -m mosd.app.tuning_benchmark`` composes them: Hydra lives above this layer).
 
 Set-up (issue 21's protocol):
 
 * problems (:data:`PROBLEMS`) — pymoo's ZDT1, ZDT2, ZDT3 (30 variables), ZDT4, ZDT6
   (10 variables); DTLZ1 (7 variables), DTLZ2, DTLZ3, DTLZ4 (12), DTLZ7 (22), all with
   3 objectives; WFG1, WFG2, WFG4 with 2 objectives, k = 4 position and l = 20 distance
-  variables (Huband et al. 2006's set-up); OSY (6 variables, 6 constraints); optionally
+  variables (Huband et al. 2006's set-up); OSY (6 variables, 6 constraints); MW1, MW2, MW3,
+  MW7 (15 variables, 1–2 constraints) and CTP2, CTP3 (2 variables, 1 constraint), whose fronts
+  are scanned through pymoo's evaluate (:func:`mw_front`, :func:`ctp_front`); optionally
   ``"zdt1_shifted"`` (:class:`ShiftedZDT1`, ZDT1 with its optimum moved into the box);
 * budget — the same number of function evaluations for every algorithm: 50,000 on DTLZ1
   and DTLZ3, 10,000 elsewhere (:data:`N_EVAL`, as the issue's comparison);
@@ -38,8 +43,10 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import sys
 import time
+import warnings
 from dataclasses import dataclass
 from functools import lru_cache
 from typing import Callable
@@ -122,6 +129,61 @@ def wfg4_front(n_points: int = 1000) -> np.ndarray:
     return np.column_stack([2.0 * np.sin(phi), 4.0 * np.cos(phi)])
 
 
+def scanned_front(problem: Problem, X0: np.ndarray, column: int, values: np.ndarray,
+                  chunk: int = 200_000) -> np.ndarray:
+    """The feasible non-dominated points of ``problem`` over rows ``X0`` with ``X0[:, column]`` swept over ``values``.
+
+    For the constrained 2-objective problems whose pymoo fronts are downloads (MW7, CTP2, CTP3)
+    or coarse (MW1: 46 of 100 points on g = 1 survive its constraint): each row of ``X0`` is a
+    point of the unconstrained optimum (position variable on a grid, distance variables at their
+    optimum), and sweeping one distance variable raises g until the constraints admit the point.
+    Every point goes through pymoo's own ``evaluate``, so no objective or constraint is written
+    twice; the front is the non-dominated feasible set of the sweep.
+    """
+    per_row, fronts = max(1, chunk // len(values)), [np.empty((0, problem.n_obj))]
+    for start in range(0, len(X0), per_row):
+        rows = X0[start:start + per_row]
+        X = np.repeat(rows, len(values), axis=0)
+        X[:, column] = np.tile(values, len(rows))
+        with np.errstate(all="ignore"):  # CTP's constraint divides 0 by 0 at f1 = 0, g = 1 (NaN: infeasible)
+            F, G = problem.evaluate(X, return_values_of=["F", "G"])
+        F = np.vstack([fronts[-1], F[np.all(G <= 0.0, axis=1)]])
+        fronts.append(F[NonDominatedSorting().do(F, only_non_dominated_front=True)])
+    return fronts[-1]
+
+
+def mw_front(problem: Problem, n_points: int = 801) -> np.ndarray:
+    """Front of a 2-objective MW problem (Ma & Wang 2019) by :func:`scanned_front`.
+
+    x1 on a grid of ``n_points`` in [0, 1]; the other variables at the optimum of the problem's
+    distance function — g1 (MW1): x_i^(n−2) = 1/2 + i/(2n); g2 (MW2): x_i = i/n; g3 (MW3, MW7):
+    x_i = 1 − (x_{i−1} − 1/2)², i = 2…n — and x_n swept over [0, 1] (801 values).
+    """
+    n, name = problem.n_var, type(problem).__name__
+    X0 = np.zeros((n_points, n))
+    X0[:, 0] = np.linspace(0.0, 1.0, n_points)
+    i = np.arange(1, n)
+    if name == "MW1":
+        X0[:, 1:] = (0.5 + i / (2.0 * n)) ** (1.0 / (n - problem.n_obj))
+    elif name == "MW2":
+        X0[:, 1:] = i / n
+    else:
+        for k in i:
+            X0[:, k] = 1.0 - (X0[:, k - 1] - 0.5) ** 2
+    return scanned_front(problem, X0, n - 1, np.linspace(0.0, 1.0, 801))
+
+
+def ctp_front(problem: Problem, n_points: int = 2001) -> np.ndarray:
+    """Front of pymoo's 2-variable CTP2/CTP3 (Deb et al. 2001) by :func:`scanned_front`.
+
+    x1 on a grid of ``n_points`` in [0, 1], x2 (g = 1 + x2) swept over [0, 0.6] in steps of
+    0.0002. The unconstrained front g = 1 is infeasible there; the constrained front lies on
+    the line (f2 − 1) cos θ = f1 sin θ, θ = −0.2π: disconnected pieces (CTP2), points (CTP3).
+    """
+    X0 = np.column_stack([np.linspace(0.0, 1.0, n_points), np.zeros(n_points)])
+    return scanned_front(problem, X0, 1, np.linspace(0.0, 0.6, 3001))
+
+
 @dataclass(frozen=True)
 class Benchmark:
     """A benchmark problem: how to build it, its default budget and its true front."""
@@ -155,6 +217,12 @@ PROBLEMS: dict[str, Benchmark] = {
     "wfg2": Benchmark(_wfg("wfg2"), 10_000),
     "wfg4": Benchmark(_wfg("wfg4"), 10_000, lambda problem: wfg4_front()),
     "osy": Benchmark(lambda: get_problem("osy"), 10_000, lambda problem: osy_front()),
+    "mw1": Benchmark(lambda: get_problem("mw1"), 10_000, mw_front),
+    "mw2": Benchmark(lambda: get_problem("mw2"), 10_000, mw_front),
+    "mw3": Benchmark(lambda: get_problem("mw3"), 10_000, mw_front),
+    "mw7": Benchmark(lambda: get_problem("mw7"), 10_000, mw_front),
+    "ctp2": Benchmark(lambda: get_problem("ctp2"), 10_000, ctp_front),
+    "ctp3": Benchmark(lambda: get_problem("ctp3"), 10_000, ctp_front),
 }
 EXTRA_PROBLEMS: dict[str, Benchmark] = {"zdt1_shifted": Benchmark(ShiftedZDT1, 10_000)}
 KNOWN_PROBLEMS = (*PROBLEMS, *EXTRA_PROBLEMS)
@@ -179,13 +247,18 @@ EXPLORATION_DEFAULT = dict(recombination=None, mutation_eta=20.0)
 #: The peers of issue 21 (the "best peer" of a problem is the best of these that ran on it).
 PEERS = (NSGA2_NAME, NSGA3_NAME, SMPSO_NAME)
 
-#: Issue 21's targets: problem → (reference: a peer name, "best peer" or the issue-14 default, factor).
+#: Issue 21's targets: problem → (reference: a peer name, "best peer" or the issue-14 default, factor);
+#: issue 33's constrained problems against NSGA-II. Median HV of the default ≥ factor × the reference's.
 TARGETS: dict[str, tuple[str, float]] = {
     "ZDT4": ("best peer", 0.95), "DTLZ1": ("best peer", 0.95), "DTLZ3": ("best peer", 0.95),
     "WFG4": (NSGA2_NAME, 0.95), "OSY": (NSGA2_NAME, 0.97),
     **{name: (ISSUE14_NAME, 0.98) for name in ("ZDT1", "ZDT2", "ZDT3", "ZDT6", "DTLZ2", "DTLZ4", "DTLZ7",
                                                  "WFG1", "WFG2")},
+    "MW1": (NSGA2_NAME, 0.9),
+    **{name: (NSGA2_NAME, 0.98) for name in ("MW2", "MW3", "MW7", "CTP2", "CTP3")},
 }
+#: Issue 33's spread targets: problem → (reference, factor); median IGD of the default ≤ factor × the reference's.
+IGD_TARGETS: dict[str, tuple[str, float]] = {name: (NSGA2_NAME, 1.1) for name in ("MW2", "MW3", "MW7", "CTP2", "CTP3")}
 
 
 def make_problem(name: str) -> Problem:
@@ -288,6 +361,7 @@ ABLATIONS: dict[str, Callable[[], object]] = {
     "default, mutation_eta=20": lambda: MOPSO(mutation_eta=20.0),
     "default, exploration=None": lambda: MOPSO(exploration=None),
     "default, leader=tournament": lambda: MOPSO(leader="tournament"),
+    "default, infeasible=least": lambda: MOPSO(infeasible="least"),
 }
 
 
@@ -327,7 +401,9 @@ def benchmark_table(problems=tuple(PROBLEMS), algorithms=None, seeds=SEEDS, n_ev
         One row per (problem, algorithm), problems outermost: ``problem`` (upper case),
         ``algorithm``, ``hv_median``, ``igd_median``, ``hv`` and ``igd`` (per seed, in
         seed order), ``n_eval``, ``reference_point`` (in normalised objectives),
-        ``seconds_median`` (wall time).
+        ``seconds_median`` (wall time), ``cpu_us`` and ``cpu_us_median`` (the optimiser's own
+        process CPU per evaluation in µs: the run's CPU less the CPU spent in the problem's
+        ``_evaluate``; jMetalPy's SMPSO includes its per-solution wrapper).
     """
     if n_eval is not None:
         n_eval = check_int("benchmark.n_eval", n_eval, 1)
@@ -354,30 +430,28 @@ def benchmark_table(problems=tuple(PROBLEMS), algorithms=None, seeds=SEEDS, n_ev
             runs = [out for (p, a, _), out in zip(tasks, outcomes) if p == problem and a == name]
             if not runs:
                 continue
-            hv, igd, seconds = (np.array(values) for values in zip(*runs))
+            hv, igd, seconds, cpu_us = (np.array(values) for values in zip(*runs))
             rows.append({"problem": problem.upper(), "algorithm": name,
                          "hv_median": float(np.median(hv)), "igd_median": float(np.median(igd)),
                          "hv": hv.tolist(), "igd": igd.tolist(), "n_eval": budget[problem],
                          "reference_point": (REFERENCE_VALUE,) * built[problem].n_obj,
-                         "seconds_median": float(np.median(seconds))})
+                         "seconds_median": float(np.median(seconds)), "cpu_us_median": float(np.median(cpu_us)),
+                         "cpu_us": cpu_us.tolist()})
     return rows
 
 
-#: The presets whose tuning problems :func:`preset_table` runs (paper 000's is the chart problem).
-PRESETS = ("paper000", "paper001", "paper002", "paper003")
-
-
-def preset_table(presets=PRESETS, algorithms=(DEFAULT_NAME, ISSUE14_NAME), seeds=(1, 2, 3),
+def preset_table(setups, algorithms=(DEFAULT_NAME, ISSUE14_NAME), seeds=(1, 2, 3),
                  budget_scale: float = 1.0, n_jobs: int = 1, progress: bool = False) -> list[dict]:
     """Median normalised hypervolume of MOPSO variants on the presets' own tuning problems.
 
-    Each preset (``conf/experiment/NAME.yaml``) is composed and built as ``python -m mosd
-    +experiment=NAME`` builds it (:func:`mosd.systems.cli.preset`, which imports Hydra
-    only when called), its training data prepared once, and each algorithm minimises its
-    objectives over the detector's parameters with the preset's swarm size and the
-    preset's number of generations × ``budget_scale``, one run per seed. The objectives
-    are normalised by the ideal and nadir points of all final archives of that preset
-    (every algorithm and seed together), reference 1.1.
+    ``setups`` maps a preset's name to its built set-up (what ``python -m mosd +experiment=NAME``
+    builds: ``.experiment``, ``.bounds``, ``.n_gen``, ``.algorithm.pop_size``); the command that
+    composes them is ``python -m mosd.app.tuning_benchmark`` (Hydra lives above this layer).
+    For each, the training data are prepared once, and each algorithm minimises the objectives
+    over the detector's parameters with the preset's swarm size and the preset's number of
+    generations × ``budget_scale``, one run per seed. The objectives are normalised by the
+    ideal and nadir points of all final archives of that preset (every algorithm and seed
+    together), reference 1.1.
 
     Returns
     -------
@@ -387,13 +461,11 @@ def preset_table(presets=PRESETS, algorithms=(DEFAULT_NAME, ISSUE14_NAME), seeds
     """
     from pymoo.termination.max_gen import MaximumGenerationTermination
 
-    from ..systems.cli import preset
     from .problem import TuningProblem
 
     factories = _resolve(list(algorithms))
     rows = []
-    for name in presets:
-        setup = preset(name)
+    for name, setup in setups.items():
         pop_size = int(getattr(setup.algorithm, "pop_size", 100))
         n_gen = max(2, int(round(setup.n_gen * budget_scale)))
         data = setup.experiment.prepare()
@@ -420,6 +492,59 @@ def preset_table(presets=PRESETS, algorithms=(DEFAULT_NAME, ISSUE14_NAME), seeds
                          "reference_point": (REFERENCE_VALUE,) * union.shape[1],
                          "seconds_median": float(np.median(seconds))})
     return rows
+
+
+def generation_profile(problem_name: str, algorithm: str = DEFAULT_NAME, seed: int = 1,
+                       n_eval: int | None = None) -> list[dict]:
+    """Per generation of one MOPSO run: what the archive holds and how many leaders and parents it gives.
+
+    Rows: ``generation``, ``members`` (archive size), ``feasible`` (whether they are feasible),
+    ``least_cv`` (the smallest constraint violation in the archive), ``feasible_evaluations``
+    (of the generation), ``leaders`` and ``parents`` (distinct archive members among the
+    particles' leaders and among the offspring's parents drawn for the generation). The table of
+    docs/MOPSO.md's issue-33 section (MW1 before and after the infeasible-start rule).
+    """
+    from .archive import GridArchive
+
+    factory = _resolve([algorithm])[algorithm]
+    instance = factory()
+    if not isinstance(instance, MOPSO):
+        raise ConfigError(f"benchmark.profile algorithm={algorithm!r} is not allowed; allowed: a MOPSO variant")
+    draws, rows = [], []
+
+    class Recording(GridArchive):
+        def select_leaders(self, n, random_state, rule="roulette"):
+            chosen = super().select_leaders(n, random_state, rule)
+            draws.append(len(np.unique(chosen)))
+            return chosen
+
+    def record(run):
+        archive, CV = run.leader_archive, run.pop.get("CV").reshape(-1)
+        leaders, parents = (draws + [None, None])[:2] if run.n_iter > 1 else (None, None)
+        rows.append({"generation": run.n_iter, "members": len(archive), "feasible": archive.feasible,
+                     "least_cv": float(archive.CV.min()), "feasible_evaluations": int((CV <= 0.0).sum()),
+                     "leaders": leaders, "parents": parents if run._n_offspring() else None})
+        draws.clear()
+
+    instance.setup(make_problem(problem_name), termination=("n_eval", n_eval or _benchmark(problem_name).n_eval),
+                   seed=seed, callback=record)
+    instance.leader_archive.__class__ = Recording  # the same archive, its leader draws counted
+    instance.run()
+    return rows
+
+
+def format_profile(rows: list[dict], generations=(1, 2, 5, 10, 15, 20, 25, 30, 40, 50, 60, 70, 80, 90, 100)) -> str:
+    """Markdown table of :func:`generation_profile` at ``generations`` and where the archive first turns feasible."""
+    first = next((row["generation"] for row in rows if row["feasible"]), None)
+    lines = ["| generation | archive members | feasible | least CV in archive | feasible evaluations "
+             "| distinct leaders | distinct parents |", "|---:|---:|---|---:|---:|---:|---:|"]
+    for row in rows:
+        if row["generation"] in generations or row["generation"] == first:
+            cells = [row["generation"], row["members"], "yes" if row["feasible"] else "no", f"{row['least_cv']:.4f}",
+                     row["feasible_evaluations"], "–" if row["leaders"] is None else row["leaders"],
+                     "–" if row["parents"] is None else row["parents"]]
+            lines.append("| " + " | ".join(str(c) for c in cells) + " |")
+    return "\n".join(lines)
 
 
 def _progress(stream, total: int, show: bool):
@@ -476,36 +601,55 @@ def best_peer(rows: list[dict], problem: str) -> tuple[str, float] | None:
 
 
 def target_rows(rows: list[dict], algorithm: str = DEFAULT_NAME) -> list[dict]:
-    """Issue 21's target per problem (:data:`TARGETS`): ``problem``, ``hv``, ``reference`` (name),
-    ``reference_hv``, ``ratio``, ``factor``, ``met`` (None when a needed row is missing)."""
-    cell = {(row["problem"], row["algorithm"]): row["hv_median"] for row in rows}
+    """The targets per problem (:data:`TARGETS` on the median HV, :data:`IGD_TARGETS` on the median IGD):
+    ``problem``, ``metric`` ("HV" or "IGD"), ``hv`` (the algorithm's median of that metric), ``reference``
+    (name), ``reference_hv``, ``ratio``, ``factor``, ``met`` (None when a needed row is missing)."""
+    cells = {"HV": {(row["problem"], row["algorithm"]): row["hv_median"] for row in rows},
+             "IGD": {(row["problem"], row["algorithm"]): row.get("igd_median") for row in rows}}
     out = []
     for problem in dict.fromkeys(row["problem"] for row in rows):
-        if problem not in TARGETS or (problem, algorithm) not in cell:
-            continue
-        reference, factor = TARGETS[problem]
-        if reference == "best peer":
-            found = best_peer(rows, problem)
-            reference, theirs = found if found else (reference, None)
-        else:
-            theirs = cell.get((problem, reference))
-        mine = cell[(problem, algorithm)]
-        ratio = None if not theirs else mine / theirs
-        out.append({"problem": problem, "hv": mine, "reference": reference, "reference_hv": theirs,
-                    "ratio": ratio, "factor": factor, "met": None if ratio is None else ratio >= factor})
+        for metric, targets in (("HV", TARGETS), ("IGD", IGD_TARGETS)):
+            cell = cells[metric]
+            if problem not in targets or cell.get((problem, algorithm)) is None:
+                continue
+            reference, factor = targets[problem]
+            if reference == "best peer":
+                found = best_peer(rows, problem)
+                reference, theirs = found if found else (reference, None)
+            else:
+                theirs = cell.get((problem, reference))
+            mine = cell[(problem, algorithm)]
+            ratio = None if not theirs else mine / theirs
+            met = None if ratio is None else (ratio >= factor if metric == "HV" else ratio <= factor)
+            out.append({"problem": problem, "metric": metric, "hv": mine, "reference": reference,
+                        "reference_hv": theirs, "ratio": ratio, "factor": factor, "met": met})
     return out
 
 
 def format_targets(rows: list[dict], algorithm: str = DEFAULT_NAME) -> str:
-    """Markdown table of :func:`target_rows`."""
-    lines = [f"| problem | {algorithm} | reference | reference HV | ratio | target | met |",
-             "|---|---:|---|---:|---:|---:|---|"]
+    """Markdown table of :func:`target_rows` (HV: ratio ≥ target; IGD: ratio ≤ target)."""
+    lines = [f"| problem | metric | {algorithm} | reference | reference value | ratio | target | met |",
+             "|---|---|---:|---|---:|---:|---:|---|"]
     for t in target_rows(rows, algorithm):
         theirs = "–" if t["reference_hv"] is None else f"{t['reference_hv']:.4f}"
         ratio = "–" if t["ratio"] is None else f"{t['ratio']:.3f}"
         met = "–" if t["met"] is None else ("yes" if t["met"] else "**no**")
-        lines.append(f"| {t['problem']} | {t['hv']:.4f} | {t['reference']} | {theirs} | {ratio} "
-                     f"| ≥ {t['factor']:.2f} | {met} |")
+        bound = "≥" if t["metric"] == "HV" else "≤"
+        lines.append(f"| {t['problem']} | {t['metric']} | {t['hv']:.4f} | {t['reference']} | {theirs} | {ratio} "
+                     f"| {bound} {t['factor']:.2f} | {met} |")
+    return "\n".join(lines)
+
+
+def format_cpu(rows: list[dict]) -> str:
+    """Markdown table of the optimisers' own CPU per evaluation (µs, median over seeds; :func:`_run`)."""
+    problems = list(dict.fromkeys(row["problem"] for row in rows))
+    algorithms = list(dict.fromkeys(row["algorithm"] for row in rows))
+    cell = {(row["problem"], row["algorithm"]): row.get("cpu_us_median") for row in rows}
+    lines = ["| algorithm | " + " | ".join(f"{p} µs/eval" for p in problems) + " |",
+             "|---|" + "---:|" * len(problems)]
+    for name in algorithms:
+        values = ["–" if cell.get((p, name)) is None else f"{cell[(p, name)]:.1f}" for p in problems]
+        lines.append(f"| {name} | " + " | ".join(values) + " |")
     return "\n".join(lines)
 
 
@@ -522,14 +666,21 @@ def main(argv=None) -> int:
     parser.add_argument("--ablations", action="store_true", help="also the one-change variants of the default")
     parser.add_argument("--igd", action="store_true", help="also print median IGD")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
-    parser.add_argument("--presets", nargs="*", default=None, choices=PRESETS, metavar="PRESET",
-                        help="instead: the presets' own tuning problems (default all of "
-                             f"{', '.join(PRESETS)}), MOPSO default against the issue-14 default")
-    parser.add_argument("--budget-scale", type=float, default=1.0,
-                        help="--presets: the preset's generations times this (default 1)")
+    parser.add_argument("--cpu", action="store_true",
+                        help="also print the optimisers' own CPU per evaluation (µs, beyond the problem's)")
+    parser.add_argument("--profile", default=None, choices=KNOWN_PROBLEMS, metavar="PROBLEM",
+                        help="instead: the per-generation archive profile of one run (seed 1) of each algorithm "
+                             "(default: the default and the previous infeasible rule)")
     args = parser.parse_args(argv)
-    if args.presets is not None:
-        return _main_presets(args)
+    if args.profile is not None:
+        try:
+            for name in args.algorithms or (DEFAULT_NAME, "default, infeasible=least"):
+                print(f"{name}, {args.profile.upper()}, seed 1:\n")
+                print(format_profile(generation_profile(args.profile, name, 1, args.n_eval)) + "\n")
+        except ConfigError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+        return 0
     try:
         algorithms = dict(_resolve(args.algorithms))
         if args.ablations:
@@ -548,34 +699,17 @@ def main(argv=None) -> int:
     print(format_table(rows, igd=args.igd))
     print()
     print(format_ratios(rows, references=[name for name in (*PEERS, ISSUE14_NAME) if name in algorithms]))
+    if args.cpu:
+        print()
+        print(format_cpu(rows))
     if DEFAULT_NAME in algorithms:
         print()
         print(format_targets(rows))
     if args.algorithms is None and SMPSO_NAME not in algorithms:
         print("\nSMPSO left out: jMetalPy is not installed (pip install jmetalpy)")
     n_runs = sum(len(row["hv"]) for row in rows)
-    print(f"\n{n_runs} runs in {seconds:.0f} s with n_jobs={args.n_jobs}")
-    return 0
-
-
-def _main_presets(args) -> int:
-    try:
-        budget_scale = check_in("benchmark.budget_scale", args.budget_scale,
-                                Interval(0.0, 10.0, open_low=True))
-        start = time.perf_counter()
-        rows = preset_table(args.presets or PRESETS, args.algorithms or (DEFAULT_NAME, ISSUE14_NAME),
-                            tuple(range(1, args.seeds + 1)), budget_scale, progress=not args.no_progress)
-    except ConfigError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    budgets = ", ".join(f"{row['problem']} {row['n_eval']:,}" for row in rows if row["algorithm"] == rows[0]["algorithm"])
-    print(f"Median normalised hypervolume on the presets' tuning problems over seeds 1-{args.seeds} "
-          f"(evaluations per run: {budgets}); objectives normalised by all final archives of a preset\n")
-    print(format_table(rows))
-    print()
-    names = list(dict.fromkeys(row["algorithm"] for row in rows))
-    print(format_ratios(rows, algorithm=names[0], references=names[1:]))
-    print(f"\n{sum(len(row['hv']) for row in rows)} runs in {time.perf_counter() - start:.0f} s")
+    load = " ".join(f"{value:.2f}" for value in os.getloadavg())
+    print(f"\n{n_runs} runs in {seconds:.0f} s with n_jobs={args.n_jobs}; load average at the end {load}")
     return 0
 
 
@@ -595,18 +729,43 @@ def _resolve(algorithms) -> dict[str, Callable[[], object]]:
 def _run(index: int, problem_name: str, factory: Callable[[], object], seed: int, n_eval: int):
     problem = make_problem(problem_name)
     ideal, nadir, front = normalisation(problem_name)
+    evaluation_cpu = _time_evaluations(problem)
     algorithm = factory()
-    start = time.perf_counter()
+    start, start_cpu = time.perf_counter(), time.process_time()
     if hasattr(algorithm, "solve"):
         F = np.atleast_2d(algorithm.solve(problem, n_eval, seed))
     else:
-        result = minimize(problem, algorithm, ("n_eval", n_eval), seed=seed)
+        with warnings.catch_warnings():
+            # pymoo's CTP constraint divides 0 by 0 at f1 = 0, g = 1 (NaN: infeasible, as intended)
+            warnings.filterwarnings("ignore", "invalid value encountered in divide", RuntimeWarning)
+            result = minimize(problem, algorithm, ("n_eval", n_eval), seed=seed)
         F = np.empty((0, problem.n_obj)) if result.F is None else np.atleast_2d(result.F)
         if problem.has_constraints() and len(F):
             F = F[np.atleast_2d(result.CV).reshape(-1) <= 0.0]
-    seconds = time.perf_counter() - start
+    seconds, cpu = time.perf_counter() - start, time.process_time() - start_cpu
+    own_cpu_us = 1e6 * (cpu - evaluation_cpu[0]) / n_eval
     igd = float(IGD(front)(F)) if len(F) else float("inf")
-    return index, (normalised_hypervolume(F, ideal, nadir), igd, seconds)
+    return index, (normalised_hypervolume(F, ideal, nadir), igd, seconds, own_cpu_us)
+
+
+def _time_evaluations(problem: Problem) -> list[float]:
+    """Wrap ``problem._evaluate`` so that the process CPU seconds spent inside it add up in the returned list.
+
+    The optimiser's own CPU per evaluation is the run's process CPU minus this, divided by the
+    evaluations: what the algorithm costs beyond the objective function (``--cpu``).
+    """
+    spent = [0.0]
+    evaluate = problem._evaluate
+
+    def timed(*args, **kwargs):
+        start = time.process_time()
+        try:
+            return evaluate(*args, **kwargs)
+        finally:
+            spent[0] += time.process_time() - start
+
+    problem._evaluate = timed
+    return spent
 
 
 def _jmetal_problem(problem: Problem):

@@ -9,7 +9,10 @@ cells, and a velocity/position update (eqs. 38–39).
 
 One class, two presets:
 
-* ``MOPSO()`` — the robust default. It keeps the grid archive, eq. 37 and the
+* ``MOPSO()`` — the robust default, a swarm/recombination hybrid: each generation 30 % of
+  the evaluations are particle moves and 70 % are children of archive members (crossover
+  and mutation, ``recombination=0.7``), the share that made it robust (issues 21 and 33,
+  ``docs/MOPSO.md``). It keeps the grid archive, eq. 37 and the
   density-based (roulette) leader choice, and changes what measurements on ZDT1–4,
   ZDT6, a ZDT1 with its optimum inside the box, and DTLZ2 (:mod:`mosd.optim.benchmarks`,
   ``docs/MOPSO.md``) showed to matter: inertia and social coefficients that decrease
@@ -27,11 +30,14 @@ One class, two presets:
   members), which combine what particles cannot (WFG4's separable multimodal distance
   variables, OSY's disconnected feasible regions) and re-spread an archive that has
   collapsed onto one point (ZDT2) (issue 21).
-* ``MOPSO(**PAPER_PRESET)`` (``MOPSO.paper()``, ``optimizer=mopso_paper``) — paper
-  000's Table 2 literally: constriction w = 0.7298, c1 = c2 = 1.4962, velocities
-  reflected at the bounds, roulette-wheel leaders, Coello's mutation, random removal
-  inside eq. 37; with the same seed it gives the same archive as this module did
-  before the robust default.
+  While nothing feasible has been found, the archive holds a bounded set of the least
+  infeasible points instead of the single least infeasible one (``infeasible="diverse"``,
+  issue 33): leaders and parents stay diverse from an infeasible start (MW1).
+* ``MOPSO(**PAPER_PRESET)`` (``MOPSO.paper()``, ``optimizer=mopso_paper``) — the paper's
+  pure swarm, paper 000's Table 2 literally (every evaluation a particle move): constriction
+  w = 0.7298, c1 = c2 = 1.4962, velocities reflected at the bounds, roulette-wheel leaders,
+  Coello's mutation, random removal inside eq. 37, Coello's constraint handling; with the
+  same seed it gives the same archive as this module did before the robust default.
 
 The archive (grid, eq. 37, leader choice) and the constrained dominance live in
 :mod:`mosd.optim.archive`; this module keeps the swarm.
@@ -66,8 +72,8 @@ import numpy as np
 from pymoo.core.algorithm import Algorithm
 from pymoo.core.population import Population
 from pymoo.core.sampling import Sampling
-from pymoo.operators.crossover.sbx import SBX
-from pymoo.operators.mutation.pm import PolynomialMutation
+from pymoo.operators.crossover.sbx import cross_sbx
+from pymoo.operators.mutation.pm import mut_pm
 from pymoo.operators.repair.to_bound import set_to_bounds_if_outside
 from pymoo.operators.sampling.rnd import FloatRandomSampling
 from pymoo.termination.max_eval import MaximumFunctionCallTermination
@@ -75,7 +81,8 @@ from pymoo.termination.max_gen import MaximumGenerationTermination
 from pymoo.util.display.multi import MultiObjectiveOutput
 
 from ..validation import ConfigError, Interval, check_choice, check_in, check_int
-from .archive import LEADER_RULES, REMOVAL_RULES, GridArchive, evaluated_arrays, pairwise_dominates
+from .archive import (INFEASIBLE_RULES, LEADER_RULES, REMOVAL_RULES, GridArchive, evaluated_arrays,
+                      pairwise_dominates)
 
 #: φ = φ1 + φ2 of Clerc & Kennedy's constriction factor; paper 000 (below eq. 39) uses 4.1.
 CONSTRICTION_PHI = 4.1
@@ -110,7 +117,7 @@ MUTATION_DECAY_EXPONENT = 1.5
 PAPER_PRESET = dict(archive_size=100, n_divisions=30, velocity="constriction", w=None, c1=None,
                     c2=None, max_velocity=None, boundary="reflect", leader="roulette",
                     personal_best="coin", removal="random", keep_extremes=False, mutation="coello",
-                    mutation_rate=0.5, exploration=None, recombination=None)
+                    mutation_rate=0.5, exploration=None, recombination=None, infeasible="least")
 
 
 def constriction_coefficients(phi: float = CONSTRICTION_PHI) -> tuple[float, float, float]:
@@ -208,6 +215,66 @@ def apply_bounds(X: np.ndarray, V: np.ndarray, xl: np.ndarray, xu: np.ndarray,
     return set_to_bounds_if_outside(np.array(X, dtype=float), xl, xu), V
 
 
+def polynomial_mutation(X: np.ndarray, xl: np.ndarray, xu: np.ndarray, eta: float, share: float,
+                        random_state: np.random.Generator) -> np.ndarray:
+    """pymoo's ``PolynomialMutation(prob=share, prob_var=1/n_var, eta=eta)`` on the rows of X, on arrays.
+
+    The arithmetic is pymoo's own function (``mut_pm``: Deb's polynomial mutation, each variable
+    with probability 1/n_var), and the draws are those of the operator's ``do`` in the same
+    order (``mut_pm``'s, then one uniform per row for the share), so the result is the
+    operator's bit for bit; what is left out is building a Population of Individuals around
+    the rows and reading them back, which cost more than the mutation itself.
+
+    Returns
+    -------
+    ndarray, shape (n, n_var)
+        A new array: the mutated rows where a uniform draw ≤ ``share``, the others as in X.
+    """
+    n, n_var = X.shape
+    X = np.asarray(X, dtype=float)
+    mutated = mut_pm(X, xl, xu, np.full(n, float(eta)), np.full(n, 1.0 / n_var), at_least_once=False,
+                     random_state=random_state)
+    hit = random_state.random(size=n) <= share
+    out = X.copy()
+    out[hit] = mutated[hit]
+    return out
+
+
+def sbx_children(first: np.ndarray, second: np.ndarray, xl: np.ndarray, xu: np.ndarray,
+                 random_state: np.random.Generator, probability: float = 0.9, eta: float = 15.0) -> np.ndarray:
+    """One child per pair of pymoo's ``SBX(prob=probability, eta=eta, n_offsprings=1)``, on arrays.
+
+    pymoo's function ``cross_sbx`` does the crossover (each variable with probability 0.5, the
+    two children exchanged per variable with probability 0.5), and the draws are those of
+    ``Crossover.do`` and ``SBX._do`` in their order: which pairs cross, the exchange
+    probability's draw, ``cross_sbx``'s, which of the two children is kept, and for a pair
+    that does not cross, which parent is copied. The children are the operator's bit for bit.
+
+    Parameters
+    ----------
+    first, second : ndarray, shape (n, n_var)
+        The parents of each child.
+
+    Returns
+    -------
+    ndarray, shape (n, n_var)
+    """
+    X = np.stack([first, second]).astype(float)
+    n = X.shape[1]
+    children = np.empty_like(X[0])
+    cross = random_state.random(n) < probability
+    if np.any(cross):
+        random_state.random((n, 1))  # SBX._do's draw against prob_exch = 1: never disables a pair
+        column = np.ones((n, 1))
+        Q = cross_sbx(X, xl, xu, eta * column, 0.5 * column, 0.5 * column, random_state=random_state)
+        second_child = random_state.random(size=n) < 0.5
+        Q[0, second_child] = Q[1, second_child]
+        children[cross] = Q[0, cross]
+    for k in np.flatnonzero(~cross):
+        children[k] = X[random_state.choice(np.arange(2), size=1, replace=False)[0], k]
+    return children
+
+
 def restart_pymoo_run(algorithm: Algorithm) -> None:
     """Make pymoo's next ``algorithm.next()`` run the initialisation again (a new run).
 
@@ -247,8 +314,10 @@ def round_integers(X: np.ndarray, is_integer: np.ndarray | None, xl: np.ndarray,
 class MOPSO(Algorithm):
     """Grid-archive multi-objective PSO of Coello et al. 2004 as used by paper 000.
 
-    The defaults are the robust variant; ``MOPSO(**PAPER_PRESET)`` (or
-    :meth:`MOPSO.paper`) is paper 000's Table 2. Each move (eqs. 38–39, velocity first):
+    The defaults are the robust variant, a swarm/recombination hybrid (70 % of each
+    generation's evaluations are archive offspring, ``recombination``); ``MOPSO(**PAPER_PRESET)``
+    (or :meth:`MOPSO.paper`, ``optimizer=mopso_paper``) is paper 000's Table 2, the paper's
+    pure swarm. Each move (eqs. 38–39, velocity first):
 
         v ← w v + c1 r1 (pbest − x) + c2 r2 (leader − x),  v clamped to ±max_velocity Δ,
         (while the archive is small, SMPSO's move instead for some particles: ``exploration``)
@@ -329,6 +398,16 @@ class MOPSO(Algorithm):
         (:meth:`_archive_offspring`). Default 0.7 (issue 21, docs/MOPSO.md: 0.3–0.5 left
         WFG4 below 0.95 × NSGA-II). None: every slot is a particle (issue-14 default, paper
         preset).
+    infeasible : {"diverse", "least"}
+        What the archive holds while no feasible point has been found
+        (:class:`~mosd.optim.archive.GridArchive`). "diverse" (default): the ``archive_size``
+        least infeasible distinct points (constraint violation first, then crowding, as
+        NSGA-II's constrained domination ranks its population), leaders and parents drawn from
+        them by binary tournament on the violation; from the first feasible point on, the
+        archive is the feasible non-dominated set as before. "least" (Coello 2004, the paper
+        preset): the constrained dominance alone, which keeps only the least infeasible point,
+        so that one point is every leader and both parents of every offspring until a feasible
+        point is found (MW1: 60–100 generations, issue 33, docs/MOPSO.md).
     horizon : int or None
         Run length in generations (the initial swarm included) that scheduled
         coefficients and Coello's mutation refer to. None: taken from the termination if
@@ -358,7 +437,7 @@ class MOPSO(Algorithm):
                  removal: str = "crowding", keep_extremes: bool = True,
                  mutation: str | None = "polynomial", mutation_rate: float | None = 0.15,
                  mutation_eta: float = 3.0, exploration: float | None = 0.5,
-                 recombination: float | None = 0.7, horizon: int | None = None,
+                 recombination: float | None = 0.7, infeasible: str = "diverse", horizon: int | None = None,
                  sampling: Sampling | None = None, output=None, **kwargs):
         super().__init__(output=MultiObjectiveOutput() if output is None else output, **kwargs)
         self.pop_size = check_int("optimizer.pop_size", pop_size, 1)
@@ -388,6 +467,7 @@ class MOPSO(Algorithm):
         self.recombination = (None if recombination is None else
                               check_in("optimizer.recombination", recombination,
                                        Interval(0.0, 1.0, open_low=True, open_high=True)))
+        self.infeasible = check_choice("optimizer.infeasible", infeasible, INFEASIBLE_RULES)
         self.horizon = None if horizon is None else check_int("optimizer.horizon", horizon, 1)
         if sampling is not None and not isinstance(sampling, Sampling):
             raise ConfigError(f"optimizer.sampling={sampling!r} is not allowed; allowed: a pymoo Sampling")
@@ -416,7 +496,7 @@ class MOPSO(Algorithm):
             raise ConfigError("optimizer: the problem needs finite bounds xl, xu; allowed: finite bounds")
         self.is_integer = _integer_mask(problem)
         self.leader_archive = GridArchive(self.archive_size, self.n_divisions, self.removal,
-                                          self.keep_extremes)
+                                          self.keep_extremes, self.infeasible)
         self.particle_position = self.particle_velocity = None
         self.pbest_X = self.pbest_F = self.pbest_CV = None
         self.planned_generations = self._planned_generations()
@@ -475,9 +555,7 @@ class MOPSO(Algorithm):
             X_new = self._coello_mutation(X_new, move)
         elif self.mutation_rate is not None and self.mutation == "polynomial":
             # pymoo's operator: a share mutation_rate of the particles, each variable with 1/n_var
-            operator = PolynomialMutation(prob=self.mutation_rate, prob_var=1.0 / problem.n_var,
-                                          eta=self.mutation_eta)
-            X_new = operator.do(problem, Population.new("X", X_new), random_state=rng).get("X")
+            X_new = polynomial_mutation(X_new, problem.xl, problem.xu, self.mutation_eta, self.mutation_rate, rng)
         if n_offspring:
             X_new = np.vstack([X_new, self._archive_offspring(n_offspring)])
             velocity = np.vstack([velocity, np.zeros((n_offspring, problem.n_var))])
@@ -538,10 +616,9 @@ class MOPSO(Algorithm):
         """
         archive, problem, rng = self.leader_archive, self.problem, self.random_state
         pairs = archive.select_leaders(2 * n, rng, self.leader).reshape(n, 2)
-        crossover = SBX(prob=CROSSOVER_PROBABILITY, eta=CROSSOVER_ETA, n_offsprings=1)
-        children = crossover.do(problem, Population.new("X", archive.X), parents=pairs, random_state=rng)
-        mutation = PolynomialMutation(prob=1.0, prob_var=1.0 / problem.n_var, eta=self.mutation_eta)
-        return mutation.do(problem, children, random_state=rng).get("X")
+        children = sbx_children(archive.X[pairs[:, 0]], archive.X[pairs[:, 1]], problem.xl, problem.xu, rng,
+                                CROSSOVER_PROBABILITY, CROSSOVER_ETA)
+        return polynomial_mutation(children, problem.xl, problem.xu, self.mutation_eta, 1.0, rng)
 
     def _exploring_share(self) -> float:
         """Share of the swarm that makes SMPSO's move (:func:`smpso_velocity`) this move.
