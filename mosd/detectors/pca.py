@@ -124,16 +124,26 @@ class PCAModel:
         return spe_limit(self.eigenvalues[self.check_components(a):], alpha)
 
 
-def _one_blas_thread():
-    """One BLAS thread for a small SVD: a multi-threaded LAPACK call on a 500 x 33 matrix took 0.5 s
-    instead of 1 ms on a loaded 2-core machine (threads spinning for cores other processes hold)."""
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:  # pragma: no cover - threadpoolctl comes with scikit-learn; without it, BLAS decides
-        import contextlib
+_BLAS: dict = {}
 
-        return contextlib.nullcontext()
-    return threadpool_limits(limits=1, user_api="blas")
+
+def _one_blas_thread():
+    """One BLAS thread for a small SVD or product: a multi-threaded LAPACK call on a 500 x 33 matrix took
+    0.5 s instead of 1 ms on a loaded 2-core machine (threads spinning for cores other processes hold).
+
+    A cached threadpoolctl controller: 2 µs a call (a fresh ``threadpool_limits`` scans the loaded
+    libraries, ~1 ms, more than the deployed model's whole block).
+    """
+    controller = _BLAS.get("controller")
+    if controller is None:
+        try:
+            from threadpoolctl import ThreadpoolController
+        except ImportError:  # pragma: no cover - threadpoolctl comes with scikit-learn; without it, BLAS decides
+            import contextlib
+
+            return contextlib.nullcontext()
+        controller = _BLAS["controller"] = ThreadpoolController()
+    return controller.limit(limits=1, user_api="blas")
 
 
 def t2_limit(n: int, a: int, alpha: float) -> float:
@@ -230,18 +240,30 @@ class _Projected:
         Z = np.where(finite[..., None], model.standardise(z), 0.0)
         t = project(Z, model.loadings)
         squares = t**2
-        # what lies outside the loadings' span (0 when n > m)
-        outside = np.maximum(np.sum(Z**2, axis=-1) - np.sum(squares, axis=-1), 0.0)
+        # what lies outside the loadings' span: only when the fit had fewer rows than variables (with a
+        # component per variable it is 0, and the difference of the two sums only rounding noise)
+        outside = (np.maximum(np.sum(Z**2, axis=-1) - np.sum(squares, axis=-1), 0.0) if t.shape[-1] < Z.shape[-1]
+                   else np.zeros(t.shape[:-1]))
         if components is None:
             t2 = np.cumsum(squares / model.eigenvalues, axis=-1)
             tail = np.cumsum(squares[..., ::-1], axis=-1)[..., ::-1]
             spe = np.concatenate([tail[..., 1:], np.zeros(t.shape[:-1] + (1,))], axis=-1) + outside[..., None]
         else:
-            a = int(components)
-            t2 = np.cumsum(squares[..., :a] / model.eigenvalues[:a], axis=-1)[..., -1:]
-            rest = squares[..., a:][..., ::-1]
-            spe = (np.cumsum(rest, axis=-1)[..., -1:] if rest.shape[-1] else np.zeros(t.shape[:-1] + (1,)))
-            spe = spe + outside[..., None]
+            # the same sums, one component at a time over all rows at once (a cumulative sum's last
+            # value, without the others): component-major, so each step is one contiguous pass
+            a, r = int(components), squares.shape[-1]
+            by_component = np.moveaxis(squares, -1, 0).reshape(r, -1)
+            scaled = by_component[:a] / model.eigenvalues[:a, None]
+            t2 = scaled[0].copy()
+            for j in range(1, a):
+                t2 += scaled[j]
+            spe = np.zeros(by_component.shape[1])
+            if a < r:
+                spe = by_component[r - 1].copy()
+                for j in range(r - 2, a - 1, -1):
+                    spe += by_component[j]
+            shape = t.shape[:-1] + (1,)
+            t2, spe = t2.reshape(shape), spe.reshape(shape) + outside[..., None]
         nan = ~finite[..., None]
         return cls(np.where(nan, np.nan, t2), np.where(nan, np.nan, spe), finite)
 
@@ -401,6 +423,8 @@ class PCADetector(Detector):
 
 #: variables named per row in ``top_t2`` / ``top_spe``
 TOP = 3
+#: rows scored per block by the deployed PCA (the (block, m) intermediates stay in cache)
+BLOCK = 2048
 
 
 @dataclass
@@ -472,13 +496,25 @@ class OnlinePCA(OnlineStage):
         """Outputs and state after each row of X (rows, m: the tags in order), from ``state``."""
         n, a = len(X), int(self.n_components)
         model = self.__dict__.get("_model") or self.__dict__.setdefault("_model", self.model())
+        raw = {"t2": np.empty(n), "spe": np.empty(n)}
+        finite = np.empty(n, bool)
+        tops = {"t2": np.empty(n, dtype=object), "spe": np.empty(n, dtype=object)} if top else None
+        # blocks of BLOCK rows, so that the (block, m) intermediates stay in cache; every step is row by
+        # row, so the blocks change no bit
         with _one_blas_thread():
-            proj = _Projected.of(model, X, components=a)
-        finite = proj.finite
+            for lo in range(0, n, BLOCK):
+                block = X[lo:lo + BLOCK]
+                proj = _Projected.of(model, block, components=a)
+                raw["t2"][lo:lo + len(block)], raw["spe"][lo:lo + len(block)] = proj.t2[:, 0], proj.spe[:, 0]
+                finite[lo:lo + len(block)] = proj.finite
+                if top:
+                    Z = np.where(proj.finite[:, None], (block - self.mean) / self.scale, 0.0)
+                    for name in ("t2", "spe"):
+                        tops[name][lo:lo + len(block)] = self._top(Z, proj.finite, name)
         out: dict[str, np.ndarray] = {}
         ratios = []
         for name, start, limit in (("t2", self.t2_start, self.t2_limit), ("spe", self.spe_start, self.spe_limit)):
-            values = getattr(proj, name)[:, 0]
+            values = raw[name]
             smooth = ewma_from(values, self.lam, float(start), previous=float(state[f"ewma_{name}"]))
             value = np.where(finite, smooth, np.nan)
             out[name], out[f"{name}_smoothed"], out[f"{name}_limit"] = values, value, np.full(n, float(limit))
@@ -492,11 +528,12 @@ class OnlinePCA(OnlineStage):
         run = run_lengths(above, int(state["run_length"]))
         out["ratio"], out["alarm"], out["run_length"] = ratio, run >= self.persistence, run
         for name in ("t2", "spe"):
-            out[f"top_{name}"] = self._top(X, finite, name) if top else np.full(n, "", dtype=object)
+            out[f"top_{name}"] = tops[name] if top else np.full(n, "", dtype=object)
         return out
 
-    def _top(self, X: np.ndarray, finite: np.ndarray, name: str) -> np.ndarray:
-        """``tag;tag;tag`` per row, largest contribution first ('' where the row is not scored).
+    def _top(self, Z: np.ndarray, finite: np.ndarray, name: str) -> np.ndarray:
+        """``tag;tag;tag`` per standardised row of Z (0 where missing), largest contribution first ('' where the
+        row is not scored).
 
         T²: c_i = z_i (Pₐ Λₐ⁻¹ Pₐᵀ z)_i; SPE: c_i = e_i², e = (I − Pₐ Pₐᵀ) z (:meth:`PCAModel.contributions`),
         each one product with an (m, m) matrix made once.
@@ -507,17 +544,38 @@ class OnlinePCA(OnlineStage):
             maps = self.__dict__["_maps"] = {
                 "t2": (P[:, :a] / np.asarray(self.eigenvalues)[:a]) @ P[:, :a].T,
                 "spe": np.eye(len(P)) - P[:, :a] @ P[:, :a].T}
-        Z = np.where(finite[:, None], (X - self.mean) / self.scale, 0.0)
-        with _one_blas_thread():
-            c = Z @ maps[name]
-        c = c * Z if name == "t2" else c * c
-        index = _largest(c, TOP)
-        tags = np.asarray(self.tags, dtype=object)
-        labels = [";".join(row) for row in tags[index].tolist()] if len(index) else []
-        out = np.array(labels, dtype=object) if labels else np.empty(0, dtype=object)
+        c = Z @ maps[name]
+        if name == "t2":
+            c *= Z
+        else:
+            c *= c
+        out = self._labels(_largest(c, TOP))
         if not finite.all():
             out[~finite] = ""
         return out
+
+    def _labels(self, index: np.ndarray) -> np.ndarray:
+        """``tag;tag;tag`` per row of (n, TOP) indices, largest first: each combination joined once (a few
+        hundred in a file), then looked up in a table of every combination."""
+        m, k = len(self.tags), index.shape[1]
+        code = np.zeros(len(index), np.int64)
+        for j in range(k):
+            code = code * m + index[:, j]
+        if m**k > 1 << 20:  # too many combinations for a table: join each distinct one of this block
+            unique, inverse = np.unique(code, return_inverse=True)
+            joined = [";".join(self.tags[(c // m**(k - 1 - j)) % m] for j in range(k)) for c in unique.tolist()]
+            return np.array(joined, dtype=object)[inverse.reshape(-1)]
+        table = self.__dict__.get("_label_table")
+        if table is None:
+            table = self.__dict__["_label_table"] = (np.full(m**k, None, dtype=object), np.zeros(m**k, bool))
+        labels, filled = table
+        for c in np.unique(code[~filled[code]]).tolist():
+            parts, rest = [], c
+            for _ in range(k):
+                rest, j = divmod(rest, m)
+                parts.append(self.tags[j])
+            labels[c], filled[c] = ";".join(reversed(parts)), True
+        return labels[code]
 
 
 def _largest(c: np.ndarray, k: int) -> np.ndarray:

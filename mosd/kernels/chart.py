@@ -21,7 +21,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .ewma import ewma_recursion
+from .ewma import ewma_step
 from .wavelet import denoise_row, work_size
 
 _BLOCK = 128  # NumPy's pairwise-summation block (PW_BLOCKSIZE)
@@ -107,21 +107,29 @@ def mean_std(values):
 
 
 @njit(cache=True, nogil=True)
-def _statistics(uv, gain, feedback, combine_max, stat, smoothed, past):
-    """Smoothed-and-combined statistic of every run: uv time-major (K, 2C), U then V -> stat (C, K).
+def _statistics(u, v, gain, f1, f2, order, combine_max, stat, y):
+    """Smoothed-and-combined statistic of every run: u, v time-major (K, C) -> stat (C, K).
 
-    The recursion is :func:`mosd.kernels.ewma.ewma_recursion` from a zero state (the one
-    implementation); ``smoothed`` (K, 2C) and ``past`` (order, 2C) are scratch.
+    y: scratch (4, C) for the recursion's two past values of both parts, from a zero state. Each value is
+    :func:`mosd.kernels.ewma.ewma_step`'s (the one arithmetic of the charts); U and V in one pass.
     """
-    n_points = uv.shape[0]
-    n_columns = uv.shape[1] // 2
-    past[:] = 0.0
-    ewma_recursion(uv, gain, feedback, past, smoothed)
+    n_points, n_columns = u.shape
+    u1, u2, v1, v2 = y[0], y[1], y[2], y[3]
+    for c in range(n_columns):
+        u1[c] = 0.0
+        u2[c] = 0.0
+        v1[c] = 0.0
+        v2[c] = 0.0
     for k in range(n_points):
-        row = smoothed[k]
+        uk, vk = u[k], v[k]
         for c in range(n_columns):
-            a = row[c]
-            b = row[n_columns + c]
+            a = ewma_step(uk[c], gain, f1, f2, u1[c], u2[c], order)
+            b = ewma_step(vk[c], gain, f1, f2, v1[c], v2[c], order)
+            if order == 2:
+                u2[c] = u1[c]
+                v2[c] = v1[c]
+            u1[c] = a
+            v1[c] = b
             if combine_max:
                 stat[c, k] = max(abs(a), abs(b))
             else:
@@ -157,15 +165,12 @@ def alarm_counts(u, v, n_calibration, gains, feedback, widths, combine_max, faul
     faulty_misses = np.zeros((n_candidates, n_train), np.int64)
     raw = np.empty((n_columns, n_points))
     plotted = np.empty((n_columns, n_points)) if denoise else raw
-    uv = np.empty((n_points, 2 * n_columns))
-    uv[:, :n_columns] = u
-    uv[:, n_columns:] = v
-    smoothed = np.empty((n_points, 2 * n_columns))
-    past = np.empty((order, 2 * n_columns))
+    y = np.empty((4, n_columns))
     work = np.empty(work_size(n_points, lo.shape[0], level))
     calibration = np.empty(n_calibration * n_points)
     for p in range(n_candidates):
-        _statistics(uv, gains[p], feedback[p], combine_max, raw, smoothed, past)
+        f2 = feedback[p, 1] if order == 2 else 0.0
+        _statistics(u, v, gains[p], feedback[p, 0], f2, order, combine_max, raw, y)
         if denoise:
             for c in range(n_columns):
                 denoise_row(raw[c], plotted[c], work, lo, hi, rec_lo, rec_hi, level, per_level, source, rule,

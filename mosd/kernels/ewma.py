@@ -11,6 +11,21 @@ import numpy as np
 from numba import njit
 
 
+@njit(cache=True, nogil=True, inline="always")
+def ewma_step(x, gain, f1, f2, p1, p2, order):
+    """One step of the (double) EWMA recursion: y = g·x, += y_{k−1}·f_1, (+= y_{k−2}·f_2 for order 2).
+
+    The one arithmetic of every chart: :func:`ewma_recursion` (the population, ``ewma()``, the deployed
+    chart) and the fused candidate evaluation's loop (:mod:`mosd.kernels.chart`) both take each value
+    from here, in this order, so their results are the same bits.
+    """
+    y = gain * x
+    y += p1 * f1
+    if order == 2:
+        y += p2 * f2
+    return y
+
+
 @njit(cache=True, nogil=True)
 def ewma_recursion(x, gain, feedback, past, out):
     """The ``order``-fold EWMA recursion with its state: the one implementation of the charts' arithmetic.
@@ -32,6 +47,26 @@ def ewma_recursion(x, gain, feedback, past, out):
     """
     n_points, n_columns = x.shape
     order = feedback.shape[0]
+    # orders 1 and 2 (EWMA, double EWMA) written out: the generic loops over the lags cost 5x
+    if order == 1:
+        f1, p1 = feedback[0], past[0]
+        for k in range(n_points):
+            xk, ok = x[k], out[k]
+            for c in range(n_columns):
+                y = ewma_step(xk[c], gain, f1, 0.0, p1[c], 0.0, 1)
+                p1[c] = y
+                ok[c] = y
+        return
+    if order == 2:
+        f1, f2, p1, p2 = feedback[0], feedback[1], past[0], past[1]
+        for k in range(n_points):
+            xk, ok = x[k], out[k]
+            for c in range(n_columns):
+                y = ewma_step(xk[c], gain, f1, f2, p1[c], p2[c], 2)
+                p2[c] = p1[c]
+                p1[c] = y
+                ok[c] = y
+        return
     for k in range(n_points):
         for c in range(n_columns):
             y = gain * x[k, c]
