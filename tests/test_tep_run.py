@@ -100,7 +100,9 @@ def test_study_credits_the_gain_to_its_causes_and_reports_per_fault_delays(run):
     # the equal-FAR baseline gets the held-back rows the tuned design's limits come from
     assert study["lit_equal_far_mdr_combined_mean"] == pytest.approx(study["ablation_lit_heldback_limits_equal_far_mdr"],
                                                                      abs=1e-12)
-    assert study["lit_equal_far_far_combined"] <= study["tuned_far_combined"]
+    # (an empirical limit is at most the held-back maximum: below some FAR no α gets there)
+    assert (study["lit_equal_far_far_combined"] <= study["tuned_far_combined"]
+            or study["lit_equal_far_alpha"] == pytest.approx(1e-12))
     assert "lit_d00_equal_far_mdr_combined_mean" in study
     # per fault: a run of 3 alarms cannot end before the first alarm; an undetected fault has no delay
     for design in ("lit", "tuned", "lit_equal_far"):

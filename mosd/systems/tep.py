@@ -230,6 +230,8 @@ class Study(base.Study):
         for row, (base_name, changes, data) in ABLATION.items():
             base_design = designs[base_name]
             params = {k: getattr(designs[TUNED], k) if v == "tuned" else v for k, v in changes.items()}
+            if "n_components" in params:  # the literature's design declares a smaller range than the preset's
+                params["max_components"] = max(int(base_design.max_components), int(params["n_components"]))
             detector = base_design.with_params(**params)
             # d00.dat alone: it fits the PCA and, held back from nothing, sets the empirical limits in-sample
             cal = calibration[:1] if data == "d00" else calibration
