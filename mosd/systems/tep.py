@@ -117,9 +117,13 @@ def alpha_for_far(detector: PCADetector, calibration_z: np.ndarray, z: np.ndarra
     FAR does not decrease with α; where even α = 1e-12 exceeds ``far`` (an empirical limit is at most the
     held-back maximum), 1e-12 is returned and the FAR stays above.
     """
+    design = detector.design()[0].astype(float)
+    calibration_f, features = detector.features(calibration_z), detector.features(z)
+
     def rate(log_alpha):
-        decision = detector.with_params(alpha=10**log_alpha).decide(calibration_z, z).decision
-        return float(np.asarray(decision, bool)[fault_free].mean())
+        # one detector object throughout: its PCA fit and projections are computed once, not per α
+        decision = detector.population(calibration_f, features, np.r_[design[:1], 10**log_alpha, design[2:]][None])
+        return float(np.asarray(decision.decision[0], bool)[fault_free].mean())
 
     low, high = -12.0, float(np.log10(0.5))
     if rate(low) > far:
