@@ -83,8 +83,10 @@ def reliability(probability: np.ndarray, outcome: np.ndarray, bins: int = CALIBR
 
     Returns ``mean_probability``, ``active_share`` and ``steps`` (per bin; NaN where
     a bin is empty), ``ece``, the expected calibration error Σ_b (n_b/n) |share_b −
-    mean_b| (the step-weighted mean gap), and ``max_gap``, the largest |share − mean
-    probability| over the bins holding at least ``min_share`` of all values. Both are
+    mean_b| (the step-weighted mean gap), ``ece_middle``, the same over the bins other
+    than the first and the last (where the forecaster is unsure; NaN if they are empty),
+    and ``max_gap``, the largest |share − mean
+    probability| over the bins holding at least ``min_share`` of all values. All three are
     estimates of fixed quantities of the forecaster, whatever the number of runs (the
     bins kept are chosen by share, not by count); a calibrated forecaster's gaps shrink
     like the binomial error √(p(1 − p)/n_b).
@@ -96,10 +98,13 @@ def reliability(probability: np.ndarray, outcome: np.ndarray, bins: int = CALIBR
     with np.errstate(invalid="ignore", divide="ignore"):
         mean = np.bincount(index, probability, bins) / steps
         share = np.bincount(index, outcome.astype(float), bins) / steps
-    gap = np.abs(share - mean)
+    gap = np.where(steps > 0, np.abs(share - mean), 0.0)
     kept = steps >= min_share * max(steps.sum(), 1)
+    middle = np.arange(bins)[1:-1]  # the bins between the first and the last: where the filter is unsure
     return {"mean_probability": mean, "active_share": share, "steps": steps,
-            "ece": float(np.sum(np.where(steps > 0, gap, 0.0) * steps) / max(steps.sum(), 1)),
+            "ece": float(np.sum(gap * steps) / max(steps.sum(), 1)),
+            "ece_middle": float(np.sum(gap[middle] * steps[middle]) / steps[middle].sum()) if steps[middle].any()
+            else math.nan,
             "max_gap": float(np.max(gap[kept])) if kept.any() else math.nan}
 
 
@@ -204,8 +209,9 @@ class Study(base.Study):
       (first alarm − first faulty fusion instant) in seconds.
     * ``no_fault_declared_rate``: fault-free runs without any declaration
       (``paper_no_fault_declared_rate``: the same at the paper's μ_T = 0.5, L = 1).
-    * ``mode_calibration_ece`` and ``mode_calibration_max_gap``: the step-weighted mean
-      and the largest gap of the reliability curve of μ₂ (:func:`reliability`,
+    * ``mode_calibration_ece``, ``mode_calibration_ece_middle`` and ``mode_calibration_max_gap``: the
+      step-weighted mean gap over all bins and over the bins between 0.1 and 0.9, and the largest
+      gap, of the reliability curve of μ₂ (:func:`reliability`,
       :func:`mode_calibration`, ``n_runs`` runs whose faults start as Λ says).
     * ``mse_<q>_<a>_minus_<b>`` and ``..._ci95`` for q in state, amplitude and the
       pairs :data:`RMSE_PAIRS`: the mean over runs of the paired difference of each
@@ -320,6 +326,8 @@ class Study(base.Study):
         for design, scores in data["decisions"].items():
             out.update({prefixed(design) + k: float(v) for k, v in scores.items()})
         out["mode_calibration_ece"] = data["calibration"]["ece"]
+        if math.isfinite(data["calibration"]["ece_middle"]):
+            out["mode_calibration_ece_middle"] = data["calibration"]["ece_middle"]
         if math.isfinite(data["calibration"]["max_gap"]):
             out["mode_calibration_max_gap"] = data["calibration"]["max_gap"]
         for quantity in ("state", "amplitude"):
@@ -444,7 +452,7 @@ def format_calibration(cal: dict) -> str:
     """The reliability curve of μ₂ (:func:`mode_calibration`) as a markdown table."""
     lines = [f"Mode-probability calibration: faults start as Λ says (hazard {cal['hazard']:.4g} per fusion interval, "
              f"{cal['faulty_runs']} faulty runs); expected calibration error (step-weighted mean gap) "
-             f"{cal['ece']:.3f}; largest gap {cal['max_gap']:.3f} over bins with >= "
+             f"{cal['ece']:.3f}, {cal['ece_middle']:.3f} between 0.1 and 0.9; largest gap {cal['max_gap']:.3f} over bins with >= "
              f"{100 * CALIBRATION_MIN_SHARE:g} % of the steps", "", "| μ₂ bin | steps | mean μ₂ | share with the fault active |",
              "|---|---|---|---|"]
     n = len(cal["steps"])
