@@ -164,7 +164,8 @@ def test_paper002_separation_paths_agree_and_target_error_dominates(paper002_set
         roc = data["designs"]["tuned"]["roc"][name]
         own = data["params" if name == "entropy" else "baseline_params"]["tuned"]["threshold"]
         k = int(np.flatnonzero(np.isclose(roc["threshold"], own))[0])
-        assert roc["false_alarm"][k] == pytest.approx(metrics[f"{prefix}false_alarm_nuisance_r0"], abs=1e-12)
+        assert roc["false_alarm"][k] == pytest.approx(metrics[f"{prefix}nuisance_point_false_isolation_r0"],
+                                                     abs=1e-12)
     # a ROC curve: fewer alarms of both kinds as the threshold rises
     for roc in data["designs"]["tuned"]["roc"].values():
         assert np.all(np.diff(roc["false_alarm"]) <= 1e-12) and np.all(np.diff(roc["detection"]) <= 1e-12)
