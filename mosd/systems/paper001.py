@@ -452,8 +452,9 @@ def format_calibration(cal: dict) -> str:
     """The reliability curve of μ₂ (:func:`mode_calibration`) as a markdown table."""
     lines = [f"Mode-probability calibration: faults start as Λ says (hazard {cal['hazard']:.4g} per fusion interval, "
              f"{cal['faulty_runs']} faulty runs); expected calibration error (step-weighted mean gap) "
-             f"{cal['ece']:.3f}, {cal['ece_middle']:.3f} between 0.1 and 0.9; largest gap {cal['max_gap']:.3f} over bins with >= "
-             f"{100 * CALIBRATION_MIN_SHARE:g} % of the steps", "", "| μ₂ bin | steps | mean μ₂ | share with the fault active |",
+             f"{cal['ece']:.3f}, {cal['ece_middle']:.3f} between 0.1 and 0.9; largest gap {cal['max_gap']:.3f} "
+             f"over bins with >= {100 * CALIBRATION_MIN_SHARE:g} % of the steps", "",
+             "| μ₂ bin | steps | mean μ₂ | share with the fault active |",
              "|---|---|---|---|"]
     n = len(cal["steps"])
     for i in range(n):

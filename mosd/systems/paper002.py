@@ -413,7 +413,8 @@ class Study(base.Study):
             cis = [shown["results"][(name, r)]["delay_target_ci95"] for r in rates]
             bx.errorbar([100 * r for r in rates], delays, yerr=cis, color=color, marker="o", capsize=3, label=label)
         tuned = shown["results"][("entropy", rates[0])]
-        ax.axvline(tuned["nuisance_point_false_isolation"], color="r", ls="--", lw=0.8, label="tuned design's nuisance FA")
+        ax.axvline(tuned["nuisance_point_false_isolation"], color="r", ls="--", lw=0.8,
+                   label="tuned design's nuisance FA")
         ax.set_xscale("symlog", linthresh=1e-3)
         ax.set_xlim(0.0, 1.0)
         decorate(ax, "nuisance points alarmed", "target points detected",

@@ -409,20 +409,20 @@ class Study(base.Study):
         law = data["law"][design][statistic]
         censored = cls._over_rates(t["censored_step"]) - data["onset_step"]
         numbers = {"detection_step_n1": float(step[i1]), "detection_step_best": float(step[best]),
-                "censored_step_n1": float(censored[i1]), "censored_step_best": float(censored[best]),
-                "best_window": float(data["windows"][best]), "detection_rate_n1": float(rate[i1]),
-                "detection_rate_best": float(rate[best]), "far": float(far[best]), "far_n1": float(far[i1]),
-                "run_detection_share_n1": float(share[i1]), "run_detection_share_best": float(share[best]),
-                "detection_step_speedup": speedup(step[i1], step[best]) if step[best] > 0 else math.nan,
-                "censored_step_speedup": speedup(censored[i1], censored[best]) if censored[best] > 0 else math.nan,
-                "detection_rate_gain": rate_gain(rate[i1], rate[best]) if rate[i1] > 0 else math.nan,
-                "chance_alarm_step_mean": float(law["step_mean"][best]),
-                "chance_alarm_step_mean_n1": float(law["step_mean"][i1]),
-                "chance_alarm_step_geometric": float(law["geometric_step_mean"][best]),
-                "chance_alarm_share": float(law["alarm_share"][best]),
-                "chance_alarm_p_value": float(law["p_value"][best]),
-                "chance_detection_share": float(law["detection_share"][best]),
-                "threshold_relative_range": float(law["threshold_range"][best])}
+                   "censored_step_n1": float(censored[i1]), "censored_step_best": float(censored[best]),
+                   "best_window": float(data["windows"][best]), "detection_rate_n1": float(rate[i1]),
+                   "detection_rate_best": float(rate[best]), "far": float(far[best]), "far_n1": float(far[i1]),
+                   "run_detection_share_n1": float(share[i1]), "run_detection_share_best": float(share[best]),
+                   "detection_step_speedup": speedup(step[i1], step[best]) if step[best] > 0 else math.nan,
+                   "censored_step_speedup": speedup(censored[i1], censored[best]) if censored[best] > 0 else math.nan,
+                   "detection_rate_gain": rate_gain(rate[i1], rate[best]) if rate[i1] > 0 else math.nan,
+                   "chance_alarm_step_mean": float(law["step_mean"][best]),
+                   "chance_alarm_step_mean_n1": float(law["step_mean"][i1]),
+                   "chance_alarm_step_geometric": float(law["geometric_step_mean"][best]),
+                   "chance_alarm_share": float(law["alarm_share"][best]),
+                   "chance_alarm_p_value": float(law["p_value"][best]),
+                   "chance_detection_share": float(law["detection_share"][best]),
+                   "threshold_relative_range": float(law["threshold_range"][best])}
         # a number undefined for this design (no detecting flight at N = 1, no fault-free alarm) is left out
         return {k: v for k, v in numbers.items() if math.isfinite(v)}
 
