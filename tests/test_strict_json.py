@@ -48,3 +48,31 @@ def test_python_json_alone_is_not_strict(tmp_path):
     """What the writers guard against: the standard library's default output fails the strict parse."""
     with pytest.raises(ValueError, match="non-standard JSON constant NaN"):
         json.loads(json.dumps({"x": math.nan}), parse_constant=_refuse)
+
+
+def test_a_paper002_run_directory_is_strict_and_carries_the_per_run_pair(tmp_path):
+    """The preset's study lands in summary.json with the per-run pair at every missing rate (issue 30)."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    out = subprocess.run([sys.executable, "-m", "mosd", "+experiment=paper002", "optimizer.pop_size=6",
+                          "optimizer.n_gen=2", "optimizer.n_jobs=1", "budget.n_train=20", "budget.n_test=10",
+                          "budget.n_calibration=4", "study.n_runs=6", "study.figures=false", "tracking=none",
+                          "progress=false"], capture_output=True, text=True, timeout=900,
+                         env={**os.environ, "PYTHONPATH": str(root), "MOSD_OUTPUTS": str(tmp_path)})
+    assert out.returncode == 0, out.stderr[-3000:]
+    (run_dir,) = (tmp_path / "runs").iterdir()
+    files = sorted(run_dir.rglob("*.json"))
+    assert run_dir / "summary.json" in files
+    for path in files:
+        json.loads(path.read_text(), parse_constant=_refuse)
+    summary = json.loads((run_dir / "summary.json").read_text())
+    study = summary["study"]
+    for r in (0, 5, 10, 20):
+        assert 0.0 <= study[f"nuisance_run_false_isolation_r{r}"] <= 1.0
+        assert 0.0 <= study[f"target_run_detection_r{r}"] <= 1.0
+    assert summary["test"]["delay"]["unit"] == "points"
+    assert not any(k.endswith("fill_rmse_r0") for k in study)  # nothing filled on complete data: not reported
