@@ -44,14 +44,20 @@ def experiment():
     return experiment
 
 
-def test_the_recorded_tuned_design_isolates_at_0_5_and_10_percent_missing(experiment):
+def test_the_recorded_tuned_design_isolates_per_point_but_not_per_run(experiment):
+    """Issue 30: the tuned design meets its per-point objective, yet about 30 % of nuisance runs alarm.
+
+    The claim is per run (a run is declared the target fault or not): with the target counted per run
+    and the nuisance per point the verdict read "reproduced"; in the same units it is not.
+    """
     study = paper002.Study(n_runs=200, missing_rates=[0.0, 0.05, 0.1], mechanisms=["mcar"], fills=["em"],
-                           figures=False)
+                           figures=False, amplitude_laws=[])
     tuned = experiment.detector.with_params(**base.recorded_designs("paper002")["tuned"])
     metrics = study.metrics(study.compute(experiment, {"tuned": tuned}))
     for tag in ("r0", "r5", "r10"):
-        assert metrics[f"detection_rate_target_{tag}"] >= 0.95
-        assert metrics[f"false_alarm_nuisance_{tag}"] <= 0.05
+        assert metrics[f"target_run_detection_{tag}"] >= 0.95
+        assert metrics[f"nuisance_point_false_isolation_{tag}"] <= 0.05
+        assert metrics[f"nuisance_run_false_isolation_{tag}"] > 0.2
 
 
 def test_each_filter_is_scored_at_its_own_threshold(experiment):
@@ -71,24 +77,26 @@ def test_each_filter_is_scored_at_its_own_threshold(experiment):
     assert metrics["baseline_threshold"] > 0.63 + 0.1
     assert metrics["midway_baseline_threshold"] == pytest.approx(own["baseline"])
     for prefix in ("", "midway_"):
-        assert metrics[f"{prefix}baseline_false_alarm_nuisance_r0"] < 0.05
+        assert metrics[f"{prefix}baseline_nuisance_point_false_isolation_r0"] < 0.05
     table = paper002.format_report({name: {"entropy": data["params"][name], "baseline": data["baseline_params"][name]}
                                     for name in data["designs"]}, metrics, ["mcar"], ["em"])
     assert f"threshold {own['baseline']:.3g}, L 3) | baseline" in table
 
 
 def test_the_study_reports_every_mechanism_and_fill(experiment):
-    study = paper002.Study(n_runs=20, missing_rates=[0.0, 0.2], figures=False)
+    study = paper002.Study(n_runs=20, missing_rates=[0.0, 0.2], figures=False, amplitude_laws=[])
     tuned = experiment.detector.with_params(threshold=0.63, persistence=4)
     metrics = study.metrics(study.compute(experiment, {"tuned": tuned}))
     for mechanism in ("mcar", "burst", "gap"):
         for fill in ("em", "hold", "skip"):
             for key in paper002.GRID_KEYS:
-                assert f"{mechanism}_{fill}_{key}_r20" in metrics
-            assert math.isnan(metrics[f"{mechanism}_{fill}_fill_rmse_r0"])    # nothing missing
-            assert (fill == "skip") == math.isnan(metrics[f"{mechanism}_{fill}_fill_rmse_r20"])
+                # nothing is filled by skip: its fill error is not reported (never a NaN)
+                assert (f"{mechanism}_{fill}_{key}_r20" in metrics) == (key != "fill_rmse" or fill != "skip")
+            assert f"{mechanism}_{fill}_fill_rmse_r0" not in metrics    # nothing missing
+    assert all(math.isfinite(v) for v in metrics.values())
     # the EM fill is the former default: its MCAR numbers are the study's main rows
-    assert metrics["mcar_em_false_alarm_nuisance_r20"] == metrics["false_alarm_nuisance_r20"]
+    for key in ("nuisance_run_false_isolation", "nuisance_point_false_isolation", "target_run_detection"):
+        assert metrics[f"mcar_em_{key}_r20"] == metrics[f"{key}_r20"]
     # long gaps without a neighbour are where a fill matters: skipping lets the error fluctuate most
     assert metrics["gap_skip_error_fluct_target_r20"] > metrics["mcar_em_error_fluct_target_r20"]
 

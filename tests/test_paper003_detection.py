@@ -6,8 +6,8 @@ import math
 import numpy as np
 import pytest
 
-from mosd.systems.paper003 import (CONFIRM, detection_summary, first_alarm_law, rate_gain, relative_range,
-                                   speedup)
+from mosd.systems.paper003 import (CONFIRM, KOFM_K, KOFM_M, detection_summary, first_alarm_law, k_of_m_detection,
+                                   rate_gain, relative_range, speedup)
 
 
 def test_metric_formulas_reproduce_the_papers_identities():
@@ -34,6 +34,25 @@ def test_a_chance_alarm_cannot_make_a_detection():
     # designs on a leading axis give the same per-design numbers
     stacked = detection_summary(np.stack([decision, decision[::-1]]), onset_step=10, confirm=3)
     np.testing.assert_array_equal(stacked["first_alarm"][0], summary["first_alarm"])
+
+
+def test_k_of_m_rule_needs_the_statistic_high_not_rising():
+    """Issue 30: the rule under which "N = 1 never detects" is tested does not ask for three rises in a row."""
+    assert (KOFM_K, KOFM_M) == (3, 8)
+    alarm = np.zeros((4, 30), bool)
+    alarm[0, [10, 13, 17]] = True            # 3 alarms within 8 points (10..17): detected at the third
+    alarm[1, [10, 14, 18]] = True            # 3 alarms spread over 9 points: not within any 8
+    alarm[2, [6, 7, 12]] = True              # two alarms before the onset do not count
+    alarm[3, 10:] = True                     # the statistic stays above T_D: detected at the third point
+    found = k_of_m_detection(alarm, start=10)
+    np.testing.assert_array_equal(found["detected"], [True, False, False, True])
+    np.testing.assert_array_equal(found["step"], [17, -1, -1, 12])
+    # the same alarms need not be consecutive, unlike CONFIRM in a row
+    assert detection_summary(alarm[:1].astype(int), onset_step=10, confirm=CONFIRM)["first_alarm"][0] == -1
+    # under independent chance alarms at α = 0.01, a 500-point flight rarely holds 3 in 8
+    rng = np.random.default_rng(3)
+    chance = k_of_m_detection(rng.uniform(size=(2000, 500)) < 0.01, start=0)["detected"].mean()
+    assert chance < 0.03
 
 
 def test_first_alarm_law_is_geometric_for_independent_alarms_and_not_for_bursts():

@@ -18,11 +18,13 @@ from mosd.validation import ConfigError
 
 P001_NAMES = {f"rmse_{q}_{f}" for q in ("state", "amplitude") for f in ("fused", "sensor1", "sensor2", "sensor3")} | {
     "isolation_rate", "false_isolation_rate", "far", "mdr", "delay_s", "detection_rate", "no_fault_declared_rate",
-    "paper_no_fault_declared_rate", "mode_calibration_max_gap"}
+    "paper_no_fault_declared_rate", "mode_calibration_ece"} | {
+    f"mse_{q}_{a}_minus_{b}{ci}" for q in ("state", "amplitude") for a, b in paper001.RMSE_PAIRS for ci in ("", "_ci95")}
 P002_NAMES = {f"{p}{k}_r{r}" for p in ("", "baseline_") for r in (0, 10)
-              for k in ("delay_target_s", "detection_rate_target", "false_alarm_nuisance")}
-P003_NAMES = {"detection_step_n1", "detection_step_best", "best_window", "detection_rate_n1", "detection_rate_best",
-              "far", "threshold_relative_range"}
+              for k in ("delay_target_s", "target_run_detection", "nuisance_run_false_isolation",
+                        "target_point_detection", "nuisance_point_false_isolation")}
+P003_NAMES = {"censored_step_n1", "censored_step_best", "best_window", "detection_rate_n1", "detection_rate_best",
+              "far", "threshold_relative_range", "base_threshold", "paper_base_threshold"}
 
 
 def _preset(name, *overrides):
@@ -62,9 +64,15 @@ def test_paper000_study_scores_the_tuned_design_like_the_experiment_and_pairs_th
 # -- paper 001 ------------------------------------------------------------------------------
 def test_paper001_study_names_and_figures(tmp_path):
     experiment = _preset("paper001", "seed=3", "budget.n_test=20")
-    metrics, files = paper001.Study(n_runs=20).run(experiment, _result(experiment.detector.with_params(mu_T=0.8)),
-                                                     tmp_path)
-    _finite(metrics, P001_NAMES | {"paper_" + k for k in ("isolation_rate", "no_fault_declared_rate")})
+    study = paper001.Study(n_runs=20, prior_intervals=[20, 16.5])
+    metrics, files = study.run(experiment, _result(experiment.detector.with_params(mu_T=0.8)), tmp_path)
+    priors = {f"prior_{tag}_{k}" for tag in ("20", "16p5") for k in (
+        "isolation_rate", "far", "no_fault_declared_rate", "paper_no_fault_declared_rate", "rmse_state_fused",
+        "rmse_amplitude_fused", "mode_calibration_ece")}
+    _finite(metrics, P001_NAMES | priors | {"paper_" + k for k in ("isolation_rate", "no_fault_declared_rate")})
+    assert all(math.isfinite(v) for v in metrics.values())  # an undefined number is left out, never NaN
+    # a hazard of 1/20 expects faults sooner than 1/40: the filter's μ₂ rises sooner on fault-free runs too
+    assert metrics["prior_20_no_fault_declared_rate"] <= metrics["no_fault_declared_rate"]
     assert len(files) == 5 and all(f.exists() and f.stat().st_size > 10_000 for f in files)
     for key in ("isolation_rate", "false_isolation_rate", "far", "mdr", "detection_rate", "no_fault_declared_rate"):
         assert 0.0 <= metrics[key] <= 1.0
@@ -112,7 +120,37 @@ def test_paper002_study_names_and_figures(paper002_setup, tmp_path):
     assert not any(k.startswith("paper_") for k in metrics)  # the paper's threshold is lost: no reference design
     _finite(metrics, P002_NAMES | {"roc_auc", "baseline_roc_auc", "equal_fa_target_detection"})
     assert not any(k.endswith("_r5") for k in metrics)
+    assert all(math.isfinite(v) for v in metrics.values())  # an undefined number is left out, never NaN
+    # nothing is filled on complete data or by skip: no fill error is reported for them
+    assert "mcar_em_fill_rmse_r10" in metrics and "mcar_em_fill_rmse_r0" not in metrics
+    assert not any(k.startswith("mcar_skip_fill_rmse") for k in metrics)
+    # a run with any alarm counts once per run: per run at least the per-point share
+    for tag in ("r0", "r10"):
+        assert metrics[f"nuisance_run_false_isolation_{tag}"] >= metrics[f"nuisance_point_false_isolation_{tag}"]
+        assert metrics[f"target_run_detection_{tag}"] >= metrics[f"target_point_detection_{tag}"]
     assert len(files) == 3 and all(f.exists() and f.stat().st_size > 10_000 for f in files)
+
+
+def test_paper002_per_run_false_isolation_counts_nuisance_runs_and_follows_the_nuisance_law(paper002_setup):
+    detector = paper002_setup.detector.with_params(threshold=0.67, persistence=2)
+    laws = [[[0.5, 1.5], [0.0, 0.6]], [[0.5, 1.5], [0.0, 1.0]]]
+    study = paper002.Study(n_runs=30, missing_rates=[0.0], figures=False, amplitude_laws=laws,
+                           mechanisms=["mcar"], fills=["em"])
+    data = study.compute(paper002_setup, {"tuned": detector})
+    metrics = study.metrics(data)
+    # the share of nuisance runs with an alarm after the onset, counted from the decisions directly
+    trace = study._simulate(paper002_setup, 0.0)
+    outputs = paper002_setup.estimator.estimate(trace, paper002_setup.model)
+    points = paper002_setup.monitor.transform(outputs)
+    d = detector.decide(points.z[:1], points.z).decision != 0
+    nuisance = ~paper002.Study._roles(points.fault_label, points.fault_roles)
+    direct = np.mean((d[nuisance] & (points.fault_label[nuisance] > 0)).any(axis=-1))
+    assert metrics["nuisance_run_false_isolation_r0"] == pytest.approx(direct, abs=1e-12)
+    # the reconstruction's laws on the same seeds give the same runs as the study's own
+    assert metrics["laws_t50_150_n0_60_nuisance_run_false_isolation"] == metrics["nuisance_run_false_isolation_r0"]
+    # the same uniform draws scaled to a wider nuisance support: every nuisance amplitude grows, so do its alarms
+    assert (metrics["laws_t50_150_n0_100_nuisance_run_false_isolation"]
+            > metrics["laws_t50_150_n0_60_nuisance_run_false_isolation"])
 
 
 def test_paper002_separation_paths_agree_and_target_error_dominates(paper002_setup):
@@ -126,7 +164,8 @@ def test_paper002_separation_paths_agree_and_target_error_dominates(paper002_set
         roc = data["designs"]["tuned"]["roc"][name]
         own = data["params" if name == "entropy" else "baseline_params"]["tuned"]["threshold"]
         k = int(np.flatnonzero(np.isclose(roc["threshold"], own))[0])
-        assert roc["false_alarm"][k] == pytest.approx(metrics[f"{prefix}false_alarm_nuisance_r0"], abs=1e-12)
+        assert roc["false_alarm"][k] == pytest.approx(metrics[f"{prefix}nuisance_point_false_isolation_r0"],
+                                                     abs=1e-12)
     # a ROC curve: fewer alarms of both kinds as the threshold rises
     for roc in data["designs"]["tuned"]["roc"].values():
         assert np.all(np.diff(roc["false_alarm"]) <= 1e-12) and np.all(np.diff(roc["detection"]) <= 1e-12)
@@ -142,6 +181,8 @@ def test_paper002_study_validates_its_parameters():
         paper002.Study(missing_rates=[0.1, 0.1])
     with pytest.raises(ConfigError, match="study.n_runs"):
         paper002.Study(n_runs=1)
+    with pytest.raises(ConfigError, match="study.amplitude_laws"):
+        paper002.Study(amplitude_laws=[[[0.5, 1.5], [0.6, 0.0]]])
 
 
 # -- paper 003 ------------------------------------------------------------------------------
@@ -174,8 +215,17 @@ def test_paper003_study_names_and_figures(tmp_path):
     study = paper003.Study(windows=[1, 3], rates=[0.5, 1.0], n_runs=2, trace_rate=1.0, confirm=1)
     metrics, files = study.run(experiment, _result(experiment.detector), tmp_path / "out")
     _finite(metrics, P003_NAMES | {"paper_far", "innovation_far"})
-    # the fault-free flights' first-alarm law (NaN when none of the two flights alarms)
-    assert {"chance_alarm_step_mean", "paper_chance_alarm_step_mean", "chance_alarm_share"} <= set(metrics)
+    assert all(math.isfinite(v) for v in metrics.values())  # an undefined number is left out, never NaN
+    # the fault-free flights' first-alarm law (its mean step left out when none of the two flights alarms)
+    assert {"chance_alarm_share", "paper_chance_alarm_share"} <= set(metrics)
+    # the rule without the adaptive term, for both readings and every window
+    for reading in (1, 2):
+        for n in (1, 3):
+            for key in ("detected", "point_rate", "chance_detected"):
+                assert 0.0 <= metrics[f"kofm_reading{reading}_{key}_n{n}"] <= 1.0
+    # with b = 0 the threshold is a·T_D: α and a are one number
+    tuned = experiment.detector
+    assert metrics["base_threshold"] == pytest.approx(tuned.a * float(tuned.chi2_threshold(tuned.alpha)))
     assert metrics["best_window"] in (1.0, 3.0)
     assert len(files) == 4 and all(f.exists() and f.stat().st_size > 10_000 for f in files)
     # the experiment's own window reuses its trained observer; the other was trained and cached
@@ -252,6 +302,8 @@ def test_paper001_bars_at_500_runs():
     tuned = experiment.detector.with_params(**base.recorded_designs("paper001")["tuned"])
     metrics = study.metrics(study.compute(experiment, {"tuned": tuned}))
     verdicts = {name: met for name, met, _ in paper001.bars(metrics)}
+    # sensor 1 against sensor 2 on the amplitude is inside its own CI at 500 runs: not resolved (issue 30)
+    assert verdicts.pop("amplitude RMSE: sensor 1 < 2 < 3") is None
     assert all(verdicts.values()), verdicts
 
 

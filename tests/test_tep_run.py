@@ -66,3 +66,47 @@ def test_report_command_bad_input_exits_2(tmp_path):
                           "--out", str(tmp_path)], capture_output=True, text=True, env=_env(tmp_path), timeout=600)
     assert out.returncode == 2
     assert len(out.stderr.strip().splitlines()) == 1 and "is not a directory" in out.stderr
+
+
+def _refuse(constant):
+    raise ValueError(f"non-standard JSON constant {constant}")
+
+
+def test_every_json_file_of_the_run_directory_is_strict(run):
+    """NaN by construction (a one-run FAR CI, recorded data's accuracy) is null or left out, never a bare NaN."""
+    _, run_dir, summary = run
+    files = sorted(run_dir.rglob("*.json"))
+    assert run_dir / "summary.json" in files
+    for path in files:
+        json.loads(path.read_text(), parse_constant=_refuse)
+    test = summary["test"]
+    assert test["far"]["ci95_half_width"] is None and test["far"]["n"] == 1  # one fault-free test run: no CI
+    # no run is both fault-free and faulty: the accuracy of the mean rates, as the console prints it
+    assert test["accuracy"]["mean"] == pytest.approx(1 - test["far"]["mean"] - test["mdr"]["mean"], abs=1e-12)
+    assert test["delay"]["unit"] == "points" and test["delay_censored"]["unit"] == "points"
+
+
+def test_study_credits_the_gain_to_its_causes_and_reports_per_fault_delays(run):
+    """Issue 30: the ablation, the equal-FAR row with the tuned design's information, delays per fault."""
+    study = run[2]["study"]
+    from mosd.systems.tep import ABLATION
+    for row in ABLATION:
+        for key in ("far", "mdr", "equal_far_far", "equal_far_mdr"):
+            assert 0.0 <= study[f"ablation_{row}_{key}"] <= 1.0
+    # the ablation's end points are the study's two designs
+    assert study["ablation_lit_far"] == study["lit_far_combined"]
+    assert study["ablation_tuned_far"] == study["tuned_far_combined"]
+    assert study["ablation_lit_mdr"] == pytest.approx(study["lit_mdr_combined_mean"], abs=1e-12)
+    # the equal-FAR baseline gets the held-back rows the tuned design's limits come from
+    assert study["lit_equal_far_mdr_combined_mean"] == pytest.approx(study["ablation_lit_heldback_limits_equal_far_mdr"],
+                                                                     abs=1e-12)
+    # (an empirical limit is at most the held-back maximum: below some FAR no α gets there)
+    assert (study["lit_equal_far_far_combined"] <= study["tuned_far_combined"]
+            or study["lit_equal_far_alpha"] == pytest.approx(1e-12))
+    assert "lit_d00_equal_far_mdr_combined_mean" in study
+    # per fault: a run of 3 alarms cannot end before the first alarm; an undetected fault has no delay
+    for design in ("lit", "tuned", "lit_equal_far"):
+        for n in range(1, 22):
+            first, run3 = (study.get(f"{design}_delay_{k}_min_idv{n}") for k in ("first_alarm", "run3"))
+            if run3 is not None:
+                assert first is not None and 0 <= first <= run3 - 6  # 3 rows of 3 minutes: 6 minutes at least

@@ -44,5 +44,13 @@ def write_atomically(path: str | os.PathLike, write: Callable[[IO], Any], binary
 
 
 def write_json(path: str | os.PathLike, data: Mapping[str, Any]) -> Path:
-    """``data`` as indented JSON (NaN allowed), atomically (:func:`write_atomically`)."""
-    return write_atomically(path, lambda out: json.dump(data, out, indent=2, allow_nan=True))
+    """``data`` as indented strict JSON, atomically (:func:`write_atomically`).
+
+    Strict: a NaN or infinite number (an undefined metric, a one-run confidence
+    half-width) is written as ``null`` (:func:`mosd.metrics.json_ready`), never as the bare
+    ``NaN`` that JSON parsers other than Python's reject; ``allow_nan=False`` makes a
+    value that slipped through an error here rather than a file nobody else can read.
+    """
+    from ..metrics.summary import json_ready
+
+    return write_atomically(path, lambda out: json.dump(json_ready(data), out, indent=2, allow_nan=False))

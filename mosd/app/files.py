@@ -106,7 +106,7 @@ def write_run_files(run_dir: Path, cfg, result, setup: Setup, labels: Mapping[st
         "on_bound": on_bound(result.params, setup),
         "objectives": list(result.objectives),
         "train": dict(result.train_objectives),
-        "test": {k: {"mean": v.mean, "ci95_half_width": v.half_width, "n": v.n} for k, v in summary.items()},
+        "test": test_block(summary),
         "sigma": result.sigma,
         # recorded data: which rows of which recording each split used (mosd.data)
         **({"data": setup.experiment.describe()} if hasattr(setup.experiment, "describe") else {}),
@@ -117,6 +117,28 @@ def write_run_files(run_dir: Path, cfg, result, setup: Setup, labels: Mapping[st
         on_text_files(list(written))
     written += figures.result() if figures is not None else plots.draw(jobs)
     return written
+
+
+def test_block(summary: Mapping[str, Any]) -> dict[str, dict]:
+    """``summary.json``'s ``"test"``: per metric its mean, CI half-width, runs and, for a delay, its unit.
+
+    A metric no test run defines (``n`` = 0) is not written, except the accuracy of recorded
+    data, where every run is all fault-free or all faulty: there it is 1 − mean FAR − mean MDR, as
+    the console prints it (:func:`mosd.app.summary.final_metrics`), without a CI.
+    """
+    from ..metrics.registry import METRICS
+    from ..metrics.summary import accuracy
+
+    block = {}
+    for key, value in summary.items():
+        unit = METRICS[key].unit if key in METRICS else ""
+        if value.n:
+            block[key] = {"mean": value.mean, "ci95_half_width": value.half_width, "n": value.n,
+                          **({"unit": unit} if unit else {})}
+    if "accuracy" in summary and "accuracy" not in block and {"far", "mdr"} <= set(block):
+        block["accuracy"] = {"mean": accuracy(block["far"]["mean"], block["mdr"]["mean"]),
+                             "ci95_half_width": None, "n": 0, "of": "1 - mean far - mean mdr (no run has both)"}
+    return block
 
 
 def figure_jobs(run_dir: Path, result, setup: Setup, labels: Mapping[str, str]) -> list[tuple[str, dict]]:

@@ -16,6 +16,7 @@ logged whole (:func:`drop_unfinished_models`): the run shows one model, the good
 from __future__ import annotations
 
 import json
+import math
 import os
 import sys
 from dataclasses import asdict
@@ -138,7 +139,9 @@ def log_pending(run_dir: str | os.PathLike, uri: str | None = None) -> tuple[str
         run_id = store.create_run(pending["run_name"], pending["tags"], parent)
         pending = {**pending, "run_id": run_id, "settings": {**asdict(settings), "uri": redacted(settings.uri)}}
         write_json(path, pending)
-    params, metrics = store.not_yet_logged(run_id, pending["params"], [tuple(m) for m in pending["metrics"]])
+    # strict JSON wrote an undefined value (NaN) as null: MLflow takes it back as NaN
+    logged = [(name, math.nan if value is None else value, step) for name, value, step in pending["metrics"]]
+    params, metrics = store.not_yet_logged(run_id, pending["params"], logged)
     # the files where the run directory is now (it may have been moved since)
     recorded = Path(pending["tags"].get("mosd.run_dir") or run_dir)
 

@@ -93,4 +93,27 @@ def confidence_interval(values, level: float = 0.95) -> Estimate:
     return Estimate(float(v.mean()), float(special.stdtrit(v.size - 1, 0.5 + level / 2) * sem), int(v.size))
 
 
-__all__ = ["Estimate", "REFERENCE_VALUE", "accuracy", "confidence_interval", "hypervolume", "reference_point"]
+def json_ready(value):
+    """``value`` as strict-JSON data: a non-finite number becomes ``None`` (``null``), NumPy values plain Python.
+
+    Every JSON file mosd writes goes through this (:func:`mosd.app.atomic.write_json`, the report
+    commands' ``*_study.json``): Python's ``json`` writes ``NaN`` and ``Infinity`` by default, which
+    strict parsers (JavaScript, ``json.loads(..., parse_constant=...)``, most databases) reject.
+    Mappings keep their keys, sequences and arrays become lists; anything else is returned as is
+    (the JSON encoder then decides).
+    """
+    if isinstance(value, dict):
+        return {k: json_ready(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [json_ready(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return [json_ready(v) for v in value.tolist()]
+    if isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, float) and not np.isfinite(value):
+        return None
+    return value
+
+
+__all__ = ["Estimate", "REFERENCE_VALUE", "accuracy", "confidence_interval", "hypervolume", "json_ready",
+           "reference_point"]

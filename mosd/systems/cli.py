@@ -14,6 +14,7 @@ import time
 from pathlib import Path
 from typing import Any, Callable, Iterable, Sequence
 
+from ..metrics.summary import json_ready
 from ..validation import ConfigError
 from .base import NO_RECORDED_DESIGN, TUNED, has_recorded_design, recorded_designs
 
@@ -115,7 +116,7 @@ def score(study, experiment, designs: dict, out: Path, **record) -> tuple[dict, 
 
 
 def write_json(path: Path, payload: Any) -> Path:
-    """``payload`` as indented JSON at ``path`` (its directory created)."""
+    """``payload`` as indented strict JSON at ``path`` (its directory created; NaN → ``null``, :func:`json_ready`)."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(payload, indent=1))
+    path.write_text(json.dumps(json_ready(payload), indent=1, allow_nan=False))
     return path

@@ -23,8 +23,9 @@ import numpy as np
 from ..faults.actuator import ActuatorFault
 from ..metrics.estimation import rmse_over_runs
 from ..metrics.registry import per_run
+from ..metrics.summary import Estimate
 from ..scenario import Scenario
-from ..validation import ConfigError, check_int
+from ..validation import ConfigError, Interval, check_in, check_int
 from . import base, cli
 from .base import TUNED, decorate, design_params, figure, prefixed
 
@@ -32,11 +33,18 @@ SYSTEM = "paper001"
 SENSOR_FILTERS = ("s1", "s2", "s3")
 #: the calibration runs' replications of the ``test`` stream start here (disjoint from the study's runs)
 CALIBRATION_FIRST = 10**6
-#: the reliability curve's bins of μ₂ and the fewest fusion steps a bin needs to enter the largest gap
-CALIBRATION_BINS, CALIBRATION_MIN_STEPS = 10, 50
+#: the reliability curve's bins of μ₂ and the least share of all fusion steps a bin needs to enter the largest
+#: gap (a share, not a count: the gap then does not depend on the number of runs, issue 30)
+CALIBRATION_BINS, CALIBRATION_MIN_SHARE = 10, 0.01
+#: Λ's prior, as the mean number of fusion intervals to a fault 1/h (docs/systems/paper001.md, "Λ is a prior"):
+#: the preset's 40 (one fault per run, the onset uniform over the run's 40 intervals), half and double it, and
+#: 16.5, the hazard whose mean time to a fault is the paper's fixed onset at 16.5 s
+PRIOR_INTERVALS = (20.0, 40.0, 80.0, 16.5)
+#: the pairs of filters whose RMSE order the paper claims (sensor 1 < 2 < 3, fused below each)
+RMSE_PAIRS = (("sensor1", "sensor2"), ("sensor2", "sensor3"), ("fused", "sensor1"))
 
 
-def hazard_transition(n_intervals: int, n_faults: int) -> np.ndarray:
+def hazard_transition(n_intervals: float, n_faults: int) -> np.ndarray:
     """Λ from the scenario's fault hazard (a reconstruction; docs/systems/paper001.md, "Choosing Λ").
 
     The paper's scenario puts one fault in every run, at an instant the filter
@@ -54,12 +62,13 @@ def hazard_transition(n_intervals: int, n_faults: int) -> np.ndarray:
 
     Parameters
     ----------
-    n_intervals : int
-        Fusion intervals of a run (the paper's example: 40, t = 0 … 40 s at 1 s).
+    n_intervals : float
+        Fusion intervals of a run (the paper's example: 40, t = 0 … 40 s at 1 s), >= 1;
+        a prior's mean time to a fault in intervals in general (:data:`PRIOR_INTERVALS`).
     n_faults : int
         Fault models d_f (the example: 2 actuators).
     """
-    n_intervals = check_int("n_intervals", n_intervals, 1)
+    n_intervals = check_in("n_intervals", n_intervals, Interval(1.0, 1e9))
     n_faults = check_int("n_faults", n_faults, 1)
     hazard = 1.0 / n_intervals
     trans = np.eye(n_faults + 1)
@@ -69,13 +78,18 @@ def hazard_transition(n_intervals: int, n_faults: int) -> np.ndarray:
 
 
 def reliability(probability: np.ndarray, outcome: np.ndarray, bins: int = CALIBRATION_BINS,
-                min_steps: int = CALIBRATION_MIN_STEPS) -> dict:
+                min_share: float = CALIBRATION_MIN_SHARE) -> dict:
     """A reliability curve: per equal bin of [0, 1], the mean probability and the share of outcomes that occurred.
 
     Returns ``mean_probability``, ``active_share`` and ``steps`` (per bin; NaN where
-    a bin is empty) and ``max_gap``, the largest |share − mean probability| over the
-    bins holding at least ``min_steps`` values (NaN if none does). A calibrated
-    forecaster's gaps shrink like the binomial error √(p(1 − p)/steps).
+    a bin is empty), ``ece``, the expected calibration error Σ_b (n_b/n) |share_b −
+    mean_b| (the step-weighted mean gap), ``ece_middle``, the same over the bins other
+    than the first and the last (where the forecaster is unsure; NaN if they are empty),
+    and ``max_gap``, the largest |share − mean
+    probability| over the bins holding at least ``min_share`` of all values. All three are
+    estimates of fixed quantities of the forecaster, whatever the number of runs (the
+    bins kept are chosen by share, not by count); a calibrated forecaster's gaps shrink
+    like the binomial error √(p(1 − p)/n_b).
     """
     probability = np.asarray(probability, float).ravel()
     outcome = np.asarray(outcome, bool).ravel()
@@ -84,13 +98,18 @@ def reliability(probability: np.ndarray, outcome: np.ndarray, bins: int = CALIBR
     with np.errstate(invalid="ignore", divide="ignore"):
         mean = np.bincount(index, probability, bins) / steps
         share = np.bincount(index, outcome.astype(float), bins) / steps
-    kept = steps >= min_steps
+    gap = np.where(steps > 0, np.abs(share - mean), 0.0)
+    kept = steps >= min_share * max(steps.sum(), 1)
+    middle = np.arange(bins)[1:-1]  # the bins between the first and the last: where the filter is unsure
     return {"mean_probability": mean, "active_share": share, "steps": steps,
-            "max_gap": float(np.max(np.abs(share - mean)[kept])) if kept.any() else math.nan}
+            "ece": float(np.sum(gap * steps) / max(steps.sum(), 1)),
+            "ece_middle": float(np.sum(gap[middle] * steps[middle]) / steps[middle].sum()) if steps[middle].any()
+            else math.nan,
+            "max_gap": float(np.max(gap[kept])) if kept.any() else math.nan}
 
 
 def mode_calibration(experiment, n_runs: int, actuator: int = 2, bins: int = CALIBRATION_BINS,
-                     min_steps: int = CALIBRATION_MIN_STEPS) -> dict:
+                     min_share: float = CALIBRATION_MIN_SHARE, estimator=None) -> dict:
     """Are the fused filter's mode probabilities probabilities? A reliability curve of μ_actuator.
 
     ``n_runs`` runs whose faults follow the estimator's own Λ: in each fusion
@@ -108,10 +127,10 @@ def mode_calibration(experiment, n_runs: int, actuator: int = 2, bins: int = CAL
     -------
     dict
         ``mean_probability``, ``active_share``, ``steps`` (per bin; NaN where
-        empty), ``max_gap`` (the largest |share − mean μ| over bins with at least
-        ``min_steps`` steps), ``hazard`` (1 − λ_00), ``faulty_runs``.
+        empty), ``ece`` and ``max_gap`` (:func:`reliability`), ``hazard`` (1 − λ_00),
+        ``faulty_runs``. ``estimator``: another Λ's filter (default the experiment's).
     """
-    model, estimator = experiment.model, experiment.estimator
+    model, estimator = experiment.model, estimator or experiment.estimator
     n_models = len(estimator.model_set(model))
     trans, _ = estimator._probabilities(n_models)  # the estimator's own Λ (a float expands to a matrix)
     hazard = 1.0 - float(trans[0, 0])
@@ -137,8 +156,20 @@ def mode_calibration(experiment, n_runs: int, actuator: int = 2, bins: int = CAL
         mu = estimator.estimate(trace, model).extra["mode_probabilities"][:, 1:, actuator]
         probability.append(mu.ravel())
         active.append((trace.x[:, 1:, model.n_x + actuator - 1] != 0).ravel())
-    curve = reliability(np.concatenate(probability), np.concatenate(active), bins, min_steps)
+    curve = reliability(np.concatenate(probability), np.concatenate(active), bins, min_share)
     return {**curve, "hazard": hazard, "faulty_runs": int(n_runs - groups.get((0, 0), 0))}
+
+
+def prior_tag(intervals: float) -> str:
+    """The metric infix of a prior 1/h: ``20`` for 20 intervals, ``16p5`` for 16.5."""
+    return f"{intervals:g}".replace(".", "p")
+
+
+def _run_mse(estimate: np.ndarray, truth: np.ndarray, first: int) -> np.ndarray:
+    """Each run's mean over the steps from ``first`` of the squared error summed over components (R,)."""
+    err = np.asarray(estimate, float) - np.asarray(truth, float)
+    err = err[..., None] if err.ndim == 2 else err
+    return np.nanmean(np.sum(err[:, first:] ** 2, axis=-1), axis=-1)
 
 
 class Study(base.Study):
@@ -157,6 +188,9 @@ class Study(base.Study):
         Monte Carlo runs of each kind (the paper: 500).
     figures : bool
         Write the PNG figures into ``out_dir``.
+    prior_intervals : sequence of float
+        Λ's priors to compare, each as the mean fusion intervals to a fault 1/h >= 1
+        (default :data:`PRIOR_INTERVALS`; empty: no comparison).
 
     Notes
     -----
@@ -175,15 +209,32 @@ class Study(base.Study):
       (first alarm − first faulty fusion instant) in seconds.
     * ``no_fault_declared_rate``: fault-free runs without any declaration
       (``paper_no_fault_declared_rate``: the same at the paper's μ_T = 0.5, L = 1).
-    * ``mode_calibration_max_gap``: the largest gap of the reliability curve of μ₂
-      (:func:`mode_calibration`, ``n_runs`` runs whose faults start as Λ says).
+    * ``mode_calibration_ece``, ``mode_calibration_ece_middle`` and ``mode_calibration_max_gap``: the
+      step-weighted mean gap over all bins and over the bins between 0.1 and 0.9, and the largest
+      gap, of the reliability curve of μ₂ (:func:`reliability`,
+      :func:`mode_calibration`, ``n_runs`` runs whose faults start as Λ says).
+    * ``mse_<q>_<a>_minus_<b>`` and ``..._ci95`` for q in state, amplitude and the
+      pairs :data:`RMSE_PAIRS`: the mean over runs of the paired difference of each
+      run's mean squared error after the onset, and its 95 % Student-t half-width. A
+      claimed order whose difference has a CI containing 0 is not resolved by the runs.
+    * Λ as a prior (``prior_intervals``; the fused filter with
+      :func:`hazard_transition` of each 1/h on the same runs): ``prior_<tag>_<key>``
+      for key in ``isolation_rate``, ``delay_s``, ``far``, ``no_fault_declared_rate``
+      (the tuned design), ``paper_no_fault_declared_rate``, ``rmse_state_fused``,
+      ``rmse_amplitude_fused`` and ``mode_calibration_ece`` (runs whose faults start as
+      that Λ says), tag = 1/h with ``p`` for a decimal point (``20``, ``16p5``).
     """
 
     system = SYSTEM
 
-    def __init__(self, n_runs: int = 500, figures: bool = True):
+    def __init__(self, n_runs: int = 500, figures: bool = True, prior_intervals=PRIOR_INTERVALS):
         super().__init__(figures=figures)
         self.n_runs = check_int("study.n_runs", n_runs, 2)
+        if isinstance(prior_intervals, (str, bytes)) or not hasattr(prior_intervals, "__iter__"):
+            raise ConfigError(f"study.prior_intervals={prior_intervals!r} is not allowed; allowed: a list of mean "
+                              f"intervals to a fault >= 1, e.g. [20, 40, 80, 16.5]")
+        self.prior_intervals = tuple(check_in("study.prior_intervals", v, Interval(1.0, 1e9))
+                                     for v in prior_intervals)
 
     # -- computation --------------------------------------------------------------------
     def compute(self, experiment, designs: dict) -> dict:
@@ -195,7 +246,7 @@ class Study(base.Study):
         for i, name in enumerate(SENSOR_FILTERS, start=1):
             # the same filter on one sensor's packets
             filters[f"sensor{i}"] = experiment.estimator.with_params(sensors=(name,))
-        curves = {}
+        curves, errors = {}, {}
         fused = None
         for name, est in filters.items():
             res = est.estimate(faulty, experiment.model)
@@ -206,19 +257,43 @@ class Study(base.Study):
                 # the declared (actuator-2) model's conditional amplitude, averaged over runs (Fig. 3)
                 "amplitude_mean": res.extra["fault_amplitudes"][..., 1].mean(axis=0),
             }
-        points = experiment.monitor.transform(fused)
-        clean_points = experiment.monitor.transform(experiment.estimator.estimate(clean, experiment.model))
-        decisions = {}
-        for name, detector in designs.items():
-            d = detector.decide(clean_points.z, points.z).decision
-            d0 = detector.decide(clean_points.z, clean_points.z).decision
-            decisions[name] = self._score(detector, d, d0, points, clean_points, float(np.median(np.diff(fused.t))))
+            errors[name] = {"state": _run_mse(res.extra["x_filt"], faulty.x[..., :2], onset_index),
+                            "amplitude": _run_mse(res.extra["fault_estimate"], faulty.x[..., 2:], onset_index)}
+        decisions = self._decide(experiment, designs, fused, experiment.estimator.estimate(clean, experiment.model))
+        priors = {}
+        n_faults = len(experiment.estimator.model_set(experiment.model)) - 1
+        for intervals in self.prior_intervals:
+            estimator = experiment.estimator.with_params(transition=hazard_transition(intervals, n_faults))
+            res = estimator.estimate(faulty, experiment.model)
+            scored = self._decide(experiment, designs, res, estimator.estimate(clean, experiment.model))
+            priors[intervals] = {
+                **{k: scored[TUNED][k] for k in ("isolation_rate", "delay_s", "far", "no_fault_declared_rate")
+                   if TUNED in scored and k in scored[TUNED]},
+                **({"paper_no_fault_declared_rate": scored["paper"]["no_fault_declared_rate"]}
+                   if "paper" in scored else {}),
+                "rmse_state_fused": float(rmse_over_runs(res.extra["x_filt"], faulty.x[..., :2])[onset_index:].mean()),
+                "rmse_amplitude_fused": float(rmse_over_runs(res.extra["fault_estimate"],
+                                                             faulty.x[..., 2:])[onset_index:].mean()),
+                "mode_calibration_ece": mode_calibration(experiment, self.n_runs, estimator=estimator)["ece"]}
         return {"t": faulty.t, "onset_index": onset_index, "onset_s": float(experiment.fault.onset),
+                "errors": errors, "priors": priors,
                 "true_amplitude": faulty.x[0, :, 2:], "curves": curves,
                 "calibration": mode_calibration(experiment, self.n_runs),
                 "mode_probabilities_mean": fused.extra["mode_probabilities"].mean(axis=0),
                 "decisions": decisions, "params": {name: design_params(d) for name, d in designs.items()},
                 "n_runs": self.n_runs}
+
+    def _decide(self, experiment, designs: dict, faulty_outputs, clean_outputs) -> dict[str, dict]:
+        """Every design's scores on the fused filter's outputs of the faulty and the fault-free runs."""
+        points = experiment.monitor.transform(faulty_outputs)
+        clean_points = experiment.monitor.transform(clean_outputs)
+        period = float(np.median(np.diff(faulty_outputs.t)))
+        decisions = {}
+        for name, detector in designs.items():
+            d = detector.decide(clean_points.z, points.z).decision
+            d0 = detector.decide(clean_points.z, clean_points.z).decision
+            decisions[name] = self._score(detector, d, d0, points, clean_points, period)
+        return decisions
 
     @staticmethod
     def _score(detector, d, d0, points, clean_points, period: float) -> dict:
@@ -226,16 +301,19 @@ class Study(base.Study):
         # the decision value that names actuator 1 (the model set's fault 1)
         actuator1 = detector.labels[0] if getattr(detector, "labels", None) else 1
         delay = per_run("delay", d, points)
-        return {
+        scores = {
             "isolation_rate": float(np.nanmean(per_run("isolation_rate", d, points))),
             "false_isolation_rate": float(np.mean(((d == actuator1) & after).any(axis=-1))),
             "far": float(np.nanmean(per_run("far", d, points))),
             "mdr": float(np.nanmean(per_run("mdr", d, points))),
-            "delay_s": float(np.nanmean(delay) * period) if np.isfinite(delay).any() else math.nan,
+
             "detection_rate": float(np.nanmean(per_run("detection_rate", d, points))),
             "no_fault_declared_rate": float(np.mean(~(d0 != 0).any(axis=-1))),
             "far_fault_free": float(np.mean(d0 != 0)),
         }
+        if np.isfinite(delay).any():  # no detected run: no delay to report
+            scores["delay_s"] = float(np.nanmean(delay) * period)
+        return scores
 
     def metrics(self, data: dict) -> dict[str, float]:
         """The study's metrics by name (class docstring): the tuned design's, then the others' prefixed."""
@@ -247,7 +325,18 @@ class Study(base.Study):
             out[f"rmse_amplitude_{name}"] = float(curve["amplitude"][k0:].mean())
         for design, scores in data["decisions"].items():
             out.update({prefixed(design) + k: float(v) for k, v in scores.items()})
-        out["mode_calibration_max_gap"] = data["calibration"]["max_gap"]
+        out["mode_calibration_ece"] = data["calibration"]["ece"]
+        if math.isfinite(data["calibration"]["ece_middle"]):
+            out["mode_calibration_ece_middle"] = data["calibration"]["ece_middle"]
+        if math.isfinite(data["calibration"]["max_gap"]):
+            out["mode_calibration_max_gap"] = data["calibration"]["max_gap"]
+        for quantity in ("state", "amplitude"):
+            for a, b in RMSE_PAIRS:
+                diff = Estimate.of(data["errors"][a][quantity] - data["errors"][b][quantity])
+                out[f"mse_{quantity}_{a}_minus_{b}"] = diff.mean
+                out[f"mse_{quantity}_{a}_minus_{b}_ci95"] = diff.half_width
+        for intervals, scores in data["priors"].items():
+            out.update({f"prior_{prior_tag(intervals)}_{k}": float(v) for k, v in scores.items()})
         return out
 
     # -- figures --------------------------------------------------------------------------
@@ -299,9 +388,9 @@ class Study(base.Study):
         fig = figure(4.2, 4.0)
         ax = fig.add_subplot()
         ax.plot([0, 1], [0, 1], color="grey", lw=0.8, ls=":", label="calibrated")
-        kept = cal["steps"] >= CALIBRATION_MIN_STEPS
+        kept = cal["steps"] >= CALIBRATION_MIN_SHARE * cal["steps"].sum()
         ax.plot(cal["mean_probability"][kept], cal["active_share"][kept], marker="o", color="k",
-                label=f"largest gap {cal['max_gap']:.3f}")
+                label=f"ECE {cal['ece']:.3f}, largest gap {cal['max_gap']:.3f}")
         ax.set_xlabel("mean μ₂ in the bin")
         ax.set_ylabel("share of steps with the actuator-2 fault active")
         ax.set_title(f"Mode-probability calibration, onsets as Λ says ({cal['faulty_runs']} faulty runs)",
@@ -324,16 +413,48 @@ def format_report(metrics: dict[str, float], designs: dict[str, dict]) -> str:
         prefix = prefixed(design)
         lines.append(f"| {design} | {p['mu_T']:.4g} | {int(p['persistence'])} | {metrics[prefix + 'isolation_rate']:.3f} "
                      f"| {metrics[prefix + 'false_isolation_rate']:.3f} | {metrics[prefix + 'detection_rate']:.3f} "
-                     f"| {metrics[prefix + 'delay_s']:.3f} | {metrics[prefix + 'far']:.4f} "
+                     f"| {metrics.get(prefix + 'delay_s', math.nan):.3f} | {metrics[prefix + 'far']:.4f} "
                      f"| {metrics[prefix + 'mdr']:.4f} | {metrics[prefix + 'no_fault_declared_rate']:.3f} |")
+    return "\n".join(lines)
+
+
+def format_orders(metrics: dict[str, float]) -> str:
+    """The claimed RMSE orders with the paired difference's CI: resolved only when the CI excludes 0."""
+    lines = ["| claim | quantity | mean paired MSE difference | 95 % CI | verdict |", "|---|---|---|---|---|"]
+    for quantity in ("state", "amplitude"):
+        for a, b in RMSE_PAIRS:
+            mean, half = metrics[f"mse_{quantity}_{a}_minus_{b}"], metrics[f"mse_{quantity}_{a}_minus_{b}_ci95"]
+            verdict = ("not resolved" if abs(mean) <= half else
+                       "holds" if mean < 0 else "**reversed**")
+            lines.append(f"| {a} < {b} | {quantity} | {mean:+.5f} | ± {half:.5f} | {verdict} |")
+    return "\n".join(lines)
+
+
+def format_priors(metrics: dict[str, float], intervals=PRIOR_INTERVALS) -> str:
+    """Λ's prior against what the study measures (the tuned design; the paper's quiet fault-free runs)."""
+    lines = ["| prior 1/h (intervals) | h | isolation | delay (s) | FAR | fault-free runs quiet (tuned) "
+             "| fault-free runs quiet (μ_T = 0.5) | fused state / amplitude RMSE | calibration ECE |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for n in intervals:
+        p = f"prior_{prior_tag(n)}_"
+        if p + "rmse_state_fused" not in metrics:
+            continue
+        lines.append(f"| {n:g} | {1 / n:.4f} | {metrics.get(p + 'isolation_rate', math.nan):.3f} "
+                     f"| {metrics.get(p + 'delay_s', math.nan):.3f} | {metrics.get(p + 'far', math.nan):.4f} "
+                     f"| {metrics.get(p + 'no_fault_declared_rate', math.nan):.3f} "
+                     f"| {metrics.get(p + 'paper_no_fault_declared_rate', math.nan):.3f} "
+                     f"| {metrics[p + 'rmse_state_fused']:.4f} / {metrics[p + 'rmse_amplitude_fused']:.4f} "
+                     f"| {metrics[p + 'mode_calibration_ece']:.3f} |")
     return "\n".join(lines)
 
 
 def format_calibration(cal: dict) -> str:
     """The reliability curve of μ₂ (:func:`mode_calibration`) as a markdown table."""
     lines = [f"Mode-probability calibration: faults start as Λ says (hazard {cal['hazard']:.4g} per fusion interval, "
-             f"{cal['faulty_runs']} faulty runs); largest gap {cal['max_gap']:.3f} over bins with >= "
-             f"{CALIBRATION_MIN_STEPS} steps", "", "| μ₂ bin | steps | mean μ₂ | share with the fault active |",
+             f"{cal['faulty_runs']} faulty runs); expected calibration error (step-weighted mean gap) "
+             f"{cal['ece']:.3f}, {cal['ece_middle']:.3f} between 0.1 and 0.9; largest gap {cal['max_gap']:.3f} "
+             f"over bins with >= {100 * CALIBRATION_MIN_SHARE:g} % of the steps", "",
+             "| μ₂ bin | steps | mean μ₂ | share with the fault active |",
              "|---|---|---|---|"]
     n = len(cal["steps"])
     for i in range(n):
@@ -343,8 +464,23 @@ def format_calibration(cal: dict) -> str:
     return "\n".join(lines)
 
 
-def bars(metrics: dict[str, float], prefix: str = "") -> list[tuple[str, bool, str]]:
-    """The issue's scientific bars: (bar, met, the numbers)."""
+def _order(metrics: dict[str, float], quantity: str) -> bool | None:
+    """Sensor 1 < 2 < 3 on ``quantity``: True or False where every paired difference's CI excludes 0, else None."""
+    signs = []
+    for a, b in (("sensor1", "sensor2"), ("sensor2", "sensor3")):
+        mean, half = metrics[f"mse_{quantity}_{a}_minus_{b}"], metrics[f"mse_{quantity}_{a}_minus_{b}_ci95"]
+        if not abs(mean) > half:
+            return None  # the runs do not resolve this pair: the claim is neither met nor failed
+        signs.append(mean < 0)
+    return all(signs)
+
+
+def bars(metrics: dict[str, float], prefix: str = "") -> list[tuple[str, bool | None, str]]:
+    """The issue's scientific bars: (bar, met, the numbers); met is None where the runs do not resolve it.
+
+    The orders of the sensors are read off the paired per-run differences (``mse_*_minus_*``)
+    and their 95 % CI: a difference whose CI contains 0 leaves the order not resolved.
+    """
     fused_s, fused_a = metrics["rmse_state_fused"], metrics["rmse_amplitude_fused"]
     singles_s = [metrics[f"rmse_state_sensor{i}"] for i in (1, 2, 3)]
     singles_a = [metrics[f"rmse_amplitude_sensor{i}"] for i in (1, 2, 3)]
@@ -353,9 +489,8 @@ def bars(metrics: dict[str, float], prefix: str = "") -> list[tuple[str, bool, s
          f"{fused_s:.4f} vs {', '.join(f'{v:.4f}' for v in singles_s)}"),
         ("fused RMSE of the amplitude below every single sensor's", fused_a < min(singles_a),
          f"{fused_a:.4f} vs {', '.join(f'{v:.4f}' for v in singles_a)}"),
-        ("state RMSE: sensor 1 < 2 < 3", singles_s[0] < singles_s[1] < singles_s[2],
-         " < ".join(f"{v:.4f}" for v in singles_s)),
-        ("amplitude RMSE: sensor 1 < 2 < 3", singles_a[0] < singles_a[1] < singles_a[2],
+        ("state RMSE: sensor 1 < 2 < 3", _order(metrics, "state"), " < ".join(f"{v:.4f}" for v in singles_s)),
+        ("amplitude RMSE: sensor 1 < 2 < 3", _order(metrics, "amplitude"),
          " < ".join(f"{v:.4f}" for v in singles_a)),
         ("actuator-2 fault isolated in >= 95 % of runs", metrics[prefix + "isolation_rate"] >= 0.95,
          f"{metrics[prefix + 'isolation_rate']:.3f}"),
@@ -385,8 +520,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"## Paper 001: {args.n_runs} faulty + {args.n_runs} fault-free runs, seed {args.seed} (test stream)\n")
         print(format_report(metrics, params) + "\n")
         print(format_calibration(data["calibration"]) + "\n")
+        print("### The RMSE orders, paired over the runs\n\n" + format_orders(metrics) + "\n")
+        print("### Λ is a prior: the study under other hazards\n\n" + format_priors(metrics, study.prior_intervals)
+              + "\n")
         for design in params:
-            rows = [(name, "met" if met else "**not met**", numbers)
+            rows = [(name, "not resolved" if met is None else "met" if met else "**not met**", numbers)
                     for name, met, numbers in bars(metrics, prefixed(design))]
             print(f"### Scientific bars, {design} design\n\n" + cli.markdown_table(("bar", "met", "numbers"), rows)
                   + "\n")

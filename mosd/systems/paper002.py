@@ -36,7 +36,12 @@ PAPER = {  # Tables 1–2 of the paper (delays in s; "fails" at 20 %)
 }
 SETTLE = 10       # steps after the onset before the error's level is read
 #: the per-rate numbers of each missingness mechanism × fill (study metrics ``{mechanism}_{fill}_{key}_r{r}``)
-GRID_KEYS = ("detection_rate_target", "false_alarm_nuisance", "delay_target_s", "error_fluct_target", "fill_rmse")
+GRID_KEYS = ("target_run_detection", "nuisance_run_false_isolation", "target_point_detection",
+             "nuisance_point_false_isolation", "delay_target_s", "error_fluct_target", "fill_rmse")
+#: the amplitude laws of the sensitivity check, (target [low, high], nuisance [low, high]); the first is the
+#: reconstruction's (docs/systems/paper002.md)
+AMPLITUDE_LAWS = (((0.5, 1.5), (0.0, 0.6)), ((0.5, 1.5), (0.0, 0.8)), ((0.5, 1.5), (0.0, 1.0)),
+                  ((0.3, 1.3), (0.0, 0.6)), ((0.7, 1.7), (0.0, 0.6)), ((0.5, 1.5), (0.0, 0.4)))
 
 
 # ------------------------------------------------------------------------------------
@@ -74,6 +79,9 @@ class Study(base.Study):
         Missingness mechanisms of the grid (:mod:`mosd.plants.missingness`).
     fills : sequence of {"em", "hold", "skip"}
         Fills of a missing output in the grid (the filters' ``missing``).
+    amplitude_laws : sequence of ((low, high), (low, high))
+        Supports of the target's and the nuisance's amplitude laws for the sensitivity
+        check (the laws' shapes kept), 0 <= low < high <= 10; empty: no check.
     burst_length : float
         Mean burst length in samples of the ``burst`` mechanism, in [1, 1000] and
         at least rate / (1 − rate) for every rate.
@@ -87,10 +95,16 @@ class Study(base.Study):
 
     * ``delay_target_s_r{r}``: mean over detected target runs of the time from
       the onset to the first alarm at or after it (s);
-    * ``detection_rate_target_r{r}``: share of target runs detected at or after
-      the onset;
-    * ``false_alarm_nuisance_r{r}``: share of the nuisance runs' points after the
-      onset that alarm (an alarm on the nuisance fault is a false isolation);
+    * per run, the units of the paper's claim ("the target fault is isolated"):
+      ``target_run_detection_r{r}``, the share of target runs with an alarm at or
+      after the onset, and ``nuisance_run_false_isolation_r{r}``, the share of
+      nuisance runs with an alarm at or after the nuisance onset (such a run is
+      declared the target fault);
+    * per point: ``target_point_detection_r{r}``, the share of target-fault
+      points that alarm (1 − the point MDR), and
+      ``nuisance_point_false_isolation_r{r}``, the share of the nuisance runs'
+      points after the onset that alarm (what the preset's objective
+      ``nuisance_alarm_rate`` counts);
     * ``error_level_target_r{r}``, ``error_level_nuisance_r{r}``: mean steady
       error x − x̂ (10 steps after the onset to the end), whose meeting is the
       paper's failure at 20 %.
@@ -107,7 +121,15 @@ class Study(base.Study):
     ``{mechanism}_{fill}_{key}_r{r}`` for key in :data:`GRID_KEYS`, where
     ``error_fluct_target`` is the mean over target runs of the sd of the error
     over the steady steps and ``fill_rmse`` the RMS of filled minus true output
-    h(x_k) over the missing samples (NaN for ``skip`` and complete data).
+    h(x_k) over the missing samples (not reported for ``skip`` and complete
+    data, where nothing is filled).
+
+    Amplitude-law sensitivity (complete data, entropy filter, the tuned design, the
+    ``test`` runs drawn again with other supports of the two laws,
+    :data:`AMPLITUDE_LAWS`): ``laws_{tag}_target_run_detection`` and
+    ``laws_{tag}_nuisance_run_false_isolation``, ``{tag}`` =
+    ``t{low}_{high}_n{low}_{high}`` in hundredths (the reconstruction's:
+    ``t50_150_n0_60``).
 
     Separation (complete data, the tuned L, thresholds swept over
     :data:`THRESHOLD_GRID`): ``roc_auc`` and ``baseline_roc_auc`` (area under
@@ -120,8 +142,10 @@ class Study(base.Study):
     system = SYSTEM
 
     def __init__(self, n_runs: int = 200, missing_rates=MISSING_RATES, baseline_gain: float = 0.27,
-                 mechanisms=MECHANISMS, fills=MISSING, burst_length: float = 5.0, figures: bool = True):
+                 mechanisms=MECHANISMS, fills=MISSING, burst_length: float = 5.0, figures: bool = True,
+                 amplitude_laws=AMPLITUDE_LAWS):
         super().__init__(figures=figures)
+        self.amplitude_laws = _check_laws(amplitude_laws)
         self.n_runs = check_int("study.n_runs", n_runs, 2)
         if isinstance(missing_rates, (str, bytes)) or not hasattr(missing_rates, "__len__") or not len(missing_rates):
             raise ConfigError(f"study.missing_rates={missing_rates!r} is not allowed; allowed: a list of rates in "
@@ -191,6 +215,28 @@ class Study(base.Study):
                     out["t"] = np.asarray(outputs.t, float)
         shown = designs.get(TUNED) or next(iter(designs.values()))
         out["grid"] = self._grid(experiment, shown["entropy"], dt)
+        out["laws"] = self._laws(experiment, shown["entropy"], dt)
+        return out
+
+    def _laws(self, experiment, detector, dt: float) -> dict:
+        """Per-run isolation on complete data with other supports of the amplitude laws (class docstring)."""
+        out = {}
+        members = getattr(experiment.fault, "members", ())
+        roles = [getattr(f, "role", None) for f in members]
+        if "target" not in roles or "nuisance" not in roles:
+            return out
+        plant = experiment.plant.with_params(missing_rate=0.0)
+        for target, nuisance in self.amplitude_laws:
+            faults = [f.with_params(low=law[0], width=law[1] - law[0])
+                      for f, law in ((f, target if f.role == "target" else nuisance) for f in members)]
+            fault = type(experiment.fault)(faults)
+            trace = Scenario(plant, experiment.noise, fault, experiment.duration).simulate(
+                experiment.seed, 2 * self.n_runs, "test")
+            outputs = experiment.estimator.estimate(trace, experiment.model)
+            scores = self._score(detector, outputs, experiment.monitor.transform(outputs), dt)
+            out[(target, nuisance)] = {k: scores[k] for k in ("target_run_detection", "nuisance_run_false_isolation",
+                                                               "target_point_detection",
+                                                               "nuisance_point_false_isolation")}
         return out
 
     def _simulate(self, experiment, rate: float, mechanism: str | None = None):
@@ -213,8 +259,8 @@ class Study(base.Study):
                     scores = self._score(detector, outputs, experiment.monitor.transform(outputs), dt)
                     filled = outputs.extra["y_filled"][gap]
                     error = (filled - truth[gap])[np.isfinite(filled)]
-                    scores["fill_rmse"] = float(np.sqrt(np.mean(error**2))) if fill != "skip" and error.size \
-                        else math.nan
+                    if fill != "skip" and error.size:  # nothing filled: no fill error to report
+                        scores["fill_rmse"] = float(np.sqrt(np.mean(error**2)))
                     grid[(mechanism, fill, rate)] = scores
         return grid
 
@@ -233,16 +279,22 @@ class Study(base.Study):
         fluct = error[:, onset + SETTLE:].std(axis=1)
         delay = detection.detection_delay(d[is_target], points.fault_mask[is_target]) * dt
         nuisance = (d[~is_target] != 0) & active[~is_target]
-        return {
-            "delay_target_s": float(np.nanmean(delay)) if np.isfinite(delay).any() else math.nan,
+        target = (d[is_target] != 0) & active[is_target]
+        scores = {
             "delay_target_ci95": Estimate.of(delay).half_width,
-            "detection_rate_target": float(np.mean(detection.detection_rate(d[is_target], points.fault_mask[is_target]))),
-            "false_alarm_nuisance": float(nuisance.sum() / max(active[~is_target].sum(), 1)),
+            "target_run_detection": float(np.mean(detection.detection_rate(d[is_target],
+                                                                           points.fault_mask[is_target]))),
+            "nuisance_run_false_isolation": float(np.mean(nuisance.any(axis=-1))),
+            "target_point_detection": float(target.sum() / max(active[is_target].sum(), 1)),
+            "nuisance_point_false_isolation": float(nuisance.sum() / max(active[~is_target].sum(), 1)),
             "error_level_target": float(level[is_target].mean()),
             "error_level_nuisance": float(level[~is_target].mean()),
             "error_fluct_target": float(fluct[is_target].mean()),
             "nuisance_level_p95": float(np.percentile(level[~is_target], 95)),
         }
+        if np.isfinite(delay).any():  # no detected target run: no delay to report
+            scores["delay_target_s"] = float(np.nanmean(delay))
+        return scores
 
     def _curves(self, outputs) -> dict:
         """Error curves of target and nuisance runs: mean, 5 and 95 % quantiles, and the first run of each."""
@@ -289,14 +341,18 @@ class Study(base.Study):
                             continue
                         out[f"{prefixed(design)}{prefix}{key}_{tag}"] = float(value)
             out[f"{prefixed(design)}baseline_threshold"] = float(data["baseline_params"][design]["threshold"])
-            own_fa = scored["results"][("entropy", data["rates"][0])]["false_alarm_nuisance"]
+            own_fa = scored["results"][("entropy", data["rates"][0])]["nuisance_point_false_isolation"]
             for name, prefix in FILTER_PREFIXES.items():
                 roc = scored["roc"][name]
                 out[f"{prefixed(design)}{prefix}roc_auc"] = self._auc(roc)
                 out[f"{prefixed(design)}{prefix}equal_fa_target_detection"] = self._at_false_alarm(roc, own_fa)
         for (mechanism, fill, rate), scores in data.get("grid", {}).items():
             for key in GRID_KEYS:
-                out[f"{mechanism}_{fill}_{key}_{rate_tag(rate)}"] = float(scores[key])
+                if key in scores:
+                    out[f"{mechanism}_{fill}_{key}_{rate_tag(rate)}"] = float(scores[key])
+        for laws, scores in data.get("laws", {}).items():
+            for key, value in scores.items():
+                out[f"laws_{laws_tag(laws)}_{key}"] = float(value)
         return out
 
     # -- figures --------------------------------------------------------------------------
@@ -353,11 +409,12 @@ class Study(base.Study):
             roc = shown["roc"][name]
             label = "entropy gain" if name == "entropy" else f"fixed gain {data['baseline_gain']:g}"
             ax.plot(roc["false_alarm"], roc["detection"], color=color, label=label)
-            delays = [shown["results"][(name, r)]["delay_target_s"] for r in rates]
+            delays = [shown["results"][(name, r)].get("delay_target_s", math.nan) for r in rates]
             cis = [shown["results"][(name, r)]["delay_target_ci95"] for r in rates]
             bx.errorbar([100 * r for r in rates], delays, yerr=cis, color=color, marker="o", capsize=3, label=label)
         tuned = shown["results"][("entropy", rates[0])]
-        ax.axvline(tuned["false_alarm_nuisance"], color="r", ls="--", lw=0.8, label="tuned design's nuisance FA")
+        ax.axvline(tuned["nuisance_point_false_isolation"], color="r", ls="--", lw=0.8,
+                   label="tuned design's nuisance FA")
         ax.set_xscale("symlog", linthresh=1e-3)
         ax.set_xlim(0.0, 1.0)
         decorate(ax, "nuisance points alarmed", "target points detected",
@@ -377,6 +434,24 @@ def _choices(key: str, values, allowed) -> tuple[str, ...]:
         raise ConfigError(f"{key}={values!r} is not allowed; allowed: a list of distinct names from "
                           f"{', '.join(allowed)}")
     return tuple(check_choice(key, v, allowed) for v in values)
+
+
+def laws_tag(laws) -> str:
+    """``t50_150_n0_60`` for target [0.5, 1.5] and nuisance [0, 0.6]: the sensitivity metrics' infix."""
+    (tl, th), (nl, nh) = laws
+    return "t{}_{}_n{}_{}".format(*(int(round(100 * v)) for v in (tl, th, nl, nh)))
+
+
+def _check_laws(laws) -> tuple:
+    """``study.amplitude_laws``: pairs of supports ((low, high), (low, high)), or a one-line ConfigError."""
+    allowed = "a list of [[target low, high], [nuisance low, high]] with 0 <= low < high <= 10"
+    try:
+        out = tuple(tuple((float(low), float(high)) for low, high in pair) for pair in laws)
+    except (TypeError, ValueError):
+        raise ConfigError(f"study.amplitude_laws={laws!r} is not allowed; allowed: {allowed}") from None
+    if any(len(pair) != 2 or not all(0.0 <= low < high <= 10.0 for low, high in pair) for pair in out):
+        raise ConfigError(f"study.amplitude_laws={laws!r} is not allowed; allowed: {allowed}")
+    return out
 
 
 def with_fill(estimator, fill: str):
@@ -410,22 +485,26 @@ def format_report(designs: dict[str, dict], metrics: dict[str, float], mechanism
     ``designs`` maps a design's name to ``{"entropy": params, "baseline": params}``: each
     filter's row shows its own threshold.
     """
-    lines = ["| design | filter | missing | target detected | target delay (s) | paper delay (s) "
-             "| nuisance points alarmed | error level target / nuisance |", "|---|---|---|---|---|---|---|---|"]
+    lines = ["| design | filter | missing | target runs detected | nuisance runs falsely isolated "
+             "| target points detected | nuisance points alarmed | target delay (s) | paper delay (s) "
+             "| error level target / nuisance |", "|---|---|---|---|---|---|---|---|---|---|"]
     for design, by_filter in designs.items():
         for name, filter_prefix in FILTER_PREFIXES.items():
             prefix = prefixed(design) + filter_prefix
             p = by_filter[name]
             for tag, rate in ((rate_tag(r), r) for r in MISSING_RATES):
-                if f"{prefix}delay_target_s_{tag}" not in metrics:
+                if f"{prefix}target_run_detection_{tag}" not in metrics:
                     continue
                 paper = PAPER["target_delay"].get(rate, "–")
                 paper = "fails" if isinstance(paper, float) and math.isnan(paper) else paper
+                delay = metrics.get(f"{prefix}delay_target_s_{tag}")
                 lines.append(
                     f"| {design} (threshold {p['threshold']:.3g}, L {int(p['persistence'])}) | {name} | {100 * rate:g} % "
-                    f"| {metrics[f'{prefix}detection_rate_target_{tag}']:.3f} "
-                    f"| {metrics[f'{prefix}delay_target_s_{tag}']:.3f} | {paper} "
-                    f"| {metrics[f'{prefix}false_alarm_nuisance_{tag}']:.4f} "
+                    f"| {metrics[f'{prefix}target_run_detection_{tag}']:.3f} "
+                    f"| {metrics[f'{prefix}nuisance_run_false_isolation_{tag}']:.3f} "
+                    f"| {metrics[f'{prefix}target_point_detection_{tag}']:.3f} "
+                    f"| {metrics[f'{prefix}nuisance_point_false_isolation_{tag}']:.4f} "
+                    f"| {'–' if delay is None else f'{delay:.3f}'} | {paper} "
                     f"| {metrics[f'{prefix}error_level_target_{tag}']:.3f} / "
                     f"{metrics[f'{prefix}error_level_nuisance_{tag}']:.3f} |")
     lines += ["", "| design | filter | ROC AUC (complete data) | target points detected at the design's own "
@@ -436,16 +515,30 @@ def format_report(designs: dict[str, dict], metrics: dict[str, float], mechanism
             lines.append(f"| {design} | {name} | {metrics[prefix + 'roc_auc']:.4f} "
                          f"| {metrics[prefix + 'equal_fa_target_detection']:.4f} |")
     lines += ["", "Entropy filter, tuned design, per missingness mechanism and fill (0 / 5 / 10 / 20 % ...):", "",
-              "| mechanism | fill | target detected | nuisance points alarmed | target delay (s) "
-              "| target error fluct. | fill RMSE |", "|---|---|---|---|---|---|---|"]
+              "| mechanism | fill | target runs detected | nuisance runs falsely isolated | target points detected "
+              "| nuisance points alarmed | target delay (s) | target error fluct. | fill RMSE |",
+              "|---|---|---|---|---|---|---|---|---|"]
     for mechanism in mechanisms:
         for fill in fills:
-            tags = [rate_tag(r) for r in MISSING_RATES if f"{mechanism}_{fill}_fill_rmse_{rate_tag(r)}" in metrics]
+            tags = [rate_tag(r) for r in MISSING_RATES
+                    if f"{mechanism}_{fill}_target_run_detection_{rate_tag(r)}" in metrics]
             if not tags:
                 continue
-            cells = [" / ".join(f"{metrics[f'{mechanism}_{fill}_{key}_{t}']:{fmt}}" for t in tags)
-                     for key, fmt in zip(GRID_KEYS, (".3f", ".4f", ".2f", ".3f", ".3f"))]
+            cells = [" / ".join(f"{metrics[f'{mechanism}_{fill}_{key}_{t}']:{fmt}}"
+                                if f"{mechanism}_{fill}_{key}_{t}" in metrics else "–" for t in tags)
+                     for key, fmt in zip(GRID_KEYS, (".3f", ".3f", ".3f", ".4f", ".2f", ".3f", ".3f"))]
             lines.append(f"| {mechanism} | {fill} | " + " | ".join(cells) + " |")
+    laws = sorted({k[len("laws_"):].split("_target_run_detection")[0] for k in metrics
+                   if k.startswith("laws_") and k.endswith("_target_run_detection")})
+    if laws:
+        lines += ["", "Amplitude-law sensitivity (complete data, entropy filter, tuned design; supports in "
+                  "hundredths):", "", "| laws | target runs detected | nuisance runs falsely isolated "
+                  "| target points detected | nuisance points alarmed |", "|---|---|---|---|---|"]
+        for tag in laws:
+            lines.append(f"| {tag} | {metrics[f'laws_{tag}_target_run_detection']:.3f} "
+                         f"| {metrics[f'laws_{tag}_nuisance_run_false_isolation']:.3f} "
+                         f"| {metrics[f'laws_{tag}_target_point_detection']:.3f} "
+                         f"| {metrics[f'laws_{tag}_nuisance_point_false_isolation']:.4f} |")
     return "\n".join(lines)
 
 

@@ -54,6 +54,14 @@ STATISTICS = ("observer_chi2", "chi2")
 
 #: k, consecutive alarms that make a detection (module docstring: 500·α^k < α at α = 0.01 needs k = 3)
 CONFIRM = 3
+#: the rule that does not build "N = 1 never detects" in (issue 30): a constant threshold T_D(α = KOFM_ALPHA),
+#: no adaptive term, and a detection when KOFM_K of KOFM_M consecutive points at or after the onset alarm.
+#: Under independent chance alarms at α = 0.01 a flight of 500 points holds such a window with probability
+#: at most 500·C(8, 3)·α³ ≈ 0.03; unlike k = 3 in a row under the lagged adaptive threshold, it asks the
+#: statistic to stay above a fixed level, not to keep rising.
+KOFM_ALPHA, KOFM_K, KOFM_M = 0.01, 3, 8
+#: the readings by number (docs/systems/paper003.md): 1 the filter's innovation χ², 2 the observer's residual
+READINGS = {1: "chi2", 2: "observer_chi2"}
 #: the second monitor output the studies hand the detector: E_k in units of the observer's N-step σ
 SCALED_RESIDUAL = "observer_residual_scaled"
 
@@ -80,6 +88,22 @@ def detection_summary(decision: np.ndarray, onset_step: int, first_valid: int = 
     return {"detection_step": mean_step, "detection_rate": alarm[..., onset_step:].mean((-1, -2)),
             "run_detection_share": detected.mean(-1),
             "false_alarm_rate": alarm[..., first_valid:onset_step].mean((-1, -2)), "first_alarm": first}
+
+
+def k_of_m_detection(alarm: np.ndarray, start: int, k: int = KOFM_K, m: int = KOFM_M) -> dict[str, np.ndarray]:
+    """Per flight: is there a window of ``m`` consecutive points from ``start`` on with ``k`` alarms, and where.
+
+    ``alarm`` (R, K) booleans; alarms before ``start`` are ignored (the onset, or the first
+    valid point of a fault-free flight). Returns ``detected`` (R,) and ``step`` (R,): the
+    step completing the first such window (the k-th alarm in it), -1 where none.
+    """
+    a = np.asarray(alarm, bool).copy()
+    a[..., :start] = False
+    count = np.cumsum(a, axis=-1)
+    window = count - np.concatenate([np.zeros(a.shape[:-1] + (m,), int), count[..., :-m]], axis=-1)
+    hit = window >= k
+    detected = hit.any(-1)
+    return {"detected": detected, "step": np.where(detected, hit.argmax(-1), -1)}
 
 
 def first_alarm_law(decision: np.ndarray, first_valid: int = 0, max_cells: int = 6) -> dict[str, float]:
@@ -235,6 +259,23 @@ class Study(base.Study):
     false detection under the definition above).
     ``threshold_relative_range``: the median over the faulty flights (every rate)
     of (max − min)/T_D of the adaptive threshold T_k at the best N.
+    ``censored_step_n1`` / ``_best``: the step after the onset with a flight that never
+    detects counted as the whole faulty horizon (defined for every design), and
+    ``censored_step_speedup`` = :func:`speedup` of the two: the paper's speed-up where
+    ``detection_step_speedup`` is undefined (N = 1 never detects). A number undefined
+    for a design (no detecting flight, no fault-free alarm) is not reported for it.
+    ``base_threshold``: a·T_D(α), the threshold's constant part; with b = 0 it is
+    the whole threshold, and α and a are this one number.
+
+    The rule that does not build the window effect in (:data:`KOFM_ALPHA`,
+    :data:`KOFM_K`, :data:`KOFM_M`; the same for every design, so without a design
+    prefix), per reading r (1: the filter's innovation χ², 2: the observer's
+    residual) and window N, mean over the rates: ``kofm_reading{r}_detected_n{N}``
+    (flights with k of m alarms at or after the onset), ``kofm_reading{r}_step_n{N}``
+    (the step completing the first such window, after the onset, over the detecting
+    flights), ``kofm_reading{r}_point_rate_n{N}`` (post-onset points above T_D) and
+    ``kofm_reading{r}_chance_detected_n{N}`` (fault-free flights with such a window
+    after the first N points: false detections).
     """
 
     system = SYSTEM
@@ -282,6 +323,11 @@ class Study(base.Study):
                     "detection_share", "threshold_range")
         law = {d: {s: {k: np.full(len(self.windows), np.nan) for k in law_keys} for s in STATISTICS} for d in designs}
         ranges = {d: {s: [[] for _ in self.windows] for s in STATISTICS} for d in designs}
+        # the rule that does not build the window effect in (KOFM_*): the same for every design
+        t_fixed = float(next(iter(designs.values())).chi2_threshold(KOFM_ALPHA))
+        kofm_keys = ("detected", "step", "point_rate")
+        kofm = {s: {k: np.full(shape, np.nan) for k in kofm_keys} for s in STATISTICS}
+        kofm_chance = {s: np.full(len(self.windows), np.nan) for s in STATISTICS}
         traces, loss, sigma = {}, {}, {}
         for i, window in enumerate(self.windows):
             estimator = experiment.estimator
@@ -295,6 +341,13 @@ class Study(base.Study):
             free = estimator.estimate(clean, experiment.model)
             for j, rate in enumerate(self.rates):
                 outputs = estimator.estimate(tests[rate], experiment.model)
+                for s in STATISTICS:
+                    alarm = np.asarray(outputs.extra[s], float) > t_fixed
+                    found = k_of_m_detection(alarm, onset_step)
+                    kofm[s]["detected"][i, j] = float(found["detected"].mean())
+                    if found["detected"].any():
+                        kofm[s]["step"][i, j] = float(found["step"][found["detected"]].mean()) - onset_step
+                    kofm[s]["point_rate"][i, j] = float(alarm[:, onset_step:].mean())
                 for name, detector in designs.items():
                     for s in STATISTICS:
                         z = np.stack([outputs.extra[s], outputs.extra[SCALED_RESIDUAL]], -1)
@@ -314,6 +367,9 @@ class Study(base.Study):
                                 "statistic": decided.statistic[0],
                                 "threshold": np.broadcast_to(decided.threshold, decided.statistic.shape)[0],
                                 "first_alarm": int(summary["first_alarm"][0])}
+            for s in STATISTICS:
+                chance = k_of_m_detection(np.asarray(free.extra[s], float) > t_fixed, window)
+                kofm_chance[s][i] = float(chance["detected"].mean())
             for name, detector in designs.items():
                 for s in STATISTICS:
                     z = np.stack([free.extra[s], free.extra[SCALED_RESIDUAL]], -1)
@@ -327,6 +383,8 @@ class Study(base.Study):
         return {"windows": self.windows, "rates": self.rates, "n_runs": self.n_runs, "onset_step": onset_step,
                 "dt": dt, "statistic": statistic, "table": table, "far": far, "law": law, "confirm": self.confirm,
                 "traces": traces, "loss": loss, "sigma": sigma, "trace_rate": self.trace_rate,
+                "kofm": kofm, "kofm_chance": kofm_chance, "kofm_threshold": t_fixed,
+                "base_threshold": {name: float(d.a * d.chi2_threshold(d.alpha)) for name, d in designs.items()},
                 "params": {name: design_params(d) for name, d in designs.items()}}
 
     @staticmethod
@@ -349,19 +407,24 @@ class Study(base.Study):
         # chance (a high threshold) does not win over one that detects every flight
         best = int(np.argmin(cls._over_rates(t["censored_step"])))
         law = data["law"][design][statistic]
-        return {"detection_step_n1": float(step[i1]), "detection_step_best": float(step[best]),
-                "best_window": float(data["windows"][best]), "detection_rate_n1": float(rate[i1]),
-                "detection_rate_best": float(rate[best]), "far": float(far[best]), "far_n1": float(far[i1]),
-                "run_detection_share_n1": float(share[i1]), "run_detection_share_best": float(share[best]),
-                "detection_step_speedup": speedup(step[i1], step[best]) if step[best] > 0 else math.nan,
-                "detection_rate_gain": rate_gain(rate[i1], rate[best]) if rate[i1] > 0 else math.nan,
-                "chance_alarm_step_mean": float(law["step_mean"][best]),
-                "chance_alarm_step_mean_n1": float(law["step_mean"][i1]),
-                "chance_alarm_step_geometric": float(law["geometric_step_mean"][best]),
-                "chance_alarm_share": float(law["alarm_share"][best]),
-                "chance_alarm_p_value": float(law["p_value"][best]),
-                "chance_detection_share": float(law["detection_share"][best]),
-                "threshold_relative_range": float(law["threshold_range"][best])}
+        censored = cls._over_rates(t["censored_step"]) - data["onset_step"]
+        numbers = {"detection_step_n1": float(step[i1]), "detection_step_best": float(step[best]),
+                   "censored_step_n1": float(censored[i1]), "censored_step_best": float(censored[best]),
+                   "best_window": float(data["windows"][best]), "detection_rate_n1": float(rate[i1]),
+                   "detection_rate_best": float(rate[best]), "far": float(far[best]), "far_n1": float(far[i1]),
+                   "run_detection_share_n1": float(share[i1]), "run_detection_share_best": float(share[best]),
+                   "detection_step_speedup": speedup(step[i1], step[best]) if step[best] > 0 else math.nan,
+                   "censored_step_speedup": speedup(censored[i1], censored[best]) if censored[best] > 0 else math.nan,
+                   "detection_rate_gain": rate_gain(rate[i1], rate[best]) if rate[i1] > 0 else math.nan,
+                   "chance_alarm_step_mean": float(law["step_mean"][best]),
+                   "chance_alarm_step_mean_n1": float(law["step_mean"][i1]),
+                   "chance_alarm_step_geometric": float(law["geometric_step_mean"][best]),
+                   "chance_alarm_share": float(law["alarm_share"][best]),
+                   "chance_alarm_p_value": float(law["p_value"][best]),
+                   "chance_detection_share": float(law["detection_share"][best]),
+                   "threshold_relative_range": float(law["threshold_range"][best])}
+        # a number undefined for this design (no detecting flight at N = 1, no fault-free alarm) is left out
+        return {k: v for k, v in numbers.items() if math.isfinite(v)}
 
     def metrics(self, data: dict) -> dict[str, float]:
         """The study's metrics by name (class docstring)."""
@@ -372,6 +435,15 @@ class Study(base.Study):
             prefix = prefixed(design)
             out.update({prefix + k: v for k, v in self.summary(data, design, preset).items()})
             out.update({prefix + READING_PREFIX[other] + k: v for k, v in self.summary(data, design, other).items()})
+            out[prefix + "base_threshold"] = data["base_threshold"][design]
+        for reading, s in READINGS.items():
+            for i, window in enumerate(data["windows"]):
+                cells = {"detected": self._over_rates(data["kofm"][s]["detected"])[i],
+                         "step": self._over_rates(data["kofm"][s]["step"])[i],
+                         "point_rate": self._over_rates(data["kofm"][s]["point_rate"])[i],
+                         "chance_detected": data["kofm_chance"][s][i]}
+                out.update({f"kofm_reading{reading}_{k}_n{window}": float(v) for k, v in cells.items()
+                            if math.isfinite(v)})
         return out
 
     # -- figures --------------------------------------------------------------------------
@@ -490,6 +562,20 @@ def format_report(data: dict) -> str:
                              f"| {law['p_value'][i]:.3g} | {100 * law['detection_share'][i]:.0f} % "
                              f"| {law['threshold_range'][i]:.3g} |")
             lines.append("")
+    lines += [f"**Rule without the adaptive term**: statistic > T_D(α = {KOFM_ALPHA:g}) = {data['kofm_threshold']:.3g}, "
+              f"a detection at {KOFM_K} alarms in {KOFM_M} consecutive points at or after the onset (every design):",
+              "", "| N | reading 1 (innovation): flights detected | step after onset | points above T_D "
+              "| fault-free flights detected | reading 2 (observer): flights detected | step after onset "
+              "| points above T_D | fault-free flights detected |", "|---|---|---|---|---|---|---|---|---|"]
+    for i, window in enumerate(data["windows"]):
+        cells = []
+        for s in (READINGS[1], READINGS[2]):
+            k = data["kofm"][s]
+            cells += [f"{100 * Study._over_rates(k['detected'])[i]:.1f} %", f"{Study._over_rates(k['step'])[i]:.1f}",
+                      f"{100 * Study._over_rates(k['point_rate'])[i]:.1f} %",
+                      f"{100 * data['kofm_chance'][s][i]:.0f} %"]
+        lines.append(f"| {window} | " + " | ".join(cells) + " |")
+    lines.append("")
     return "\n".join(lines)
 
 
