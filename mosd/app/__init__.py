@@ -5,7 +5,8 @@ script) runs one experiment; ``python -m mosd +experiment=NAME`` a paper's prese
 ``-m`` sweeps, one MLflow child run per job under one parent run
 (:class:`mosd.app.sweep.SweepCallback`); ``mosd report`` prints the
 comparison table (:mod:`mosd.app.report`); ``mosd log RUN_DIR`` logs a run
-whose MLflow logging failed (:func:`mosd.app.pending.log_main`); ``mosd monitor
+whose MLflow logging failed (:func:`mosd.app.pending.log_main`); ``mosd ui`` serves
+the MLflow UI on the runs table (:mod:`mosd.app.ui`); ``mosd monitor
 --model URI DATA.csv`` scores a file with a run's logged detector model
 (:mod:`mosd.app.monitor`, :mod:`mosd.app.detector_model`).
 
@@ -77,6 +78,10 @@ def _command(argv: list[str], from_command_line: bool) -> int:
         from .monitor import main as monitor_main
 
         return monitor_main(argv[1:])
+    if argv[:1] == ["ui"]:
+        from .ui import main as ui_main
+
+        return ui_main(argv[1:])
     if argv[:1] == ["log"]:
         from .pending import log_main
 

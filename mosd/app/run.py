@@ -90,6 +90,19 @@ def run_name(cfg, labels: Mapping[str, str]) -> str:
     return f"{system}-{labels.get('detector', '')}-{labels.get('optimizer', '')}"
 
 
+def ui_line(uri: str, experiment_id: str) -> str:
+    """Where the run is seen in the MLflow UI: the runs table, with FAR, MDR and the tuned design as columns."""
+    from .ui import runs_address
+
+    if uri.startswith(("http://", "https://")):  # a tracking server: its UI
+        return f"ui        {runs_address(uri, experiment_id)}"
+    from .settings import default_tracking_uri
+
+    store = "" if uri == default_tracking_uri() else f" --tracking-uri {redacted(uri)}"
+    return (f"ui        python -m mosd ui{store}, then "
+            f"{runs_address('http://127.0.0.1:5000', experiment_id)}")
+
+
 def recorded_labels(labels: dict[str, str]) -> dict[str, str]:
     """A recorded-data run's labels without plant, noise and fault: the data took their place."""
     if not labels.get("data"):
@@ -256,6 +269,8 @@ def run(cfg, started: float | None = None, checked=None):
                     tracking_line += f"\n          model NOT LOGGED: {tracker.model_error}"
                 if tracker.note:
                     tracking_line += f"\n          store: {tracker.note}"
+                if tracker.experiment_id:
+                    tracking_line += "\n" + ui_line(tracker.settings.uri, tracker.experiment_id)
             signals.raise_pending()  # one that arrived while MLflow failed: the pending file is written
         writing = False
         done = True
