@@ -20,6 +20,7 @@ import copy
 import dataclasses
 import json
 import math
+import warnings
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
@@ -495,7 +496,10 @@ def preflight(argv: Sequence[str]) -> Checked:
                 raise UsageError(_composition_message(
                     exc, lambda: compose(config_name, overrides=[*extra, *group_only]))) from None
             try:
-                setup = build(cfg)
+                with warnings.catch_warnings():
+                    # a data source reports what it dropped through logging and warnings.warn: one line is enough
+                    warnings.filterwarnings("ignore", message=r"data: ", category=UserWarning)
+                    setup = build(cfg)
             except OmegaConfBaseException as exc:
                 raise UsageError(one_line(exc)) from None
             check_job(cfg, setup, done, multirun=bool(args.multirun))
