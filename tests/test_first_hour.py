@@ -304,3 +304,31 @@ def test_the_te_files_export_as_csv_with_their_tag_names(tmp_path):
     raw = TennesseeEastman().values("d05_te.dat")
     np.testing.assert_array_equal(frame[list(PRESETS["literature"])].to_numpy(), raw)
     assert (pd.read_csv(tmp_path / "te" / "d07.csv")["fault"] == 7).all()
+
+
+# -- 5. set-up: compile what a run needs, the chart's in a second process ---------------------------
+def test_kernels_compile_on_demand_by_module_and_in_a_background_process(tmp_path):
+    from test_app import PACKAGE_PARENT
+
+    env = {"PATH": "/usr/bin:/bin", "NUMBA_CACHE_DIR": str(tmp_path / "numba"), "PYTHONPATH": PACKAGE_PARENT,
+           "HOME": str(tmp_path)}
+    cli = subprocess.run([sys.executable, "-m", "mosd.kernels", "--modules", "ewma", "--jobs", "1"], env=env,
+                         capture_output=True, text=True, timeout=300)
+    assert cli.returncode == 0 and "1 of 1 kernel modules ready" in cli.stderr, cli.stderr
+    bad = subprocess.run([sys.executable, "-m", "mosd.kernels", "--modules", "nope"], env=env,
+                         capture_output=True, text=True, timeout=60)
+    assert bad.returncode == 2 and "allowed: ewma, wavelet, chart" in bad.stderr
+    script = """
+from mosd import kernels
+assert kernels.cached("ewma") and not kernels.cached("entropy")   # only what was asked for
+kernels.prefetch(("ewma", "entropy"))
+process = kernels._STATE["prefetch"]
+assert process.args[process.args.index("--modules") + 1] == "entropy"   # the cold one only
+kernels.wait_prefetch()
+assert process.returncode == 0 and kernels.cached("entropy") and not kernels.cached("imm")
+kernels.prefetch(("ewma", "entropy"))                            # all cached: no process
+assert kernels._STATE.get("prefetch") is None
+print("ok")
+"""
+    out = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0 and out.stdout.strip() == "ok", out.stderr[-3000:]
