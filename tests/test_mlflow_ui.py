@@ -8,6 +8,10 @@ children (the swept params, FAR and MDR) and the per-generation hypervolume char
 to ``$MOSD_UI_SHOTS`` (default: the test's temporary directory); ``docs/img/mlflow-compare.png``
 is one of them.
 
+``mosd ui`` (mosd/app/ui.py) is checked the way a person uses it: a fresh browser opens the
+experiment list it prints, clicks the experiment once and must land on the runs table with the
+FAR and MDR columns (MLflow's own server lands that click on its GenAI overview).
+
 Chromium, chromedriver and selenium are test dependencies (``.ci/run`` installs the first two
 with apt, the ``test`` extra brings selenium): when one is missing the test fails, it does not skip.
 The browser test is marked slow like the other real-server tests (about 45 s: the sweep, the
