@@ -306,8 +306,8 @@ def test_the_te_files_export_as_csv_with_their_tag_names(tmp_path):
     assert (pd.read_csv(tmp_path / "te" / "d07.csv")["fault"] == 7).all()
 
 
-# -- 5. set-up: compile what a run needs, the chart's in a second process ---------------------------
-def test_kernels_compile_on_demand_by_module_and_in_a_background_process(tmp_path):
+# -- 5. set-up: compile what a run needs ----------------------------------------------------------
+def test_kernels_compile_by_module(tmp_path):
     from test_app import PACKAGE_PARENT
 
     env = {"PATH": "/usr/bin:/bin", "NUMBA_CACHE_DIR": str(tmp_path / "numba"), "PYTHONPATH": PACKAGE_PARENT,
@@ -318,17 +318,24 @@ def test_kernels_compile_on_demand_by_module_and_in_a_background_process(tmp_pat
     bad = subprocess.run([sys.executable, "-m", "mosd.kernels", "--modules", "nope"], env=env,
                          capture_output=True, text=True, timeout=60)
     assert bad.returncode == 2 and "allowed: ewma, wavelet, chart" in bad.stderr
-    script = """
-from mosd import kernels
-assert kernels.cached("ewma") and not kernels.cached("entropy")   # only what was asked for
-kernels.prefetch(("ewma", "entropy"))
-process = kernels._STATE["prefetch"]
-assert process.args[process.args.index("--modules") + 1] == "entropy"   # the cold one only
-kernels.wait_prefetch()
-assert process.returncode == 0 and kernels.cached("entropy") and not kernels.cached("imm")
-kernels.prefetch(("ewma", "entropy"))                            # all cached: no process
-assert kernels._STATE.get("prefetch") is None
-print("ok")
-"""
+    script = "from mosd import kernels; print([m for m in kernels.MODULES if kernels.cached(m)])"
     out = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=300)
-    assert out.returncode == 0 and out.stdout.strip() == "ok", out.stderr[-3000:]
+    assert out.returncode == 0 and out.stdout.strip() == "['ewma']", out.stderr[-3000:]  # only what was asked for
+
+
+@pytest.mark.slow
+def test_the_main_command_on_a_cold_cache_compiles_only_the_kernels_it_calls(tmp_path):
+    """The set-up runs no ``python -m mosd.kernels``: the first run compiles what it calls, not IMM or entropy."""
+    from test_app import PACKAGE_PARENT
+
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    assert "pip install . && python -m mosd +fault=offset_var optimizer=mopso" in readme
+    env = {"PATH": "/usr/bin:/bin", "NUMBA_CACHE_DIR": str(tmp_path / "numba"), "PYTHONPATH": PACKAGE_PARENT,
+           "HOME": str(tmp_path), "MOSD_OUTPUTS": str(tmp_path / "outputs")}
+    run = subprocess.run([sys.executable, "-m", "mosd", "+fault=offset_var", "tracking=none", *SMALL,
+                          "budget.n_test=2", "budget.n_train=2", "budget.n_calibration=2"], cwd=tmp_path, env=env,
+                         capture_output=True, text=True, timeout=900)
+    assert run.returncode == 0, run.stderr[-3000:]
+    script = "from mosd import kernels; print(' '.join(m for m in kernels.MODULES if kernels.cached(m)))"
+    out = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=300)
+    assert set(out.stdout.split()) == {"ewma", "wavelet", "chart", "plants", "cubature"}, out.stdout

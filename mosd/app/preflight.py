@@ -368,9 +368,6 @@ def dry_run(setup: Setup) -> int | None:
     data = mini.prepare(calibration=calibration)
     _check_denoiser(setup, int(data.train.z.shape[1]))
     _check_onset(setup, data.train)
-    from .. import kernels
-
-    kernels.wait_prefetch()  # the chart's kernels, compiled meanwhile by _prefetch_kernels: loaded, not compiled again
     limit = component_limit(mini.detector, data.phase1.z)
     bound_by_data(original, limit)
     bound_by_data(setup, limit)
@@ -413,7 +410,6 @@ def check_job(cfg, setup: Setup, done: dict, multirun: bool = False) -> None:
         done[("dask", setup.dask_address)] = True
     key = _shape_key(cfg)
     if key not in done:
-        _prefetch_kernels(setup)
         try:
             done[key] = dry_run(setup)
         except ConfigError:
@@ -423,25 +419,6 @@ def check_job(cfg, setup: Setup, done: dict, multirun: bool = False) -> None:
                               f"({_run_length(setup)}): {type(exc).__name__}: {one_line(exc)}") from None
     else:  # a job of the same shapes (another seed): the same data, the same limit
         bound_by_data(setup, done[key])
-
-
-def _prefetch_kernels(setup: Setup) -> None:
-    """Compile the chart's kernels in a background process while the dry run simulates (a cold cache only).
-
-    The dry run is where a run first calls its kernels: the filter's and the
-    plant's (the simulation), then the chart's (the evaluation). On a cold cache
-    each compiles on first call; the chart's then compile on the second core
-    (:func:`mosd.kernels.prefetch`), and :func:`dry_run` waits for them before it
-    evaluates.
-    """
-    from .. import kernels
-
-    if not kernels.enabled() or getattr(setup.experiment, "data", None) is not None:
-        return
-    from ..kernels.chart import applies
-
-    if applies(setup.experiment.detector, setup.experiment.objectives):
-        kernels.prefetch(("chart", "ewma"))
 
 
 def job_key(cfg) -> str | None:

@@ -29,8 +29,7 @@ check equality, not a tolerance); the last three are close, not identical:
 
 Compiled code is cached on disk (``cache=True``), so only the first run on a
 machine pays the compilation, and only for the kernels it calls (numba compiles a
-function when it is first called; :func:`prefetch` compiles the chart's in a second
-process while the first run simulates). ``python -m mosd.kernels`` compiles all seven
+function when it is first called). ``python -m mosd.kernels`` compiles all seven
 modules ahead (a machine image, a cluster's shared cache); the set-up does not need it. The NumPy path is used when numba is missing, when
 ``MOSD_KERNELS=numpy`` is set, or inside :func:`disabled` (how the tests and
 ``python -m mosd.bench`` compare the two in one process).
@@ -113,8 +112,7 @@ def warm_up(modules: tuple[str, ...] = EVALUATION_MODULES) -> None:
 def cached(name: str) -> bool:
     """Whether kernel module ``name`` has compiled code in numba's on-disk cache (any of its index files).
 
-    Cheap (a directory listing; the module is imported, which imports numba): what
-    :func:`prefetch` asks before it starts a compiling process.
+    Cheap (a directory listing; the module is imported, which imports numba).
     """
     import glob
     import importlib
@@ -126,43 +124,6 @@ def cached(name: str) -> bool:
         if path is not None and getattr(obj, "__module__", None) == module.__name__:
             return bool(glob.glob(os.path.join(glob.escape(path), f"{name}.*.nbi")))
     return True  # nothing cached by numba in this module
-
-
-def prefetch(modules: tuple[str, ...]) -> None:
-    """Compile the kernel modules not yet cached in a background process, while this one goes on.
-
-    A run compiles its kernels when it first calls them (numba compiles lazily, one
-    function at a time), one after the other on its critical path: on a cold cache
-    the main command compiled the filter and the plant (its simulation) and then the
-    chart (its optimisation), about 45 s of CPU in one process. With the chart
-    compiling in a second process while this one compiles the filter and simulates,
-    the two overlap on two cores. :func:`wait_prefetch` before the first call of a
-    prefetched kernel: it is then loaded from the cache, not compiled twice.
-    """
-    if not enabled() or _STATE.get("prefetch") is not None:
-        return
-    cold = [name for name in modules if not cached(name)]
-    if not cold:
-        return
-    import subprocess
-    import sys
-
-    _STATE["prefetch"] = subprocess.Popen(
-        [sys.executable, "-m", __name__, "--modules", ",".join(cold), "--jobs", "1", "--quiet"],
-        stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-
-
-def wait_prefetch(timeout: float | None = 600.0) -> None:
-    """Wait for :func:`prefetch`'s process (if any): its kernels are in the cache afterwards."""
-    process = _STATE.pop("prefetch", None)
-    if process is None:
-        return
-    import subprocess
-
-    try:
-        process.wait(timeout)
-    except subprocess.TimeoutExpired:  # compiling here instead is slower, never wrong
-        process.kill()
 
 
 def compile_module(name: str) -> tuple[str, float]:

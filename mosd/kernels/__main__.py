@@ -1,8 +1,7 @@
 """``python -m mosd.kernels``: compile every numerical kernel once, into numba's on-disk cache.
 
 Not needed after an install: a run compiles the kernels it calls when it first
-calls them (the chart's in a background process while it simulates:
-:func:`mosd.kernels.prefetch`). This command compiles them all ahead, e.g. for a
+calls them, and only those. This command compiles them all ahead, e.g. for a
 machine image or a cluster's shared cache (``--modules`` picks some); afterwards
 every process loads them from the cache.
 The modules compile in parallel processes (``--jobs``, default: the CPUs).
@@ -25,18 +24,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="parallel compiling processes")
     parser.add_argument("--modules", default=",".join(MODULES),
                         help=f"comma-separated kernel modules to compile (default: all of {', '.join(MODULES)})")
-    parser.add_argument("--quiet", action="store_true", help="print nothing (mosd.kernels.prefetch's process)")
     args = parser.parse_args(argv)
     chosen = [m.strip() for m in args.modules.split(",") if m.strip()]
     unknown = [m for m in chosen if m not in MODULES]
     if unknown or not chosen:
         parser.error(f"--modules {','.join(unknown) or args.modules!r} is not a kernel module; allowed: "
                      f"{', '.join(MODULES)}")
-    if args.quiet:
-        from . import warm_up
-
-        warm_up(tuple(chosen))  # in this process: the caller started it to overlap with its own work
-        return 0
     if not available() or not enabled():
         print("mosd.kernels: numba is missing or MOSD_KERNELS=numpy: nothing to compile", file=sys.stderr)
         return 0
