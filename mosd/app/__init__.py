@@ -25,7 +25,7 @@ Modules by job (docs/ARCHITECTURE.md has their import graph):
   :mod:`.channel` (its side process), :mod:`.tracker` (one run's
   :class:`~mosd.app.tracker.RunTracker`), :mod:`.pending` (``mosd log``),
   :mod:`.sweep` (a sweep's parent run);
-* :mod:`.report` (``mosd report``); :mod:`.detector_model` (a recorded-data run's fitted
+* :mod:`.report` (``mosd report``); :mod:`.ui` (``mosd ui``: MLflow's server landing on the runs table); :mod:`.detector_model` (a recorded-data run's fitted
   pipeline as an MLflow pyfunc model) and :mod:`.monitor` (``mosd monitor``).
 
 Hydra and MLflow live here only, imported when needed, so ``import mosd.app`` is cheap.
