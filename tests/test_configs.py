@@ -61,10 +61,12 @@ def _fault_override(group, option):
 
         table = bibmon_directory().parent / "real_process_data" / "real_process_data.csv"
         return ["+experiment=tep", *([f"data.path={table}"] if option == "table" else [])]
+    if group == "experiment" and option == "table":  # the table preset needs its file
+        return _fault_override("data", "table")[1:]
     if group in ("experiment", "denoise", "optimizer", "tracking"):
         return [] if group == "experiment" else ["+fault=offset_var"]
     for preset, choices in PRESETS.items():
-        if preset != "paper000" and choices.get(group) == option:
+        if preset not in ("paper000", "table") and choices.get(group) == option:
             return [f"+experiment={preset}"]
     return [] if group == "fault" else ["+fault=offset_var"]
 

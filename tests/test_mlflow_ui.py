@@ -8,6 +8,10 @@ children (the swept params, FAR and MDR) and the per-generation hypervolume char
 to ``$MOSD_UI_SHOTS`` (default: the test's temporary directory); ``docs/img/mlflow-compare.png``
 is one of them.
 
+``mosd ui`` (mosd/app/ui.py) is checked the way a person uses it: a fresh browser opens the
+experiment list it prints, clicks the experiment once and must land on the runs table with the
+FAR and MDR columns (MLflow's own server lands that click on its GenAI overview).
+
 Chromium, chromedriver and selenium are test dependencies (``.ci/run`` installs the first two
 with apt, the ``test`` extra brings selenium): when one is missing the test fails, it does not skip.
 The browser test is marked slow like the other real-server tests (about 45 s: the sweep, the
@@ -291,3 +295,94 @@ def test_the_ui_shows_the_sweep_its_children_their_comparison_and_the_hypervolum
     page.wait_for("Step", *names, *latest)
     assert "/metric" in driver.current_url
     page.shot("hypervolume")
+
+
+# ---------------------------------------------------------------------------------------
+# mosd ui: open the UI, click the experiment, land on the runs table with FAR and MDR
+# ---------------------------------------------------------------------------------------
+ONE_RUN = ["+fault=offset", "optimizer.pop_size=6", "optimizer.n_gen=2", "budget.n_test=2", "budget.n_train=2",
+           "budget.n_calibration=2", "optimizer.n_jobs=1", "progress=false", "scenario.duration=3"]
+
+
+def _mosd_ui(root: Path, uri: str) -> tuple[subprocess.Popen, dict]:
+    """``mosd ui`` on a free port: the process and the addresses it printed, once the server answers."""
+    port = free_port()
+    log = root / "ui.log"
+    ui = subprocess.Popen([sys.executable, "-m", "mosd", "ui", "--port", str(port), "--tracking-uri", uri],
+                          cwd=root, env=_env(root / "outputs"), stdout=log.open("w"), stderr=subprocess.STDOUT,
+                          start_new_session=True)
+    url = f"http://127.0.0.1:{port}"
+    deadline = time.monotonic() + 180
+    while True:
+        assert ui.poll() is None, log.read_text()[-3000:]
+        try:
+            with urllib.request.urlopen(f"{url}/health", timeout=2):
+                break
+        except OSError:
+            if time.monotonic() > deadline:
+                stop_process_group(ui)
+                raise AssertionError(f"mosd ui did not serve within 180 s:\n{log.read_text()[-3000:]}")
+            time.sleep(0.5)
+    printed = {}
+    for line in log.read_text().splitlines():
+        label, _, address = line.partition("  ")
+        if address.strip().startswith("http"):
+            printed.setdefault(label.strip(), address.strip())
+    return ui, printed
+
+
+@pytest.mark.slow
+def test_mosd_ui_lands_a_click_on_the_experiment_on_the_runs_table_with_far_and_mdr(tmp_path):
+    from selenium.webdriver.common.by import By
+
+    out = subprocess.run([sys.executable, "-m", "mosd", *ONE_RUN], cwd=tmp_path, env=_env(tmp_path / "outputs"),
+                         capture_output=True, text=True, timeout=900)
+    assert out.returncode == 0, out.stderr[-3000:]
+    uri = f"sqlite:///{tmp_path / 'outputs' / 'mlflow.db'}"
+    from mlflow.tracking import MlflowClient
+
+    client = MlflowClient(tracking_uri=uri)
+    experiment = client.get_experiment_by_name("mosd")
+    (run,) = client.search_runs([experiment.experiment_id])
+    assert run.info.run_name == "offset-ss_dewma-mopso"
+    # the run's summary names the runs table: the address mosd ui serves
+    summary_ui = next(line for line in out.stdout.splitlines() if line.startswith("ui "))
+    assert f"#/experiments/{experiment.experiment_id}/runs?workflowType=machine_learning" in summary_ui
+    ui, printed = _mosd_ui(tmp_path, uri)
+    driver = _browser(Path(tempfile.mkdtemp(dir=tmp_path, prefix="chromium-")))  # a browser that chose nothing
+    driver.set_page_load_timeout(120)
+    try:
+        page = Page(driver, printed["experiments"].split("/#")[0], Path(os.environ.get("MOSD_UI_SHOTS") or tmp_path))
+        driver.get(printed["experiments"])  # the experiment list, as mosd ui printed it
+        page.wait_for("mosd", "Experiments")
+        link = f"//a[@data-testid='experiment-list-item-link' and normalize-space(.)='mosd']"
+        deadline = time.monotonic() + 60
+        while not driver.find_elements(By.XPATH, link):
+            assert time.monotonic() < deadline, page.text()[:2000]
+            time.sleep(0.5)
+        driver.find_element(By.XPATH, link).click()  # one click, as a person does
+        text = page.wait_for(run.info.run_name, "Metrics", "far", "1 matching run")
+        assert f"/experiments/{experiment.experiment_id}/runs" in driver.current_url
+        assert "No data available" not in text and "Token Usage" not in text  # not the GenAI overview
+        for close in driver.find_elements(By.CSS_SELECTOR, "button[aria-label='Close']"):  # the assistant's panel
+            close.click()
+        # the grid renders the columns in view: its header row names them all (ag-grid's col-id)
+        deadline = time.monotonic() + 30
+        while True:
+            headers = {h.get_attribute("col-id") for h in driver.find_elements(By.CSS_SELECTOR, ".ag-header-cell")}
+            if {"metrics.`far`", "metrics.`mdr`"} <= headers or time.monotonic() > deadline:
+                break
+            time.sleep(0.5)
+        assert {"metrics.`far`", "metrics.`mdr`"} <= headers, headers
+        text = page.text()
+        # the cells under FAR and MDR hold the run's values
+        shown = f"{run.data.metrics['far']:.4g}"[:4], f"{run.data.metrics['mdr']:.4g}"[:4]
+        assert all(value in text for value in shown), (shown, text[:2000])
+        page.shot("mosd-ui-runs")
+        # the printed runs-table address opens the same view
+        driver.get(printed["runs table"])
+        page.wait_for(run.info.run_name, "Metrics", "far")
+        assert "viewStateShareKey=mosd" in driver.current_url
+    finally:
+        driver.quit()
+        stop_process_group(ui)

@@ -816,10 +816,12 @@ def test_report_groups_its_columns_and_shows_the_ones_metrics_picks(tmp_path, ca
     job("paper003", 0, 50, test, {"detection_step_best": 4.4, "far": 0.14})  # the study's own FAR, not the test's
     rows = report.collect(uri)
     assert len(rows) == 3 and report.extra_columns(rows) == ["seed", "study.n_runs"]
-    # by default: seed (it differs within paper001), not study.n_runs (it differs only between the presets)
-    header = report.to_markdown(rows).splitlines()[0]
-    assert header == ("| preset | fault | detector | optimizer | seed | MDR % | FAR % | accuracy % | detected % | "
-                      "n_test | design | online | run |")
+    # by default one table per system: seed where it differs (within paper001), not study.n_runs (it differs
+    # only between the presets), and no column empty on all of a table's rows (no "detected" here)
+    lines = report.to_markdown(rows).splitlines()
+    assert lines[0] == "### paper001 (2 runs)" and lines[2] == (
+        "| preset | fault | detector | optimizer | seed | MDR % | FAR % | accuracy % | n_test | design | online | run |")
+    assert lines[lines.index("### paper003 (1 run)") + 2].startswith("| preset | fault | detector | optimizer | MDR %")
     paper003 = next(r for r in rows if r["preset"] == "paper003")
     assert paper003["far"] == 0.01 and paper003["paper003:far"] == 0.14 and paper003["paper001:far"] == "–"
     assert report.select_columns(rows, "far,setup") == ["far", "seed", "study.n_runs"]
@@ -836,7 +838,7 @@ def test_report_groups_its_columns_and_shows_the_ones_metrics_picks(tmp_path, ca
     assert err.startswith("mosd report: error: --metrics='nope' is not a group or column of this report; allowed: "
                           "the groups test, design, setup, study, paper001, paper003;") and "\n" not in err
     assert report.main(["--tracking-uri", uri, "--metrics", "test,paper001"]) == 0
-    assert capsys.readouterr().out.splitlines()[0].endswith("| n_test | paper001:far | paper001:isolation_rate |")
+    assert capsys.readouterr().out.splitlines()[2].endswith("| n_test | paper001:far | paper001:isolation_rate |")
 
 
 @pytest.mark.slow

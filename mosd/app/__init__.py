@@ -5,7 +5,8 @@ script) runs one experiment; ``python -m mosd +experiment=NAME`` a paper's prese
 ``-m`` sweeps, one MLflow child run per job under one parent run
 (:class:`mosd.app.sweep.SweepCallback`); ``mosd report`` prints the
 comparison table (:mod:`mosd.app.report`); ``mosd log RUN_DIR`` logs a run
-whose MLflow logging failed (:func:`mosd.app.pending.log_main`); ``mosd monitor
+whose MLflow logging failed (:func:`mosd.app.pending.log_main`); ``mosd ui`` serves
+the MLflow UI on the runs table (:mod:`mosd.app.ui`); ``mosd monitor
 --model URI DATA.csv`` scores a file with a run's logged detector model
 (:mod:`mosd.app.monitor`, :mod:`mosd.app.detector_model`); ``mosd options [GROUP]`` lists every
 option of the config groups, derived from ``conf/`` and the classes (:mod:`mosd.app.options`).
@@ -25,7 +26,7 @@ Modules by job (docs/ARCHITECTURE.md has their import graph):
   :mod:`.channel` (its side process), :mod:`.tracker` (one run's
   :class:`~mosd.app.tracker.RunTracker`), :mod:`.pending` (``mosd log``),
   :mod:`.sweep` (a sweep's parent run);
-* :mod:`.report` (``mosd report``); :mod:`.detector_model` (a recorded-data run's fitted
+* :mod:`.report` (``mosd report``); :mod:`.ui` (``mosd ui``: MLflow's server landing on the runs table); :mod:`.detector_model` (a recorded-data run's fitted
   pipeline as an MLflow pyfunc model) and :mod:`.monitor` (``mosd monitor``).
 
 Hydra and MLflow live here only, imported when needed, so ``import mosd.app`` is cheap.
@@ -79,6 +80,10 @@ def _command(argv: list[str], from_command_line: bool) -> int:
         from .monitor import main as monitor_main
 
         return monitor_main(argv[1:])
+    if argv[:1] == ["ui"]:
+        from .ui import main as ui_main
+
+        return ui_main(argv[1:])
     if argv[:1] == ["log"]:
         from .pending import log_main
 

@@ -53,7 +53,8 @@ class Handler:
             self.run_id = self.store.create_run(request["run_name"], request["tags"], request.get("parent_run_id"))
             self.run_dir = request["tags"].get("mosd.run_dir", self.run_dir)
             self.timings = {"mlflow_import_s": t1 - t0, "mlflow_create_run_s": time.perf_counter() - t1}
-            return {"run_id": self.run_id, "timings": self.timings, "note": self.store.note}
+            return {"run_id": self.run_id, "timings": self.timings, "note": self.store.note,
+                    "experiment_id": self.store.experiment_id()}
         if self.store is None or self.run_id is None:
             raise TrackingError("the MLflow run was not created")
         if op == "log":

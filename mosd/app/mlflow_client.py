@@ -31,9 +31,17 @@ LOGGING_ERROR_TAG = "mosd.logging_error"
 
 
 def git_commit(path: str | os.PathLike | None = None) -> str | None:
-    """The commit of the git checkout containing ``path`` (default: this package), if any."""
-    where = Path(path) if path is not None else Path(__file__).resolve().parent.parent
-    if not (where / ".git").exists():
+    """The commit of the git checkout containing ``path`` (default: this package), if any.
+
+    The checkout's ``.git`` (a folder, or a file in a worktree) is looked for in
+    ``path`` and every folder above it: the package lies inside the checkout,
+    not at its root. An installed copy (site-packages) is in no checkout: None.
+    """
+    start = Path(path).resolve() if path is not None else Path(__file__).resolve().parent.parent
+    if "site-packages" in start.parts:  # a copy made by pip install: its checkout (if any) may hold other code
+        return None
+    where = next((folder for folder in (start, *start.parents) if (folder / ".git").exists()), None)
+    if where is None:
         return None
     try:
         out = subprocess.run(["git", "-C", str(where), "rev-parse", "HEAD"], capture_output=True, text=True, timeout=5)

@@ -42,13 +42,26 @@ def _save(fig, path: str | Path) -> Path:
     return write_atomically(path, lambda out: fig.savefig(out, dpi=110, format="png"), binary=True)
 
 
+def onsets(fault_mask: np.ndarray) -> np.ndarray:
+    """Indices where a fault starts: every rising edge of the mask (a recording's test rows hold several)."""
+    mask = np.asarray(fault_mask, bool).astype(np.int8)
+    return np.flatnonzero(np.diff(mask, prepend=0) > 0)
+
+
+def wrapped(title: str, width: int = 90) -> str:
+    """``title`` on as many lines of at most ``width`` characters as it needs (a long design would be clipped)."""
+    import textwrap
+
+    return "\n".join(textwrap.wrap(title, width=width, break_on_hyphens=False)) if len(title) > width else title
+
+
 def _finish_time_axes(ax, t: np.ndarray, fault_mask: np.ndarray, ylabel: str, title: str) -> None:
-    """Fault-onset marker, labels, grid and legend shared by the time-series plots."""
-    if fault_mask.any():
-        ax.axvline(t[np.argmax(fault_mask)], color="k", lw=1.0, ls=":", label="fault onset")
+    """Fault-onset markers (every one), labels, grid and legend shared by the time-series plots."""
+    for i, k in enumerate(onsets(fault_mask)):
+        ax.axvline(t[k], color="k", lw=1.0, ls=":", label="fault onset" if i == 0 else None)
     ax.set_xlabel("time (s)")
     ax.set_ylabel(ylabel)
-    ax.set_title(title)
+    ax.set_title(wrapped(title))
     ax.grid(alpha=0.3)
     ax.legend(loc="upper left", fontsize=8)
 
@@ -120,7 +133,8 @@ def pareto_front(path: str | Path, F: np.ndarray, chosen: int | None = None, tit
     ax.set_title((title or "Pareto front") + (" (zoom on the best trade-offs)" if box is not None else ""),
                  fontsize=10)
     ax.grid(alpha=0.3)
-    ax.legend(loc="upper left" if box is not None else "upper right", fontsize=8)
+    # below the axes: inside, it can cover the chosen design's star (the best trade-off sits in a corner)
+    fig.legend(loc="outside lower center", ncols=2, fontsize=8)
     return _save(fig, path)
 
 
@@ -140,7 +154,7 @@ def chart_trace(path: str | Path, t: np.ndarray, statistic: np.ndarray, ucl: np.
     statistic = np.asarray(statistic, float)
     ucl = np.broadcast_to(np.asarray(ucl, float), statistic.shape)
     fault_mask = np.asarray(fault_mask, bool)
-    fig = _figure(7.5, 4.0)
+    fig = _figure(7.5, 4.3)
     ax = fig.add_subplot()
     ax.plot(t, statistic, lw=0.9, color="tab:blue", label="chart statistic $l_k$")
     ax.plot(t, ucl, lw=1.2, color="tab:red", ls="--", label="UCL")

@@ -20,6 +20,7 @@ import copy
 import dataclasses
 import json
 import math
+import warnings
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
@@ -209,7 +210,112 @@ def _default_design(setup: Setup) -> np.ndarray:
     return np.array([row], float)
 
 
-def dry_run(setup: Setup) -> None:
+def component_limit(detector, calibration_z: np.ndarray) -> int | None:
+    """The most principal components the calibration data can take (variables and rows less one), or None.
+
+    Only for a detector whose component count is tunable up to its
+    ``max_components`` (:class:`mosd.detectors.pca.PCADetector`): its PCA of the
+    calibration points has min(variables, rows) − 1 usable components.
+    """
+    if "n_components" not in getattr(detector, "tunable", {}) or not hasattr(detector, "max_components") \
+            or not hasattr(detector, "model"):
+        return None
+    model = detector.model(np.asarray(calibration_z, float))
+    return int(min(model.m, model.n)) - 1
+
+
+def bound_by_data(setup: Setup, limit: int | None) -> None:
+    """Lower the detector's ``max_components`` to what the data can take (``limit``), unless ``detector.bounds`` names it.
+
+    ``max_components`` (default 20) is the top of ``n_components``' search range;
+    a table of 8 tags has 7 usable components, so without this the optimiser
+    would try 13 mid-run. An explicit ``detector.bounds.n_components`` is the
+    user's box: :func:`check_search_box` refuses it if the data cannot take it.
+    """
+    detector = setup.experiment.detector
+    if limit is None or "n_components" in setup.bounds or limit >= int(detector.max_components):
+        return
+    if limit < 1:
+        raise ConfigError(f"the calibration data have {limit + 1} usable dimension(s) for "
+                          f"{type(detector).__name__}; allowed: at least 2 tags that vary and 3 complete rows")
+    setup.experiment.detector = detector.with_params(max_components=limit,
+                                                     n_components=min(int(detector.n_components), limit))
+
+
+def search_box(setup: Setup) -> list[tuple[str, float, np.ndarray]]:
+    """Designs that span the optimiser's box: each parameter at its low and its high end, the others at the default.
+
+    Returns ``(parameter, value, design (1, d))``; the first is the default design
+    (parameter ``""``). What :func:`check_search_box` evaluates: any design of the
+    box takes each parameter's value somewhere between these.
+    """
+    detector = setup.experiment.detector
+    base = _default_design(setup)
+    designs = [("", math.nan, base)]
+    for column, (name, interval) in enumerate(detector.tunable.items()):
+        low, high = setup.bounds.get(name, (interval.low, interval.high))
+        for end in (low, high):
+            if not math.isfinite(end):
+                continue
+            value = float(interval.round(end)) if interval.integer else float(end)
+            if interval.open_low and value <= interval.low or interval.open_high and value >= interval.high:
+                continue  # an open end (alpha > 0) is approached, never evaluated
+            design = base.copy()
+            design[0, column] = value
+            designs.append((name, value, design))
+    return designs
+
+
+def check_search_box(setup: Setup, evaluate: Callable[[np.ndarray], Any], source: str) -> None:
+    """Evaluate every design of :func:`search_box`; the first the data or the plant cannot take is a ConfigError.
+
+    One population first (one call); only when it fails, design by design to name
+    the bound. ``source`` says what was run (``recorded data ...``, ``scenario...``).
+    """
+    designs = search_box(setup)
+    try:
+        evaluate(np.vstack([d for _, _, d in designs]))
+        return
+    except Exception:  # noqa: BLE001 - found again below, design by design, and named
+        pass
+    def fails(design) -> str | None:
+        try:
+            evaluate(design)
+        except Exception as exc:  # noqa: BLE001 - any failure here would stop the optimisation midway
+            return one_line(exc) if isinstance(exc, ConfigError) else f"{type(exc).__name__}: {one_line(exc)}"
+        return None
+
+    tunable = list(setup.experiment.detector.tunable)
+    for name, value, design in designs:
+        message = fails(design)
+        if message is None:
+            continue
+        if not name:  # the default design: the parameter whose other end mends it is the one to blame
+            culprit = next((n for n, _, d in designs[1:] if fails(d) is None), None)
+            if culprit is None:
+                raise ConfigError(f"the detector's design fails on a one-replication dry run ({source}): "
+                                  f"{message}") from None
+            name, value = culprit, float(design[0, tunable.index(culprit)])
+        interval = setup.experiment.detector.tunable[name]
+        low, high = setup.bounds.get(name, (interval.low, interval.high))
+        box = (f"detector.bounds.{name}=[{low:g}, {high:g}]" if name in setup.bounds
+               else f"detector.{name}'s range [{low:g}, {high:g}] (no detector.bounds.{name})")
+        raise ConfigError(f"{box} reaches {name}={value:g}, which the optimiser would try and {source} cannot "
+                          f"take: {message}") from None
+
+
+def fit_to_data(setup: Setup) -> None:
+    """:func:`bound_by_data` for a job built without preflight (in a launcher's worker process)."""
+    exp = setup.experiment
+    detector = exp.detector
+    if getattr(exp, "data", None) is None or "n_components" not in getattr(detector, "tunable", {}) \
+            or not hasattr(detector, "max_components"):
+        return
+    copied = copy.deepcopy(exp)
+    bound_by_data(setup, component_limit(copied.detector, copied.prepare().phase1.z))
+
+
+def dry_run(setup: Setup) -> int | None:
     """Run the pipeline's shapes once, on one replication per seed stream; raise ConfigError on a misfit.
 
     Catches, before any work, the values that are valid one by one but not
@@ -217,15 +323,34 @@ def dry_run(setup: Setup) -> None:
     chart, a fault that never starts). Estimators that must be trained first
     (a neural observer) are not simulated: their output length is taken as the
     trace's. Works on copies of the components: the run uses them as built
-    (a fitted monitor, a detector's fitted limit stay out of it).
+    (a fitted monitor, a detector's fitted limit stay out of it), except that a
+    component count is bounded by the data (:func:`bound_by_data`). Every end of
+    the search box is evaluated (:func:`check_search_box`), not only the default
+    design: the optimiser goes there.
+
+    Returns the component limit the data set (:func:`component_limit`), or None.
     """
     from ..experiment import Budget, Experiment
 
+    original = setup
     setup = dataclasses.replace(setup, experiment=copy.deepcopy(setup.experiment))
     exp = setup.experiment
     if getattr(exp, "data", None) is not None:  # recorded data: the real splits (mosd.recorded)
-        exp.dry_run(_default_design(setup))
-        return
+        try:
+            data = exp.prepare()
+        except (AttributeError, TypeError) as exc:
+            if "NoneType" not in str(exc):
+                raise
+            # an estimator built on a plant's model (the default dedicated observer) gets model=None here
+            raise ConfigError(f"estimator {type(exp.estimator).__name__} needs a plant model, which recorded data "
+                              f"({exp.data!r}) do not have; allowed: estimator=measured or estimator=pca with "
+                              "monitor=signals, or the preset +experiment=table (data=table) / +experiment=tep") from None
+        limit = component_limit(exp.detector, data.phase1.z)
+        bound_by_data(original, limit)
+        bound_by_data(setup, limit)
+        check_search_box(setup, exp.evaluator(data), _run_length(setup))
+        exp.data.trace("test")
+        return limit
     mini = Experiment(exp.plant, exp.noise, exp.fault, exp.estimator, exp.monitor, exp.detector,
                       duration=exp.duration, budget=Budget(1, 1, 1, 1), seed=exp.seed, objectives=exp.objectives)
     if getattr(exp.estimator, "requires_fit", False):
@@ -243,8 +368,13 @@ def dry_run(setup: Setup) -> None:
     data = mini.prepare(calibration=calibration)
     _check_denoiser(setup, int(data.train.z.shape[1]))
     _check_onset(setup, data.train)
-    mini.evaluator(data)(_default_design(setup))
-    mini.evaluate(exp.detector, data, test=(data.train, data.train_residuals))
+    limit = component_limit(mini.detector, data.phase1.z)
+    bound_by_data(original, limit)
+    bound_by_data(setup, limit)
+    mini.detector = setup.experiment.detector
+    check_search_box(setup, mini.evaluator(data), _run_length(setup))
+    mini.evaluate(mini.detector, data, test=(data.train, data.train_residuals))
+    return limit
 
 
 def _shape_key(cfg) -> str:
@@ -281,13 +411,14 @@ def check_job(cfg, setup: Setup, done: dict, multirun: bool = False) -> None:
     key = _shape_key(cfg)
     if key not in done:
         try:
-            dry_run(setup)
+            done[key] = dry_run(setup)
         except ConfigError:
             raise
         except Exception as exc:  # a misfit the components did not name: still one line, before any work
             raise ConfigError(f"the configuration fails on a one-replication dry run "
                               f"({_run_length(setup)}): {type(exc).__name__}: {one_line(exc)}") from None
-        done[key] = True
+    else:  # a job of the same shapes (another seed): the same data, the same limit
+        bound_by_data(setup, done[key])
 
 
 def job_key(cfg) -> str | None:
@@ -365,7 +496,10 @@ def preflight(argv: Sequence[str]) -> Checked:
                 raise UsageError(_composition_message(
                     exc, lambda: compose(config_name, overrides=[*extra, *group_only]))) from None
             try:
-                setup = build(cfg)
+                with warnings.catch_warnings():
+                    # a data source reports what it dropped through logging and warnings.warn: one line is enough
+                    warnings.filterwarnings("ignore", message=r"data: ", category=UserWarning)
+                    setup = build(cfg)
             except OmegaConfBaseException as exc:
                 raise UsageError(one_line(exc)) from None
             check_job(cfg, setup, done, multirun=bool(args.multirun))

@@ -19,8 +19,11 @@ design, online, run), ``setup`` (the differing choices) and ``study`` (every
 study metric), also per system (``paper003``: that system's study metrics, as
 ``paper003:<metric>`` columns). The markdown table shows ``test``, ``design`` and
 the set-up columns that differ among runs of the same preset (a column that only
-differs between presets is the preset's doing: ``--metrics setup`` shows them
-all); the CSV holds every column of every group.
+differs between systems is the system's doing: ``--metrics setup`` shows them
+all); the CSV holds every column of every group. Rows are grouped by system (the preset,
+else the data source, else the plant: :func:`run_system`): the markdown has one table per
+system, each with the set-up columns that differ among that system's runs and without the
+columns empty on all of its rows; the CSV has a ``system`` column and leaves a missing value empty.
 """
 from __future__ import annotations
 
@@ -31,7 +34,7 @@ import math
 import sys
 from typing import Sequence
 
-COLUMNS = ("preset", "fault", "detector", "optimizer", "mdr", "mdr_ci", "far", "far_ci", "accuracy", "accuracy_ci",
+COLUMNS = ("system", "preset", "fault", "detector", "optimizer", "mdr", "mdr_ci", "far", "far_ci", "accuracy", "accuracy_ci",
            "detection_rate", "params", "online", "n_test", "run_id", "experiment")
 
 
@@ -101,6 +104,12 @@ def _system(tags, params) -> str:
     return tags.get("mosd.experiment") or (target.split(".")[-2] if target.count(".") >= 2 else "study")
 
 
+def run_system(tags) -> str:
+    """The system a run belongs to, what ``mosd report`` groups by: the preset, else the data source, else the plant."""
+    return (tags.get("mosd.experiment") or (f"data={tags['mosd.data']}" if tags.get("mosd.data") else "")
+            or tags.get("mosd.plant") or "?")
+
+
 def collect(tracking_uri: str, experiment: str | None = None, latest_only: bool = True) -> list[dict]:
     """Rows of finished app runs: :data:`COLUMNS` plus one column per differing choice (:func:`differing_columns`)."""
     from mlflow.tracking import MlflowClient
@@ -136,6 +145,7 @@ def collect(tracking_uri: str, experiment: str | None = None, latest_only: bool 
         names = [n for n in tags.get("mosd.params", "").split(",") if n]
         design = " ".join(f"{n}={metrics[n]:.4g}" for n in names if n in metrics)
         rows.append({
+            "system": run_system(tags),
             # recorded data (data=tep, data=table) have no fault option: the data source fills the column
             "preset": choices["experiment"],
             "fault": tags.get("mosd.fault") or (f"data={tags['mosd.data']}" if tags.get("mosd.data") else "?"),
@@ -159,7 +169,7 @@ def collect(tracking_uri: str, experiment: str | None = None, latest_only: bool 
             row[column] = choices[column] if column in choices else config.get(column, "–")
         # every row has every column (a system's study metrics are "–" on another system's row)
         row.update({column: study.get(column, "–") for column in studies})
-    rows.sort(key=lambda r: (r["preset"], r["fault"], r["detector"], r["optimizer"], *(str(r[c]) for c in extra)))
+    rows.sort(key=lambda r: (r["system"], r["preset"], r["fault"], r["detector"], r["optimizer"], *(str(r[c]) for c in extra)))
     return rows
 
 
@@ -187,12 +197,18 @@ def study_columns(rows: list[dict]) -> list[str]:
     return [k for k in (rows[0] if rows else {}) if ":" in k]
 
 
-def default_setup_columns(rows: list[dict]) -> list[str]:
-    """The set-up columns that differ among runs of one preset (the others only differ between presets)."""
-    by_preset: dict[str, list[dict]] = {}
+def by_system(rows: list[dict]) -> dict[str, list[dict]]:
+    """``rows`` grouped by their system (:func:`run_system`), in the rows' order."""
+    found: dict[str, list[dict]] = {}
     for r in rows:
-        by_preset.setdefault(r["preset"], []).append(r)
-    return [c for c in extra_columns(rows) if any(len({str(r[c]) for r in same}) > 1 for same in by_preset.values())]
+        found.setdefault(r.get("system", r["preset"]), []).append(r)
+    return found
+
+
+def default_setup_columns(rows: list[dict]) -> list[str]:
+    """The set-up columns that differ among runs of one system (the others only differ between systems)."""
+    return [c for c in extra_columns(rows)
+            if any(len({str(r[c]) for r in same}) > 1 for same in by_system(rows).values())]
 
 
 def groups(rows: list[dict]) -> dict[str, list[str]]:
@@ -251,21 +267,42 @@ def _cell(r: dict, column: str) -> str:
     if column == "run":
         return r["run_id"][:8]
     value = r[column]
-    return f"{value:.4g}" if isinstance(value, float) else str(value or "–")
+    if isinstance(value, float):
+        return f"{value:.4g}" if math.isfinite(value) else "–"
+    value = str(value or "–")
+    # a configuration value that reads as a missing number (data.errors=nan, the option's name) is quoted
+    return f"'{value}'" if value.lower() in ("nan", "none", "null") else value
+
+
+def _table(rows: list[dict], columns: list[str]) -> str:
+    """One markdown table; a column whose every cell is empty ("–") is left out, except the identity."""
+    header = [*IDENTITY, *columns]
+    cells = [[r["preset"] or "–", r["fault"], r["detector"], r["optimizer"], *(_cell(r, c) for c in columns)]
+             for r in rows]
+    keep = [i for i in range(len(header)) if i < len(IDENTITY) or any(row[i] != "–" for row in cells)]
+    lines = ["| " + " | ".join(_HEADERS.get(header[i], header[i]) for i in keep) + " |",
+             "|" + "|".join("---" for _ in keep) + "|"]
+    lines += ["| " + " | ".join(row[i] for i in keep) + " |" for row in cells]
+    return "\n".join(lines)
 
 
 def to_markdown(rows: list[dict], columns: list[str] | None = None) -> str:
-    """Markdown table: rates in % as mean ± 95 % CI half-width over the test replications.
+    """Markdown: rates in % as mean ± 95 % CI half-width over the test replications, one table per system.
 
-    ``columns`` (:func:`select_columns`) after the identity columns; None: the default.
+    ``columns`` (:func:`select_columns`) after the identity columns; None: the
+    default, chosen per system (the set-up columns that differ among its runs).
+    Runs of several systems get one table each under a ``### system`` line;
+    a column empty ("–") on every row of a table is left out of it (the identity columns stay).
     """
-    columns = select_columns(rows, None) if columns is None else columns
-    header = [*IDENTITY, *(_HEADERS.get(c, c) for c in columns)]
-    lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
-    for r in rows:
-        cells = [r["preset"] or "–", r["fault"], r["detector"], r["optimizer"], *(_cell(r, c) for c in columns)]
-        lines.append("| " + " | ".join(cells) + " |")
-    return "\n".join(lines)
+    systems = by_system(rows)
+    if len(systems) == 1:
+        return _table(rows, select_columns(rows, None) if columns is None else columns)
+    parts = []
+    for system, same in systems.items():
+        shown = [c for c in (select_columns(rows, None) if columns is None else columns)
+                 if c not in extra_columns(rows) or columns is not None or len({str(r[c]) for r in same}) > 1]
+        parts.append(f"### {system} ({len(same)} run{'s' if len(same) > 1 else ''})\n\n" + _table(same, shown))
+    return "\n\n".join(parts)
 
 
 def to_csv(rows: list[dict], columns: list[str] | None = None) -> str:
@@ -278,7 +315,9 @@ def to_csv(rows: list[dict], columns: list[str] | None = None) -> str:
     writer = csv.DictWriter(out, fieldnames=list(dict.fromkeys(fields)), lineterminator="\n", extrasaction="ignore")
     writer.writeheader()
     for r in rows:
-        writer.writerow({k: (repr(v) if isinstance(v, float) else v) for k, v in r.items()})
+        # a missing value is an empty field, as spreadsheets and pandas read it (not "nan" or an en dash)
+        writer.writerow({k: ("" if v == "–" or (isinstance(v, float) and math.isnan(v))
+                             else repr(v) if isinstance(v, float) else v) for k, v in r.items()})
     return out.getvalue()
 
 

@@ -71,8 +71,44 @@ def _start_tracking(cfg, hc, labels: Mapping[str, str], n_jobs: int, run_dir: Pa
     commit = git_commit()
     if commit:
         tags["mlflow.source.git.commit"] = commit
-    name = f"{labels['fault']}-{labels['detector']}-{labels['optimizer']}" + (f"-{hc.job.num}" if multirun else "")
+    name = run_name(cfg, labels) + (f"-{hc.job.num}" if multirun else "")
     return RunTracker(settings, name, tags, parent_run_id(hc.sweep.dir if multirun else None)).start()
+
+
+def run_name(cfg, labels: Mapping[str, str]) -> str:
+    """What the run is, as its MLflow name: ``SYSTEM-DETECTOR-OPTIMIZER``.
+
+    The system is the preset (``paper002-threshold-mopso``), else the data source
+    (``tep-pca-mopso``; a table by its file: ``table:plant-pca-mopso``), else the
+    fault of the main command (``offset_var-ss_dewma-mopso``).
+    """
+    from omegaconf import OmegaConf
+
+    system = labels.get("experiment") or labels.get("data") or labels.get("fault") or "run"
+    if system == "table":
+        path = OmegaConf.select(cfg, "data.path", default=None)
+        system = f"table:{Path(str(path)).stem}" if path else system
+    return f"{system}-{labels.get('detector', '')}-{labels.get('optimizer', '')}"
+
+
+def ui_line(uri: str, experiment_id: str) -> str:
+    """Where the run is seen in the MLflow UI: the runs table, with FAR, MDR and the tuned design as columns."""
+    from .ui import runs_address
+
+    if uri.startswith(("http://", "https://")):  # a tracking server: its UI
+        return f"ui        {runs_address(uri, experiment_id)}"
+    from .settings import default_tracking_uri
+
+    store = "" if uri == default_tracking_uri() else f" --tracking-uri {redacted(uri)}"
+    return (f"ui        python -m mosd ui{store}, then "
+            f"{runs_address('http://127.0.0.1:5000', experiment_id)}")
+
+
+def recorded_labels(labels: dict[str, str]) -> dict[str, str]:
+    """A recorded-data run's labels without plant, noise and fault: the data took their place."""
+    if not labels.get("data"):
+        return labels
+    return {k: v for k, v in labels.items() if k not in ("plant", "noise", "fault")}
 
 
 def run(cfg, started: float | None = None, checked=None):
@@ -111,13 +147,18 @@ def run(cfg, started: float | None = None, checked=None):
     started = task_start if (started is None or multirun) else started
     run_dir = Path(hc.runtime.output_dir)
     choices = {k: v for k, v in hc.runtime.choices.items() if not k.startswith("hydra/") and v is not None}
-    labels = {group: str(choices.get(group, "")) for group in (*COMPONENTS, "tracking", "experiment")}
+    labels = recorded_labels({group: str(choices.get(group, "")) for group in (*COMPONENTS, "tracking", "experiment")})
     tracker = progress = figures = setup = None
     result = None
     writing = False  # an OSError while True: the run directory cannot be written (disk full, quota)
     done = False  # the run is complete (FINISHED, or its files kept for `mosd log`): a signal no longer changes it
     try:
-        setup = (checked.take(cfg) if checked is not None else None) or build(cfg)
+        setup = checked.take(cfg) if checked is not None else None
+        if setup is None:  # a job in another process: built here, its component count bounded as preflight does
+            from .preflight import fit_to_data
+
+            setup = build(cfg)
+            fit_to_data(setup)
         labels["online"] = "true" if setup.experiment.detector.is_causal else "false"
         n_jobs = setup.n_jobs
         if n_jobs > 1 and under_joblib_launcher(hc):
@@ -233,14 +274,18 @@ def run(cfg, started: float | None = None, checked=None):
                     tracking_line += f"\n          no model: {deployment.reason}"
                 if tracker.note:
                     tracking_line += f"\n          store: {tracker.note}"
+                if tracker.experiment_id:
+                    tracking_line += "\n" + ui_line(tracker.settings.uri, tracker.experiment_id)
             signals.raise_pending()  # one that arrived while MLflow failed: the pending file is written
         elif deployment.reason:
             tracking_line = f"model     none: {deployment.reason}"
         writing = False
         done = True
         timings["wall_s"] = time.perf_counter() - started
-        print(format_summary(labels, result, setup, metrics, timings, run_dir, tracking_line, study_metrics,
-                              header=multirun), flush=True)
+        summary_text = format_summary(labels, result, setup, metrics, timings, run_dir, tracking_line, study_metrics,
+                                      header=multirun)
+        print(summary_text, flush=True)
+        to_log_file(summary_text if multirun else header_line(labels, setup) + "\n" + summary_text)
         if not_logged is not None:
             NOT_LOGGED.append(run_dir)
             print(f"mosd: error: the run was not logged to MLflow ({not_logged}); its files are complete in "
@@ -306,6 +351,19 @@ def run(cfg, started: float | None = None, checked=None):
         raise
     finally:
         signals.run_ended()
+
+
+def to_log_file(text: str) -> None:
+    """Write ``text`` to the run's log file (Hydra's ``mosd.log``) only: the console already showed it.
+
+    The run's messages go to the console and ``mosd.log`` through logging, but
+    its result is printed; without this the log file of a run held at most a
+    warning, usually nothing.
+    """
+    for handler in logging.getLogger().handlers:
+        if isinstance(handler, logging.FileHandler):
+            record = logging.LogRecord("mosd.app", logging.INFO, __file__, 0, "%s", (text,), None)
+            handler.handle(record)
 
 
 def _stopped(exc: BaseException, signum: int, job_worker: bool):

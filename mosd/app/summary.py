@@ -20,6 +20,56 @@ def on_bound(params: Mapping[str, float], setup: Setup) -> list[str]:
     return names
 
 
+def bound_notes(params: Mapping[str, float], setup: Setup) -> list[str]:
+    """The summary's notes on :func:`on_bound`'s parameters: widen the box only where the parameter may go further.
+
+    A design on the edge of the box that is also the edge of the parameter's
+    allowed range (``persistence = 1``, the smallest allowed) cannot be moved by
+    widening ``detector.bounds``: it says so instead of advising it.
+    """
+    notes = []
+    for name, value in params.items():
+        interval = setup.experiment.detector.tunable[name]
+        low, high = setup.bounds.get(name, (interval.low, interval.high))
+        tol = 1e-6 * (high - low) + (1e-6 if interval.open_low or interval.open_high else 0.0)
+        at_low, at_high = value <= low + tol, value >= high - tol
+        if not (at_low or at_high):
+            continue
+        edge = float(interval.low if at_low else interval.high)
+        text = f"{name} = {value:g} in [{low:g}, {high:g}]"
+        if abs((low if at_low else high) - edge) <= tol:
+            text += f" (the {'smallest' if at_low else 'largest'} value {name} allows)"
+        else:
+            text += f" (widen detector.bounds.{name}: the optimum may lie outside the box)"
+        notes.append(text)
+    return notes
+
+
+def study_lines(name: str, study: Mapping[str, float], width: int = 110) -> list[str]:
+    """The ``study`` line of the summary, grouped and wrapped: one line per family of metrics.
+
+    Metrics sharing a name up to their last ``_`` part (``lit_fdr_t2_idv1``,
+    ``lit_fdr_t2_idv2``, … of the TE study) form one family printed as
+    ``lit_fdr_t2: idv1 0.9988, idv2 …``; the rest are listed together; every line
+    is wrapped at ``width`` characters under the summary's 10-character indent.
+    """
+    import textwrap
+
+    families: dict[str, list[tuple[str, str, float]]] = {}  # stem -> (full key, last part, value)
+    for key, value in study.items():
+        stem, _, tail = key.rpartition("_")
+        families.setdefault(stem or key, []).append((key, tail, value))
+    loose = [(key, value) for items in families.values() if len(items) < 3 for key, _, value in items]
+    entries = [", ".join(f"{k} {v:.4g}" for k, v in loose)] if loose else []
+    entries += [f"{stem}: " + ", ".join(f"{tail} {v:.4g}" for _, tail, v in items)
+                for stem, items in families.items() if len(items) >= 3]
+    lines = [f"study     {name}: {len(study)} metrics"]
+    for entry in entries:
+        lines += textwrap.wrap(entry, width=width, initial_indent="  ", subsequent_indent="      ",
+                               break_on_hyphens=False)
+    return lines
+
+
 def final_metrics(result, seconds_per_point: float) -> dict[str, float]:
     """The run's scalar metrics: test means and CI half-widths, chosen parameters, training objectives."""
     metrics: dict[str, float] = {}
@@ -84,8 +134,7 @@ def format_summary(labels, result, setup: Setup, metrics, timings, run_dir, trac
     lines = [
         *([header_line(labels, setup)] if header else []),
         f"chosen    {params}   (training: {train}; archive of {len(result.archive_F)})",
-        *([f"          on the search bound: {', '.join(on_bound(result.params, setup))} "
-           "(widen detector.bounds: the optimum may lie outside the box)"] if on_bound(result.params, setup) else []),
+        *(f"          on the search bound: {note}" for note in bound_notes(result.params, setup)),
         f"test      {n_test} fresh replications, mean ± 95 % CI half-width; {online}",
         f"  FAR       {pm('far')}",
         f"  MDR       {pm('mdr')}",
@@ -95,8 +144,7 @@ def format_summary(labels, result, setup: Setup, metrics, timings, run_dir, trac
         f"{metrics['delay_censored_median_s']:.4g} s (undetected runs beyond the horizon)",
         "wall time " + f"{timings['wall_s']:.1f} s  (" + ", ".join(
             f"{k.removesuffix('_s')} {v:.1f}" for k, v in timings.items() if k != "wall_s") + ")",
-        *([f"study     {type(setup.study).__name__}: " + ", ".join(f"{k} {v:.4g}" for k, v in study.items())]
-          if study else []),
+        *(study_lines(type(setup.study).__name__, study) if study else []),
         f"run dir   {run_dir}",
     ]
     if tracking_line:

@@ -42,6 +42,8 @@ class RunTracker:
         self.parent_run_id = parent_run_id
         self.in_process = "mlflow" in sys.modules if in_process is None else bool(in_process)
         self.run_id: str | None = None
+        #: the run's experiment id (after finish): the UI's runs-table address (mosd.app.ui.runs_address)
+        self.experiment_id: str | None = None
         #: MLflow import and run-creation seconds, measured where MLflow ran (after finish)
         self.startup_timings: dict[str, float] = {}
         #: what happened to the store on the way in (an unfinished store moved aside), after finish
@@ -113,6 +115,7 @@ class RunTracker:
             self.run_id = replies[0]["run_id"]
             self.startup_timings = replies[0].get("timings", {})
             self.note = replies[0].get("note")
+            self.experiment_id = replies[0].get("experiment_id")
         self.status = next((r["status"] for r in replies if r.get("status")), None)
         self.model_uri = next((r["model_uri"] for r in replies if r.get("model_uri")), None)
         self.model_error = next((r["model_error"] for r in replies if r.get("model_error")), None)

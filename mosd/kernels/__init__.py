@@ -28,7 +28,9 @@ check equality, not a tolerance); the last three are close, not identical:
   summation, a vectorised exp): ~1e-15 of the size of the summed terms.
 
 Compiled code is cached on disk (``cache=True``), so only the first run on a
-machine pays the compilation. The NumPy path is used when numba is missing, when
+machine pays the compilation, and only for the kernels it calls (numba compiles a
+function when it is first called). ``python -m mosd.kernels`` compiles all seven
+modules ahead (a machine image, a cluster's shared cache); the set-up does not need it. The NumPy path is used when numba is missing, when
 ``MOSD_KERNELS=numpy`` is set, or inside :func:`disabled` (how the tests and
 ``python -m mosd.bench`` compare the two in one process).
 """
@@ -105,6 +107,23 @@ def warm_up(modules: tuple[str, ...] = EVALUATION_MODULES) -> None:
 
     for name in modules:
         importlib.import_module(f"{__name__}.{name}").warm_up()
+
+
+def cached(name: str) -> bool:
+    """Whether kernel module ``name`` has compiled code in numba's on-disk cache (any of its index files).
+
+    Cheap (a directory listing; the module is imported, which imports numba).
+    """
+    import glob
+    import importlib
+
+    module = importlib.import_module(f"{__name__}.{name}")
+    for obj in vars(module).values():
+        cache = getattr(obj, "_cache", None)
+        path = getattr(cache, "_cache_path", None)
+        if path is not None and getattr(obj, "__module__", None) == module.__name__:
+            return bool(glob.glob(os.path.join(glob.escape(path), f"{name}.*.nbi")))
+    return True  # nothing cached by numba in this module
 
 
 def compile_module(name: str) -> tuple[str, float]:

@@ -1,7 +1,9 @@
 """``python -m mosd.kernels``: compile every numerical kernel once, into numba's on-disk cache.
 
-The first run after an install would otherwise compile them on its critical
-path (tens of seconds); afterwards every process loads them from the cache.
+Not needed after an install: a run compiles the kernels it calls when it first
+calls them, and only those. This command compiles them all ahead, e.g. for a
+machine image or a cluster's shared cache (``--modules`` picks some); afterwards
+every process loads them from the cache.
 The modules compile in parallel processes (``--jobs``, default: the CPUs).
 Exit code 0 when every kernel compiled, 1 otherwise.
 """
@@ -20,7 +22,14 @@ def main(argv: list[str] | None = None) -> int:
 
     parser = argparse.ArgumentParser(prog="python -m mosd.kernels", description=__doc__.splitlines()[0])
     parser.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="parallel compiling processes")
+    parser.add_argument("--modules", default=",".join(MODULES),
+                        help=f"comma-separated kernel modules to compile (default: all of {', '.join(MODULES)})")
     args = parser.parse_args(argv)
+    chosen = [m.strip() for m in args.modules.split(",") if m.strip()]
+    unknown = [m for m in chosen if m not in MODULES]
+    if unknown or not chosen:
+        parser.error(f"--modules {','.join(unknown) or args.modules!r} is not a kernel module; allowed: "
+                     f"{', '.join(MODULES)}")
     if not available() or not enabled():
         print("mosd.kernels: numba is missing or MOSD_KERNELS=numpy: nothing to compile", file=sys.stderr)
         return 0
@@ -28,7 +37,7 @@ def main(argv: list[str] | None = None) -> int:
     failed = 0
     # the slowest first, so that the parallel compiles end together
     slowest = ("cubature", "imm", "wavelet", "chart", "entropy", "plants", "ewma")
-    order = sorted(MODULES, key=lambda name: slowest.index(name) if name in slowest else len(slowest))
+    order = sorted(chosen, key=lambda name: slowest.index(name) if name in slowest else len(slowest))
     # spawned, not forked: a fork of a process with threads (a caller's pools) can inherit a held lock
     context = multiprocessing.get_context("spawn")
     with ProcessPoolExecutor(max(1, min(args.jobs, len(order))), mp_context=context) as pool:

@@ -28,7 +28,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from ..data.tep import ALL_FAULTS, ONSET, TennesseeEastman
+from ..data.tep import ALL_FAULTS, DT, ONSET, TennesseeEastman, file_name
 from ..detectors.base import persistent
 from ..detectors.pca import PCADetector
 from ..validation import ConfigError, check_int
@@ -471,8 +471,45 @@ def monitor_table(table, detector: PCADetector, top: int = 10) -> dict:
     return result
 
 
+#: Columns an exported file has besides its tags (:func:`export_csv`).
+EXPORT_TIME, EXPORT_LABEL = "time", "fault"
+
+
+def export_csv(out_dir: str | Path, directory: str | None = None, variables: str = "literature") -> list[Path]:
+    """Write every Braatz file as ``dNN.csv`` / ``dNN_te.csv``: time, fault label and the tags by name.
+
+    Each file keeps its rows in order: ``time`` in seconds from the file's first
+    row (180 s per sample), ``fault`` the IDV number acting on the row (0 before
+    row 160 of a test file and everywhere in ``d00``), then the tags
+    (``XMEAS(1)`` ...) of ``variables`` (``literature``: the 33 the ``tep`` preset
+    and its logged model use; ``all``: 52). What ``mosd monitor --keep time --keep
+    fault`` scores with a TE run's model, and what ``data=table`` reads
+    (``data.time_column=time data.label_column=fault``).
+    """
+    import csv
+
+    source = TennesseeEastman(directory=directory, variables=variables)
+    out = Path(out_dir)
+    names = [file_name(0), *(file_name(f) for f in ALL_FAULTS),
+             *(file_name(f, test=True) for f in (0, *ALL_FAULTS))]
+    tables = [(name, source.values(name)) for name in names]  # every file read (and checked) before one is written
+    out.mkdir(parents=True, exist_ok=True)
+    written = []
+    for name, values in tables:
+        fault = int(name[1:3])
+        onset = ONSET if name.endswith("_te.dat") else 0
+        path = out / name.replace(".dat", ".csv")
+        with path.open("w", newline="") as handle:
+            writer = csv.writer(handle)
+            writer.writerow([EXPORT_TIME, EXPORT_LABEL, *source.output_names])
+            for row, sample in enumerate(values):
+                writer.writerow([f"{row * DT:g}", fault if row >= onset else 0, *(repr(float(v)) for v in sample)])
+        written.append(path)
+    return written
+
+
 def main(argv=None) -> int:
-    """``python -m mosd.systems.tep [--directory DIR] [--out DIR] | --table FILE [--time-column C]``."""
+    """``python -m mosd.systems.tep [--directory DIR] [--out DIR] | --table FILE [--time-column C] | --export DIR``."""
     parser = cli.report_parser("python -m mosd.systems.tep", "Tennessee Eastman: the per-fault PCA table (T², SPE, "
                                "combined) of the literature's design and of the tuned one, without the optimiser.",
                                out="outputs/systems/tep", seed=False)
@@ -481,7 +518,17 @@ def main(argv=None) -> int:
     parser.add_argument("--table", default=None, help="monitor a CSV/Parquet table instead (fit on its first half)")
     parser.add_argument("--time-column", default=None, help="--table: the time column (a name or a 0-based position)")
     parser.add_argument("--label-column", default=None, help="--table: the fault-label column")
+    parser.add_argument("--export", default=None, metavar="DIR",
+                        help="write the TE files as CSV (time, fault, the tags by name) into DIR and stop")
+    parser.add_argument("--variables", default="literature", choices=("literature", "all"),
+                        help="--export: the 33 variables of the tep preset (default) or all 52")
     cli.design_options(parser, SYSTEM)
+
+    def export_body(args):
+        files = export_csv(args.export, args.directory, args.variables)
+        print(f"{len(files)} TE files as CSV in {args.export} (columns {EXPORT_TIME}, {EXPORT_LABEL} and "
+              f"{len(TennesseeEastman(args.directory, args.variables).output_names)} tags)")
+        return [Path(args.export)]
 
     def table_body(args):
         from ..data.table import Table
@@ -501,6 +548,8 @@ def main(argv=None) -> int:
         return [cli.write_json(Path(args.out) / "tep_table_monitor.json", result)]
 
     def body(args):
+        if args.export:
+            return export_body(args)
         if args.table:
             return table_body(args)
         overrides = [f"data.directory={args.directory}"] if args.directory else []
