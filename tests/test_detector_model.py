@@ -221,6 +221,10 @@ def test_run_logs_the_model_and_monitor_reproduces_its_test_evaluation(logged_ru
         assert np.mean(alarm[labels == 0]) == pytest.approx(summary["test"]["far"]["mean"], abs=1e-12)
         assert 1 - np.mean(alarm[labels != 0]) == pytest.approx(summary["test"]["mdr"]["mean"], abs=1e-12)
         assert np.array_equal(alarm, r["expected"])
+        # the first-alarm line shows the statistics the limits apply to (smoothed when λ < 1), not the raw ones
+        first = re.search(r"first alarm at row (\d+): T² (\S+) \(limit (\S+)\), SPE (\S+)", scored.stdout)
+        row = alarms.iloc[int(first.group(1))]
+        assert first.group(2) == f"{row['t2_smoothed']:.4g}" and first.group(4) == f"{row['spe_smoothed']:.4g}"
     # a historian error code: the run's data.fill (hold) fills it as training did, with the previous row's value
     coded = test.astype(object)
     coded.iloc[40, 3] = "Bad"

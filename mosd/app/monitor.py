@@ -263,9 +263,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         if "statistic" in out.columns:  # a chart, a threshold or a CUSUM on a stream
             where = f" (subgroup {row['subgroup']})" if "subgroup" in out.columns else ""
             print(f"first alarm at row {first}{where}: statistic {row['statistic']:.4g} (limit {row['limit']:.4g})")
-        else:
-            print(f"first alarm at row {first}: T² {row['t2']:.4g} (limit {row['t2_limit']:.4g}), SPE "
-                  f"{row['spe']:.4g} (limit {row['spe_limit']:.4g}); top T² {row['top_t2']}, top SPE {row['top_spe']}")
+        else:  # the statistics the limits apply to: smoothed when the design smooths (λ < 1)
+            print(f"first alarm at row {first}: T² {row['t2_smoothed']:.4g} (limit {row['t2_limit']:.4g}), SPE "
+                  f"{row['spe_smoothed']:.4g} (limit {row['spe_limit']:.4g}); top T² {row['top_t2']}, "
+                  f"top SPE {row['top_spe']}")
     if "alarm" in reference:
         same = int(np.sum(out["run_alarm"].to_numpy(bool) == alarms))
         print(f"the run's own alarms: {same} of {len(out)} rows agree"
