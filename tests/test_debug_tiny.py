@@ -54,11 +54,32 @@ def test_tiny_alone_shrinks_the_main_command():
     assert cfg.study is None
 
 
+def _table(path: Path) -> list[str]:
+    """A labelled 8-tag export (two latent factors, a shift of one tag in two windows) and its data keys."""
+    import numpy as np
+    import pandas as pd
+
+    rng = np.random.default_rng(0)
+    X = rng.normal(size=(800, 2)) @ rng.normal(size=(2, 8)) + 0.3 * rng.normal(size=(800, 8))
+    fault = np.zeros(800, int)
+    for a, b in [(450, 520), (650, 760)]:
+        fault[a:b] = 1
+        X[a:b, 2] += 1.5
+    table = pd.DataFrame(X, columns=[f"tag{i}" for i in range(8)])
+    table.insert(0, "time", np.arange(800) * 60.0)
+    table["fault"] = fault
+    table.to_csv(path, index=False)
+    return [f"data.path={path}", "data.label_column=fault", "data.time_column=time"]
+
+
+@pytest.mark.slow
 @pytest.mark.parametrize("command", [["+fault=offset_var"], *(["debug=tiny", f"+experiment={p}"] if p == "paper001"
                                                                 else [f"+experiment={p}"] for p in PRESETS)],
                          ids=lambda c: "main" if c == ["+fault=offset_var"] else c[-1].split("=")[1])
 def test_every_system_runs_end_to_end_with_debug_tiny(tmp_path, command):
     argv = command if "debug=tiny" in command else [*command, "debug=tiny"]
+    if "+experiment=table" in argv:  # any labelled export: the test writes one
+        argv = [*argv, *_table(tmp_path / "plant.csv")]
     env = {**os.environ, "MOSD_OUTPUTS": str(tmp_path / "outputs"), "PYTHONPATH": str(ROOT)}
     started = time.perf_counter()
     done = subprocess.run([sys.executable, "-m", "mosd", *argv, "tracking=none"], cwd=tmp_path, env=env,
