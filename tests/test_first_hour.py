@@ -145,6 +145,8 @@ def test_a_study_of_a_hundred_metrics_prints_grouped_short_lines():
     assert lines[0] == "study     Study: 110 metrics"
     assert any(line.strip().startswith("lit_fdr_t2: idv1 0.51, idv2 0.52") for line in lines)
     assert sum("lit_far_combined 0.06" in line for line in lines) == 1
+    # wrapped between metrics: no line starts with a value cut off from its name
+    assert all(line.split()[0].startswith(("idv", "lit", "tuned")) for line in lines[1:])
 
 
 # -- 4. mosd report ----------------------------------------------------------------------------------

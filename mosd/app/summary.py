@@ -51,22 +51,27 @@ def study_lines(name: str, study: Mapping[str, float], width: int = 110) -> list
     Metrics sharing a name up to their last ``_`` part (``lit_fdr_t2_idv1``,
     ``lit_fdr_t2_idv2``, … of the TE study) form one family printed as
     ``lit_fdr_t2: idv1 0.9988, idv2 …``; the rest are listed together; every line
-    is wrapped at ``width`` characters under the summary's 10-character indent.
+    is wrapped at ``width`` characters, between metrics.
     """
-    import textwrap
-
     families: dict[str, list[tuple[str, str, float]]] = {}  # stem -> (full key, last part, value)
     for key, value in study.items():
         stem, _, tail = key.rpartition("_")
         families.setdefault(stem or key, []).append((key, tail, value))
     loose = [(key, value) for items in families.values() if len(items) < 3 for key, _, value in items]
-    entries = [", ".join(f"{k} {v:.4g}" for k, v in loose)] if loose else []
-    entries += [f"{stem}: " + ", ".join(f"{tail} {v:.4g}" for _, tail, v in items)
+    entries = [("", [f"{k} {v:.4g}" for k, v in loose])] if loose else []
+    entries += [(f"{stem}: ", [f"{tail} {v:.4g}" for _, tail, v in items])
                 for stem, items in families.items() if len(items) >= 3]
     lines = [f"study     {name}: {len(study)} metrics"]
-    for entry in entries:
-        lines += textwrap.wrap(entry, width=width, initial_indent="  ", subsequent_indent="      ",
-                               break_on_hyphens=False)
+    for head, items in entries:  # wrapped between metrics, never between a name and its value
+        line = "  " + head
+        for i, item in enumerate(items):
+            piece = item + ("," if i < len(items) - 1 else "")
+            if len(line) + 1 + len(piece) > width and line.strip() and not line.endswith(": "):
+                lines.append(line)
+                line = "      " + piece
+            else:
+                line += ("" if line.endswith(("  ", ": ")) else " ") + piece
+        lines.append(line)
     return lines
 
 
