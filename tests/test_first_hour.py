@@ -108,7 +108,7 @@ def test_preflight_refuses_a_bound_the_data_cannot_take_before_any_work(tmp_path
     # a table without the measured-signals pipeline: one line naming what works
     err = _refused(["data=table", f"data.path={tmp_path / 'plant.csv'}", "data.label_column=fault",
                     "tracking=none"], tmp_path, capsys)
-    assert "needs a plant model" in err and "estimator=measured" in err and "+experiment=table" in err
+    assert "without a plant model" in err and "estimator=measured" in err and "+experiment=table" in err
 
 
 def test_preflight_checks_the_box_of_a_simulated_system_too(tmp_path, capsys, monkeypatch):

@@ -122,7 +122,9 @@ def test_dask_without_distributed_names_the_install(monkeypatch, evaluator):
 
 def test_scheduler_check_parses_and_connects(local_cluster):
     check_scheduler(local_cluster.scheduler_address)  # listening: no error
-    check_scheduler("tls://nowhere.invalid:8786")  # other schemes are left to Dask
+    check_scheduler("ucx://nowhere.invalid:8786")  # other schemes are left to Dask
+    with pytest.raises(ConfigError, match="no Dask scheduler answers there"):
+        check_scheduler("tls://nowhere.invalid:8786")  # tls:// is checked like tcp:// (issue 34)
     with pytest.raises(ConfigError, match="has no host and port"):
         check_scheduler("tcp://hostonly")
 

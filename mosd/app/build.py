@@ -197,8 +197,8 @@ def check_recorded_pipeline(cfg) -> None:
     ``'NoneType' object has no attribute 'n_y'``, or in the monitor with NumPy warnings)."""
     pipeline = " ".join(f"{k}={v}" for k, v in RECORDED_PIPELINE.items())
     source = _option_name("data", str(cfg.data.get("_target_")))
-    allowed = (f"allowed: {pipeline} (the measured variables, PCA on them; +experiment=tep sets it for data=tep), "
-               "or estimator=pca monitor=signals with a detector of its outputs")
+    allowed = (f"allowed: {pipeline} (the measured variables, PCA on them; +experiment=table sets it for any "
+               "table, +experiment=tep for data=tep), or estimator=pca monitor=signals with a detector of its outputs")
     estimator = str(cfg.estimator.get("_target_"))
     if estimator not in MODEL_FREE_ESTIMATORS:
         raise ConfigError(f"{source} is recorded data without a plant model, which "
