@@ -95,8 +95,8 @@ def ui_line(uri: str, experiment_id: str) -> str:
     """Where the run is seen in the MLflow UI: the runs table, with FAR, MDR and the tuned design as columns."""
     from .ui import runs_address
 
-    if uri.startswith(("http://", "https://")):  # a tracking server: its UI
-        return f"ui        {runs_address(uri, experiment_id)}"
+    if uri.startswith(("http://", "https://")):  # a tracking server: its UI (never its password)
+        return f"ui        {runs_address(redacted(uri), experiment_id)}"
     from .settings import default_tracking_uri
 
     store = "" if uri == default_tracking_uri() else f" --tracking-uri {redacted(uri)}"
@@ -221,11 +221,12 @@ def run(cfg, started: float | None = None, checked=None):
             tracker.send()
 
         t0 = time.perf_counter()
-        # the deployable pipeline and the first test replication's stream, before the files that log them
-        model_file, deployment = save_for_run(setup, result, run_dir)
-        stream_files = [run_dir / STREAM_FILE] if deployment.stream is not None else []
         files = write_run_files(run_dir, cfg, result, setup, labels, study_metrics, figures,
-                                on_text_files=log_early) + list(study_files) + stream_files
+                                on_text_files=log_early) + list(study_files)
+        # the deployable pipeline and the first test replication's stream, after the run's own files (a disk
+        # that fills up takes the extras, not the results); logged with the last artifacts
+        model_file, deployment = save_for_run(setup, result, run_dir)
+        files += [run_dir / STREAM_FILE] if deployment.stream is not None else []
         record_model(run_dir, deployment, model_file)
         figures.close()
         timings["files_s"] = time.perf_counter() - t0
