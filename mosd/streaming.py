@@ -324,10 +324,7 @@ class OnlinePipeline:
         arrays, meta = _read_arrays(path, cls.FILE)
         stages = []
         for i, entry in enumerate(meta["stages"]):
-            module, _, name = entry["class"].rpartition(".")
-            if not module.startswith("mosd."):
-                raise ConfigError(f"model stage class {entry['class']!r} is not mosd's; allowed: mosd.* classes")
-            stage_cls = getattr(importlib.import_module(module), name)
+            stage_cls = mosd_class(entry["class"], "model stage class")
             own = {k.split(".", 1)[1]: v for k, v in arrays.items() if k.startswith(f"s{i}.")}
             stages.append(stage_cls.from_fields(entry["fields"], own))
         return cls(stages=stages, fill=meta.get("fill", "none"))
@@ -379,12 +376,17 @@ def describe(component) -> dict:
             "params": {k: plain(v) for k, v in component.get_params().items()}}
 
 
+def mosd_class(path: str, what: str = "component class"):
+    """The class at the dotted ``path``; only mosd's own (a saved model runs no code from elsewhere)."""
+    module, _, name = path.rpartition(".")
+    if not module.startswith("mosd."):
+        raise ConfigError(f"{what} {path!r} is not mosd's; allowed: mosd.* classes")
+    return getattr(importlib.import_module(module), name)
+
+
 def build(description: Mapping):
     """The component :func:`describe` described (mosd's own classes only)."""
-    module, _, name = description["class"].rpartition(".")
-    if not module.startswith("mosd."):
-        raise ConfigError(f"component class {description['class']!r} is not mosd's; allowed: mosd.* classes")
-    return getattr(importlib.import_module(module), name)(**description["params"])
+    return mosd_class(description["class"])(**description["params"])
 
 
 def points_of(columns: Mapping[str, np.ndarray], n: int, index: str = "point") -> tuple[int, np.ndarray, np.ndarray]:

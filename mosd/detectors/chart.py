@@ -45,7 +45,7 @@ from typing import ClassVar
 import numpy as np
 
 from ..denoisers.base import NoDenoiser
-from ..streaming import FINITE, NoStreamingForm, OnlineStage, StateVar
+from ..streaming import FINITE, NoStreamingForm, OnlineStage, StateVar, build, mosd_class
 from ..validation import ConfigError, Param, check_choice
 from .base import Decisions, Detector
 from .statistics import ewma_continue, mean_and_sd
@@ -245,14 +245,8 @@ class OnlineChart(OnlineStage):
     def _chart(self) -> "Chart":
         cached = self.__dict__.get("_chart_object")
         if cached is None:
-            import importlib
-
-            def build(path, params):
-                module, _, name = path.rpartition(".")
-                return getattr(importlib.import_module(module), name)(**params)
-
-            denoiser = build(self.denoiser["class"], self.denoiser["params"]) if self.denoiser else None
-            cached = self.__dict__["_chart_object"] = build(self.detector, {**self.design, "denoiser": denoiser})
+            denoiser = build(self.denoiser) if self.denoiser else None
+            cached = self.__dict__["_chart_object"] = mosd_class(self.detector)(**self.design, denoiser=denoiser)
         return cached
 
     @property
