@@ -20,9 +20,16 @@ from .store import StoreState, refusal, sqlite_path, sqlite_store_state, store_l
 
 #: Seconds preflight waits for a database port or a store lock.
 CHECK_TIMEOUT_S = 3.0
-#: Seconds preflight waits for a tracking server's answer: it reads the store, which concurrent runs
-#: keep busy (3 s refused a healthy one-worker server under 8 concurrent runs on 2 loaded cores).
-SERVER_TIMEOUT_S = 10.0
+#: Seconds preflight waits for a tracking server's answer: the patience a run's own MLflow client
+#: has (``MLFLOW_HTTP_REQUEST_TIMEOUT``, 30 s in :mod:`mosd.app.mlflow_client`). The server reads the
+#: store, which concurrent runs keep busy: 3 s, then 10 s, refused a healthy one-worker server on
+#: PostgreSQL under 7 concurrent runs on 2 loaded cores (CI).
+def server_timeout_s() -> float:
+    try:
+        value = float(os.environ.get("MLFLOW_HTTP_REQUEST_TIMEOUT", "30"))
+    except ValueError:
+        value = 30.0
+    return value if value > 0 else 30.0
 #: Default ports of the database back ends (checked with a TCP connection in preflight).
 DB_PORTS = {"postgresql": 5432, "mysql": 3306, "mssql": 1433}
 #: The REST call preflight makes to a tracking server: MLflow's client makes it first for every run.
@@ -125,7 +132,7 @@ def _mlflow_tls():
     return context
 
 
-def check_mlflow_server(uri: str, experiment: str, timeout: float = SERVER_TIMEOUT_S) -> None:
+def check_mlflow_server(uri: str, experiment: str, timeout: float | None = None) -> None:
     """Raise ConfigError (one line) unless ``uri`` is an MLflow tracking server that can take the experiment's runs.
 
     Something answering HTTP is not enough (a web server or a proxy answers every
@@ -139,6 +146,7 @@ def check_mlflow_server(uri: str, experiment: str, timeout: float = SERVER_TIMEO
     import urllib.parse
     import urllib.request
 
+    timeout = server_timeout_s() if timeout is None else timeout
     shown = redacted(uri)
     allowed = ("allowed: a running MLflow tracking server (mlflow server --host 127.0.0.1 ...), "
                "another tracking.uri, or tracking=none")
@@ -226,7 +234,7 @@ def check_database(uri: str, scheme: str, timeout: float = CHECK_TIMEOUT_S) -> N
 
 
 def check_tracking(settings: TrackingSettings, timeout: float = CHECK_TIMEOUT_S,
-                   server_timeout: float = SERVER_TIMEOUT_S) -> None:
+                   server_timeout: float | None = None) -> None:
     """Raise ConfigError (one line) if the store cannot take a run; bounded by ``timeout`` per check.
 
     sqlite: the DB file is read-only checked (a store a killed migration left
