@@ -240,7 +240,10 @@ def test_table3_command_on_a_tiny_budget(tmp_path):
                            "--out", str(tmp_path)], cwd=REPO, capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
     assert "## Table 3" in done.stdout and "MO-SS-DEWMA" in done.stdout
-    result = json.loads((tmp_path / "table3.json").read_text())
+    def refuse(constant):  # strict JSON: NaN/Infinity are not JSON
+        raise AssertionError(f"table3.json holds {constant}")
+
+    result = json.loads((tmp_path / "table3.json").read_text(), parse_constant=refuse)
     rows = result["rows"]
     methods = {r["method"] for r in rows}
     assert methods == set(paper.METHODS) | {paper.TUNED_MS_OEWMA}

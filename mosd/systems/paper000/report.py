@@ -9,7 +9,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ...metrics import Estimate
+from ...metrics import Estimate, json_ready
 from ..base import figure
 from .numbers import FAULT_LABELS, PAPER_TABLE3, PAPER_TABLE4, PAPER_TABLE4_PARAMS
 from .tables import BarCheck, GridScan, ParetoComparison, Row, Table3, Table4
@@ -169,7 +169,7 @@ def write_table3(table: Table3, out: Path) -> list[Path]:
         causal_md.write_text(format_causal(table) + "\n")
         written.append(causal_md)
     js = out / "table3.json"
-    js.write_text(json.dumps({
+    js.write_text(json.dumps(json_ready({
         "settings": table.settings,
         "rows": [_row_json(r) for r in table.rows],
         "bars": [{"fault": b.fault, "bar": b.name, "estimate": _estimate_json(b.estimate),
@@ -182,7 +182,7 @@ def write_table3(table: Table3, out: Path) -> list[Path]:
         "causal": [_row_json(r) for r in table.causal],
         "causal_vs_literal": [{"fault": b.fault, "accuracy_difference": _estimate_json(b.estimate),
                                "verdict": b.verdict} for b in table.causal_bars],
-    }, indent=1))
+    }), indent=1, allow_nan=False))
     return written + [js]
 
 
@@ -191,9 +191,9 @@ def write_table4(table: Table4, out: Path) -> list[Path]:
     md = out / "table4.md"
     md.write_text(format_table4(table) + "\n")
     js = out / "table4.json"
-    js.write_text(json.dumps({"settings": table.settings, "params": table.params,
-                              "train_objectives": table.train_objectives,
-                              "rows": [_row_json(r) for r in table.rows]}, indent=1))
+    js.write_text(json.dumps(json_ready({"settings": table.settings, "params": table.params,
+                                         "train_objectives": table.train_objectives,
+                                         "rows": [_row_json(r) for r in table.rows]}), indent=1, allow_nan=False))
     return [md, js]
 
 
