@@ -145,3 +145,24 @@ def test_fused_evaluation_rejects_bad_designs_like_the_reference():
 
     with pytest.raises(ConfigError, match="detector.lam"):
         evaluator(np.array([[1.5, 1.0]]))
+
+
+@pytest.mark.slow
+def test_a_chart_without_a_denoiser_never_compiles_the_wavelet(tmp_path):
+    """numba compiles every function a kernel's body calls: the wavelet lives in its own chart kernel, so a
+    run with denoise=none does not pay its compilation on a cold cache (issue 31)."""
+    import json
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    import mosd
+
+    env = {k: v for k, v in os.environ.items() if k != "MOSD_KERNELS"}
+    env.update(NUMBA_CACHE_DIR=str(tmp_path), PYTHONPATH=str(Path(mosd.__file__).resolve().parents[1]))
+    code = ("import json\nfrom mosd import kernels\nfrom mosd.kernels import chart, wavelet\nkernels.warm_up()\n"
+            "print(json.dumps([len(chart.alarm_counts.signatures), len(wavelet.denoise_row.signatures)]))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600, env=env)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert json.loads(out.stdout.strip().splitlines()[-1]) == [1, 0]

@@ -43,19 +43,18 @@ class FusedChartEvaluation:
         self.n_faulty = self.faulty.sum(axis=-1)
         self.n_healthy = (~self.faulty).sum(axis=-1)
         self.denoise = wavelet_plan is not None
-        if wavelet_plan is None:
-            wavelet_plan = plan(WaveletDenoiser())  # placeholder arguments, unused
-        self.wavelet_arguments = wavelet_plan.arguments(n_points)
+        self.wavelet_arguments = wavelet_plan.arguments(n_points) if self.denoise else ()
 
     def counts(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Per-run (healthy alarms, target-fault misses), each (P, R_train)."""
         params = _validated(self.detector, X)
         gains, feedback = ewma_coefficients(params["lam"], self.detector.order)
         widths = np.asarray(params["K"], float)
-        from ..kernels.chart import alarm_counts
+        from ..kernels import chart
 
-        return alarm_counts(self.u, self.v, self.n_calibration, gains, feedback, widths,
-                            self.detector.combine == "max", self.faulty, self.denoise, *self.wavelet_arguments)
+        kernel = chart.alarm_counts_denoised if self.denoise else chart.alarm_counts
+        return kernel(self.u, self.v, self.n_calibration, gains, feedback, widths, self.detector.combine == "max",
+                      self.faulty, *self.wavelet_arguments)
 
     def __call__(self, X: np.ndarray) -> np.ndarray:
         import warnings

@@ -139,9 +139,35 @@ def _statistics(u, v, gain, f1, f2, order, combine_max, stat, y):
 
 
 @njit(cache=True, nogil=True)
-def alarm_counts(u, v, n_calibration, gains, feedback, widths, combine_max, faulty, denoise,
-                 lo, hi, rec_lo, rec_hi, level, per_level, source, rule, fixed, hard):
-    """Per-run alarm counts of every candidate, fused (module docstring).
+def _count(plotted, n_calibration, width, faulty, calibration, healthy_alarms, faulty_misses, p):
+    """Candidate ``p``'s Phase-I limit, mean + K·sd over every calibration point (``Chart.fit_statistic``),
+    and its per-run alarm counts on the training runs (rows ``n_calibration:`` of ``plotted``)."""
+    n_points = plotted.shape[1]
+    for c in range(n_calibration):
+        row = plotted[c]
+        base = c * n_points
+        for k in range(n_points):
+            calibration[base + k] = row[k]
+    center, scale = mean_std(calibration)
+    limit = center + width * scale
+    for r in range(healthy_alarms.shape[1]):
+        row = plotted[n_calibration + r]
+        truth = faulty[r]
+        alarms = 0
+        misses = 0
+        for k in range(n_points):
+            alarm = row[k] > limit
+            if truth[k]:
+                misses += not alarm
+            else:
+                alarms += alarm
+        healthy_alarms[p, r] = alarms
+        faulty_misses[p, r] = misses
+
+
+@njit(cache=True, nogil=True)
+def alarm_counts(u, v, n_calibration, gains, feedback, widths, combine_max, faulty):
+    """Per-run alarm counts of every candidate, fused (module docstring), with no denoiser.
 
     Parameters
     ----------
@@ -151,12 +177,13 @@ def alarm_counts(u, v, n_calibration, gains, feedback, widths, combine_max, faul
         Each candidate's recursion coefficients (as ``ewma_time_major`` computes them) and its K.
     faulty : bool (R_train, K)
         Target-fault truth of the training runs.
-    denoise : bool
-        Apply the wavelet (remaining arguments: :func:`mosd.kernels.wavelet.denoise_row`).
 
     Returns
     -------
     healthy_alarms, faulty_misses : int64 (P, R_train)
+
+    A kernel of its own (not a flag of :func:`alarm_counts_denoised`): numba compiles every function a
+    body calls, taken branch or not, so a run without a denoiser never compiles the wavelet.
     """
     n_points, n_columns = u.shape
     n_candidates, order = feedback.shape
@@ -164,51 +191,58 @@ def alarm_counts(u, v, n_calibration, gains, feedback, widths, combine_max, faul
     healthy_alarms = np.zeros((n_candidates, n_train), np.int64)
     faulty_misses = np.zeros((n_candidates, n_train), np.int64)
     raw = np.empty((n_columns, n_points))
-    plotted = np.empty((n_columns, n_points)) if denoise else raw
+    y = np.empty((4, n_columns))
+    calibration = np.empty(n_calibration * n_points)
+    for p in range(n_candidates):
+        f2 = feedback[p, 1] if order == 2 else 0.0
+        _statistics(u, v, gains[p], feedback[p, 0], f2, order, combine_max, raw, y)
+        _count(raw, n_calibration, widths[p], faulty, calibration, healthy_alarms, faulty_misses, p)
+    return healthy_alarms, faulty_misses
+
+
+@njit(cache=True, nogil=True)
+def alarm_counts_denoised(u, v, n_calibration, gains, feedback, widths, combine_max, faulty,
+                          lo, hi, rec_lo, rec_hi, level, per_level, source, rule, fixed, hard):
+    """:func:`alarm_counts` with each run's statistic wavelet-denoised before the limit and the counts
+    (the remaining arguments: :func:`mosd.kernels.wavelet.denoise_row`)."""
+    n_points, n_columns = u.shape
+    n_candidates, order = feedback.shape
+    n_train = n_columns - n_calibration
+    healthy_alarms = np.zeros((n_candidates, n_train), np.int64)
+    faulty_misses = np.zeros((n_candidates, n_train), np.int64)
+    raw = np.empty((n_columns, n_points))
+    plotted = np.empty((n_columns, n_points))
     y = np.empty((4, n_columns))
     work = np.empty(work_size(n_points, lo.shape[0], level))
     calibration = np.empty(n_calibration * n_points)
     for p in range(n_candidates):
         f2 = feedback[p, 1] if order == 2 else 0.0
         _statistics(u, v, gains[p], feedback[p, 0], f2, order, combine_max, raw, y)
-        if denoise:
-            for c in range(n_columns):
-                denoise_row(raw[c], plotted[c], work, lo, hi, rec_lo, rec_hi, level, per_level, source, rule,
-                            fixed, hard)
-        # the Phase-I limit: mean + K·sd over every calibration point (Chart.fit_statistic)
-        for c in range(n_calibration):
-            row = plotted[c]
-            base = c * n_points
-            for k in range(n_points):
-                calibration[base + k] = row[k]
-        center, scale = mean_std(calibration)
-        limit = center + widths[p] * scale
-        for r in range(n_train):
-            row = plotted[n_calibration + r]
-            truth = faulty[r]
-            alarms = 0
-            misses = 0
-            for k in range(n_points):
-                alarm = row[k] > limit
-                if truth[k]:
-                    misses += not alarm
-                else:
-                    alarms += alarm
-            healthy_alarms[p, r] = alarms
-            faulty_misses[p, r] = misses
+        for c in range(n_columns):
+            denoise_row(raw[c], plotted[c], work, lo, hi, rec_lo, rec_hi, level, per_level, source, rule,
+                        fixed, hard)
+        _count(plotted, n_calibration, widths[p], faulty, calibration, healthy_alarms, faulty_misses, p)
     return healthy_alarms, faulty_misses
 
 
-def warm_up() -> None:
-    """Load (or compile) the kernels for both denoising settings (db3, three levels, SURE: the paper's wavelet)."""
+def warm_up(denoised: bool = False) -> None:
+    """Load (or compile) the kernel without a denoiser, and with ``denoised`` also the wavelet one
+    (db3, three levels, SURE: the paper's wavelet)."""
+    u = np.zeros((64, 3))
+    faulty = np.zeros((2, 64), bool)
+    alarm_counts(u, u, 1, np.ones(1), np.zeros((1, 2)), np.ones(1), False, faulty)
+    if not denoised:
+        return
     import pywt
 
     from .wavelet import RULE_SURE, SOURCE_COARSEST
 
-    u = np.zeros((64, 3))
-    faulty = np.zeros((2, 64), bool)
     wavelet = pywt.Wavelet("db3")
     filters = [np.asarray(f, float) for f in (wavelet.dec_lo, wavelet.dec_hi, wavelet.rec_lo, wavelet.rec_hi)]
     args = (*filters, 3, False, SOURCE_COARSEST, RULE_SURE, np.zeros(3), False)
-    for denoise in (True, False):
-        alarm_counts(u, u, 1, np.ones(1), np.zeros((1, 2)), np.ones(1), False, faulty, denoise, *args)
+    alarm_counts_denoised(u, u, 1, np.ones(1), np.zeros((1, 2)), np.ones(1), False, faulty, *args)
+
+
+def warm_up_all() -> None:
+    """Both kernels (``python -m mosd.kernels``)."""
+    warm_up(denoised=True)
