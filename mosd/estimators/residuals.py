@@ -252,7 +252,7 @@ class OnlineDedicatedObserver(OnlineStage):
         bad = ~np.isfinite(u)
         if bad.any():
             row, col = np.argwhere(bad)[0]
-            raise ConfigError(f"input column 'u_{self.inputs_of_plant[col]}' row {row} is {u[row, col]!r}, not a "
+            raise ConfigError(f"input column 'u_{self.inputs_of_plant[col]}' row {row} is {float(u[row, col])!r}, not a "
                               f"finite number; allowed: numbers (the filter's prediction needs every input)")
         rows, n_x = len(y), self._n_x
         step = int(state["filter_step"])
