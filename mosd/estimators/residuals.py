@@ -4,12 +4,23 @@
 update. :class:`DedicatedObserverResidual` (the default) updates the filter with the
 *other* sensors only and compares the monitored sensor with its prediction, so a
 sensor bias is not absorbed by the state estimate (see :mod:`mosd.estimators.cubature`).
+
+Causal form (issue 28, :mod:`mosd.streaming`): :class:`OnlineDedicatedObserver` takes the plant's raw
+columns, one row per sample: ``y_<output>`` for every sensor and ``u_<input>`` for every input of the
+model's f. For the main command (the mould oscillator in closed loop) the deployed model's inputs are
+``y_x_p``, ``y_theta``, ``y_n`` and ``u_i_q``, the speed controller's current command (the run's
+``test_stream.parquet`` holds exactly those), and its outputs ``residual_x_p``, ``residual_theta``,
+``residual_n`` feed the monitor. Row k's residual uses u_{k−1} (carried), its own u_k drives row k+1's
+prediction, as in the batch filter. Each chunk runs :meth:`DedicatedObserverResidual.residuals`, the batch
+estimate's own arithmetic, from the carried :class:`~mosd.estimators.cubature.FilterStart` (the compiled
+CESCKF kernel resumes from it): the stream's residuals are the batch's bit for bit with the kernel
+(``tests/test_streaming_cesckf.py``).
 """
 from __future__ import annotations
 
-import numpy as np
-
 from dataclasses import dataclass
+
+import numpy as np
 
 from ..model import StateSpaceModel
 from ..streaming import COUNT, FINITE, OnlineStage, StateVar, build, describe
