@@ -137,16 +137,32 @@ def test_bad_state_and_bad_inputs_are_one_line_errors():
     assert np.isnan(out["residual_x_p"][5]) and np.isfinite(out["residual_x_p"][6:]).all()
 
 
-def test_a_subclass_that_changes_the_estimate_has_no_streaming_form():
+def test_a_subclass_that_changes_the_arithmetic_or_lives_outside_mosd_has_no_streaming_form():
     from mosd.streaming import NoStreamingForm
 
     class Shifted(DedicatedObserverResidual):
         def estimate(self, trace, model):
             return super().estimate(trace, model)
 
+    class OwnFilter(CESCKF):
+        def filter(self, model, y, u=None):
+            return super().filter(model, y, u)
+
     first = _scenario(0.02).simulate(4, 1, stream="test", fault_scale=1.0)
     with pytest.raises(NoStreamingForm, match="Shifted has no streaming form"):
         _stage(Shifted(), first)
+    with pytest.raises(NoStreamingForm, match="the filter OwnFilter overrides filter()"):
+        _stage(DedicatedObserverResidual(filter=OwnFilter()), first)
+    # a filter subclass that keeps mosd's arithmetic but lives elsewhere: a saved model would not load it
+    with pytest.raises(NoStreamingForm, match=r"the filter test_streaming_cesckf\..*Quiet is not mosd's"):
+        _stage(DedicatedObserverResidual(filter=Quiet()), first)
+    # the batch estimate still calls a user's filter(model, y, u) as before (no start keyword)
+    model = PLANT.model(NOISE)
+    assert np.isfinite(DedicatedObserverResidual(filter=OwnFilter()).estimate(first, model).r).all()
+
+
+class Quiet(CESCKF):
+    """A CESCKF subclass outside mosd (module level: describe() names it)."""
 
 
 @pytest.mark.slow

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..model import StateSpaceModel
-from ..streaming import COUNT, FINITE, OnlineStage, StateVar, build, describe
+from ..streaming import COUNT, FINITE, NoStreamingForm, OnlineStage, StateVar, build, describe
 from ..types import Residuals, Trace
 from ..validation import ConfigError, Interval, Param, check_int
 from .base import Estimator
@@ -136,7 +136,10 @@ class DedicatedObserverResidual(Estimator):
                 f"allowed: distinct channels in 0..{n_y - 1}, leaving at least one for the update"
             )
         others = [c for c in range(n_y) if c not in self.monitored]
-        res = self.filter.filter(model.restrict_outputs(others), y[..., others], u, start=start)
+        restricted = model.restrict_outputs(others)
+        # the batch call is the filter's plain filter(model, y, u): a user's filter subclass need not know start
+        res = (self.filter.filter(restricted, y[..., others], u) if start is None
+               else self.filter.filter(restricted, y[..., others], u, start=start))
         y_pred, cov = _output_prediction(self.filter, model, res)
         r = np.empty_like(y)
         mon = list(self.monitored)
@@ -159,11 +162,20 @@ class DedicatedObserverResidual(Estimator):
         if type(self).estimate is not DedicatedObserverResidual.estimate:
             # a subclass that changes the estimate would deploy an arithmetic its run did not use
             return super().online(model)
+        from .cubature import _CubatureFilterBase as base
+
+        if type(self.filter).filter is not base.filter:
+            raise NoStreamingForm(f"the filter {type(self.filter).__name__} overrides filter(): its stream would not "
+                                  f"be the run's arithmetic")
+        parts = {"plant": source["plant"], "noise": source["noise"], "filter": describe(self.filter)}
+        foreign = [f"{key} {d['class']}" for key, d in parts.items() if not d["class"].startswith("mosd.")]
+        if foreign:
+            raise NoStreamingForm(f"the {foreign[0]} is not mosd's: a deployed model rebuilds mosd's classes only")
         _check_monitored("estimator.monitored", self.monitored, self)
         inputs = tuple(source.get("input_names") or (f"u{i}" for i in range(np.shape(trace.u)[-1])))
         sqrt_p0 = _lower_sqrt(np.asarray(model.P0, float))
         return OnlineDedicatedObserver(
-            plant=source["plant"], noise=source["noise"], filter=describe(self.filter),
+            plant=parts["plant"], noise=parts["noise"], filter=parts["filter"],
             monitored=tuple(int(m) for m in self.monitored), x0=np.asarray(model.x0, float),
             sqrt_p0=sqrt_p0, outputs_of_plant=tuple(model.output_names), inputs_of_plant=inputs)
 
