@@ -26,7 +26,10 @@ step hardly grows with R. Time ordering: x̂_{0|−1} = x̂_0, P_{0|−1} = P_0 
 for the first sample); afterwards x̂_{k|k−1} uses u_{k−1}. NaN in y marks a
 missing channel: replications are grouped by their pattern of missing channels
 and each group is updated with its present channels only (the all-present case
-is one batched update).
+is one batched update). ``filter(..., start=FilterStart(...))`` goes on from a
+carried step instead of x̂_0, P_0 (x̂_{k−1|k−1}, S_{k−1|k−1}, u_{k−1}): the
+residual generators' causal form filters a stream chunk by chunk with the batch's
+own code (the compiled kernel resumes the same way), bit for bit one call.
 
 Residual generators
 -------------------
