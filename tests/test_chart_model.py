@@ -6,7 +6,9 @@
   row with the state carried;
 * end to end (slow): the main command (small budget) logs a loadable model, and the model, in-process chunk
   by chunk through MLflow's params, through ``mosd monitor`` and through ``mlflow models serve``, alarms on
-  the run's own test residuals where the run's test evaluation alarmed (its FAR and MDR in summary.json).
+  the run's own raw test replications (the sensors and the controller's command: the CESCKF residual
+  streams, ``tests/test_streaming_cesckf.py``) where the run's test evaluation alarmed (its FAR and MDR in
+  summary.json).
 """
 from __future__ import annotations
 
@@ -178,10 +180,16 @@ def test_main_command_logs_a_model_that_reproduces_its_test_evaluation(tmp_path,
     model = mlflow.pyfunc.load_model(uri.group(1))
     names = [p.name for p in model.metadata.get_params_schema().params]
     columns = model.metadata.get_input_schema().input_names()
-    assert columns == ["residual_x_p"]
+    assert columns == ["y_x_p", "y_theta", "y_n", "u_i_q"]   # the raw sensors and the controller's command
+    trace = experiment.simulate(experiment.fault, residuals.r.shape[0], "test")   # the same test runs, raw
+
+    def raw(r):
+        return pd.DataFrame({**{f"y_{n}": trace.y[r, :, j] for j, n in enumerate(experiment.model.output_names)},
+                             **{f"u_{n}": trace.u[r, :, j] for j, n in enumerate(experiment.plant.input_names)}})
+
     decisions = []
     for r in range(residuals.r.shape[0]):
-        stream = pd.DataFrame({"residual_x_p": residuals.r[r, :, 0]})
+        stream = raw(r)
         state, parts = None, []
         for start in range(0, len(stream), 100):   # 100 rows a request, the state through MLflow's params
             out = model.predict(stream.iloc[start:start + 100], params=state)
@@ -194,9 +202,9 @@ def test_main_command_logs_a_model_that_reproduces_its_test_evaluation(tmp_path,
     report = DetectionReport.of(decisions.astype(np.int8), subgroups, ("far", "mdr")).summary()
     assert report["far"].mean == summary["test"]["far"]["mean"]
     assert report["mdr"].mean == summary["test"]["mdr"]["mean"]
-    # mosd monitor on run 0's residual file, in chunks of 37 rows
-    path = tmp_path / "residuals.csv"
-    pd.DataFrame({"t": residuals.t, "residual_x_p": residuals.r[0, :, 0]}).to_csv(path, index=False)
+    # mosd monitor on run 0's raw file, in chunks of 37 rows
+    path = tmp_path / "raw.csv"
+    raw(0).assign(t=residuals.t).to_csv(path, index=False)
     scored = _mosd(["monitor", "--model", uri.group(1), str(path), "--keep", "t", "--out", str(tmp_path / "a.csv"),
                     "--tracking-uri", tracking, "--chunk", "37"], tmp_path, outputs)
     assert scored.returncode == 0, scored.stderr[-2000:]
@@ -204,18 +212,19 @@ def test_main_command_logs_a_model_that_reproduces_its_test_evaluation(tmp_path,
     alarms = pd.read_csv(tmp_path / "a.csv")
     assert np.array_equal(alarms["alarm"].to_numpy()[alarms["subgroup"].to_numpy() > 0], expected[0].astype(bool))
     # mlflow models serve, as logged: requests of 100 rows of run 1, the state in the request's params
-    assert np.array_equal(_served_alarms(uri.group(1), tracking, residuals.r[1, :, 0], names, stop_process_group),
+    assert np.array_equal(_served_alarms(uri.group(1), tracking, raw(1), names, stop_process_group),
                           expected[1].astype(bool))
 
 
-def _served_alarms(model, tracking, residual, names, stop_process_group):
+def _served_alarms(model, tracking, frame, names, stop_process_group):
     from mosd.app.serving import predict_served, start_model_server
 
     server, port = start_model_server(model, tracking, timeout=300, stderr=subprocess.PIPE)
     try:
         state, alarms = None, []
-        for start in range(0, len(residual), 100):
-            rows = predict_served(port, ["residual_x_p"], [[float(v)] for v in residual[start:start + 100]], state)
+        for start in range(0, len(frame), 100):
+            rows = predict_served(port, list(frame.columns), frame.iloc[start:start + 100].to_numpy(float).tolist(),
+                                  state)
             alarms += [bool(row["alarm"]) for row in rows if row["subgroup"] > 0]
             state = {k: rows[-1][k] for k in names}
         return np.array(alarms)

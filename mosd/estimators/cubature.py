@@ -26,7 +26,10 @@ step hardly grows with R. Time ordering: x̂_{0|−1} = x̂_0, P_{0|−1} = P_0 
 for the first sample); afterwards x̂_{k|k−1} uses u_{k−1}. NaN in y marks a
 missing channel: replications are grouped by their pattern of missing channels
 and each group is updated with its present channels only (the all-present case
-is one batched update).
+is one batched update). ``filter(..., start=FilterStart(...))`` goes on from a
+carried step instead of x̂_0, P_0 (x̂_{k−1|k−1}, S_{k−1|k−1}, u_{k−1}): the
+residual generators' causal form filters a stream chunk by chunk with the batch's
+own code (the compiled kernel resumes the same way), bit for bit one call.
 
 Residual generators
 -------------------
@@ -61,6 +64,7 @@ __all__ = [
     "EmbeddedCubatureRule",
     "SphericalRadialRule",
     "FilterResult",
+    "FilterStart",
     "CubatureKalmanFilter",
     "CESCKF",
 ]
@@ -183,6 +187,34 @@ class FilterResult:
         return self.sqrt_cov_filt @ np.swapaxes(self.sqrt_cov_filt, -1, -2)
 
 
+@dataclass(frozen=True)
+class FilterStart:
+    """Where a filter goes on from: the step before the first sample it is given (a stream's next chunk).
+
+    Attributes
+    ----------
+    x_filt : ndarray, shape (n_x,)
+        x̂_{k−1|k−1} (eq. 12).
+    sqrt_cov_filt : ndarray, shape (n_x, n_x)
+        The lower square root S_{k−1|k−1} (eq. 18), diagonal ≥ 0 (as :class:`FilterResult` stores it).
+    u : ndarray, shape (n_u,)
+        u_{k−1}, the input that drives x_{k−1} → x_k (eqs. 4–5).
+
+    The next sample's prediction is then the same step as any other (eqs. 3–5, 10–11), so a series
+    filtered in chunks that each start from the last one's final row is bit for bit the series filtered
+    in one call (``tests/test_streaming_cesckf.py``).
+    """
+
+    x_filt: np.ndarray
+    sqrt_cov_filt: np.ndarray
+    u: np.ndarray
+
+    @classmethod
+    def after(cls, result: "FilterResult", u: np.ndarray, rep: int = 0) -> "FilterStart":
+        """The start after the last sample of replication ``rep`` of ``result``, whose last input was ``u``."""
+        return cls(result.x_filt[rep, -1].copy(), result.sqrt_cov_filt[rep, -1].copy(), np.asarray(u, float).copy())
+
+
 # ----------------------------------------------------------------------------------
 # filters
 # ----------------------------------------------------------------------------------
@@ -205,7 +237,8 @@ class _CubatureFilterBase(Component):
     #: True when ``_update`` returns the upper root of the innovation covariance, False for the matrix.
     _returns_root = True
 
-    def filter(self, model: StateSpaceModel, y: np.ndarray, u: np.ndarray | None = None) -> FilterResult:
+    def filter(self, model: StateSpaceModel, y: np.ndarray, u: np.ndarray | None = None,
+               start: FilterStart | None = None) -> FilterResult:
         """Filter a batch of replications.
 
         Parameters
@@ -217,6 +250,9 @@ class _CubatureFilterBase(Component):
         u : ndarray, shape (R, N, n_u), optional
             Inputs; u_k drives x_k → x_{k+1}, so the prediction of sample k uses
             u_{k−1}. None means an input-free model (f receives an empty u).
+        start : FilterStart, optional
+            None: y[:, 0] is the first sample (x̂_{0|−1} = x̂_0, S_{0|−1} = chol(P_0)). Else the filter goes
+            on from the step before y[:, 0] (every replication from the same state): a stream's next chunk.
 
         Returns
         -------
@@ -231,7 +267,7 @@ class _CubatureFilterBase(Component):
         u = np.asarray(u, dtype=float)
         if u.ndim != 3 or u.shape[:2] != (n_reps, n_steps):
             raise ValueError(f"u has shape {u.shape}; expected ({n_reps}, {n_steps}, n_u)")
-        compiled = self._compiled(model, y, u)
+        compiled = self._compiled(model, y, u, start)
         if compiled is not None:
             return compiled
         n_x = model.n_x
@@ -248,9 +284,13 @@ class _CubatureFilterBase(Component):
 
         xp = np.broadcast_to(np.asarray(model.x0, float), (n_reps, n_x)).copy()
         stp = np.broadcast_to(_lower_sqrt(np.asarray(model.P0, float)).T, (n_reps, n_x, n_x)).copy()
+        if start is not None:  # resumed: the carried step predicts the first sample like any other step
+            xf = np.broadcast_to(np.asarray(start.x_filt, float), (n_reps, n_x)).copy()
+            stf = np.broadcast_to(np.asarray(start.sqrt_cov_filt, float).T, (n_reps, n_x, n_x)).copy()
+            u_before = np.broadcast_to(np.asarray(start.u, float), (n_reps, u.shape[-1]))
         for k in range(n_steps):
-            if k > 0:
-                xp, stp = self._predict(ctx, xf, stf, u[:, k - 1])
+            if k > 0 or start is not None:
+                xp, stp = self._predict(ctx, xf, stf, u[:, k - 1] if k > 0 else u_before)
             if step_has_missing[k]:
                 xf, stf, yp, innov = self._update_with_gaps(ctx, xp, stp, y[:, k], missing[:, k])
             else:
@@ -273,7 +313,8 @@ class _CubatureFilterBase(Component):
             innovation_cov=innov_store,
         )
 
-    def _compiled(self, model: StateSpaceModel, y: np.ndarray, u: np.ndarray) -> FilterResult | None:
+    def _compiled(self, model: StateSpaceModel, y: np.ndarray, u: np.ndarray,
+                  start: FilterStart | None = None) -> FilterResult | None:
         """The compiled filter's result when one applies (see :class:`CESCKF`), else None."""
         return None
 
@@ -389,7 +430,8 @@ class CESCKF(_CubatureFilterBase):
         ctx["mask_y"] = np.triu(np.ones((model.n_y, model.n_y)))
         return ctx
 
-    def _compiled(self, model: StateSpaceModel, y: np.ndarray, u: np.ndarray) -> FilterResult | None:
+    def _compiled(self, model: StateSpaceModel, y: np.ndarray, u: np.ndarray,
+                  start: FilterStart | None = None) -> FilterResult | None:
         """:func:`mosd.kernels.cubature.cesckf` when kernels are on and the model has a compiled form.
 
         Agrees with the NumPy steps below to ~1e-13 relative (not bit for bit:
@@ -411,7 +453,8 @@ class CESCKF(_CubatureFilterBase):
             np.ascontiguousarray(y), np.ascontiguousarray(u), np.asarray(model.x0, float),
             np.ascontiguousarray(_lower_sqrt(np.asarray(model.P0, float)).T), np.ascontiguousarray(eps), weights,
             np.ascontiguousarray(_lower_sqrt(np.asarray(model.Q, float)).T),
-            np.ascontiguousarray(_lower_sqrt(np.asarray(model.R, float)).T))
+            np.ascontiguousarray(_lower_sqrt(np.asarray(model.R, float)).T),
+            start=None if start is None else (start.x_filt, np.asarray(start.sqrt_cov_filt, float).T, start.u))
         return FilterResult(x_pred=x_pred, x_filt=x_filt, sqrt_cov_pred=sqrt_cov_pred, sqrt_cov_filt=sqrt_cov_filt,
                             y_pred=y_pred, innovation=innovation, innovation_cov=innovation_cov)
 

@@ -4,16 +4,30 @@
 update. :class:`DedicatedObserverResidual` (the default) updates the filter with the
 *other* sensors only and compares the monitored sensor with its prediction, so a
 sensor bias is not absorbed by the state estimate (see :mod:`mosd.estimators.cubature`).
+
+Causal form (issue 28, :mod:`mosd.streaming`): :class:`OnlineDedicatedObserver` takes the plant's raw
+columns, one row per sample: ``y_<output>`` for every sensor and ``u_<input>`` for every input of the
+model's f. For the main command (the mould oscillator in closed loop) the deployed model's inputs are
+``y_x_p``, ``y_theta``, ``y_n`` and ``u_i_q``, the speed controller's current command (the run's
+``test_stream.parquet`` holds exactly those), and its outputs ``residual_x_p``, ``residual_theta``,
+``residual_n`` feed the monitor. Row k's residual uses u_{k−1} (carried), its own u_k drives row k+1's
+prediction, as in the batch filter. Each chunk runs :meth:`DedicatedObserverResidual.residuals`, the batch
+estimate's own arithmetic, from the carried :class:`~mosd.estimators.cubature.FilterStart` (the compiled
+CESCKF kernel resumes from it): the stream's residuals are the batch's bit for bit with the kernel
+(``tests/test_streaming_cesckf.py``).
 """
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 
 from ..model import StateSpaceModel
+from ..streaming import COUNT, FINITE, NoStreamingForm, OnlineStage, StateVar, build, describe
 from ..types import Residuals, Trace
-from ..validation import ConfigError, Param, check_int
+from ..validation import ConfigError, Interval, Param, check_int
 from .base import Estimator
-from .cubature import CESCKF, FilterResult, _CubatureFilterBase
+from .cubature import CESCKF, FilterResult, FilterStart, _CubatureFilterBase, _lower_sqrt
 
 
 def _check_filter(key: str, flt, estimator):
@@ -97,19 +111,7 @@ class DedicatedObserverResidual(Estimator):
     def estimate(self, trace: Trace, model: StateSpaceModel) -> Residuals:
         """Filter with the unmonitored sensors and return the residuals of all channels."""
         _check_trace(trace, model)
-        n_y = model.n_y
-        if max(self.monitored) >= n_y or len(self.monitored) >= n_y:
-            raise ConfigError(
-                f"estimator.monitored={self.monitored} is not allowed for {n_y} outputs; "
-                f"allowed: distinct channels in 0..{n_y - 1}, leaving at least one for the update"
-            )
-        others = [c for c in range(n_y) if c not in self.monitored]
-        res = self.filter.filter(model.restrict_outputs(others), trace.y[..., others], trace.u)
-        y_pred, cov = _output_prediction(self.filter, model, res)
-        r = np.empty_like(trace.y)
-        mon = list(self.monitored)
-        r[..., mon] = trace.y[..., mon] - y_pred[..., mon]
-        r[..., others] = res.innovation
+        r, cov, res, y_pred = self.residuals(model, np.asarray(trace.y, float), trace.u)
         return Residuals.of(
             trace,
             r=r,
@@ -123,6 +125,189 @@ class DedicatedObserverResidual(Estimator):
                 "generator": "dedicated_observer",
             },
         )
+
+    def residuals(self, model: StateSpaceModel, y: np.ndarray, u, start: FilterStart | None = None):
+        """(r, cov, the filter's result, ŷ) of ``y`` (R, N, n_y): the one arithmetic of :meth:`estimate`
+        and of the causal form (:class:`OnlineDedicatedObserver`, which passes the carried ``start``)."""
+        n_y = model.n_y
+        if max(self.monitored) >= n_y or len(self.monitored) >= n_y:
+            raise ConfigError(
+                f"estimator.monitored={self.monitored} is not allowed for {n_y} outputs; "
+                f"allowed: distinct channels in 0..{n_y - 1}, leaving at least one for the update"
+            )
+        others = [c for c in range(n_y) if c not in self.monitored]
+        restricted = model.restrict_outputs(others)
+        # the batch call is the filter's plain filter(model, y, u): a user's filter subclass need not know start
+        res = (self.filter.filter(restricted, y[..., others], u) if start is None
+               else self.filter.filter(restricted, y[..., others], u, start=start))
+        y_pred, cov = _output_prediction(self.filter, model, res)
+        r = np.empty_like(y)
+        mon = list(self.monitored)
+        r[..., mon] = y[..., mon] - y_pred[..., mon]
+        r[..., others] = res.innovation
+        return r, cov, res, y_pred
+
+    # -- the causal form ----------------------------------------------------------------
+    def online(self, model: StateSpaceModel = None, source=None, trace: Trace | None = None):
+        """The residual generator as a stream of the plant's raw measurements and inputs.
+
+        ``y_<output>`` for every output (the monitored ones too: they are compared, never fed back) and
+        ``u_<input>`` for every input the model's f takes (the mould oscillator's controller current
+        ``u_i_q``) per row; out: ``residual_<output>`` for every output. ``source`` describes the plant
+        and noise the model is rebuilt from (:func:`mosd.streaming.describe`); ``trace`` the first test
+        replication (its number of inputs when the plant names none).
+        """
+        if source is None or trace is None:
+            return super().online(model)
+        if type(self).estimate is not DedicatedObserverResidual.estimate:
+            # a subclass that changes the estimate would deploy an arithmetic its run did not use
+            return super().online(model)
+        from .cubature import _CubatureFilterBase as base
+
+        if type(self.filter).filter is not base.filter:
+            raise NoStreamingForm(f"the filter {type(self.filter).__name__} overrides filter(): its stream would not "
+                                  f"be the run's arithmetic")
+        parts = {"plant": source["plant"], "noise": source["noise"], "filter": describe(self.filter)}
+        foreign = [f"{key} {d['class']}" for key, d in parts.items() if not d["class"].startswith("mosd.")]
+        if foreign:
+            raise NoStreamingForm(f"the {foreign[0]} is not mosd's: a deployed model rebuilds mosd's classes only")
+        _check_monitored("estimator.monitored", self.monitored, self)
+        inputs = tuple(source.get("input_names") or (f"u{i}" for i in range(np.shape(trace.u)[-1])))
+        sqrt_p0 = _lower_sqrt(np.asarray(model.P0, float))
+        return OnlineDedicatedObserver(
+            plant=parts["plant"], noise=parts["noise"], filter=parts["filter"],
+            monitored=tuple(int(m) for m in self.monitored), x0=np.asarray(model.x0, float),
+            sqrt_p0=sqrt_p0, outputs_of_plant=tuple(model.output_names), inputs_of_plant=inputs)
+
+    def raw_stream(self, trace: Trace, model: StateSpaceModel, input_names) -> dict[str, np.ndarray]:
+        """The first replication's measurements and inputs as the causal form's columns."""
+        y, u = np.asarray(trace.y, float)[0], np.asarray(trace.u, float)[0]
+        columns = {f"y_{name}": y[:, j] for j, name in enumerate(model.output_names)}
+        names = tuple(input_names or (f"u{i}" for i in range(u.shape[-1])))
+        columns.update({f"u_{name}": u[:, j] for j, name in enumerate(names)})
+        return columns
+
+
+@dataclass
+class OnlineDedicatedObserver(OnlineStage):
+    """:class:`DedicatedObserverResidual`'s causal form: ``y_<output>``, ``u_<input>`` in, ``residual_<output>`` out.
+
+    Each chunk goes through :meth:`DedicatedObserverResidual.residuals` (the batch arithmetic: the
+    compiled CESCKF kernel where the batch used it) from the carried state, a
+    :class:`~mosd.estimators.cubature.FilterStart`:
+
+    * ``filter_step``: rows seen (0: the next row is the first sample, predicted by x̂_0, P_0);
+    * ``x_filt_<i>``: x̂_{k|k} of state i (eq. 12);
+    * ``sqrt_cov_filt_<i>_<j>`` (j ≤ i): the lower square root S_{k|k} of P_{k|k} (eq. 18), carried as the
+      root, not as P, so that a chunked stream is bit for bit one call (diagonal ≥ 0);
+    * ``u_last_<input>``: the row's input u_k, which drives the next row's prediction (eqs. 4–5).
+
+    Before the first row the state holds the prior (x̂_0, chol(P_0), u = 0), which ``filter_step = 0``
+    ignores. A missing measurement (NaN) is left out of the update as in the batch; an input must be a
+    finite number (the state would become NaN).
+    """
+
+    plant: dict
+    noise: dict
+    filter: dict
+    monitored: tuple
+    x0: np.ndarray
+    sqrt_p0: np.ndarray
+    outputs_of_plant: tuple = ()
+    inputs_of_plant: tuple = ()
+
+    def __post_init__(self):
+        self.plant, self.noise, self.filter = dict(self.plant), dict(self.noise), dict(self.filter)
+        self.monitored = tuple(int(m) for m in self.monitored)
+        self.x0, self.sqrt_p0 = np.asarray(self.x0, float), np.asarray(self.sqrt_p0, float)
+        self.outputs_of_plant, self.inputs_of_plant = tuple(self.outputs_of_plant), tuple(self.inputs_of_plant)
+
+    def _built(self):
+        """(the model, the residual generator), rebuilt once from their descriptions."""
+        cached = self.__dict__.get("_built_objects")
+        if cached is None:
+            model = build(self.plant).model(build(self.noise))
+            cached = self.__dict__["_built_objects"] = (
+                model, DedicatedObserverResidual(filter=build(self.filter), monitored=self.monitored))
+        return cached
+
+    @property
+    def _n_x(self) -> int:
+        return len(self.x0)
+
+    def _root_names(self):
+        return [(i, j, f"sqrt_cov_filt_{i}_{j}") for i in range(self._n_x) for j in range(i + 1)]
+
+    def state_vars(self) -> dict[str, StateVar]:
+        # declared once per stage: the pipeline asks for them several times per chunk
+        cached = self.__dict__.get("_state_vars")
+        if cached is None:
+            cached = self.__dict__["_state_vars"] = self._declare_state()
+        return cached
+
+    @property
+    def inputs(self) -> tuple[str, ...]:
+        return (*(f"y_{n}" for n in self.outputs_of_plant), *(f"u_{n}" for n in self.inputs_of_plant))
+
+    @property
+    def outputs(self) -> tuple[str, ...]:
+        return tuple(f"residual_{n}" for n in self.outputs_of_plant)
+
+    def _declare_state(self) -> dict[str, StateVar]:
+        out = {"filter_step": StateVar("Rows the filter has seen (0: start from x̂_0, P_0).", COUNT)}
+        out.update({f"x_filt_{i}": StateVar(f"x̂_k|k of state {i} (eq. 12).", FINITE) for i in range(self._n_x)})
+        for i, j, name in self._root_names():
+            out[name] = StateVar(f"Entry ({i}, {j}) of the lower root S_k|k of P_k|k (eq. 18).",
+                                 _ROOT_DIAGONAL if i == j else FINITE)
+        out.update({f"u_last_{n}": StateVar(f"The last row's input {n} (drives the next prediction).", FINITE)
+                    for n in self.inputs_of_plant})
+        return out
+
+    def initial_state(self) -> dict:
+        state = {"filter_step": 0}
+        state.update({f"x_filt_{i}": float(v) for i, v in enumerate(self.x0)})
+        state.update({name: float(self.sqrt_p0[i, j]) for i, j, name in self._root_names()})
+        state.update({f"u_last_{n}": 0.0 for n in self.inputs_of_plant})
+        return state
+
+    def example_row(self) -> np.ndarray:
+        model, _ = self._built()
+        return np.concatenate([np.asarray(model.h(self.x0[None]))[0], np.zeros(len(self.inputs_of_plant))])
+
+    def update(self, columns, state) -> dict[str, np.ndarray]:
+        model, generator = self._built()
+        y = np.column_stack([np.asarray(columns[f"y_{n}"], float) for n in self.outputs_of_plant])
+        u = (np.column_stack([np.asarray(columns[f"u_{n}"], float) for n in self.inputs_of_plant])
+             if self.inputs_of_plant else np.zeros((len(y), 0)))
+        bad = ~np.isfinite(u)
+        if bad.any():
+            row, col = np.argwhere(bad)[0]
+            raise ConfigError(f"input column 'u_{self.inputs_of_plant[col]}' row {row} is {float(u[row, col])!r}, not a "
+                              f"finite number; allowed: numbers (the filter's prediction needs every input)")
+        rows, n_x = len(y), self._n_x
+        step = int(state["filter_step"])
+        start = None
+        if step > 0:
+            root = np.zeros((n_x, n_x))
+            for i, j, name in self._root_names():
+                root[i, j] = float(state[name])
+            start = FilterStart(np.array([float(state[f"x_filt_{i}"]) for i in range(n_x)]), root,
+                                np.array([float(state[f"u_last_{n}"]) for n in self.inputs_of_plant]))
+        if rows == 0:
+            r, x_filt, sqrt_cov = np.empty((0, len(self.outputs_of_plant))), np.empty((0, n_x)), np.empty((0, n_x, n_x))
+        else:
+            r, _, res, _ = generator.residuals(model, y[None], u[None], start)
+            r, x_filt, sqrt_cov = r[0], res.x_filt[0], res.sqrt_cov_filt[0]
+        out = {f"residual_{n}": r[:, c] for c, n in enumerate(self.outputs_of_plant)}
+        out["filter_step"] = step + 1 + np.arange(rows, dtype=np.int64)
+        out.update({f"x_filt_{i}": x_filt[:, i] for i in range(n_x)})
+        out.update({name: sqrt_cov[:, i, j] for i, j, name in self._root_names()})
+        out.update({f"u_last_{n}": u[:, c] for c, n in enumerate(self.inputs_of_plant)})
+        return out
+
+
+#: a diagonal entry of a Cholesky factor: non-negative, finite
+_ROOT_DIAGONAL = Interval(0.0, FINITE.high)
 
 
 def _output_prediction(flt, model: StateSpaceModel, res: FilterResult, time_chunk: int = 1000):

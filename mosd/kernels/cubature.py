@@ -213,7 +213,8 @@ LANES = 64
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def cesckf(kind, params, outputs, y, u, x0, st0, eps, weights, sq_t, sr_t, first, stop,
-           x_pred, x_filt, sqrt_cov_pred, sqrt_cov_filt, y_pred, innovation, innovation_cov, lanes):
+           x_pred, x_filt, sqrt_cov_pred, sqrt_cov_filt, y_pred, innovation, innovation_cov, lanes,
+           resume, x_before, st_before, u_before):
     """Filter replications ``first``..``stop`` (paper 000, eqs. 2–18); the compiled :meth:`CESCKF.filter`.
 
     Replications go ``lanes`` at a time, side by side: every array of the
@@ -245,6 +246,12 @@ def cesckf(kind, params, outputs, y, u, x0, st0, eps, weights, sq_t, sr_t, first
         S_yy S_yyᵀ over every channel.
     lanes : int
         Replications side by side.
+    resume : bool
+        False: y[:, 0] is the first sample (x̂_{0|−1} = ``x0``, S_{0|−1}ᵀ = ``st0``). True: the filter
+        goes on from the step before y[:, 0] (a stream's next chunk, :class:`mosd.estimators.cubature.
+        FilterStart`): x̂_{−1|−1} = ``x_before`` (n_x,), S_{−1|−1}ᵀ = ``st_before`` (n_x, n_x) and the input
+        u_{−1} = ``u_before`` (n_u,) are predicted through eqs. 3–5, 10–11 like any other step, so a
+        series filtered in chunks is bit for bit the series filtered in one call.
     """
     n_steps, n_y = y.shape[1], y.shape[2]
     n_u = u.shape[2]
@@ -284,7 +291,7 @@ def cesckf(kind, params, outputs, y, u, x0, st0, eps, weights, sq_t, sr_t, first
     for r0 in range(first, stop, L):
         nb = min(L, stop - r0)
         for k in range(n_steps):
-            if k == 0:
+            if k == 0 and not resume:
                 for i in range(n_x):
                     for b in range(nb):
                         xp[i, b] = x0[i]
@@ -293,9 +300,20 @@ def cesckf(kind, params, outputs, y, u, x0, st0, eps, weights, sq_t, sr_t, first
                             stp[i, j, b] = st0[i, j]
             else:
                 # eqs. 4–5: X_i = x̂ + S ε_i, X*_i = f(X_i, u_{k−1}); eq. 3: the weighted mean
-                for c in range(n_u):
-                    for b in range(nb):
-                        u_k[c, b] = u[r0 + b, k - 1, c]
+                if k == 0:  # resumed: the step before this call's first sample is the carried state
+                    for i in range(n_x):
+                        for b in range(nb):
+                            xf[i, b] = x_before[i]
+                        for j in range(n_x):
+                            for b in range(nb):
+                                stf[i, j, b] = st_before[i, j]
+                    for c in range(n_u):
+                        for b in range(nb):
+                            u_k[c, b] = u_before[c]
+                else:
+                    for c in range(n_u):
+                        for b in range(nb):
+                            u_k[c, b] = u[r0 + b, k - 1, c]
                 for j in range(n_x):
                     for b in range(nb):
                         xp[j, b] = 0.0
@@ -433,8 +451,12 @@ def cesckf(kind, params, outputs, y, u, x0, st0, eps, weights, sq_t, sr_t, first
             _store_lanes(r0, k, nb, xf, stf, x_filt, sqrt_cov_filt)
 
 
-def filter_batch(kind, params, outputs, y, u, x0, st0, eps, weights, sq_t, sr_t, threads=None, lanes=LANES):
+def filter_batch(kind, params, outputs, y, u, x0, st0, eps, weights, sq_t, sr_t, threads=None, lanes=LANES,
+                 start=None):
     """:func:`cesckf` over every replication of ``y`` (R, N, n_y), split over ``threads`` threads.
+
+    ``start``: None (the first sample is y[:, 0]) or (x̂, Sᵀ, u) of the step before it, shared by every
+    replication (:func:`cesckf`'s ``resume``).
 
     Replications are independent, so neither the split over threads nor
     ``lanes`` (replications side by side in the kernel) changes a number; the
@@ -452,8 +474,12 @@ def filter_batch(kind, params, outputs, y, u, x0, st0, eps, weights, sq_t, sr_t,
     outs = (np.empty((n_reps, n_steps, n_x)), np.empty((n_reps, n_steps, n_x)),
             np.empty((n_reps, n_steps, n_x, n_x)), np.empty((n_reps, n_steps, n_x, n_x)),
             np.empty((n_reps, n_steps, n_y)), np.empty((n_reps, n_steps, n_y)), np.empty((n_reps, n_steps, n_y, n_y)))
+    if start is None:
+        resume, before = False, (x0, st0, np.zeros(u.shape[2]))
+    else:
+        resume, before = True, tuple(np.ascontiguousarray(a, dtype=np.float64) for a in start)
     _over_replications(lambda first, stop: cesckf(kind, params, outputs, y, u, x0, st0, eps, weights, sq_t, sr_t,
-                                                   first, stop, *outs, lanes), n_reps, threads)
+                                                   first, stop, *outs, lanes, resume, *before), n_reps, threads)
     return outs
 
 
