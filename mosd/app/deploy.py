@@ -5,9 +5,9 @@
 detector that implements ``online`` is deployed with no change to the app. Where a stage has none the
 answer is one line saying why (the run's summary prints it):
 
-* the estimator has none yet (papers 000–003's filters and observers): the pipeline starts at the
-  monitor and the model's input is the estimator's output stream (residuals, mode probabilities, ...);
-  the summary says so;
+* the estimator has none yet (the CESCKF of paper 000 and the main command): the pipeline starts at the
+  monitor and the model's input is the estimator's output stream (residuals, ...); the summary says so
+  (papers 001–003's IMM, gain filters and observer stream their raw inputs);
 * the monitor or the detector has none (paper 000's whole-series wavelet, MS-OEWMA's prefilter):
   no model (the test stream is still written when the monitor streams).
 

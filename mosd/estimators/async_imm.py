@@ -538,14 +538,15 @@ class OnlineIMM(OnlineStage):
                 [f"imm_P_{m}_{i}_{j}" for m in range(M) for i in range(n) for j in range(n)])
 
     def state_vars(self) -> dict[str, StateVar]:
-        mus, xs, Ps = self._state_names()
-        out = {"imm_step": StateVar("Fusion instants seen since the stream's start.", COUNT)}
-        from ..validation import Interval
-
-        out.update({k: StateVar("A model's probability after the row.", Interval(0.0, 1.0)) for k in mus})
-        out.update({k: StateVar("An entry of a model's state estimate after the row.", FINITE) for k in xs})
-        out.update({k: StateVar("An entry of a model's covariance after the row.", FINITE) for k in Ps})
-        return out
+        cached = self.__dict__.get("_state_vars")   # asked once per state param by the pipeline: built once
+        if cached is None:
+            mus, xs, Ps = self._state_names()
+            cached = {"imm_step": StateVar("Fusion instants seen since the stream's start.", COUNT)}
+            cached.update({k: StateVar("A model's probability after the row.", Interval(0.0, 1.0)) for k in mus})
+            cached.update({k: StateVar("An entry of a model's state estimate after the row.", FINITE) for k in xs})
+            cached.update({k: StateVar("An entry of a model's covariance after the row.", FINITE) for k in Ps})
+            self.__dict__["_state_vars"] = cached
+        return cached
 
     def initial_state(self) -> dict:
         _, models, _, mu0, *_ = self._setup()
@@ -569,7 +570,7 @@ class OnlineIMM(OnlineStage):
         known = present & (sensor >= 0) & (sensor < len(fused)) & (sensor == np.round(sensor))
         if (present & ~known).any():
             row, j = np.argwhere(present & ~known)[0]
-            raise ConfigError(f"input column 'packet{j}_sensor' row {row} is {sensor[row, j]!r}; allowed: a sensor's "
+            raise ConfigError(f"input column 'packet{j}_sensor' row {row} is {float(sensor[row, j])!r}; allowed: a sensor's "
                               f"index 0..{len(fused) - 1} (NaN: no packet)")
         index = np.where(known, sensor, 0).astype(np.int64)
         use = known & (fused[index] >= 0)
@@ -581,8 +582,8 @@ class OnlineIMM(OnlineStage):
         future = use & ~(shifted <= t_k[:, None])
         if future.any():
             row, j = np.argwhere(future)[0]
-            raise ConfigError(f"input column 'packet{j}_time' row {row} is {tau[row, j]!r}, after the row's fusion "
-                              f"instant {t_k[row]!r}; allowed: sample instants up to the row's fusion instant "
+            raise ConfigError(f"input column 'packet{j}_time' row {row} is {float(tau[row, j])!r}, after the row's fusion "
+                              f"instant {float(t_k[row])!r}; allowed: sample instants up to the row's fusion instant "
                               f"(t0 + k·{self.period:g} s)")
         late = use & ~(shifted > t_prev[:, None]) & (k[:, None] > 0)
         use &= ~late & (k[:, None] > 0)
