@@ -5,10 +5,10 @@
 detector that implements ``online`` is deployed with no change to the app. Where a stage has none the
 answer is one line saying why (the run's summary prints it):
 
-* the estimator has none yet (papers 001–003's filters and observers): the pipeline starts at the
-  monitor and the model's input is the estimator's output stream (residuals, mode probabilities, ...);
-  the summary says so (the main command's CESCKF dedicated observer has one: its model starts at the
-  plant's raw ``y_<output>`` and ``u_<input>`` columns);
+* the estimator has none (no preset's estimator today: the CESCKF dedicated observer, the IMM, the
+  gain filters and the observers stream the plant's raw ``y_<output>``/``u_<input>`` columns or
+  packets): the pipeline starts at the monitor and the model's input is the estimator's output
+  stream; the summary says so;
 * the monitor or the detector has none (paper 000's whole-series wavelet, MS-OEWMA's prefilter):
   no model (the test stream is still written when the monitor streams).
 

@@ -43,10 +43,12 @@ The decision (§4, step 3: fault i when μ_i > μ_T for L steps) belongs to
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
 
+from ..streaming import COUNT, FINITE, OnlineStage, StateVar, build, describe
 from ..types import Residuals, Trace
 from ..validation import ConfigError, Interval, Param, check_in, check_names
 from .base import Estimator
@@ -169,25 +171,9 @@ class AsyncIMMFusion(Estimator):
         step = _Transitions(models)
         n_reps, n_points = trace.n_reps, grid.size
 
-        compiled = self._compiled(meas, grid, step, H, Rm, trans, mu0, models[0])
-        if compiled is not None:
-            out_mu, out_x, out_P, out_ll, fused_x, fused_P = compiled
-        else:
-            mu = np.broadcast_to(mu0, (n_reps, n_models)).copy()
-            x = np.broadcast_to(models[0].x0, (n_reps, n_models, n_aug)).copy()
-            P = np.broadcast_to(models[0].P0, (n_reps, n_models, n_aug, n_aug)).copy()
-            out_mu = np.empty((n_reps, n_points, n_models))
-            out_x = np.empty((n_reps, n_points, n_models, n_aug))
-            out_P = np.empty((n_reps, n_points, n_models, n_aug, n_aug))
-            out_ll = np.zeros((n_reps, n_points, n_models))
-            out_mu[:, 0], out_x[:, 0], out_P[:, 0] = mu, x, P
-            interval = self._sequential if self.fusion == "sequential" else self._equivalent_measurement
-            for k in range(1, n_points):
-                x0, P0, cbar = mix(mu, x, P, trans)
-                x, P, loglik = interval(x0, P0, meas, k, grid, step, H, Rm)
-                mu = mode_update(cbar, loglik)
-                out_mu[:, k], out_x[:, k], out_P[:, k], out_ll[:, k] = mu, x, P, loglik
-            fused_x, fused_P = fuse(out_mu, out_x, out_P)
+        start = (mu0, np.broadcast_to(models[0].x0, (n_models, n_aug)),
+                 np.broadcast_to(models[0].P0, (n_models, n_aug, n_aug)))
+        out_mu, out_x, out_P, out_ll, fused_x, fused_P = self._filter(meas, grid, step, H, Rm, trans, start)
         extra = {
             "mode_probabilities": out_mu,
             "x_filt": fused_x[..., :n_x],
@@ -203,19 +189,77 @@ class AsyncIMMFusion(Estimator):
         }
         return Residuals.of(trace, r=np.empty((n_reps, n_points, 0)), channels=(), extra=extra)
 
-    def _compiled(self, meas, grid, step, H, Rm, trans, mu0, prior):
-        """The compiled time loop's outputs (:mod:`mosd.kernels.imm`) when kernels are on, else None.
+    def _filter(self, meas, grid, step, H, Rm, trans, start):
+        """(μ, x̂_m, P_m, log Λ_m, fused x̂, fused P) on every row of ``grid``: the one time loop of the batch
+        estimate and the causal form (:class:`OnlineIMM`).
 
-        None also when the kernel leaves the decision to this reference (a
-        non-finite packet, an innovation covariance that is not positive definite).
+        ``start`` = (μ (M,), x̂ (M, n), P (M, n, n)) is the state before row 0, which is not updated (the
+        prior at t_0 of a run, or the state a stream carries with ``grid[0]`` its last fusion instant).
+        The compiled loop (:mod:`mosd.kernels.imm`) when kernels are on, else (and where the kernel leaves
+        the decision to it: a non-finite packet, an innovation covariance that is not positive definite)
+        the NumPy reference.
         """
         from .. import kernels
 
-        if not kernels.enabled():
-            return None
-        from ..kernels.imm import filter_batch
+        mu0, x0, P0 = (np.asarray(a, float) for a in start)
+        if kernels.enabled():
+            from ..kernels.imm import filter_batch
 
-        return filter_batch(self.fusion == "sequential", meas, grid, step, H, Rm, trans, mu0, prior.x0, prior.P0)
+            compiled = filter_batch(self.fusion == "sequential", meas, grid, step, H, Rm, trans, mu0, x0, P0)
+            if compiled is not None:
+                return compiled
+        n_reps, n_points = meas.valid.shape[:2]
+        n_models, n_aug = x0.shape
+        mu = np.broadcast_to(mu0, (n_reps, n_models)).copy()
+        x = np.broadcast_to(x0, (n_reps, n_models, n_aug)).copy()
+        P = np.broadcast_to(P0, (n_reps, n_models, n_aug, n_aug)).copy()
+        out_mu = np.empty((n_reps, n_points, n_models))
+        out_x = np.empty((n_reps, n_points, n_models, n_aug))
+        out_P = np.empty((n_reps, n_points, n_models, n_aug, n_aug))
+        out_ll = np.zeros((n_reps, n_points, n_models))
+        out_mu[:, 0], out_x[:, 0], out_P[:, 0] = mu, x, P
+        interval = self._sequential if self.fusion == "sequential" else self._equivalent_measurement
+        for k in range(1, n_points):
+            x0, P0, cbar = mix(mu, x, P, trans)
+            x, P, loglik = interval(x0, P0, meas, k, grid, step, H, Rm)
+            mu = mode_update(cbar, loglik)
+            out_mu[:, k], out_x[:, k], out_P[:, k], out_ll[:, k] = mu, x, P, loglik
+        fused_x, fused_P = fuse(out_mu, out_x, out_P)
+        return out_mu, out_x, out_P, out_ll, fused_x, fused_P
+
+    # -- the causal form ----------------------------------------------------------------
+    def online(self, model=None, source=None, trace: Trace | None = None) -> "OnlineIMM":
+        """The filter as a stream of raw packets, one row per fusion instant t_k (:class:`OnlineIMM`).
+
+        ``source`` describes the plant and noise the model is rebuilt from (:func:`mosd.streaming.describe`);
+        ``trace`` gives the fusion grid and each sensor's shortest sampling period, which bound the packets
+        one fusion interval can hold (the stream's packet slots).
+        """
+        if source is None or trace is None:
+            return super().online(model)
+        grid = np.asarray(trace.t, float)
+        if grid.size < 2 or not np.allclose(np.diff(grid), grid[1] - grid[0], rtol=0.0, atol=1e-12):
+            return super().online(model)
+        period = float(grid[1] - grid[0])
+        slots = 0
+        for name in model.sensor_names:
+            times = np.asarray(trace.sensors[name].t, float)
+            spacing = np.diff(times, axis=-1)
+            shortest = np.nanmin(spacing) if np.isfinite(spacing).any() else period
+            slots += int(math.ceil(period / shortest - 1e-9))
+        grouped = IntervalMeasurements.of(trace, model.sensor_names, grid)
+        slots = max(slots, int(grouped.valid.sum(axis=-1).max(initial=0)))
+        n_models = len(self.model_set(model))
+        return OnlineIMM(plant=source["plant"], noise=source["noise"], estimator=describe(self),
+                         t0=float(grid[0]), period=period, slots=slots, n_models=n_models,
+                         n_aug=model.n_x + 1, n_x=model.n_x, n_y=int(model.sensors[0].H.shape[0]))
+
+    def raw_stream(self, trace: Trace, model, input_names) -> dict[str, np.ndarray]:
+        """The first replication's received packets as the causal form's columns, row k holding those sampled
+        in (t_{k−1}, t_k] (the batch's grouping); ``packet<j>_sensor`` is the sensor's index in the plant's list."""
+        grouped = IntervalMeasurements.of(trace, model.sensor_names, np.asarray(trace.t, float))
+        stage = self.online(model, {"plant": {}, "noise": {}}, trace)
+        return packet_columns(grouped, stage.slots, stage.n_y)
 
     @staticmethod
     def _sequential(x, P, meas, k, grid, step, H, Rm):
@@ -406,3 +450,190 @@ def fuse(mu: np.ndarray, x: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.n
     return fused, cov
 
 
+
+
+def packet_columns(grouped: "IntervalMeasurements", slots: int, n_y: int) -> dict[str, np.ndarray]:
+    """Replication 0 of ``grouped`` as stream columns: per fusion row, slot j's ``packet<j>_sensor``,
+    ``packet<j>_time`` (the sample instant) and ``packet<j>_y<c>``; NaN in a slot no packet filled."""
+    valid = grouped.valid[0]
+    rows, used = valid.shape
+    if valid.sum(axis=1).max(initial=0) > slots:
+        raise ValueError(f"an interval holds {valid.sum(axis=1).max()} packets, more than the stream's {slots} slots")
+    out = {}
+    for j in range(slots):
+        here = valid[:, j] if j < used else np.zeros(rows, bool)
+        out[f"packet{j}_sensor"] = np.where(here, grouped.sensor[0, :, j] if j < used else 0, np.nan).astype(float)
+        out[f"packet{j}_time"] = np.where(here, grouped.t[0, :, j] if j < used else 0.0, np.nan)
+        for c in range(n_y):
+            out[f"packet{j}_y{c}"] = np.where(here, grouped.y[0, :, j, c] if j < used else 0.0, np.nan)
+    return out
+
+
+@dataclass
+class OnlineIMM(OnlineStage):
+    """:class:`AsyncIMMFusion`'s causal form: one row per fusion instant t_k = t0 + k·period, its packets in.
+
+    In per row: ``slots`` packet slots, slot j ``packet<j>_sensor`` (the sensor's index in the plant's
+    sensor list), ``packet<j>_time`` (its sample instant τ) and ``packet<j>_y<c>`` (its measurement); a slot
+    with no packet is NaN. Packets may come in any slot order (out-of-order arrival): they are fused in
+    the order of their sample instants (ties: sensor order), as the batch orders an interval's packets. A
+    lost packet is simply absent. A packet sampled in (t_{k−1}, t_k] belongs to row k (the batch's
+    grouping, within 1e-9 s of t_k); one that arrives later than its interval (τ <= t_{k−1}) can no longer
+    be fused and is counted in ``late_packets`` (the batch's trace with that packet lost); one sampled
+    after t_k is refused (one line). Row 0 of a stream is the prior at t0 (no update: its packets are
+    ignored, as the batch ignores samples at or before t_0); packets of sensors the design does not fuse
+    are ignored.
+
+    Out per row: ``mode_probabilities_<m>`` (m = 0 the normal model), ``x_filt_<i>``, ``fault_amplitudes_<m>``,
+    ``fault_estimate_<m>``, ``n_measurements``, ``late_packets``. State: ``imm_step`` (rows seen) and each
+    model's μ, x̂ and P after the row (``imm_mu_<m>``, ``imm_x_<m>_<i>``, ``imm_P_<m>_<i>_<j>``). The time loop
+    is the batch's (:meth:`AsyncIMMFusion._filter`: the compiled kernel, or the NumPy reference).
+    """
+
+    plant: dict
+    noise: dict
+    estimator: dict
+    t0: float
+    period: float
+    slots: int
+    n_models: int
+    n_aug: int
+    n_x: int
+    n_y: int
+
+    def _setup(self):
+        cached = self.__dict__.get("_setup_object")
+        if cached is None:
+            estimator = build(self.estimator)
+            model = build(self.plant).model(build(self.noise))
+            names = tuple(estimator.sensors or model.sensor_names)
+            models = estimator.model_set(model)
+            trans, mu0 = estimator._probabilities(len(models))
+            index = [model.sensor_names.index(n) for n in names]
+            H = np.stack([models[0].sensors[i].H for i in index])
+            Rm = np.stack([models[0].sensors[i].R for i in index])
+            fused = np.full(len(model.sensor_names), -1)
+            fused[index] = np.arange(len(index))     # the plant's sensor index -> the fused one (-1: not fused)
+            cached = self.__dict__["_setup_object"] = (estimator, models, trans, mu0, H, Rm, fused,
+                                                       _Transitions(models))
+        return cached
+
+    @property
+    def inputs(self) -> tuple[str, ...]:
+        names = []
+        for j in range(self.slots):
+            names += [f"packet{j}_sensor", f"packet{j}_time", *(f"packet{j}_y{c}" for c in range(self.n_y))]
+        return tuple(names)
+
+    @property
+    def outputs(self) -> tuple[str, ...]:
+        d_f = self.n_models - 1
+        return (*(f"mode_probabilities_{m}" for m in range(self.n_models)), *(f"x_filt_{i}" for i in range(self.n_x)),
+                *(f"fault_amplitudes_{m}" for m in range(d_f)), *(f"fault_estimate_{m}" for m in range(d_f)),
+                "n_measurements", "late_packets")
+
+    def _state_names(self):
+        M, n = self.n_models, self.n_aug
+        return ([f"imm_mu_{m}" for m in range(M)], [f"imm_x_{m}_{i}" for m in range(M) for i in range(n)],
+                [f"imm_P_{m}_{i}_{j}" for m in range(M) for i in range(n) for j in range(n)])
+
+    def state_vars(self) -> dict[str, StateVar]:
+        cached = self.__dict__.get("_state_vars")   # asked once per state param by the pipeline: built once
+        if cached is None:
+            mus, xs, Ps = self._state_names()
+            cached = {"imm_step": StateVar("Fusion instants seen since the stream's start.", COUNT)}
+            cached.update({k: StateVar("A model's probability after the row.", Interval(0.0, 1.0)) for k in mus})
+            cached.update({k: StateVar("An entry of a model's state estimate after the row.", FINITE) for k in xs})
+            cached.update({k: StateVar("An entry of a model's covariance after the row.", FINITE) for k in Ps})
+            self.__dict__["_state_vars"] = cached
+        return cached
+
+    def initial_state(self) -> dict:
+        _, models, _, mu0, *_ = self._setup()
+        mus, xs, Ps = self._state_names()
+        M, n = self.n_models, self.n_aug
+        x = np.broadcast_to(models[0].x0, (M, n)).ravel()
+        P = np.broadcast_to(models[0].P0, (M, n, n)).ravel()
+        return {"imm_step": 0, **{k: float(v) for k, v in zip(mus, mu0)}, **{k: float(v) for k, v in zip(xs, x)},
+                **{k: float(v) for k, v in zip(Ps, P)}}
+
+    def example_row(self) -> np.ndarray:
+        return np.zeros(len(self.inputs))
+
+    def _packets(self, columns, rows: int, first: int, fused):
+        """Per row the fusable packets, time-ordered, as (R = 1) slot arrays, and the late ones counted."""
+        sensor = np.column_stack([np.asarray(columns[f"packet{j}_sensor"], float) for j in range(self.slots)])
+        tau = np.column_stack([np.asarray(columns[f"packet{j}_time"], float) for j in range(self.slots)])
+        y = np.stack([np.column_stack([np.asarray(columns[f"packet{j}_y{c}"], float) for c in range(self.n_y)])
+                      for j in range(self.slots)], axis=1).reshape(rows, self.slots, self.n_y)
+        present = np.isfinite(sensor) & np.isfinite(tau)
+        known = present & (sensor >= 0) & (sensor < len(fused)) & (sensor == np.round(sensor))
+        if (present & ~known).any():
+            row, j = np.argwhere(present & ~known)[0]
+            raise ConfigError(f"input column 'packet{j}_sensor' row {row} is {float(sensor[row, j])!r}; allowed: a sensor's "
+                              f"index 0..{len(fused) - 1} (NaN: no packet)")
+        index = np.where(known, sensor, 0).astype(np.int64)
+        use = known & (fused[index] >= 0)
+        k = first + np.arange(rows)
+        t_k = self.t0 + k * self.period
+        t_prev = self.t0 + (k - 1) * self.period
+        # the batch's grouping: τ belongs to k when t_{k−1} < τ − 1e-9 <= t_k
+        shifted = tau - _SAME_INSTANT
+        future = use & ~(shifted <= t_k[:, None])
+        if future.any():
+            row, j = np.argwhere(future)[0]
+            raise ConfigError(f"input column 'packet{j}_time' row {row} is {float(tau[row, j])!r}, after the row's fusion "
+                              f"instant {float(t_k[row])!r}; allowed: sample instants up to the row's fusion instant "
+                              f"(t0 + k·{self.period:g} s)")
+        late = use & ~(shifted > t_prev[:, None]) & (k[:, None] > 0)
+        use &= ~late & (k[:, None] > 0)
+        n_valid = use.sum(axis=1)
+        width = int(n_valid.max(initial=0))
+        out_t = np.full((1, rows, width), np.nan)
+        out_y = np.full((1, rows, width, self.n_y), np.nan)
+        out_s = np.zeros((1, rows, width), np.int64)
+        valid = np.zeros((1, rows, width), bool)
+        for r in np.flatnonzero(n_valid):
+            at = np.flatnonzero(use[r])
+            at = at[np.lexsort((fused[index[r, at]], tau[r, at]))]
+            count = len(at)
+            out_t[0, r, :count], out_y[0, r, :count] = tau[r, at], y[r, at]
+            out_s[0, r, :count], valid[0, r, :count] = fused[index[r, at]], True
+        return out_t, out_y, out_s, valid, late.sum(axis=1)
+
+    def update(self, columns, state) -> dict[str, np.ndarray]:
+        estimator, models, trans, mu0, H, Rm, fused, step = self._setup()
+        rows = len(next(iter(columns.values())))
+        first = int(state["imm_step"])
+        M, n = self.n_models, self.n_aug
+        mus, xs, Ps = self._state_names()
+        t, y, sensor, valid, late = self._packets(columns, rows, first, fused)
+        # the batch's loop on a grid whose row 0 is the state carried in (not updated): the last fusion instant
+        # before the chunk, or at the stream's start the chunk's first row (the prior at t0)
+        lead = 0 if first == 0 else 1
+        tail = 1 if rows + lead < 2 else 0    # the loop runs on two rows at least; an extra empty one is dropped
+        total = lead + rows + tail
+        grid = self.t0 + (first - lead + np.arange(total)) * self.period
+
+        def pad(a, fill):
+            return np.concatenate([np.full((1, lead) + a.shape[2:], fill, a.dtype), a,
+                                   np.full((1, tail) + a.shape[2:], fill, a.dtype)], axis=1)
+
+        meas = IntervalMeasurements(pad(t, np.nan), pad(y, np.nan), pad(sensor, 0), pad(valid, False))
+        start = (np.array([float(state[k]) for k in mus]), np.array([float(state[k]) for k in xs]).reshape(M, n),
+                 np.array([float(state[k]) for k in Ps]).reshape(M, n, n))
+        out_mu, out_x, out_P, _, fused_x, _ = estimator._filter(meas, grid, step, H, Rm, trans, start)
+        keep = slice(lead, lead + rows)
+        mu, x, P, fx = out_mu[0, keep], out_x[0, keep], out_P[0, keep], fused_x[0, keep]
+        out = {f"mode_probabilities_{m}": mu[:, m] for m in range(M)}
+        out.update({f"x_filt_{i}": fx[:, i] for i in range(self.n_x)})
+        out.update({f"fault_amplitudes_{m}": x[:, m + 1, self.n_x] for m in range(M - 1)})
+        out.update({f"fault_estimate_{m}": mu[:, m + 1] * x[:, m + 1, self.n_x] for m in range(M - 1)})
+        out["n_measurements"] = valid[0].sum(axis=1).astype(np.int64)
+        out["late_packets"] = late.astype(np.int64)
+        out["imm_step"] = first + np.arange(1, rows + 1, dtype=np.int64)
+        out.update({k: mu[:, m] for m, k in enumerate(mus)})
+        flat_x, flat_P = x.reshape(rows, -1), P.reshape(rows, -1)
+        out.update({k: flat_x[:, i] for i, k in enumerate(xs)})
+        out.update({k: flat_P[:, i] for i, k in enumerate(Ps)})
+        return out

@@ -31,6 +31,27 @@ from ..validation import Interval, Param
 from .base import Estimator
 
 
+def kalman_start(y0: np.ndarray, r_var: float):
+    """(z, P) at k = 0: the first sample with its own noise, or a wide prior where it is missing."""
+    return np.where(np.isfinite(y0), y0, 0.0), np.where(np.isfinite(y0), r_var, 1e6)
+
+
+def kalman_step(z, P, y, v_previous, v, dt: float, q: float, r_var: float):
+    """(r_k, S_k, z_k, P_k) from (z_{k−1}, P_{k−1}), y_k and v_d at k − 1 and k (module docstring): the one
+    arithmetic of the batch filter and the causal form (:class:`~mosd.estimators.neural_observer.OnlineObserver`).
+    A missing y_k skips the update (r_k, S_k NaN); a missing velocity skips the climb."""
+    climb = -0.5 * dt * (v_previous + v)
+    z_pred = z + np.where(np.isfinite(climb), climb, 0.0)
+    P_pred = P + q
+    innovation = y - z_pred
+    S_k = P_pred + r_var
+    seen = np.isfinite(innovation)
+    gain = P_pred / S_k
+    z = np.where(seen, z_pred + gain * np.where(seen, innovation, 0.0), z_pred)
+    P = np.where(seen, (1.0 - gain) * P_pred, P_pred)
+    return innovation, np.where(seen, S_k, np.nan), z, P
+
+
 class AltitudeKalmanFilter(Estimator):
     """Kalman filter of GPS altitude with down-velocity input (module docstring; reconstruction)."""
 
@@ -64,22 +85,10 @@ class AltitudeKalmanFilter(Estimator):
         r = np.full((n_reps, N), np.nan)
         S = np.full((n_reps, N), np.nan)
         z_filt = np.full((n_reps, N), np.nan)
-        z = np.where(np.isfinite(y[:, 0]), y[:, 0], 0.0)
-        # an unknown start: the first sample's own noise, or a wide prior where it is missing
-        P = np.where(np.isfinite(y[:, 0]), r_var, 1e6)
+        z, P = kalman_start(y[:, 0], r_var)
         z_filt[:, 0] = z
         for k in range(1, N):
-            climb = -0.5 * model.dt * (v_d[:, k - 1] + v_d[:, k])
-            z_pred = z + np.where(np.isfinite(climb), climb, 0.0)
-            P_pred = P + q
-            innovation = y[:, k] - z_pred
-            S_k = P_pred + r_var
-            seen = np.isfinite(innovation)
-            gain = P_pred / S_k
-            z = np.where(seen, z_pred + gain * np.where(seen, innovation, 0.0), z_pred)
-            P = np.where(seen, (1.0 - gain) * P_pred, P_pred)
-            r[:, k] = innovation
-            S[:, k] = np.where(seen, S_k, np.nan)
+            r[:, k], S[:, k], z, P = kalman_step(z, P, y[:, k], v_d[:, k - 1], v_d[:, k], model.dt, q, r_var)
             z_filt[:, k] = z
         return {"r": r, "S": S, "chi2": r * r / S, "z_filtered": z_filt}
 

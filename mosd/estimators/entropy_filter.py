@@ -44,7 +44,10 @@ import math
 
 import numpy as np
 
+from dataclasses import dataclass
+
 from ..faults.random_amplitude import RandomAmplitudeFault
+from ..streaming import COUNT, FINITE, OnlineStage, StateVar, build
 from ..types import Residuals, Trace
 from ..validation import ConfigError, Interval, Param
 from .base import Estimator
@@ -101,6 +104,15 @@ def renyi_quadratic(a: np.ndarray, b: np.ndarray, gain: float, s: float):
 
 
 _GAINS = Interval(-2.0, 2.0)  # the gains U a filter may use
+#: the stream column of the simulated state x_k (paper 002's monitor reads the error x − x̂)
+TRUTH = "x_true"
+
+
+def gain_step(model, x_hat: np.ndarray, y_filled: np.ndarray, gain: float) -> np.ndarray:
+    """x̂_{k+1} = f(x̂_k) + U_k (ỹ_k − h(x̂_k)) (module docstring): the one arithmetic of the batch estimate
+    and the causal form (:class:`OnlineGainFilter`). A missing ỹ_k (``skip``, and ``hold`` before the first
+    sample) leaves the prediction uncorrected."""
+    return model.f(x_hat) + gain * np.nan_to_num(y_filled - model.h(x_hat))
 
 
 def _design_fault(law: str, role: str):
@@ -154,13 +166,37 @@ class _GainFilter(Estimator):
         xk = np.zeros(R)  # x̂_0 = 0 (paper)
         for k in range(N):
             x_hat[:, k] = xk
-            innovation = y_filled[:, k] - model.h(xk)
-            # "skip" (and "hold" before the first sample): a missing output leaves the prediction uncorrected
-            xk = model.f(xk) + gains[k] * np.nan_to_num(innovation)
+            xk = gain_step(model, xk, y_filled[:, k], gains[k])
         r = y - model.h(x_hat)
         extra = {"error": np.asarray(trace.x, float)[..., 0] - x_hat, "gain": np.broadcast_to(gains, (R, N)).copy(),
                  "x_hat": x_hat, "y_filled": y_filled, "innovation": y_filled - model.h(x_hat)}
         return Residuals.of(trace, r[..., None], ("y",), extra=extra)
+
+    # -- the causal form ----------------------------------------------------------------
+    def _schedule(self) -> tuple[np.ndarray, bool]:
+        """(the gains U_0, U_1, ... a stream uses, whether the last repeats forever)."""
+        return self._gains(1), True
+
+    def online(self, model=None, source=None, trace: Trace | None = None, truth: bool = True) -> "OnlineGainFilter":
+        """The filter as a stream of raw outputs: ``y_<output>`` (NaN where missing) in, one row per sample.
+
+        ``source`` describes the plant and noise the model is rebuilt from (:func:`mosd.streaming.describe`).
+        ``truth``: the stream also carries the simulated state (column ``x_true``) and the stage outputs the
+        estimation error x − x̂ (``error``) that paper 002's monitor reads (the paper evaluates isolation
+        in simulation, where the state is known); a deployment without it monitors ``residual`` instead.
+        """
+        if source is None:
+            return super().online(model)
+        plant = build(source["plant"])
+        gains, constant = self._schedule()
+        return OnlineGainFilter(plant=source["plant"], noise=source["noise"], gains=np.asarray(gains, float),
+                                constant=bool(constant), missing=self.missing,
+                                output_name=plant.output_names[0], truth=bool(truth))
+
+    def raw_stream(self, trace: Trace, model, input_names) -> dict[str, np.ndarray]:
+        """The first replication's outputs (NaN where missing) and simulated state as the causal form's columns."""
+        name = (trace.meta.get("output_names") or ("y",))[0]
+        return {f"y_{name}": np.asarray(trace.y, float)[0, :, 0], TRUTH: np.asarray(trace.x, float)[0, :, 0]}
 
 
 class FixedGainFilter(_GainFilter):
@@ -294,6 +330,109 @@ class EntropyIsolationFilter(_GainFilter):
                               f"({gains.shape[0]}); fit on runs at least as long")
         return gains[:n_samples]
 
+    def _schedule(self) -> tuple[np.ndarray, bool]:
+        gains = getattr(self, "gain_", None)
+        return self._gains(0 if gains is None else gains.shape[0]), False
+
     def __repr__(self) -> str:
         return (f"EntropyIsolationFilter(n_particles={self.n_particles}, R1={self.R1:g}, R2={self.R2:g}, "
                 f"gain_box=[{self.gain_low:g}, {self.gain_high:g}], missing={self.missing!r})")
+
+
+@dataclass
+class OnlineGainFilter(OnlineStage):
+    """The causal form of :class:`EntropyIsolationFilter` and :class:`FixedGainFilter` (paper 002).
+
+    In per row: the raw output ``y_<output>`` (NaN where it is missing) and, with ``truth``, the simulated
+    state ``x_true``. Out: ``residual_<output>`` y − h(x̂), ``innovation`` ỹ − h(x̂), ``x_hat``, ``gain`` U_k,
+    ``y_filled`` ỹ and, with ``truth``, ``error`` x − x̂: the batch estimate's outputs row by row (one
+    arithmetic: :func:`gain_step`). The gain schedule U_0, U_1, ... is the fitted design's (``gains``; a
+    fixed-gain filter repeats its one gain, ``constant``); a stream longer than the design is refused,
+    as the batch refuses runs longer than it.
+
+    A missing output is filled as the batch fills it: ``skip`` leaves it missing (no correction), ``hold``
+    takes the last observed output (state ``last_output``; NaN before the first: no correction). ``em``
+    fills a gap from the whole run's lag windows (it needs the outputs after the gap: not causal), so a
+    gap in the stream of an ``em`` design is refused with one line; with no gap the EM fill is the
+    identity and the stream equals the batch. State: ``x_hat_next`` (x̂ of the next row, x̂_0 = 0) and
+    ``filter_step`` (rows seen: the index into the schedule).
+    """
+
+    plant: dict
+    noise: dict
+    gains: np.ndarray
+    constant: bool
+    missing: str
+    output_name: str = "y"
+    truth: bool = True
+
+    def _model(self):
+        cached = self.__dict__.get("_model_object")
+        if cached is None:
+            cached = self.__dict__["_model_object"] = build(self.plant).model(build(self.noise))
+        return cached
+
+    @property
+    def inputs(self) -> tuple[str, ...]:
+        return (f"y_{self.output_name}", *((TRUTH,) if self.truth else ()))
+
+    @property
+    def outputs(self) -> tuple[str, ...]:
+        return (f"residual_{self.output_name}", "innovation", "x_hat", "gain", "y_filled",
+                *(("error",) if self.truth else ()))
+
+    def state_vars(self) -> dict[str, StateVar]:
+        out = {"x_hat_next": StateVar("The filter's estimate x̂ of the next row's state.", FINITE),
+               "filter_step": StateVar("Rows filtered since the stream's start (the index into the gain schedule).",
+                                       COUNT)}
+        if self.missing == "hold":
+            out["last_output"] = StateVar("The last observed output (NaN before the first).", FINITE, missing=True)
+        return out
+
+    def initial_state(self) -> dict:
+        out = {"x_hat_next": 0.0, "filter_step": 0}   # x̂_0 = 0 (paper)
+        if self.missing == "hold":
+            out["last_output"] = math.nan
+        return out
+
+    def example_row(self) -> np.ndarray:
+        return np.zeros(len(self.inputs))
+
+    def _fill(self, y: np.ndarray, state) -> np.ndarray:
+        if self.missing == "hold":
+            return hold_last(np.concatenate([[float(state["last_output"])], y])[None])[0, 1:]
+        if self.missing == "em" and np.isnan(y).any():
+            row = int(np.flatnonzero(np.isnan(y))[0])
+            raise ConfigError(f"input column 'y_{self.output_name}' row {row} is missing: this design fills a gap "
+                              f"by EM on the whole run's lag windows (estimator.missing=em needs the outputs after "
+                              f"the gap), which a stream has not seen; allowed: no gap, or a design with "
+                              f"estimator.missing=hold or skip")
+        return y
+
+    def update(self, columns, state) -> dict[str, np.ndarray]:
+        model = self._model()
+        y = np.asarray(columns[f"y_{self.output_name}"], float)
+        rows, first = len(y), int(state["filter_step"])
+        if self.constant:
+            gains = np.broadcast_to(self.gains[-1], (rows,))
+        elif first + rows > self.gains.shape[0]:
+            raise ConfigError(f"the stream is longer than the designed gain schedule ({self.gains.shape[0]} rows; "
+                              f"row {self.gains.shape[0] - first} of this chunk is past it); allowed: streams of at "
+                              f"most {self.gains.shape[0]} rows (fit on longer runs)")
+        else:
+            gains = self.gains[first:first + rows]
+        y_filled = self._fill(y, state)
+        x_hat, x_next = np.empty(rows), np.empty(rows)
+        xk = np.array([float(state["x_hat_next"])])
+        for k in range(rows):
+            x_hat[k] = xk[0]
+            xk = gain_step(model, xk, y_filled[k:k + 1], gains[k])
+            x_next[k] = xk[0]
+        out = {f"residual_{self.output_name}": y - model.h(x_hat), "innovation": y_filled - model.h(x_hat),
+               "x_hat": x_hat, "gain": np.array(gains, float), "y_filled": y_filled,
+               "x_hat_next": x_next, "filter_step": first + np.arange(1, rows + 1, dtype=np.int64)}
+        if self.truth:
+            out["error"] = np.asarray(columns[TRUTH], float) - x_hat
+        if self.missing == "hold":
+            out["last_output"] = y_filled
+        return out

@@ -43,19 +43,36 @@ import math
 import os
 import sys
 import tempfile
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from ..streaming import COUNT, FINITE, SQUARES, OnlineStage, StateVar
 from ..types import Residuals, Trace
 from ..validation import ConfigError, Interval, Param
 from .base import Estimator
-from .ekf import AltitudeKalmanFilter
+from .ekf import AltitudeKalmanFilter, kalman_start, kalman_step
 
 WEIGHTINGS = ("linear", "uniform")
 _LAYERS = ("w1", "b1", "w2", "b2", "w3", "b3")
 DEFAULT_CACHE = "~/.cache/mosd/observers"
+
+
+def rollout(params, scaling, h0: np.ndarray, C: np.ndarray) -> np.ndarray:
+    """Predictions (..., N) of the N-step rollout from h0 (...) with inputs C (..., N, c), in NumPy from the
+    trained weight arrays ``params`` (w1 … b3, one slice per step) and ``scaling``: the one arithmetic of the
+    batch prediction and the causal form (:class:`OnlineObserver`); no torch."""
+    p, s = params, scaling
+    h_prev, outputs = h0, []
+    for j in range(C.shape[-2]):
+        x = (np.concatenate([h_prev[..., None], C[..., j, :]], -1) - s["input_mean"]) / s["input_std"]
+        a = np.maximum(x @ p["w1"][j] + p["b1"][j], 0.0)
+        a = np.maximum(a @ p["w2"][j] + p["b2"][j], 0.0)
+        h_prev = h_prev + s["step_mean"] + s["step_std"] * (a @ p["w3"][j] + p["b3"][j])[..., 0]
+        outputs.append(h_prev)
+    return np.stack(outputs, axis=-1)
 
 
 def _ekf(key: str, value, estimator):
@@ -332,15 +349,7 @@ class MultiStepNeuralObserver(Estimator):
 
     def _rollout(self, h0: np.ndarray, C: np.ndarray) -> np.ndarray:
         """Predictions (B, N) of the N-step rollout from h0 (B,) with inputs C (B, N, c) (NumPy)."""
-        p, s = self.params_, self.scaling_
-        h_prev, outputs = h0, []
-        for j in range(self.window):
-            x = (np.concatenate([h_prev[..., None], C[..., j, :]], -1) - s["input_mean"]) / s["input_std"]
-            a = np.maximum(x @ p["w1"][j] + p["b1"][j], 0.0)
-            a = np.maximum(a @ p["w2"][j] + p["b2"][j], 0.0)
-            h_prev = h_prev + s["step_mean"] + s["step_std"] * (a @ p["w3"][j] + p["b3"][j])[..., 0]
-            outputs.append(h_prev)
-        return np.stack(outputs, axis=-1)
+        return rollout(self.params_, self.scaling_, h0, C)
 
     def predict(self, y: np.ndarray) -> np.ndarray:
         """ĥ_k (R, K) of logs y (R, K, n_y): the N-step rollout from the measured h_{k−N}; NaN for k < N."""
@@ -367,6 +376,127 @@ class MultiStepNeuralObserver(Estimator):
                  "h_hat": h_hat, "h_filtered": kf["z_filtered"]}
         return Residuals.of(trace, r=kf["r"][..., None], channels=(model.output_names[self.altitude_channel],),
                             cov=kf["S"][..., None, None], extra=extra)
+
+
+    # -- the causal form ----------------------------------------------------------------
+    def online(self, model: Any = None, source=None, trace: Trace | None = None) -> "OnlineObserver":
+        """The fitted observer and its χ² filter as a stream of the flight log: ``y_<channel>`` in per row
+        (:class:`OnlineObserver`), served in NumPy from the trained weight arrays (no torch)."""
+        if source is None or not hasattr(self, "params_"):
+            return super().online(model)
+        names = tuple(model.output_names)
+        arrays = {k: np.asarray(v, float) for k, v in {**self.params_, **self.scaling_}.items()}
+        return OnlineObserver(channels=names, window=int(self.window), altitude_channel=int(self.altitude_channel),
+                              velocity_channel=int(self.ekf.velocity_channel),
+                              filter_altitude_channel=int(self.ekf.altitude_channel),
+                              residual_mean=float(self.residual_mean_), residual_std=float(self.residual_std_),
+                              dt=float(model.dt), q=float(self.ekf.process_variance(model)),
+                              r_var=float(model.gps_variance), **arrays)
+
+    def raw_stream(self, trace: Trace, model: Any, input_names) -> dict[str, np.ndarray]:
+        """The first replication's flight log, one column per logged channel (``y_<channel>``)."""
+        y = np.asarray(trace.y, float)[0]
+        return {f"y_{name}": y[:, j] for j, name in enumerate(model.output_names)}
+
+
+@dataclass
+class OnlineObserver(OnlineStage):
+    """:class:`MultiStepNeuralObserver`'s causal form: the flight log in, the observer's and the filter's outputs out.
+
+    In per row: every logged channel ``y_<channel>`` (NaN where a sample is missing). Out:
+    ``residual_<altitude>`` (the filter's innovation), ``chi2``, ``observer_residual``,
+    ``observer_residual_scaled``, ``observer_chi2``, ``h_hat`` and ``h_filtered`` — the batch estimate's
+    outputs row by row. ĥ_k is the N-step rollout (:func:`rollout`, the batch's arithmetic, in NumPy from the
+    saved weight arrays) from h_{k−N} over C_{k−N} … C_{k−1}, NaN for k < N; the filter steps by
+    :func:`~mosd.estimators.ekf.kalman_step`. State: ``observer_rows`` (rows seen), the last N rows of the log
+    (``observer_lag<l>_<channel>``, l = 1 the previous row; NaN before the stream has them) and the filter's
+    ``kf_z`` and ``kf_P``.
+    """
+
+    channels: tuple
+    window: int
+    altitude_channel: int
+    velocity_channel: int
+    filter_altitude_channel: int
+    residual_mean: float
+    residual_std: float
+    dt: float
+    q: float
+    r_var: float
+    w1: np.ndarray
+    b1: np.ndarray
+    w2: np.ndarray
+    b2: np.ndarray
+    w3: np.ndarray
+    b3: np.ndarray
+    input_mean: np.ndarray
+    input_std: np.ndarray
+    step_mean: np.ndarray
+    step_std: np.ndarray
+
+    @property
+    def inputs(self) -> tuple[str, ...]:
+        return tuple(f"y_{n}" for n in self.channels)
+
+    @property
+    def outputs(self) -> tuple[str, ...]:
+        return (f"residual_{self.channels[self.filter_altitude_channel]}", "chi2", "observer_residual",
+                "observer_residual_scaled", "observer_chi2", "h_hat", "h_filtered")
+
+    def _lags(self) -> list[str]:
+        return [f"observer_lag{lag}_{n}" for lag in range(self.window, 0, -1) for n in self.channels]
+
+    def state_vars(self) -> dict[str, StateVar]:
+        cached = self.__dict__.get("_state_vars")   # asked once per state param by the pipeline: built once
+        if cached is None:
+            cached = {"observer_rows": StateVar("Log rows seen since the stream's start.", COUNT)}
+            cached.update({k: StateVar("A logged value of an earlier row (the rollout's window; NaN: not seen).",
+                                       FINITE, missing=True) for k in self._lags()})
+            cached["kf_z"] = StateVar("The χ² filter's altitude estimate after the row.", FINITE)
+            cached["kf_P"] = StateVar("The χ² filter's variance after the row.", SQUARES)
+            self.__dict__["_state_vars"] = cached
+        return cached
+
+    def initial_state(self) -> dict:
+        return {"observer_rows": 0, **{k: math.nan for k in self._lags()}, "kf_z": 0.0, "kf_P": 1e6}
+
+    def example_row(self) -> np.ndarray:
+        return np.zeros(len(self.channels))
+
+    def update(self, columns, state) -> dict[str, np.ndarray]:
+        N, width = self.window, len(self.channels)
+        Y = np.column_stack([np.asarray(columns[f"y_{n}"], float) for n in self.channels])
+        rows, first = len(Y), int(state["observer_rows"])
+        lags = self._lags()
+        history = np.concatenate([np.array([float(state[k]) for k in lags]).reshape(N, width), Y])
+        params = {k: getattr(self, k) for k in ("w1", "b1", "w2", "b2", "w3", "b3")}
+        scaling = {k: getattr(self, k) for k in ("input_mean", "input_std", "step_mean", "step_std")}
+        others = [c for c in range(width) if c != self.altitude_channel]
+        h_hat = np.full(rows, np.nan)
+        for i in range(rows):
+            if first + i >= N:   # rows k − N … k − 1 of the log are history[i : i + N]
+                past = history[i:i + N]
+                h_hat[i] = rollout(params, scaling, past[:1, self.altitude_channel], past[None, :, others])[0, -1]
+        error = Y[:, self.altitude_channel] - h_hat
+        alt, vel = self.filter_altitude_channel, self.velocity_channel
+        r, S, z_out, P_out = (np.full(rows, np.nan) for _ in range(4))
+        z, P = np.array([float(state["kf_z"])]), np.array([float(state["kf_P"])])
+        for i in range(rows):
+            if first + i == 0:
+                z, P = kalman_start(Y[:1, alt], self.r_var)
+            else:
+                r[i:i + 1], S[i:i + 1], z, P = kalman_step(z, P, Y[i:i + 1, alt], history[N + i - 1:N + i, vel],
+                                                           Y[i:i + 1, vel], self.dt, self.q, self.r_var)
+            z_out[i], P_out[i] = z[0], P[0]
+        out = {f"residual_{self.channels[alt]}": r, "chi2": r * r / S, "observer_residual": np.abs(error),
+               "observer_residual_scaled": np.abs(error) / self.residual_std,
+               "observer_chi2": ((error - self.residual_mean) / self.residual_std) ** 2, "h_hat": h_hat,
+               "h_filtered": z_out, "kf_z": z_out, "kf_P": P_out,
+               "observer_rows": first + np.arange(1, rows + 1, dtype=np.int64)}
+        for lag in range(N, 0, -1):        # after row i the row lag back is history[N + i + 1 − lag]
+            for c, n in enumerate(self.channels):
+                out[f"observer_lag{lag}_{n}"] = history[N + 1 - lag:N + 1 - lag + rows, c]
+        return out
 
 
 def _progress(total: int, description: str, enabled: bool):

@@ -136,7 +136,9 @@ def imm(sequential, counts, n_valid, y, sensor, slot_key, step_key, phi, drive, 
     h_eq, hgu, cross : float64 (K, S, M, m, n), (K, S, M, m), (K, S, M, n, m)
         H̄ = H Φ⁻¹, H̄ Γu and C = −Q H̄ᵀ (equivalent measurement only; else empty).
     H, Rm : float64 (S, m, n), (S, m, m)
-    trans : float64 (M, M); mu0 : (M,); x0 : (n,); P0 : (n, n)
+    trans : float64 (M, M); mu0 : (M,); x0 : (M, n); P0 : (M, n, n)
+        The state before row 0 of every replication: each model's μ, x̂ and P (a run's start: μ_0 and the
+        augmented prior for every model; a stream's chunk: the state it carries). Row 0 is not updated.
     first, stop : int
         The replications this call filters (threads share the output arrays).
     out_mu, out_x, out_P, out_ll, fused_x, fused_P : filled
@@ -147,7 +149,7 @@ def imm(sequential, counts, n_valid, y, sensor, slot_key, step_key, phi, drive, 
     """
     n_points = counts.shape[0]
     n_models = mu0.shape[0]
-    n = x0.shape[0]
+    n = x0.shape[1]
     m = H.shape[1]
     n_slots = y.shape[2]
     big = max(n_slots * m, m)
@@ -182,9 +184,9 @@ def imm(sequential, counts, n_valid, y, sensor, slot_key, step_key, phi, drive, 
         for i in range(n_models):
             mu[i] = mu0[i]
             for a in range(n):
-                x[i, a] = x0[a]
+                x[i, a] = x0[i, a]
                 for b in range(n):
-                    P[i, a, b] = P0[a, b]
+                    P[i, a, b] = P0[i, a, b]
         failed = False
         for k in range(n_points):
             if k > 0:
@@ -442,7 +444,9 @@ def filter_batch(sequential, meas, grid, step, H, Rm, trans, mu0, x0, P0, thread
     step : callable
         Δ (K,) → Φ (K, M, n, n), Γu (K, M, n), Q_d (K, M, n, n): the estimator's cache.
     H, Rm : ndarray (S, m, n), (S, m, m)
-    trans, mu0, x0, P0 : the transition matrix, μ_0 and the augmented prior.
+    trans, mu0, x0, P0 : the transition matrix, μ_0 and the augmented prior (x̂ (n,) or per model (M, n),
+        P (n, n) or (M, n, n)): the state before row 0, which is not updated (the prior at t_0 of a run,
+        or the state a stream carries, with ``grid[0]`` the previous fusion instant).
     threads : int, optional
         Threads to split the replications over (default :func:`mosd.kernels.threads`).
 
@@ -501,6 +505,8 @@ def filter_batch(sequential, meas, grid, step, H, Rm, trans, mu0, x0, P0, thread
         h_eq, hgu, cross = (np.ascontiguousarray(a) for a in (h_eq, hgu, cross))
 
     n_models, n = phi.shape[1], phi.shape[2]
+    x0 = np.broadcast_to(np.asarray(x0, float), (n_models, n))
+    P0 = np.broadcast_to(np.asarray(P0, float), (n_models, n, n))
     out_mu = np.empty((n_reps, n_points, n_models))
     out_x = np.empty((n_reps, n_points, n_models, n))
     out_P = np.empty((n_reps, n_points, n_models, n, n))
