@@ -295,8 +295,7 @@ class OnlineLatent(OnlineStage):
 
     def state_vars(self) -> dict[str, StateVar]:
         own = {name: var for name, (var, _) in self._family().state(self.fitted, self._design()).items()}
-        return {**{f"ewma_{n}": StateVar(f"EWMA of {n} after the last row.", SQUARES if n not in SIGNED else FINITE)
-                   for n in self.names},
+        return {**{f"ewma_{n}": StateVar(f"EWMA of {n} after the last row.", SQUARES) for n in self.names},
                 "run_length": StateVar("Consecutive points above the limit.", COUNT), **own}
 
     def initial_state(self) -> dict:
@@ -357,10 +356,6 @@ class OnlineLatent(OnlineStage):
                    limits=tuple(meta["limits"]["tuple"]), starts=tuple(meta["starts"]["tuple"]), fitted=fitted)
 
 
-#: statistics that may be negative (their EWMA state is any finite number, not a sum of squares)
-SIGNED: frozenset = frozenset()
-
-
 # -- helpers for dynamic families ------------------------------------------------------------
 def lag_state(m: int, lags: int, prefix: str = "lag") -> dict[str, tuple[StateVar, float]]:
     """The declared state of a buffer of the last ``lags`` rows of m variables: ``<prefix><j>_<i>`` is
@@ -399,6 +394,18 @@ def complete_rows(rows: np.ndarray) -> np.ndarray:
     """The rows (…, n) with every value finite, as (N, n): what a family fits on."""
     flat = np.asarray(rows, float).reshape(-1, np.shape(rows)[-1])
     return flat[np.all(np.isfinite(flat), axis=1)]
+
+
+def scaling(rows: np.ndarray, family: str, least: int = 3) -> tuple[np.ndarray, np.ndarray]:
+    """Mean and standard deviation (ddof = 1) of the complete rows (N, m); one line naming a constant variable."""
+    if len(rows) < least:
+        raise ConfigError(f"the {family} calibration has {len(rows)} complete rows; allowed: at least {least}")
+    mean, scale = rows.mean(axis=0), rows.std(axis=0, ddof=1)
+    flat = np.flatnonzero(~(scale > 1e-12 * np.maximum(1.0, np.abs(mean))))
+    if flat.size:
+        raise ConfigError(f"variable {flat[0] + 1} is constant over the {family} calibration rows; allowed: "
+                          "variables that vary (drop constant columns)")
+    return mean, scale
 
 
 def empirical_limit(values: np.ndarray, alpha: float) -> float:
