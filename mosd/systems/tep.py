@@ -23,12 +23,13 @@ that drive the alarms.
 """
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Any, Mapping
 
 import numpy as np
 
-from ..data.tep import ALL_FAULTS, DT, ONSET, TennesseeEastman, file_name
+from ..data.tep import ALL_FAULTS, DT, ONSET, UNOBSERVABLE, TennesseeEastman, file_name
 from ..detectors.base import persistent
 from ..detectors.pca import PCADetector
 from ..validation import ConfigError, check_choice, check_int
@@ -132,7 +133,9 @@ def protocol(decision: np.ndarray, labels: np.ndarray, run: int = DELAY_RUN) -> 
     ``delay_run_idvN`` (minutes from the onset to the first alarm and to the row completing the first run
     of ``run`` consecutive alarms; left out when there is none), ``delay_run_k`` (= ``run``), ``far`` (the
     share of d00_te.dat rows 160-959 that alarm), ``far_episodes`` and ``far_ci_low``/``far_ci_high``
-    (:func:`far_interval`, 95 %).
+    (:func:`far_interval`, 95 %); for the faults PCA is known not to see (3, 9, 15), ``fdr_over_far_idvN`` and
+    ``p_chance_idvN``: the one-sided exact test that the faulty file's alarm episodes are no more frequent than
+    the fault-free file's (conditional binomial test of two Poisson counts over equal rows).
     """
     decision = np.asarray(decision, bool)
     out: dict[str, float] = {}
@@ -149,6 +152,17 @@ def protocol(decision: np.ndarray, labels: np.ndarray, run: int = DELAY_RUN) -> 
     if (labels == 0).any():
         far, low, high, count = far_interval(decision[labels == 0])
         out.update({"far": far, "far_episodes": float(count), "far_ci_low": low, "far_ci_high": high})
+        from scipy import special
+
+        for n in UNOBSERVABLE:
+            if not (labels == n).any():
+                continue
+            faulty = decision[labels == n]
+            seen = episodes(faulty)
+            # chance: the faulty file's alarm episodes are as frequent as the fault-free file's (the same 800
+            # rows each), so given their total, the faulty file's share is Binomial(total, 1/2)
+            out[f"fdr_over_far_idv{n}"] = float(faulty.mean() / far) if far > 0 else math.inf
+            out[f"p_chance_idv{n}"] = float(special.bdtrc(seen - 1, seen + count, 0.5)) if seen else 1.0
     out["delay_run_k"] = float(run)
     return out
 
@@ -620,6 +634,9 @@ def format_families(results: Mapping[str, dict]) -> str:
     rows.append([f"first run of {DELAY_RUN}, median (min)"] + [
         f"{np.median([results[n][f'delay_run_idv{f}'] for f in DEFAULT_FAULTS if f'delay_run_idv{f}' in results[n]]):.0f}"
         for n in names])
+    rows.append(["p vs chance, IDV(3)/(9)/(15)"] + [
+        "/".join(f"{results[n][f'p_chance_idv{f}']:.2g}" if f"p_chance_idv{f}" in results[n] else "–"
+                 for f in UNOBSERVABLE) for n in names])
     rows.append(["FAR d00_te (%)"] + [f"{100 * results[n]['far']:.2f}" for n in names])
     rows.append(["FAR episodes"] + [f"{int(results[n]['far_episodes'])}" for n in names])
     rows.append(["FAR 95 % (episodes)"] + [f"{100 * results[n]['far_ci_low']:.2f}-{100 * results[n]['far_ci_high']:.2f}"
