@@ -23,7 +23,6 @@ that drive the alarms.
 """
 from __future__ import annotations
 
-import math
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -161,7 +160,8 @@ def protocol(decision: np.ndarray, labels: np.ndarray, run: int = DELAY_RUN) -> 
             seen = episodes(faulty)
             # chance: the faulty file's alarm episodes are as frequent as the fault-free file's (the same 800
             # rows each), so given their total, the faulty file's share is Binomial(total, 1/2)
-            out[f"fdr_over_far_idv{n}"] = float(faulty.mean() / far) if far > 0 else math.inf
+            if far > 0:  # no ratio to a FAR of 0 (absent, like a delay that never came)
+                out[f"fdr_over_far_idv{n}"] = float(faulty.mean() / far)
             out[f"p_chance_idv{n}"] = float(special.bdtrc(seen - 1, seen + count, 0.5)) if seen else 1.0
     out["delay_run_k"] = float(run)
     return out
