@@ -1,0 +1,126 @@
+"""Autoencoder monitoring: reconstruction SPE and latent T² of a small MLP trained with PyTorch (the ``nn`` extra).
+
+The residual generator is :class:`AutoencoderModel`: the calibration rows are
+standardised (ddof = 1, as PCA) and a symmetric MLP
+
+    h₁ = tanh(W₁ z + b₁),  t = W₂ h₁ + b₂,  h₂ = tanh(W₃ t + b₃),  ẑ = W₄ h₂ + b₄
+
+(m → hidden → latent → hidden → m, a linear bottleneck) is trained to minimise
+the mean squared reconstruction error ‖z − ẑ‖² / m over the fit rows: full-batch
+Adam for ``epochs`` steps, in double precision on one thread, the weights
+initialised from a ``torch.Generator`` seeded with the detector's seed (the same
+seed gives the same weights bit for bit). The statistics of a row are
+
+    SPE = ‖z − ẑ‖²                                 (reconstruction)
+    T² = (t − t̄)ᵀ S⁻¹ (t − t̄)                      (latent, t̄ and S over the fit rows, ddof = 1)
+
+The latent codes are not Gaussian, so each limit is the empirical (1 − α)
+quantile on the held-back calibration runs. The served model keeps the weights
+and runs the forward pass in NumPy (:func:`forward`): no torch object is saved,
+and scoring needs no torch.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ._nonlinear import finite_rows, require, standardisation
+from .pca import _one_blas_thread, project
+
+STATISTICS = ("combined", "t2", "spe")
+#: the weights in the order of the layers, each (inputs, outputs) with its bias
+LAYERS = ("w1", "b1", "w2", "b2", "w3", "b3", "w4", "b4")
+
+
+def forward(weights: dict, Z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(latent t, reconstruction ẑ) of the standardised rows Z (p, m) in NumPy (module docstring).
+
+    Each product sums over its inputs in order (:func:`mosd.detectors.pca.project`), so a row's outputs do
+    not depend on the other rows scored with it.
+    """
+    h1 = np.tanh(project(Z, weights["w1"]) + weights["b1"])
+    t = project(h1, weights["w2"]) + weights["b2"]
+    h2 = np.tanh(project(t, weights["w3"]) + weights["b3"])
+    return t, project(h2, weights["w4"]) + weights["b4"]
+
+
+class AutoencoderModel:
+    """Standardisation and a trained MLP autoencoder of fault-free rows (module docstring).
+
+    Parameters
+    ----------
+    X : ndarray, shape (..., m)
+        Calibration rows; rows with a non-finite value are left out.
+    latent, hidden : int
+        Bottleneck and hidden layer widths.
+    epochs : int
+        Full-batch Adam steps.
+    learning_rate : float
+        Adam's step size.
+    seed : int
+        Seed of the weights' initialisation.
+    names : sequence of str, optional
+        Variable names (for messages).
+    """
+
+    def __init__(self, X: np.ndarray, latent: int = 8, hidden: int = 24, epochs: int = 500,
+                 learning_rate: float = 0.01, seed: int = 0, names=None):
+        require("torch", "autoencoder")
+        self.mean, self.scale, Z = standardisation(X, names, max(3, int(latent) + 2), "autoencoder")
+        self.n, self.m = Z.shape
+        self.latent, self.hidden, self.epochs = int(latent), int(hidden), int(epochs)
+        self.weights, self.loss = _train(Z, self.latent, self.hidden, self.epochs, float(learning_rate), int(seed))
+        t, _ = forward(self.weights, Z)
+        self.latent_mean = t.mean(axis=0)
+        covariance = np.atleast_2d(np.cov(t, rowvar=False, ddof=1))
+        # the pseudo-inverse: a collapsed latent direction (variance 0) adds nothing rather than dividing by 0
+        self.latent_precision = np.linalg.pinv(covariance, hermitian=True)
+
+    def statistics(self, X: np.ndarray) -> dict[str, np.ndarray]:
+        """T² and SPE of the rows X (..., m), each (..., 1); NaN in a row with a missing value."""
+        Z, finite = finite_rows(X, self.mean, self.scale)
+        flat = Z.reshape(-1, self.m)
+        with _one_blas_thread():
+            t, reconstruction = forward(self.weights, flat)
+        spe = np.sum((flat - reconstruction) ** 2, axis=-1)
+        d = t - self.latent_mean
+        t2 = np.sum(project(d, self.latent_precision) * d, axis=-1)
+        shape = Z.shape[:-1] + (1,)
+        nan = ~finite[..., None]
+        return {"t2": np.where(nan, np.nan, t2.reshape(shape)), "spe": np.where(nan, np.nan, spe.reshape(shape))}
+
+
+def _train(Z: np.ndarray, latent: int, hidden: int, epochs: int, learning_rate: float,
+           seed: int) -> tuple[dict, np.ndarray]:
+    """The trained weights {name: ndarray} (float64, (inputs, outputs) and biases) and the loss per epoch."""
+    import torch  # lazily: the rest of mosd, and the served model, run without torch
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)  # deterministic sums, and no fight with the joblib workers
+    try:
+        generator = torch.Generator().manual_seed(seed)
+        m = Z.shape[1]
+        shapes = {"1": (m, hidden), "2": (hidden, latent), "3": (latent, hidden), "4": (hidden, m)}
+        params = {}
+        for layer, (fan_in, fan_out) in shapes.items():
+            # PyTorch's own Linear initialisation, U(−1/√fan_in, 1/√fan_in), drawn from the seeded generator
+            bound = 1.0 / math.sqrt(fan_in)
+            for name, shape in ((f"w{layer}", (fan_in, fan_out)), (f"b{layer}", (fan_out,))):
+                draw = torch.rand(shape, generator=generator, dtype=torch.float64)
+                params[name] = ((draw * 2.0 - 1.0) * bound).requires_grad_()
+        z = torch.as_tensor(Z, dtype=torch.float64)
+        optimiser = torch.optim.Adam(list(params.values()), lr=learning_rate)
+        losses = np.empty(epochs)
+        for epoch in range(epochs):
+            optimiser.zero_grad()
+            h1 = torch.tanh(z @ params["w1"] + params["b1"])
+            t = h1 @ params["w2"] + params["b2"]
+            h2 = torch.tanh(t @ params["w3"] + params["b3"])
+            loss = torch.mean((h2 @ params["w4"] + params["b4"] - z) ** 2)
+            loss.backward()
+            optimiser.step()
+            losses[epoch] = float(loss.detach())
+        return {name: params[name].detach().numpy().copy() for name in LAYERS}, losses
+    finally:
+        torch.set_num_threads(threads)
