@@ -175,3 +175,13 @@ def test_a_missing_extra_is_a_one_line_error_naming_it(monkeypatch, rows, module
     with pytest.raises(ConfigError) as error:
         build(rows)
     assert extra in str(error.value) and "\n" not in str(error.value)
+
+
+def test_autoencoder_training_budgets_share_one_run(rows):
+    """The weights after 7 steps are the same bits from a 7-step training and from a 15-step one's snapshot."""
+    short = AutoencoderModel(rows, latent=2, hidden=4, epochs=7, seed=4)
+    seven, fifteen = AutoencoderModel.trained(rows, latent=2, hidden=4, epochs=[7, 15], seed=4)
+    for name in short.weights:
+        np.testing.assert_array_equal(seven.weights[name], short.weights[name])
+    assert seven.epochs == 7 and fifteen.epochs == 15 and len(fifteen.loss) == 15
+    assert not np.array_equal(fifteen.weights["w1"], short.weights["w1"])

@@ -67,10 +67,30 @@ class AutoencoderModel:
     def __init__(self, X: np.ndarray, latent: int = 8, hidden: int = 24, epochs: int = 500,
                  learning_rate: float = 0.01, seed: int = 0, names=None):
         require("torch", "autoencoder")
-        self.mean, self.scale, Z = standardisation(X, names, max(3, int(latent) + 2), "autoencoder")
+        mean, scale, Z = standardisation(X, names, max(3, int(latent) + 2), "autoencoder")
+        (weights, loss), = _train(Z, int(latent), int(hidden), [int(epochs)], float(learning_rate), int(seed))
+        self._set(mean, scale, Z, int(latent), int(hidden), int(epochs), weights, loss)
+
+    @classmethod
+    def trained(cls, X: np.ndarray, latent: int, hidden: int, epochs, learning_rate: float = 0.01, seed: int = 0,
+                names=None) -> list["AutoencoderModel"]:
+        """One model per entry of ``epochs`` from one training run: the weights after E full-batch steps are the
+        same bits whether training stops at E or goes on (a tuning population's training budgets share it)."""
+        require("torch", "autoencoder")
+        mean, scale, Z = standardisation(X, names, max(3, int(latent) + 2), "autoencoder")
+        out = []
+        for E, (weights, loss) in zip(epochs, _train(Z, int(latent), int(hidden), [int(e) for e in epochs],
+                                                        float(learning_rate), int(seed))):
+            model = cls.__new__(cls)
+            model._set(mean, scale, Z, int(latent), int(hidden), int(E), weights, loss)
+            out.append(model)
+        return out
+
+    def _set(self, mean, scale, Z, latent, hidden, epochs, weights, loss) -> None:
+        self.mean, self.scale = mean, scale
         self.n, self.m = Z.shape
-        self.latent, self.hidden, self.epochs = int(latent), int(hidden), int(epochs)
-        self.weights, self.loss = _train(Z, self.latent, self.hidden, self.epochs, float(learning_rate), int(seed))
+        self.latent, self.hidden, self.epochs = latent, hidden, epochs
+        self.weights, self.loss = weights, loss
         t, _ = forward(self.weights, Z)
         self.latent_mean = t.mean(axis=0)
         covariance = np.atleast_2d(np.cov(t, rowvar=False, ddof=1))
@@ -91,9 +111,10 @@ class AutoencoderModel:
         return {"t2": np.where(nan, np.nan, t2.reshape(shape)), "spe": np.where(nan, np.nan, spe.reshape(shape))}
 
 
-def _train(Z: np.ndarray, latent: int, hidden: int, epochs: int, learning_rate: float,
-           seed: int) -> tuple[dict, np.ndarray]:
-    """The trained weights {name: ndarray} (float64, (inputs, outputs) and biases) and the loss per epoch."""
+def _train(Z: np.ndarray, latent: int, hidden: int, epochs: list[int], learning_rate: float,
+           seed: int) -> list[tuple[dict, np.ndarray]]:
+    """(weights, loss per step) after each number of full-batch steps in ``epochs``, from one training run: the
+    weights {name: ndarray} in float64, (inputs, outputs) and biases."""
     import torch  # lazily: the rest of mosd, and the served model, run without torch
 
     threads = torch.get_num_threads()
@@ -111,8 +132,14 @@ def _train(Z: np.ndarray, latent: int, hidden: int, epochs: int, learning_rate: 
                 params[name] = ((draw * 2.0 - 1.0) * bound).requires_grad_()
         z = torch.as_tensor(Z, dtype=torch.float64)
         optimiser = torch.optim.Adam(list(params.values()), lr=learning_rate)
-        losses = np.empty(epochs)
-        for epoch in range(epochs):
+        total = max(epochs, default=0)
+        losses = np.empty(total)
+        snapshots = {}
+        for epoch in range(total + 1):
+            if epoch in epochs:
+                snapshots[epoch] = {name: params[name].detach().numpy().copy() for name in LAYERS}
+            if epoch == total:
+                break
             optimiser.zero_grad()
             h1 = torch.tanh(z @ params["w1"] + params["b1"])
             t = h1 @ params["w2"] + params["b2"]
@@ -121,6 +148,6 @@ def _train(Z: np.ndarray, latent: int, hidden: int, epochs: int, learning_rate: 
             loss.backward()
             optimiser.step()
             losses[epoch] = float(loss.detach())
-        return {name: params[name].detach().numpy().copy() for name in LAYERS}, losses
+        return [(snapshots[E], losses[:E].copy()) for E in epochs]
     finally:
         torch.set_num_threads(threads)
