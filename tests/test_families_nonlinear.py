@@ -7,10 +7,12 @@ import importlib.util
 import numpy as np
 import pytest
 
-from mosd.detectors.autoencoder import AutoencoderModel, forward
-from mosd.detectors.ica import ICAModel
-from mosd.detectors.kpca import KPCAModel, rbf, spe_moment_limit
+from mosd.detectors.autoencoder import AutoencoderDetector, AutoencoderModel, autoencoder_statistics, forward
+from mosd.detectors.ica import ICADetector, ICAModel, ica_statistics
+from mosd.detectors.kpca import KernelPCADetector, KPCAModel, rbf, spe_moment_limit
+from mosd.detectors.pca import t2_limit
 from mosd.validation import ConfigError
+from tests.test_families import plant_rows, stream_equals_population
 
 
 @pytest.fixture(scope="module")
@@ -185,3 +187,76 @@ def test_autoencoder_training_budgets_share_one_run(rows):
         np.testing.assert_array_equal(seven.weights[name], short.weights[name])
     assert seven.epochs == 7 and fifteen.epochs == 15 and len(fifteen.loss) == 15
     assert not np.array_equal(fifteen.weights["w1"], short.weights["w1"])
+
+
+# -- the families on the base: tuned, decided and served alike --------------------------------
+def test_ica_family_served_equals_its_population(tmp_path):
+    X = plant_rows()
+    # Gaussian factors: FastICA converges slowly, a small budget keeps the test fast (it warns)
+    detector = ICADetector(n_components=2, alpha=0.02, lam=0.5, persistence=2, fit_runs=1, max_components=4, seed=3,
+                           max_iter=50)
+    whole, expected = stream_equals_population(detector, X, tmp_path)
+    assert 0 < expected.decision.sum() < expected.decision.size
+    calibration = np.stack([X[:200], X[200:400]])
+    fitted = detector.fitted(calibration)
+    # the saved model holds arrays only, and its statistics are the model's own
+    assert all(isinstance(v, (np.ndarray, int, float)) for v in fitted.values())
+    model = ICAModel(X[:200], seed=3, max_iter=50)
+    stats = ica_statistics(fitted, X[400:], 2)
+    for name in ("i2", "i2e", "spe"):
+        np.testing.assert_allclose(stats[name], model.statistics(X[400:])[name][:, 1], rtol=1e-9, atol=1e-12)
+    # the raw statistics of the stream are the family's
+    np.testing.assert_allclose(np.where(np.isfinite(whole["i2"]), whole["i2"], 0)[:100],
+                               np.nan_to_num(stats["i2"])[:100], rtol=1e-12)
+
+
+def test_kpca_family_served_equals_its_population_with_theoretical_limits(tmp_path):
+    X = plant_rows()
+    detector = KernelPCADetector(n_components=3, width=4, alpha=0.02, persistence=1, fit_runs=1, max_components=8)
+    whole, expected = stream_equals_population(detector, X, tmp_path)
+    assert 0 < expected.decision.sum() < expected.decision.size
+    calibration = np.stack([X[:200], X[200:400]])
+    limits = detector.statistics(calibration, calibration[:1, :1])
+    assert limits["t2_limit"] == pytest.approx(t2_limit(200, 3, 0.02))
+    spe_fit = KPCAModel(X[:200], width=4, max_components=8).statistics(X[:200])["spe"][:, 2]
+    assert limits["spe_limit"] == pytest.approx(spe_moment_limit(spe_fit, 0.02), rel=1e-6)
+    assert whole["t2_limit"][0] == pytest.approx(limits["t2_limit"])
+    # a design per width: the width changes the decisions
+    other = detector.population(calibration, X[None, 400:], np.array([[3, 4, 0.02, 1, 1], [3, 40, 0.02, 1, 1]]))
+    assert not np.array_equal(other.statistic[0], other.statistic[1])
+
+
+def test_autoencoder_family_served_equals_its_population(tmp_path):
+    X = plant_rows()
+    detector = AutoencoderDetector(n_components=2, hidden=6, epochs=80, alpha=0.02, persistence=1, fit_runs=1,
+                                   max_components=4, seed=2)
+    whole, expected = stream_equals_population(detector, X, tmp_path)
+    assert 0 < expected.decision.sum() < expected.decision.size
+    calibration = np.stack([X[:200], X[200:400]])
+    fitted = detector.fitted(calibration)
+    assert not any(type(v).__module__.startswith("torch") for v in fitted.values())
+    stats = autoencoder_statistics(fitted, X[400:])
+    np.testing.assert_allclose(whole["spe"][:100], stats["spe"][:100], rtol=1e-12)
+
+
+def test_autoencoder_population_trains_once_per_size_and_matches_single_designs():
+    X = plant_rows(n=500)
+    calibration = np.stack([X[:200], X[200:400]])
+    detector = AutoencoderDetector(n_components=2, hidden=5, epochs=30, fit_runs=1, max_components=4, seed=1)
+    designs = np.array([[2, 5, 30, 0.05, 1, 1], [2, 5, 12, 0.05, 1, 1], [1, 5, 30, 0.05, 1, 1]], float)
+    together = detector.population(calibration, X[None, 400:], designs)
+    for p, row in enumerate(designs):
+        alone = AutoencoderDetector(n_components=int(row[0]), hidden=int(row[1]), epochs=int(row[2]), alpha=0.05,
+                                    fit_runs=1, max_components=4, seed=1).decide(calibration, X[None, 400:])
+        np.testing.assert_array_equal(together.statistic[p], alone.statistic)
+    assert not np.array_equal(together.statistic[0], together.statistic[1])
+
+
+def test_component_counts_beyond_the_fit_are_one_line_errors():
+    X = plant_rows(n=300)
+    calibration = np.stack([X[:150], X[150:]])
+    for detector, match in ((ICADetector(n_components=5, max_components=9, max_iter=20), r"detector.n_components=5 .* \[1, 4\]"),
+                            (AutoencoderDetector(n_components=5, epochs=2, max_components=9),
+                             r"detector.n_components=5 .* \[1, 4\]")):
+        with pytest.raises(ConfigError, match=match):
+            detector.decide(calibration, X[None, :10])

@@ -22,10 +22,14 @@ and scoring needs no torch.
 from __future__ import annotations
 
 import math
+from collections import defaultdict
+from typing import Mapping
 
 import numpy as np
 
+from ..validation import ConfigError, Interval, Param
 from ._nonlinear import finite_rows, require, standardisation
+from .latent import LatentDetector, latent_params
 from .pca import _one_blas_thread, project
 
 STATISTICS = ("combined", "t2", "spe")
@@ -97,18 +101,31 @@ class AutoencoderModel:
         # the pseudo-inverse: a collapsed latent direction (variance 0) adds nothing rather than dividing by 0
         self.latent_precision = np.linalg.pinv(covariance, hermitian=True)
 
+    def fitted(self) -> dict:
+        """The arrays the statistics need (:func:`autoencoder_statistics`): what the served model saves."""
+        return {"mean": self.mean, "scale": self.scale, **self.weights, "latent_mean": self.latent_mean,
+                "latent_precision": self.latent_precision, "final_loss": float(self.loss[-1]) if len(self.loss)
+                else math.nan}
+
     def statistics(self, X: np.ndarray) -> dict[str, np.ndarray]:
-        """T² and SPE of the rows X (..., m), each (..., 1); NaN in a row with a missing value."""
-        Z, finite = finite_rows(X, self.mean, self.scale)
-        flat = Z.reshape(-1, self.m)
-        with _one_blas_thread():
-            t, reconstruction = forward(self.weights, flat)
-        spe = np.sum((flat - reconstruction) ** 2, axis=-1)
-        d = t - self.latent_mean
-        t2 = np.sum(project(d, self.latent_precision) * d, axis=-1)
-        shape = Z.shape[:-1] + (1,)
-        nan = ~finite[..., None]
-        return {"t2": np.where(nan, np.nan, t2.reshape(shape)), "spe": np.where(nan, np.nan, spe.reshape(shape))}
+        """T² and SPE of the rows X (..., m), each (...); NaN in a row with a missing value."""
+        return autoencoder_statistics(self.fitted(), X)
+
+
+def autoencoder_statistics(fitted: Mapping, X: np.ndarray) -> dict[str, np.ndarray]:
+    """Reconstruction SPE and latent T² of the rows X (..., m), each (...), from the saved arrays of
+    :meth:`AutoencoderModel.fitted` (NumPy only: what the served model runs)."""
+    mean, scale = np.asarray(fitted["mean"], float), np.asarray(fitted["scale"], float)
+    Z, finite = finite_rows(X, mean, scale)
+    flat = Z.reshape(-1, len(mean))
+    weights = {name: np.asarray(fitted[name], float) for name in LAYERS}
+    with _one_blas_thread():
+        t, reconstruction = forward(weights, flat)
+    spe = np.sum((flat - reconstruction) ** 2, axis=-1)
+    d = t - np.asarray(fitted["latent_mean"], float)
+    t2 = np.sum(project(d, np.asarray(fitted["latent_precision"], float)) * d, axis=-1)
+    shape = Z.shape[:-1]
+    return {"t2": np.where(finite, t2.reshape(shape), np.nan), "spe": np.where(finite, spe.reshape(shape), np.nan)}
 
 
 def _train(Z: np.ndarray, latent: int, hidden: int, epochs: list[int], learning_rate: float,
@@ -151,3 +168,79 @@ def _train(Z: np.ndarray, latent: int, hidden: int, epochs: list[int], learning_
         return [(snapshots[E], losses[:E].copy()) for E in epochs]
     finally:
         torch.set_num_threads(threads)
+
+
+class AutoencoderDetector(LatentDetector):
+    """Autoencoder SPE and latent T² monitoring with tunable size (latent and hidden widths), training budget
+    (epochs), α, EWMA λ and persistence (module docstring).
+
+    The fit trains the network, so it depends on every tuned size and the budget: a tuning population's
+    designs of the same widths share one training run, to the largest budget among them (weights after E
+    steps are snapshots of it, the same bits as a training stopped at E). Every limit is empirical (the
+    family has no theoretical one), whatever ``limits`` says. Training needs PyTorch (``pip install
+    ".[nn]"``); the served model scores with NumPy from the saved weights.
+    """
+
+    STATISTICS = ("t2", "spe")
+    fit_keys = ("n_components", "hidden", "epochs", "learning_rate", "seed")
+    params = latent_params({
+        "max_components": Param(Interval(1, 10_000, integer=True), "Upper end of n_components' range (below the "
+                                "number of variables)."),
+        "hidden_max": Param(Interval(1, 10_000, integer=True), "Upper end of the hidden width's range."),
+        "epochs_max": Param(Interval(1, 1_000_000, integer=True), "Upper end of the training budget's range."),
+        "n_components": Param(Interval(1, "max_components", integer=True), "Latent (bottleneck) width.",
+                              tunable=True),
+        "hidden": Param(Interval(1, "hidden_max", integer=True), "Width of the two hidden tanh layers.",
+                        tunable=True),
+        "epochs": Param(Interval(1, "epochs_max", integer=True), "Training budget: full-batch Adam steps.",
+                        tunable=True),
+        "learning_rate": Param(Interval(0.0, 1.0, open_low=True), "Adam's step size."),
+        "seed": Param(Interval(0, 2**63 - 1, integer=True), "Seed of the weights' initialisation: the run's root "
+                      "seed in conf/detector/autoencoder.yaml."),
+    }, STATISTICS)
+
+    def __init__(self, n_components: int = 8, hidden: int = 24, epochs: int = 500, alpha: float = 0.01,
+                 lam: float = 1.0, persistence: int = 1, statistic: str = "combined", limits: str = "empirical",
+                 fit_runs: int | None = None, max_components: int = 20, hidden_max: int = 64,
+                 epochs_max: int = 2000, persistence_max: int = 10, learning_rate: float = 0.01, seed: int = 0):
+        self._assign(locals())
+        self._cache = {}
+
+    def _check(self, m: int, design: Mapping) -> None:
+        a = int(design["n_components"])
+        if not 1 <= a <= m - 1:
+            raise ConfigError(f"detector.n_components={a} is out of range for {m} variables; allowed: integers in "
+                              f"[1, {m - 1}] (a bottleneck narrower than the rows)")
+
+    def fit(self, X: np.ndarray, design: Mapping) -> dict:
+        self._check(np.shape(X)[-1], design)
+        model, = AutoencoderModel.trained(X, int(design["n_components"]), int(design["hidden"]), [int(design["epochs"])],
+                                          float(design["learning_rate"]), int(design["seed"]))
+        return model.fitted()
+
+    def population(self, calibration_features: np.ndarray, features: np.ndarray, X: np.ndarray):
+        """The base's population, after one training run per network size among the designs in X (module
+        docstring of the class): each design's fit is then found in the cache."""
+        X = np.atleast_2d(np.asarray(X, float))
+        fit_rows, _ = self._split(calibration_features)
+        budgets = defaultdict(set)
+        for row in X:
+            design = self.design_values(row)
+            key = ("fit", id(calibration_features), self._fit_key(design))
+            hit = self._cache.get(key)
+            if hit is None or hit[0][0] is not calibration_features:
+                budgets[(design["n_components"], design["hidden"])].add(design["epochs"])
+        for (latent, hidden), epochs in budgets.items():
+            design = self.design_values(base={**self.get_params(), "n_components": latent, "hidden": hidden})
+            self._check(np.shape(fit_rows)[-1], design)
+            epochs = sorted(epochs)
+            models = AutoencoderModel.trained(fit_rows, latent, hidden, epochs, float(design["learning_rate"]),
+                                              int(design["seed"]))
+            for E, model in zip(epochs, models):
+                fitted = model.fitted()
+                self._remember(("fit", id(calibration_features), self._fit_key({**design, "epochs": E})),
+                               (calibration_features,), lambda fitted=fitted: fitted)
+        return super().population(calibration_features, features, X)
+
+    def score(self, fitted: Mapping, X: np.ndarray, design: Mapping, carried: Mapping | None = None):
+        return autoencoder_statistics(fitted, X), {}

@@ -22,10 +22,13 @@ empirical (1 − α) quantile of its statistic on the held-back calibration runs
 from __future__ import annotations
 
 import warnings
+from typing import Mapping
 
 import numpy as np
 
+from ..validation import ConfigError, Interval, Param
 from ._nonlinear import finite_rows, require, standardisation
+from .latent import LatentDetector, latent_params
 from .pca import _one_blas_thread, project
 
 STATISTICS = ("combined", "i2", "i2e", "spe")
@@ -47,8 +50,8 @@ class ICAModel:
 
     Attributes
     ----------
-    center, scale : ndarray (m,)
-        z = (x − center) / scale: the standardisation with FastICA's (near-zero) mean folded in.
+    mean, scale, ica_mean : ndarray (m,)
+        z = (x − mean) / scale − ica_mean: the standardisation, then FastICA's (near-zero) centring.
     unmixing : ndarray (r, m)
         W, rows ordered by Euclidean norm, largest first.
     mixing : ndarray (m, r)
@@ -64,6 +67,7 @@ class ICAModel:
 
         mean, scale, Z = standardisation(X, names, 3, "ICA")
         self.n, self.m = Z.shape
+        self.max_iter, self.tol = int(max_iter), float(tol)
         ica = FastICA(n_components=min(self.n - 1, self.m), whiten="unit-variance", random_state=int(seed),
                       max_iter=int(max_iter), tol=float(tol))
         with warnings.catch_warnings(record=True) as caught, _one_blas_thread():
@@ -76,8 +80,12 @@ class ICAModel:
         signs = np.sign(W[order, np.argmax(np.abs(W[order]), axis=1)])
         self.unmixing = W[order] * signs[:, None]
         self.mixing = A[:, order] * signs
-        self.center = mean + scale * np.asarray(ica.mean_, float)
-        self.scale = scale
+        self.mean, self.scale, self.ica_mean = mean, scale, np.asarray(ica.mean_, float)
+
+    def fitted(self) -> dict:
+        """The arrays the statistics need (:func:`ica_statistics`): what the served model saves."""
+        return {"mean": self.mean, "scale": self.scale, "ica_mean": self.ica_mean, "unmixing": self.unmixing,
+                "mixing": self.mixing, "converged": int(self.converged)}
 
     @property
     def r(self) -> int:
@@ -86,7 +94,8 @@ class ICAModel:
     def sources(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(z, ŝ, finite): the centred standardised rows (..., m), their sources ŝ = W z (..., r) (0 in a row
         with a missing value) and which rows are complete."""
-        Z, finite = finite_rows(X, self.center, self.scale)
+        Z, finite = finite_rows(X, self.mean, self.scale)
+        Z = np.where(finite[..., None], Z - self.ica_mean, 0.0)
         return Z, project(Z, self.unmixing.T), finite
 
     def statistics(self, X: np.ndarray, components: int | None = None) -> dict[str, np.ndarray]:
@@ -112,3 +121,62 @@ class ICAModel:
             i2, i2e, spe = i2[..., a - 1:a], i2e[..., a - 1:a], spe[..., a - 1:a]
         nan = ~finite[..., None]
         return {name: np.where(nan, np.nan, value) for name, value in (("i2", i2), ("i2e", i2e), ("spe", spe))}
+
+
+def ica_statistics(fitted: Mapping, X: np.ndarray, a: int) -> dict[str, np.ndarray]:
+    """I², I²ₑ and SPE with a dominant components of the rows X (..., m), each (...), from the saved arrays of
+    :meth:`ICAModel.fitted` (NumPy only: what the served model runs)."""
+    model = ICAModel.__new__(ICAModel)
+    model.mean, model.scale, model.ica_mean = (np.asarray(fitted[k], float) for k in ("mean", "scale", "ica_mean"))
+    model.unmixing, mixing = np.asarray(fitted["unmixing"], float), np.asarray(fitted["mixing"], float)
+    Z, s, finite = model.sources(X)
+    squares = s**2
+    residual = Z.copy()
+    for j in range(a):  # one dominant component's share A_j ŝ_j at a time (the order of ICAModel.statistics)
+        residual -= s[..., j:j + 1] * mixing[:, j]
+    values = {"i2": np.sum(squares[..., :a], axis=-1), "i2e": np.sum(squares[..., a:], axis=-1),
+              "spe": np.sum(residual**2, axis=-1)}
+    return {name: np.where(finite, value, np.nan) for name, value in values.items()}
+
+
+class ICADetector(LatentDetector):
+    """ICA I², I²ₑ and SPE monitoring with tunable dominant components, α, EWMA λ and persistence (module docstring).
+
+    The FastICA fit does not depend on the tuned component count: one fit serves every design. Every limit is
+    empirical (the family has no theoretical one), whatever ``limits`` says.
+    """
+
+    STATISTICS = ("i2", "i2e", "spe")
+    fit_keys = ("seed", "max_iter", "tol")
+    params = latent_params({
+        "max_components": Param(Interval(1, 10_000, integer=True), "Upper end of n_components' range (below the "
+                                "number of variables)."),
+        "n_components": Param(Interval(1, "max_components", integer=True), "Dominant independent components a "
+                              "(ordered by the norm of their unmixing row).", tunable=True),
+        "seed": Param(Interval(0, 2**32 - 1, integer=True), "FastICA's random_state (its initial unmixing "
+                      "matrix): the run's root seed in conf/detector/ica.yaml."),
+        "max_iter": Param(Interval(1, 1_000_000, integer=True), "FastICA's iteration budget."),
+        "tol": Param(Interval(0.0, 1.0, open_low=True), "FastICA's convergence tolerance."),
+    }, STATISTICS)
+
+    def __init__(self, n_components: int = 9, alpha: float = 0.01, lam: float = 1.0, persistence: int = 1,
+                 statistic: str = "combined", limits: str = "empirical", fit_runs: int | None = None,
+                 max_components: int = 20, persistence_max: int = 10, seed: int = 0, max_iter: int = 1000,
+                 tol: float = 1e-4):
+        self._assign(locals())
+        self._cache = {}
+
+    def fit(self, X: np.ndarray, design: Mapping) -> dict:
+        model = ICAModel(X, seed=int(design["seed"]), max_iter=int(design["max_iter"]), tol=float(design["tol"]))
+        if not model.converged:
+            warnings.warn(f"detector=ica: FastICA did not converge in max_iter={model.max_iter} iterations "
+                          f"(tol={model.tol:g}); a larger detector.max_iter or detector.tol converges", stacklevel=2)
+        return model.fitted()
+
+    def score(self, fitted: Mapping, X: np.ndarray, design: Mapping, carried: Mapping | None = None):
+        r = np.shape(fitted["unmixing"])[0]
+        a = int(design["n_components"])
+        if not 1 <= a <= r - 1:
+            raise ConfigError(f"detector.n_components={a} is out of range for {r} independent components; "
+                              f"allowed: integers in [1, {r - 1}]")
+        return ica_statistics(fitted, X, a), {}

@@ -31,11 +31,15 @@ NumPy: no scikit-learn object is saved.
 """
 from __future__ import annotations
 
+from typing import Mapping
+
 import numpy as np
 from scipy import special
 
+from ..validation import ConfigError, Interval, Param
 from ._nonlinear import finite_rows, require, standardisation
-from .pca import _one_blas_thread, project
+from .latent import LatentDetector, latent_params
+from .pca import _one_blas_thread, project, t2_limit
 
 STATISTICS = ("combined", "t2", "spe")
 
@@ -55,10 +59,7 @@ def spe_moment_limit(values: np.ndarray, alpha: float) -> float:
     """g χ²_h(α) with g = b / (2a), h = 2a² / b from the mean a and variance b (ddof = 1) of ``values``."""
     values = np.asarray(values, float)
     values = values[np.isfinite(values)]
-    a, b = float(np.mean(values)), float(np.var(values, ddof=1))
-    if not b > 0.0:
-        return a
-    return b / (2.0 * a) * float(special.chdtri(2.0 * a * a / b, alpha))
+    return moment_limit(float(np.mean(values)), float(np.var(values, ddof=1)), alpha)
 
 
 class KPCAModel:
@@ -97,9 +98,28 @@ class KPCAModel:
         self.column_means = K.mean(axis=0)
         self.grand_mean = float(self.column_means.mean())
 
+        # the SPE's mean and variance on the fit rows for every a: its g χ²_h limit (spe_moment_limit)
+        fit_spe = self.statistics(Z * self.scale + self.mean)["spe"]
+        self.spe_mean, self.spe_var = fit_spe.mean(axis=0), fit_spe.var(axis=0, ddof=1)
+
     @property
     def r(self) -> int:
         return self.alphas.shape[1]
+
+    def fitted(self) -> dict:
+        """The arrays the statistics and limits need: what the served model saves."""
+        return {"mean": self.mean, "scale": self.scale, "rows": self.rows, "alphas": self.alphas,
+                "eigenvalues": self.eigenvalues, "column_means": self.column_means, "grand_mean": self.grand_mean,
+                "c": self.c, "n": self.n, "spe_mean": self.spe_mean, "spe_var": self.spe_var}
+
+    @classmethod
+    def from_fitted(cls, fitted: Mapping) -> "KPCAModel":
+        """The model of saved arrays (no refit, no scikit-learn)."""
+        model = cls.__new__(cls)
+        for name, value in fitted.items():
+            setattr(model, name, np.asarray(value, float) if np.ndim(value) else value)
+        model.m = len(model.mean)
+        return model
 
     def scores(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(t, ‖Φ̃(x)‖², finite) of the rows X (..., m): scores (..., r), the centred feature vector's squared
@@ -127,3 +147,79 @@ class KPCAModel:
             t2, spe = t2[..., a - 1:a], spe[..., a - 1:a]
         nan = ~finite[..., None]
         return {"t2": np.where(nan, np.nan, t2), "spe": np.where(nan, np.nan, spe)}
+
+
+def moment_limit(mean: float, variance: float, alpha: float) -> float:
+    """g χ²_h(α), g = b / (2a), h = 2a² / b, from a statistic's mean a and variance b (a when b is 0)."""
+    if not variance > 0.0:
+        return float(mean)
+    return variance / (2.0 * mean) * float(special.chdtri(2.0 * mean * mean / variance, alpha))
+
+
+class KernelPCADetector(LatentDetector):
+    """Kernel PCA T² and SPE monitoring with tunable kernel width, components, α, EWMA λ and persistence
+    (module docstring).
+
+    One kernel PCA per width serves every component count; the kernel rows of a data set are computed once
+    per width (the scores of every component are kept, a design takes its first a).
+    """
+
+    STATISTICS = ("t2", "spe")
+    fit_keys = ("width", "max_components")
+    params = latent_params({
+        "max_components": Param(Interval(1, 10_000, integer=True), "Upper end of n_components' range (below the "
+                                "number of fit rows)."),
+        "width_max": Param(Interval(1, 1_000_000, integer=True), "Upper end of the width's range."),
+        "n_components": Param(Interval(1, "max_components", integer=True), "Kernel principal components a.",
+                              tunable=True),
+        "width": Param(Interval(1, "width_max", integer=True), "Kernel width w: k(x, y) = exp(−‖x − y‖² / (w m)) "
+                       "on the standardised rows (Lee et al. 2004's c = r m σ², r = w).", tunable=True),
+    }, STATISTICS)
+
+    def __init__(self, n_components: int = 9, width: int = 10, alpha: float = 0.01, lam: float = 1.0,
+                 persistence: int = 1, statistic: str = "combined", limits: str = "theoretical",
+                 fit_runs: int | None = None, max_components: int = 20, width_max: int = 100,
+                 persistence_max: int = 10):
+        self._assign(locals())
+        self._cache = {}
+
+    def fit(self, X: np.ndarray, design: Mapping) -> dict:
+        return KPCAModel(X, width=float(design["width"]), max_components=int(design["max_components"])).fitted()
+
+    def _all_components(self, fitted: Mapping, X: np.ndarray) -> dict:
+        """T² and SPE of every a (…, r) of the rows X: the kernel rows once per fit and data set, while both live."""
+        def make():
+            with _one_blas_thread():
+                return KPCAModel.from_fitted(fitted).statistics(X)
+
+        kept = self.__dict__.setdefault("_kernel_scores", {})
+        key = (id(fitted), id(X))
+        hit = kept.get(key)
+        if hit is None or hit[0] is not fitted or hit[1] is not X:
+            if len(kept) >= 8:  # a tuning scores the fit, held-back and tuning rows of a few widths at a time
+                kept.pop(next(iter(kept)))
+            hit = kept[key] = (fitted, X, make())
+        return hit[2]
+
+    def __getstate__(self):
+        state = super().__getstate__()
+        state.pop("_kernel_scores", None)
+        return state
+
+    def score(self, fitted: Mapping, X: np.ndarray, design: Mapping, carried: Mapping | None = None):
+        r = np.shape(fitted["alphas"])[1]
+        a = int(design["n_components"])
+        if not 1 <= a <= r - 1:
+            raise ConfigError(f"detector.n_components={a} is out of range for {r} kernel components "
+                              f"(detector.max_components={design['max_components']}, {int(fitted['n'])} fit rows); "
+                              f"allowed: integers in [1, {r - 1}]")
+        # the served model scores each block once: no cache there
+        every = (self._all_components(fitted, X) if np.size(X) > 4096
+                 else KPCAModel.from_fitted(fitted).statistics(X))
+        return {name: value[..., a - 1] for name, value in every.items()}, {}
+
+    def limit(self, fitted: Mapping, name: str, alpha: float, design: Mapping) -> float | None:
+        a = int(design["n_components"])
+        if name == "t2":
+            return t2_limit(int(fitted["n"]), a, alpha)
+        return moment_limit(float(fitted["spe_mean"][a - 1]), float(fitted["spe_var"][a - 1]), alpha)
