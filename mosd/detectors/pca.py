@@ -35,11 +35,11 @@ import numpy as np
 from scipy import linalg, special
 
 from ..streaming import COUNT, SQUARES, OnlineStage, StateVar, points_of, spread
-from ..validation import ConfigError, Interval, Param, check_choice
-from .base import Decisions, Detector, persistent, run_lengths
+from ..validation import ConfigError, Interval, Param
+from .base import run_lengths
+from .latent import LIMITS, LatentDetector, empirical_limit, ewma_from, latent_params  # noqa: F401 (re-exported)
 
 STATISTICS = ("combined", "t2", "spe")
-LIMITS = ("theoretical", "empirical")
 
 
 class PCAModel:
@@ -117,6 +117,22 @@ class PCAModel:
         c_spe = (Z - t @ P.T) ** 2
         return c_t2, c_spe
 
+    def fitted(self) -> dict:
+        """The arrays and scalars of this model (the family base saves them; :meth:`from_fitted` takes them back)."""
+        return {"mean": self.mean, "scale": self.scale, "loadings": self.loadings, "eigenvalues": self.eigenvalues,
+                "n": int(self.n)}
+
+    @classmethod
+    def from_fitted(cls, fitted, names=None) -> "PCAModel":
+        """A model with the arrays of :meth:`fitted` (no refit)."""
+        model = cls.__new__(cls)
+        model.mean, model.scale = np.asarray(fitted["mean"], float), np.asarray(fitted["scale"], float)
+        model.loadings = np.asarray(fitted["loadings"], float)
+        model.eigenvalues = np.asarray(fitted["eigenvalues"], float)
+        model.n, model.m = int(fitted["n"]), len(model.mean)
+        model.names = tuple(names) if names is not None else tuple(f"x{i + 1}" for i in range(model.m))
+        return model
+
     def t2_limit(self, a: int, alpha: float) -> float:
         return t2_limit(self.n, self.check_components(a), alpha)
 
@@ -172,32 +188,6 @@ def spe_limit(residual_eigenvalues: np.ndarray, alpha: float) -> float:
             return theta1 * inner ** (1.0 / h0)
     g, h = theta2 / theta1, theta1**2 / theta2
     return g * float(special.chdtri(h, alpha))
-
-
-def empirical_limit(values: np.ndarray, alpha: float) -> float:
-    """The (1 − α) quantile of the finite values (NumPy's linear interpolation)."""
-    values = np.asarray(values, float)
-    values = values[np.isfinite(values)]
-    if values.size == 0:
-        raise ConfigError("no finite held-back calibration point for an empirical limit; allowed: calibration "
-                          "data with complete rows")
-    return float(np.quantile(values, 1.0 - alpha))
-
-
-def ewma_from(x: np.ndarray, lam: float, start: float, previous: float | None = None) -> np.ndarray:
-    """E_k = λ x_k + (1 − λ) E_{k−1} along the last axis, from E_{−1} = ``previous`` (default ``start``).
-
-    A missing point (NaN) enters as ``start``, the in-control mean: what a
-    fault-free point adds on average. ``previous``: the carried E of a stream scored in parts.
-    """
-    x = np.where(np.isfinite(x), x, start)
-    if lam >= 1.0 or x.shape[-1] == 0:
-        return x
-    # imported here: scipy.signal pulls in scipy.stats (ARCHITECTURE: not on every run's start)
-    from scipy.signal import lfilter
-
-    zi = np.full(x.shape[:-1] + (1,), (1.0 - lam) * (start if previous is None else previous))
-    return lfilter([lam], [1.0, -(1.0 - lam)], x, axis=-1, zi=zi)[0]
 
 
 def project(Z: np.ndarray, loadings: np.ndarray) -> np.ndarray:
@@ -268,27 +258,22 @@ class _Projected:
         return cls(np.where(nan, np.nan, t2), np.where(nan, np.nan, spe), finite)
 
 
-class PCADetector(Detector):
-    """PCA T²/SPE monitoring with tunable components, α, EWMA λ and persistence (module docstring)."""
+class PCADetector(LatentDetector):
+    """PCA T²/SPE monitoring with tunable components, α, EWMA λ and persistence (module docstring).
 
-    params = {
+    The PCA family on :class:`~mosd.detectors.latent.LatentDetector`: the fitted model is the
+    standardisation and every component of the fit rows (:meth:`PCAModel.fitted`), so that the component
+    count is applied after the fit (one SVD per calibration set for the whole tuning); T² and SPE of every
+    component count are projected once per data set (:class:`_Projected`) and sliced per design.
+    """
+
+    STATISTICS = ("t2", "spe")
+    fit_keys = ()
+    params = latent_params({
         "max_components": Param(Interval(1, 10_000, integer=True), "Upper end of n_components' range (below the "
                                 "number of variables)."),
-        "persistence_max": Param(Interval(1, 10_000, integer=True), "Upper end of the persistence's range."),
         "n_components": Param(Interval(1, "max_components", integer=True), "Principal components a.", tunable=True),
-        "alpha": Param(Interval(0.0, 0.5, open_low=True), "Significance level of each limit.", tunable=True),
-        "lam": Param(Interval(0.0, 1.0, open_low=True), "EWMA smoothing of T² and SPE; 1 = no smoothing.",
-                     tunable=True),
-        "persistence": Param(Interval(1, "persistence_max", integer=True), "Consecutive points above the limit "
-                             "before an alarm.", tunable=True),
-        "statistic": Param(STATISTICS, "Alarm on T² or SPE (combined), or on one of them."),
-        "limits": Param(LIMITS, "F / Jackson–Mudholkar limits, or the (1 − α) quantiles on the held-back "
-                        "calibration runs. With lam < 1 the limits are always empirical (smoothing changes the "
-                        "distributions)."),
-        "fit_runs": Param(Interval(1, math.inf, integer=True), "The first fit_runs calibration runs fit the PCA; the "
-                          "others are held back for the empirical limits. None: all runs do both (the empirical "
-                          "limits are then in-sample).", optional=True),
-    }
+    }, STATISTICS)
 
     def __init__(self, n_components: int = 9, alpha: float = 0.01, lam: float = 1.0, persistence: int = 1,
                  statistic: str = "combined", limits: str = "theoretical", fit_runs: int | None = None,
@@ -296,129 +281,51 @@ class PCADetector(Detector):
         self._assign(locals())
         self._cache: dict = {}
 
-    def with_statistic(self, statistic: str) -> "PCADetector":
-        """A copy that alarms on ``statistic`` (combined, t2 or spe), the same design otherwise."""
-        new = copy.copy(self)
-        new.statistic = check_choice("detector.statistic", statistic, STATISTICS)
-        return new
+    # -- the family ------------------------------------------------------------------------
+    def fit(self, X: np.ndarray, design) -> dict:
+        return PCAModel(X).fitted()
 
-    # -- the fitted parts (parameter-free: cached per data set) --------------------------------
-    def _remember(self, key, refs, make):
-        """``make()`` cached under ``key`` while the arrays ``refs`` are the same objects (ids are reused)."""
-        hit = self._cache.get(key)
-        if hit is None or any(a is not b for a, b in zip(hit[0], refs)):
-            if len(self._cache) >= 16:  # a tuning needs three entries; a long session must not grow
-                # the oldest projection goes first: a model and its calibration cost an SVD
-                keys = [k for k in self._cache if k[0] == "projected"] or list(self._cache)
-                self._cache.pop(keys[0])
-            hit = (refs, make())
-            self._cache[key] = hit
-        return hit[1]
+    def _model(self, fitted) -> "PCAModel":
+        return self._remember(("pca", id(fitted)), (fitted,), lambda: PCAModel.from_fitted(fitted))
 
-    def fit_rows(self, calibration_z: np.ndarray) -> np.ndarray:
-        return calibration_z if self.fit_runs is None else calibration_z[: self.fit_runs]
+    def score(self, fitted, X, design, carried=None):
+        model = self._model(fitted)
+        a = model.check_components(design["n_components"])
+        proj = self._remember(("projected", id(fitted), id(X)), (fitted, X),
+                              lambda: _Projected.of(model, np.asarray(X, float)))
+        return {"t2": proj.t2[..., a - 1], "spe": proj.spe[..., a - 1]}, {}
 
-    def held_back(self, calibration_z: np.ndarray) -> np.ndarray:
-        """The calibration runs the empirical limits come from (all runs when none is held back)."""
-        if self.fit_runs is None or calibration_z.shape[0] <= self.fit_runs:
-            return calibration_z
-        return calibration_z[self.fit_runs:]
+    def limit(self, fitted, name, alpha, design) -> float:
+        model = self._model(fitted)
+        a = model.check_components(design["n_components"])
+        return t2_limit(model.n, a, alpha) if name == "t2" else spe_limit(model.eigenvalues[a:], alpha)
 
     def model(self, calibration_z: np.ndarray, names=None) -> PCAModel:
         """The PCA of the fit runs of ``calibration_z`` (R, K, m) (cached while the array lives)."""
-        return self._remember(("model", id(calibration_z)), (calibration_z,),
-                              lambda: PCAModel(np.asarray(self.fit_rows(calibration_z), float), names))
+        model = self._model(self.fitted(calibration_z))
+        if names is not None:
+            model = copy.copy(model)
+            model.names = tuple(names)
+        return model
 
-    def _calibration(self, calibration_z: np.ndarray):
-        """The model, its fit rows' and the held-back runs' projections."""
-        model = self.model(calibration_z)
-        return self._remember(("calibration", id(calibration_z)), (calibration_z, model), lambda: (
-            model, _Projected.of(model, np.asarray(self.fit_rows(calibration_z), float)),
-            _Projected.of(model, np.asarray(self.held_back(calibration_z), float))))
-
-    def _projected(self, model: PCAModel, z: np.ndarray) -> _Projected:
-        return self._remember(("projected", id(model), id(z)), (model, z),
-                              lambda: _Projected.of(model, np.asarray(z, float)))
-
-    def __getstate__(self):
-        state = dict(self.__dict__)
-        state["_cache"] = {}
-        return state
-
-    def _empirical(self, lam: float) -> bool:
-        return self.limits == "empirical" or lam < 1.0
-
-    def _design(self, calibration, proj: _Projected, a: int, alpha: float, lam: float, names=("t2", "spe")):
-        """{name: (statistic (R, K), limit)} of one design: what the decision and the figures share."""
-        model, fit_rows, held = calibration
-        a = model.check_components(a)
-        out = {}
-        for name in names:
-            start = float(np.nanmean(getattr(fit_rows, name)[..., a - 1]))  # the in-control mean
-            value = np.where(proj.finite, ewma_from(getattr(proj, name)[..., a - 1], lam, start), np.nan)
-            if self._empirical(lam):
-                held_values = np.where(held.finite, ewma_from(getattr(held, name)[..., a - 1], lam, start), np.nan)
-                limit = empirical_limit(held_values, alpha)
-            elif name == "t2":
-                limit = t2_limit(model.n, a, alpha)
-            else:
-                limit = spe_limit(model.eigenvalues[a:], alpha)
-            out[name] = (value, limit)
-        return out
-
-    # -- the causal form ----------------------------------------------------------------
+    # -- the causal form: the generic stage plus each row's top contributing tags ---------------
     def online(self, calibration_z: np.ndarray, inputs) -> "OnlinePCA":
-        """This tuned design calibrated on ``calibration_z`` (R, K, m) as an :class:`OnlinePCA` on the columns ``inputs``."""
+        """This tuned design calibrated on ``calibration_z`` (R, K, m) as an :class:`OnlinePCA` on the columns ``inputs``.
+
+        The generic :class:`~mosd.detectors.latent.OnlineLatent` scores the same T², SPE and alarms
+        (``tests/test_families.py``); :class:`OnlinePCA` adds the tags contributing most per row.
+        """
         calibration_z = np.asarray(calibration_z, float)
-        model, fit_rows, _ = self._calibration(calibration_z)
-        a = int(self.n_components)
-        limits = self.statistics(calibration_z, calibration_z[:1, :1])
+        generic = super().online(calibration_z, inputs)
+        model = self._model(generic.fitted)
+        limits, starts = dict(zip(generic.names, generic.limits)), dict(zip(generic.names, generic.starts))
         return OnlinePCA(tags=tuple(str(t) for t in inputs), mean=model.mean, scale=model.scale,
-                         loadings=model.loadings, eigenvalues=model.eigenvalues, n_fit=int(model.n), n_components=a,
-                         alpha=float(self.alpha), lam=float(self.lam), persistence=int(self.persistence),
-                         statistic=str(self.statistic), t2_limit=float(limits["t2_limit"]),
-                         spe_limit=float(limits["spe_limit"]),
-                         # the in-control mean the tuning starts its EWMA from (_design)
-                         t2_start=float(np.nanmean(fit_rows.t2[..., a - 1])),
-                         spe_start=float(np.nanmean(fit_rows.spe[..., a - 1])))
-
-    # -- the decision -------------------------------------------------------------------
-    def features(self, z: np.ndarray) -> np.ndarray:
-        return np.asarray(z, float)
-
-    def statistics(self, calibration_z: np.ndarray, z: np.ndarray, design: dict | None = None) -> dict:
-        """T² and SPE of one design on z (smoothed when lam < 1) and their limits: what the figures plot.
-
-        Returns ``{"t2": (R, K), "t2_limit": float, "spe": (R, K), "spe_limit": float}``.
-        """
-        d = {**self.tunable_params(), **(design or {})}
-        calibration = self._calibration(calibration_z)
-        a = self.params["n_components"].domain.round(float(d["n_components"]))
-        parts = self._design(calibration, self._projected(calibration[0], z), a,
-                             float(d["alpha"]), float(d["lam"]))
-        return {key: v for name, (value, limit) in parts.items()
-                for key, v in ((name, value), (f"{name}_limit", limit))}
-
-    def population(self, calibration_features: np.ndarray, features: np.ndarray, X: np.ndarray) -> Decisions:
-        """Decisions of every design in X (P, 4) = (n_components, alpha, lam, persistence).
-
-        The statistic is the ratio to the limit (the larger of T²/T²_α and SPE/SPE_α for the
-        combined rule), so the threshold is 1.
-        """
-        X = np.atleast_2d(np.asarray(X, float))
-        calibration = self._calibration(calibration_features)
-        proj = self._projected(calibration[0], features)
-        names = ("t2", "spe") if self.statistic == "combined" else (self.statistic,)
-        statistic = np.empty((X.shape[0],) + proj.finite.shape)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            for p, (a, alpha, lam, _) in enumerate(X):
-                parts = self._design(calibration, proj, self.params["n_components"].domain.round(float(a)),
-                                     float(alpha), float(lam), names)
-                ratios = [value / limit for value, limit in parts.values()]
-                statistic[p] = ratios[0] if len(ratios) == 1 else np.fmax(ratios[0], ratios[1])
-            above = statistic > 1.0
-        alarm = persistent(above, self.tunable["persistence"].round(X[:, 3], clip=True).astype(int))
-        return Decisions(statistic, np.ones((X.shape[0], 1, 1)), alarm.astype(np.int8))
+                         loadings=model.loadings, eigenvalues=model.eigenvalues, n_fit=int(model.n),
+                         n_components=int(self.n_components), alpha=float(self.alpha), lam=float(self.lam),
+                         persistence=int(self.persistence), statistic=str(self.statistic),
+                         t2_limit=float(limits["t2"]), spe_limit=float(limits["spe"]),
+                         # the in-control mean the tuning starts its EWMA from
+                         t2_start=float(starts["t2"]), spe_start=float(starts["spe"]))
 
 
 #: variables named per row in ``top_t2`` / ``top_spe``

@@ -1,0 +1,434 @@
+"""The family base of recorded-data monitors: a family gives statistics, the base makes them a tuned detector.
+
+A monitor family (PCA, DPCA, CVA, slow features, per-tag charts, ICA, kernel PCA, an autoencoder...)
+is a :class:`LatentDetector` subclass that supplies four things; the base does everything else the
+same way for every family: the EWMA of each statistic, the limits (theoretical or empirical on
+held-back calibration runs), the combined rule, the persistence, the optimiser's population, the
+figures' statistics and the causal streaming stage (:class:`OnlineLatent` on the contract of
+:mod:`mosd.streaming`). Every family is therefore tuned, scored, saved and served with no extra code.
+
+The contract of a family
+------------------------
+``params``
+    The family's declared parameters, built with :func:`latent_params` so that the common ones
+    (α, EWMA λ, persistence, statistic, limits, fit_runs) are declared once, in the same order for
+    every family: ``params = latent_params({...family params...}, STATISTICS)``. The family's
+    tunables come first in ``tunable`` (the optimiser's columns), then ``alpha``, ``lam``,
+    ``persistence``. ``__init__`` has the explicit signature and starts with ``self._assign(locals())``
+    then ``self._cache = {}``.
+``STATISTICS``
+    Class attribute: the names of the statistics per row, e.g. ``("t2", "spe")``. ``statistic`` is
+    ``combined`` (alarm when any is above its limit) or one of them.
+``fit(X, design) -> dict``
+    The fitted model from the fit runs X (R, K, m) (a dynamic family builds lagged rows within
+    each run, never across two) as a dict of NumPy arrays and Python/NumPy scalars only: it is saved
+    field by field in ``pipeline.npz`` (no pickles). ``design`` maps every declared parameter to
+    the candidate's value. ``fit_keys`` (class attribute, default: all the family's own parameters)
+    names the parameters the fit depends on: fits are cached by their values, so a parameter applied
+    after the fit (PCA's component count) should be left out.
+``score(fitted, X, design, carried) -> (statistics, after)``
+    ``statistics``: name → (R, K) per row of X (R, K, m), NaN where a row is not scored (a missing
+    value, a lag not seen yet). It must be causal: row k uses rows ≤ k of its own run and
+    ``carried``, the family's state before the first row (name → (R,), or None at a run's start).
+    ``after``: the family's state after each row, name → (R, K) (empty for a static family).
+    Dynamic families keep their past rows this way (:func:`lagged`, :func:`lag_state`).
+``state(fitted, design) -> {name: (StateVar, initial)}``
+    The family's carried state (default none), declared once with its domain
+    (:class:`mosd.streaming.StateVar`); names must not clash with ``ewma_<statistic>`` or
+    ``run_length``.
+``limit(fitted, name, alpha, design) -> float | None``
+    The theoretical (1 − α) limit of statistic ``name``, or None where the family has none (its
+    limit is then always the empirical quantile on the held-back calibration runs).
+
+What the base does (for every statistic S of the design)
+---------------------------------------------------------
+* S̃_k = λ S_k + (1 − λ) S̃_{k−1} from S̃_{−1} = mean of S on the fit rows (:func:`~mosd.detectors.pca.ewma_from`);
+  a row that is not scored enters as that mean and is not alarmed;
+* the limit: the family's theoretical one when ``limits == "theoretical"``, λ = 1 and it has one,
+  else the (1 − α) quantile of S̃ on the held-back calibration runs (``fit_runs``: the first
+  runs fit, the others are held back; all runs do both when None);
+* ratio_k = max over the alarmed statistics of S̃_k / limit; alarm when ratio > 1 for
+  ``persistence`` consecutive rows (:func:`~mosd.detectors.base.persistent`).
+
+The tuning (:meth:`LatentDetector.population`), the figures (:meth:`LatentDetector.statistics`)
+and the deployed stage (:class:`OnlineLatent`) run these same functions, so a design scores the
+same bits in all three (``tests/test_families.py`` checks it per family).
+"""
+from __future__ import annotations
+
+import copy
+import json
+import math
+from dataclasses import dataclass, field
+from functools import reduce
+from typing import Mapping
+
+import numpy as np
+
+from ..streaming import COUNT, FINITE, SQUARES, OnlineStage, StateVar, build, describe, points_of, spread
+from ..validation import ConfigError, Interval, Param, check_choice
+from .base import Decisions, Detector, persistent, run_lengths
+
+LIMITS = ("theoretical", "empirical")
+
+
+def latent_params(family: Mapping[str, Param], statistics: tuple[str, ...]) -> dict[str, Param]:
+    """A family's ``params``: its own (first, in order) and the common ones of the base (module docstring)."""
+    return {
+        **family,
+        "persistence_max": Param(Interval(1, 10_000, integer=True), "Upper end of the persistence's range."),
+        "alpha": Param(Interval(0.0, 0.5, open_low=True), "Significance level of each limit.", tunable=True),
+        "lam": Param(Interval(0.0, 1.0, open_low=True), "EWMA smoothing of every statistic; 1 = no smoothing.",
+                     tunable=True),
+        "persistence": Param(Interval(1, "persistence_max", integer=True), "Consecutive points above the limit "
+                             "before an alarm.", tunable=True),
+        "statistic": Param(("combined", *statistics), "Alarm when any statistic is above its limit (combined), "
+                           "or on one of them."),
+        "limits": Param(LIMITS, "Theoretical limits where the family has them, or the (1 − α) quantiles on the "
+                        "held-back calibration runs. With lam < 1 the limits are always empirical (smoothing "
+                        "changes the distributions)."),
+        "fit_runs": Param(Interval(1, math.inf, integer=True), "The first fit_runs calibration runs fit the model; "
+                          "the others are held back for the empirical limits. None: all runs do both (the "
+                          "empirical limits are then in-sample).", optional=True),
+    }
+
+
+#: entries a detector's cache keeps (fits, scores of data sets): a tuning needs a few per distinct fit
+CACHE_SIZE = 256
+
+
+class LatentDetector(Detector):
+    """Base of the recorded-data monitor families (module docstring: the contract)."""
+
+    STATISTICS: tuple[str, ...] = ()
+    #: the family parameters the fit depends on (None: all the family's own parameters)
+    fit_keys: tuple[str, ...] | None = None
+    COMMON = ("persistence_max", "alpha", "lam", "persistence", "statistic", "limits", "fit_runs")
+
+    # -- the family's part (module docstring) ------------------------------------------------
+    def fit(self, X: np.ndarray, design: Mapping) -> dict:
+        raise NotImplementedError
+
+    def score(self, fitted: Mapping, X: np.ndarray, design: Mapping, carried: Mapping | None = None):
+        raise NotImplementedError
+
+    def state(self, fitted: Mapping, design: Mapping) -> dict[str, tuple[StateVar, float]]:
+        return {}
+
+    def limit(self, fitted: Mapping, name: str, alpha: float, design: Mapping) -> float | None:
+        return None
+
+    # -- designs ------------------------------------------------------------------------
+    def with_statistic(self, statistic: str):
+        """A copy that alarms on ``statistic`` (combined or one of :attr:`STATISTICS`), the same design otherwise."""
+        new = copy.copy(self)
+        new.statistic = check_choice("detector.statistic", statistic, ("combined", *self.STATISTICS))
+        return new
+
+    def family_names(self) -> tuple[str, ...]:
+        return tuple(n for n in self.params if n not in self.COMMON)
+
+    def design_values(self, row=None, base: Mapping | None = None) -> dict:
+        """Every declared parameter's value (``base``'s, else this design's), with the tunables from ``row``
+        (integers rounded) when given."""
+        values = dict(self.get_params() if base is None else base)
+        if row is not None:
+            for (name, interval), value in zip(self.tunable.items(), np.asarray(row, float)):
+                values[name] = interval.round(float(value), clip=name == "persistence")
+                if interval.integer:
+                    values[name] = int(values[name])
+        return values
+
+    def _fit_key(self, design: Mapping) -> tuple:
+        keys = self.family_names() if self.fit_keys is None else self.fit_keys
+        return tuple((k, design[k]) for k in keys)
+
+    def _score_key(self, design: Mapping) -> tuple:
+        return tuple((k, design[k]) for k in self.family_names())
+
+    # -- the cache (parameter-free parts per data set) ----------------------------------------
+    def _remember(self, key, refs, make):
+        """``make()`` cached under ``key`` while the arrays ``refs`` are the same objects (ids are reused)."""
+        cache = self.__dict__.setdefault("_cache", {})
+        hit = cache.get(key)
+        if hit is None or any(a is not b for a, b in zip(hit[0], refs)):
+            if len(cache) >= CACHE_SIZE:
+                # scores go first: a fit costs more than a projection
+                keys = [k for k in cache if k[0] != "fit"] or list(cache)
+                cache.pop(keys[0])
+            hit = (refs, make())
+            cache[key] = hit
+        return hit[1]
+
+    def __getstate__(self):
+        state = dict(self.__dict__)
+        state["_cache"] = {}
+        return state
+
+    def fit_rows(self, calibration_z: np.ndarray) -> np.ndarray:
+        return calibration_z if self.fit_runs is None else calibration_z[: self.fit_runs]
+
+    def held_back(self, calibration_z: np.ndarray) -> np.ndarray:
+        """The calibration runs the empirical limits come from (all runs when none is held back)."""
+        if self.fit_runs is None or calibration_z.shape[0] <= self.fit_runs:
+            return calibration_z
+        return calibration_z[self.fit_runs:]
+
+    def _split(self, calibration_z: np.ndarray):
+        """(fit runs, held-back runs) as the same array objects on every call (cache keys)."""
+        return self._remember(("split", id(calibration_z)), (calibration_z,), lambda: (
+            np.asarray(self.fit_rows(calibration_z), float), np.asarray(self.held_back(calibration_z), float)))
+
+    def fitted(self, calibration_z: np.ndarray, design: Mapping | None = None) -> dict:
+        """The family's model of the fit runs of ``calibration_z`` (R, K, m) (cached while the array lives)."""
+        design = self.design_values() if design is None else design
+        fit, _ = self._split(calibration_z)
+        return self._remember(("fit", id(calibration_z), self._fit_key(design)), (calibration_z,),
+                              lambda: self.fit(fit, design))
+
+    def _scored(self, fitted: Mapping, z: np.ndarray, design: Mapping) -> dict:
+        return self._remember(("score", id(fitted), id(z), self._score_key(design)), (fitted, z),
+                              lambda: self.score(fitted, z, design, None)[0])
+
+    # -- the decision -------------------------------------------------------------------
+    def features(self, z: np.ndarray) -> np.ndarray:
+        return np.asarray(z, float)
+
+    def _empirical(self, lam: float) -> bool:
+        return self.limits == "empirical" or lam < 1.0
+
+    def _parts(self, calibration_z: np.ndarray, z: np.ndarray, design: Mapping, names) -> dict:
+        """{name: (smoothed statistic (R, K), limit, start)} of one design: what every decision shares."""
+        fitted = self.fitted(calibration_z, design)
+        fit, held = self._split(calibration_z)
+        own, on_fit = self._scored(fitted, z, design), self._scored(fitted, fit, design)
+        alpha, lam = float(design["alpha"]), float(design["lam"])
+        out = {}
+        for name in names:
+            start = float(np.nanmean(on_fit[name]))  # the in-control mean
+            value = np.where(np.isfinite(own[name]), ewma_from(own[name], lam, start), np.nan)
+            limit = None if self._empirical(lam) else self.limit(fitted, name, alpha, design)
+            if limit is None:
+                on_held = self._scored(fitted, held, design)[name]
+                limit = empirical_limit(np.where(np.isfinite(on_held), ewma_from(on_held, lam, start), np.nan),
+                                        alpha)
+            out[name] = (value, float(limit), start)
+        return out
+
+    def _alarmed(self) -> tuple[str, ...]:
+        return tuple(self.STATISTICS) if self.statistic == "combined" else (self.statistic,)
+
+    def statistics(self, calibration_z: np.ndarray, z: np.ndarray, design: dict | None = None) -> dict:
+        """Every statistic of one design on z (smoothed when lam < 1) and its limit: what the figures plot.
+
+        Returns ``{S: (R, K), f"{S}_limit": float}`` for each S in :attr:`STATISTICS`.
+        """
+        values = {**self.get_params(), **(design or {})}
+        values = self.design_values([values[k] for k in self.tunable], base=values)
+        parts = self._parts(calibration_z, z, values, self.STATISTICS)
+        return {key: v for name, (value, limit, _) in parts.items()
+                for key, v in ((name, value), (f"{name}_limit", limit))}
+
+    def population(self, calibration_features: np.ndarray, features: np.ndarray, X: np.ndarray) -> Decisions:
+        """Decisions of every design in X (P, d), columns in the order of ``tunable``.
+
+        The statistic is the ratio to the limit (the largest over the alarmed statistics), so the threshold is 1.
+        """
+        X = np.atleast_2d(np.asarray(X, float))
+        names = self._alarmed()
+        statistic = np.empty((X.shape[0],) + np.shape(features)[:2])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            for p, row in enumerate(X):
+                parts = self._parts(calibration_features, features, self.design_values(row), names)
+                statistic[p] = reduce(np.fmax, [value / limit for value, limit, _ in parts.values()])
+            above = statistic > 1.0
+        lengths = self.tunable["persistence"].round(X[:, list(self.tunable).index("persistence")], clip=True)
+        alarm = persistent(above, lengths.astype(int))
+        return Decisions(statistic, np.ones((X.shape[0], 1, 1)), alarm.astype(np.int8))
+
+    # -- the causal form ----------------------------------------------------------------
+    def online(self, calibration_z: np.ndarray, inputs) -> "OnlineLatent":
+        """This design calibrated on ``calibration_z`` (R, K, m) as an :class:`OnlineLatent` on the columns ``inputs``."""
+        calibration_z = np.asarray(calibration_z, float)
+        design = self.design_values()
+        parts = self._parts(calibration_z, calibration_z[:1, :1], design, self.STATISTICS)
+        return OnlineLatent(tags=tuple(str(t) for t in inputs), detector=json.dumps(describe(self)),
+                            names=tuple(self.STATISTICS), limits=tuple(p[1] for p in parts.values()),
+                            starts=tuple(p[2] for p in parts.values()), fitted=dict(self.fitted(calibration_z, design)))
+
+
+@dataclass
+class OnlineLatent(OnlineStage):
+    """Any family's causal form: tag rows in; each statistic, its smoothed value and limit, the ratio and the alarm out.
+
+    ``detector`` is the tuned design (:func:`mosd.streaming.describe` as JSON: the family's class and
+    params), ``fitted`` the family's model (arrays and scalars, saved as ``fitted.<name>``), ``limits``
+    and ``starts`` the calibrated limit and the EWMA's start (the mean on the fit rows) of each
+    statistic in ``names``. The state: ``ewma_<S>`` per statistic, ``run_length`` and the family's own
+    (:meth:`LatentDetector.state`, e.g. a lag buffer). Outputs per row: ``<S>``, ``<S>_smoothed``,
+    ``<S>_limit`` for each statistic, ``ratio`` and ``alarm``.
+    """
+
+    tags: tuple
+    detector: str
+    names: tuple
+    limits: tuple
+    starts: tuple
+    fitted: dict = field(default_factory=dict)
+
+    def _family(self) -> LatentDetector:
+        family = self.__dict__.get("_built")
+        if family is None:
+            family = self.__dict__["_built"] = build(json.loads(self.detector))
+        return family
+
+    def _design(self) -> dict:
+        return self.__dict__.get("_values") or self.__dict__.setdefault("_values", self._family().design_values())
+
+    @property
+    def inputs(self) -> tuple[str, ...]:
+        return ("point", *(f"z_{j}" for j in range(1, len(self.tags) + 1)))
+
+    @property
+    def outputs(self) -> tuple[str, ...]:
+        return (*(f"{n}{suffix}" for n in self.names for suffix in ("", "_smoothed", "_limit")), "ratio", "alarm")
+
+    def state_vars(self) -> dict[str, StateVar]:
+        own = {name: var for name, (var, _) in self._family().state(self.fitted, self._design()).items()}
+        return {**{f"ewma_{n}": StateVar(f"EWMA of {n} after the last row.", SQUARES) for n in self.names},
+                "run_length": StateVar("Consecutive points above the limit.", COUNT), **own}
+
+    def initial_state(self) -> dict:
+        own = {name: initial for name, (_, initial) in self._family().state(self.fitted, self._design()).items()}
+        return {**{f"ewma_{n}": float(s) for n, s in zip(self.names, self.starts)}, "run_length": 0, **own}
+
+    def example_row(self) -> np.ndarray:
+        mean = self.fitted.get("mean")
+        return np.asarray(mean, float)[: len(self.tags)] if mean is not None else np.zeros(len(self.tags))
+
+    def update(self, columns, state) -> dict[str, np.ndarray]:
+        rows, at, X = points_of(columns, len(self.tags))
+        return spread(rows, at, self.score(X, state), state)
+
+    def score(self, X: np.ndarray, state) -> dict[str, np.ndarray]:
+        """Outputs and state after each row of X (rows, m: the tags in order), from ``state``."""
+        family, design = self._family(), self._design()
+        own = family.state(self.fitted, design)
+        carried = {k: np.asarray([state[k]], float) for k in own} or None
+        stats, after = family.score(self.fitted, np.asarray(X, float)[None], design, carried)
+        lam = float(design["lam"])
+        out: dict[str, np.ndarray] = {k: np.asarray(v)[0] for k, v in after.items()}
+        ratios = []
+        alarmed = family._alarmed()
+        for name, limit, start in zip(self.names, self.limits, self.starts):
+            values = np.asarray(stats[name])[0]
+            smooth = ewma_from(values, lam, float(start), previous=float(state[f"ewma_{name}"]))
+            value = np.where(np.isfinite(values), smooth, np.nan)
+            out[name], out[f"{name}_smoothed"], out[f"{name}_limit"] = values, value, np.full(len(values), float(limit))
+            out[f"ewma_{name}"] = smooth
+            if name in alarmed:
+                with np.errstate(invalid="ignore", divide="ignore"):
+                    ratios.append(value / limit)
+        ratio = reduce(np.fmax, ratios)
+        with np.errstate(invalid="ignore"):
+            above = ratio > 1.0
+        run = run_lengths(above, int(state["run_length"]))
+        out["ratio"], out["alarm"], out["run_length"] = ratio, run >= int(design["persistence"]), run
+        return out
+
+    def save_fields(self) -> tuple[dict, dict[str, np.ndarray]]:
+        meta = {"tags": {"tuple": list(self.tags)}, "detector": self.detector, "names": {"tuple": list(self.names)},
+                "limits": {"tuple": [float(v) for v in self.limits]},
+                "starts": {"tuple": [float(v) for v in self.starts]}, "fitted_scalars": {}}
+        arrays = {}
+        for name, value in self.fitted.items():
+            if isinstance(value, np.ndarray):
+                arrays[f"fitted.{name}"] = value
+            else:
+                meta["fitted_scalars"][name] = value.item() if isinstance(value, np.generic) else value
+        return meta, arrays
+
+    @classmethod
+    def from_fields(cls, meta: Mapping, arrays: Mapping[str, np.ndarray]) -> "OnlineLatent":
+        fitted = {**meta.get("fitted_scalars", {}),
+                  **{k.split(".", 1)[1]: np.asarray(v) for k, v in arrays.items() if k.startswith("fitted.")}}
+        return cls(tags=tuple(meta["tags"]["tuple"]), detector=meta["detector"], names=tuple(meta["names"]["tuple"]),
+                   limits=tuple(meta["limits"]["tuple"]), starts=tuple(meta["starts"]["tuple"]), fitted=fitted)
+
+
+# -- helpers for dynamic families ------------------------------------------------------------
+def lag_state(m: int, lags: int, prefix: str = "lag") -> dict[str, tuple[StateVar, float]]:
+    """The declared state of a buffer of the last ``lags`` rows of m variables: ``<prefix><j>_<i>`` is
+    variable i of the row j steps back (NaN, JSON null, before a stream has that many rows)."""
+    return {f"{prefix}{j}_{i}": (StateVar(f"Variable {i} of the row {j} step(s) back.", FINITE, missing=True), math.nan)
+            for j in range(1, lags + 1) for i in range(1, m + 1)}
+
+
+def lagged(X: np.ndarray, lags: int, carried: Mapping | None = None, prefix: str = "lag"):
+    """The causal lagged rows [x_k, x_{k−1}, ..., x_{k−lags}] of X (R, K, m) and the buffer after each row.
+
+    Rows before a run's start come from ``carried`` (:func:`lag_state`'s names, (R,) each) or are NaN.
+
+    Returns
+    -------
+    rows : ndarray, shape (R, K, (lags + 1) m)
+        Row k: x_k, then x_{k−1}, ... (blocks of m).
+    after : dict
+        ``<prefix><j>_<i>`` → (R, K): the buffer after each row (x_{k−j+1}).
+    """
+    X = np.asarray(X, float)
+    R, K, m = X.shape
+    history = np.full((R, lags, m), np.nan)
+    if carried:
+        for j in range(1, lags + 1):
+            for i in range(1, m + 1):
+                history[:, lags - j, i - 1] = np.asarray(carried[f"{prefix}{j}_{i}"], float).reshape(R)
+    full = np.concatenate([history, X], axis=1)     # row lags + k is x_k
+    rows = np.concatenate([full[:, lags - j: lags - j + K] for j in range(lags + 1)], axis=-1)
+    after = {f"{prefix}{j}_{i}": full[:, lags - j + 1: lags - j + 1 + K, i - 1]
+             for j in range(1, lags + 1) for i in range(1, m + 1)}
+    return rows, after
+
+
+def complete_rows(rows: np.ndarray) -> np.ndarray:
+    """The rows (…, n) with every value finite, as (N, n): what a family fits on."""
+    flat = np.asarray(rows, float).reshape(-1, np.shape(rows)[-1])
+    return flat[np.all(np.isfinite(flat), axis=1)]
+
+
+def scaling(rows: np.ndarray, family: str, least: int = 3) -> tuple[np.ndarray, np.ndarray]:
+    """Mean and standard deviation (ddof = 1) of the complete rows (N, m); one line naming a constant variable."""
+    if len(rows) < least:
+        raise ConfigError(f"the {family} calibration has {len(rows)} complete rows; allowed: at least {least}")
+    mean, scale = rows.mean(axis=0), rows.std(axis=0, ddof=1)
+    flat = np.flatnonzero(~(scale > 1e-12 * np.maximum(1.0, np.abs(mean))))
+    if flat.size:
+        raise ConfigError(f"variable {flat[0] + 1} is constant over the {family} calibration rows; allowed: "
+                          "variables that vary (drop constant columns)")
+    return mean, scale
+
+
+def empirical_limit(values: np.ndarray, alpha: float) -> float:
+    """The (1 − α) quantile of the finite values (NumPy's linear interpolation)."""
+    values = np.asarray(values, float)
+    values = values[np.isfinite(values)]
+    if values.size == 0:
+        raise ConfigError("no finite held-back calibration point for an empirical limit; allowed: calibration "
+                          "data with complete rows")
+    return float(np.quantile(values, 1.0 - alpha))
+
+
+def ewma_from(x: np.ndarray, lam: float, start: float, previous: float | None = None) -> np.ndarray:
+    """E_k = λ x_k + (1 − λ) E_{k−1} along the last axis, from E_{−1} = ``previous`` (default ``start``).
+
+    A missing point (NaN) enters as ``start``, the in-control mean: what a
+    fault-free point adds on average. ``previous``: the carried E of a stream scored in parts.
+    """
+    x = np.where(np.isfinite(x), x, start)
+    if lam >= 1.0 or x.shape[-1] == 0:
+        return x
+    # imported here: scipy.signal pulls in scipy.stats (ARCHITECTURE: not on every run's start)
+    from scipy.signal import lfilter
+
+    zi = np.full(x.shape[:-1] + (1,), (1.0 - lam) * (start if previous is None else previous))
+    return lfilter([lam], [1.0, -(1.0 - lam)], x, axis=-1, zi=zi)[0]

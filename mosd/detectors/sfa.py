@@ -1,0 +1,93 @@
+"""Slow feature analysis (SFA) monitoring (Shang, Huang, Yang & Huang 2015, AIChE J. 61, 3666-3682).
+
+With the rows standardised on the fit rows (z) and their first differences ż_k = z_k − z_{k−1}, the
+slow features s = Wᵀ z solve the generalised symmetric eigenproblem (Shang et al., eqs. 6-8)
+
+    A w = ω B w,   A = Cov(ż),  B = Cov(z),   Wᵀ B W = I,
+
+by :func:`scipy.linalg.eigh` (ω ascending: the slowest features first; ω_j = Var(ṡ_j)). The
+``n_slow`` slowest features s_d are the process's operating condition, the others s_e the fast part;
+per row (eqs. 14-17)
+
+    T² = s_dᵀ s_d,   T²ₑ = s_eᵀ s_e,   S² = ṡ_dᵀ Ω_d⁻¹ ṡ_d,   S²ₑ = ṡ_eᵀ Ω_e⁻¹ ṡ_e,
+
+Ω = diag(ω). T² and T²ₑ flag a departure from the operating point, S² and S²ₑ a change of the
+dynamics (faster or slower variation). Limits: χ² with M and m − M degrees of freedom for T² and
+T²ₑ (s has identity covariance), and Shang et al.'s F-based limit for S² and S²ₑ
+(:func:`~mosd.detectors.pca.t2_limit` with M and m − M dimensions on the N differenced fit rows).
+ṡ_k needs the previous row: the deployed stage carries it (``prev_<i>``) as its state.
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy import linalg, special
+
+from ..validation import ConfigError, Interval, Param
+from .latent import LatentDetector, complete_rows, lag_state, lagged, latent_params, scaling
+from .pca import _one_blas_thread, project, t2_limit
+
+
+class SFADetector(LatentDetector):
+    """Slow feature T², T²ₑ, S², S²ₑ with tunable slow features, α, EWMA λ and persistence (module docstring)."""
+
+    STATISTICS = ("t2", "t2e", "s2", "s2e")
+    fit_keys = ()
+    params = latent_params({
+        "max_slow": Param(Interval(1, 10_000, integer=True), "Upper end of n_slow's range."),
+        "n_slow": Param(Interval(1, "max_slow", integer=True), "Slow features M (at most m − 1: larger values are "
+                        "lowered to it).", tunable=True),
+    }, STATISTICS)
+
+    def __init__(self, n_slow: int = 10, alpha: float = 0.01, lam: float = 1.0, persistence: int = 1,
+                 statistic: str = "combined", limits: str = "theoretical", fit_runs: int | None = None,
+                 max_slow: int = 30, persistence_max: int = 10):
+        self._assign(locals())
+        self._cache: dict = {}
+
+    def fit(self, X: np.ndarray, design) -> dict:
+        mean, scale = scaling(complete_rows(X), "SFA")
+        rows, _ = lagged((np.asarray(X, float) - mean) / scale, 1)
+        pairs = complete_rows(rows)
+        m = len(mean)
+        if len(pairs) < m + 2:
+            raise ConfigError(f"the SFA calibration has {len(pairs)} pairs of consecutive complete rows for {m} "
+                              f"variables; allowed: at least {m + 2}")
+        z, dz = pairs[:, :m], pairs[:, :m] - pairs[:, m:]
+        with _one_blas_thread():
+            B = np.cov(z, rowvar=False)
+            A = np.cov(dz, rowvar=False)
+            omega, W = linalg.eigh(A, B)                            # ascending ω; Wᵀ B W = I
+        return {"mean": mean, "scale": scale, "W": W, "omega": omega, "n": int(len(pairs))}
+
+    def _slow(self, fitted, design) -> int:
+        return int(min(int(design["n_slow"]), len(fitted["omega"]) - 1))
+
+    def _features(self, fitted, X, carried):
+        Z = (np.asarray(X, float) - fitted["mean"]) / fitted["scale"]
+        m = Z.shape[-1]
+        rows, after = lagged(Z, 1, carried, prefix="prev")
+        W = np.asarray(fitted["W"])
+        # project: each row's sums in one order, the same bits whatever the chunk (the streaming contract)
+        s = project(rows[..., :m], W)
+        ds = project(rows[..., :m] - rows[..., m:], W)
+        return s**2, ds**2 / np.asarray(fitted["omega"]), after
+
+    def score(self, fitted, X, design, carried=None):
+        if carried is None:
+            s2, ds2, after = self._remember(("features", id(fitted), id(X)), (fitted, X),
+                                            lambda: self._features(fitted, X, None))
+        else:
+            s2, ds2, after = self._features(fitted, X, carried)
+        M = self._slow(fitted, design)
+        return {"t2": s2[..., :M].sum(-1), "t2e": s2[..., M:].sum(-1), "s2": ds2[..., :M].sum(-1),
+                "s2e": ds2[..., M:].sum(-1)}, after
+
+    def state(self, fitted, design):
+        return lag_state(len(fitted["mean"]), 1, prefix="prev")
+
+    def limit(self, fitted, name, alpha, design):
+        M, m = self._slow(fitted, design), len(fitted["omega"])
+        dims = M if name in ("t2", "s2") else m - M
+        if name.startswith("t2"):
+            return float(special.chdtri(dims, alpha))
+        return t2_limit(int(fitted["n"]), dims, alpha)
