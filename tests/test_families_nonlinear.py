@@ -262,3 +262,35 @@ def test_component_counts_beyond_the_fit_are_one_line_errors():
                              r"detector.n_components=5 .* \[1, 4\]")):
         with pytest.raises(ConfigError, match=match):
             detector.decide(calibration, X[None, :10])
+
+
+@pytest.mark.filterwarnings("ignore:detector=ica. FastICA did not converge")
+def test_served_models_score_from_saved_arrays_without_sklearn_or_torch(tmp_path, monkeypatch):
+    """pipeline.npz holds arrays only (np.load with allow_pickle=False), and loading and scoring it imports neither
+    scikit-learn nor PyTorch."""
+    import sys
+
+    from mosd.streaming import OnlinePipeline
+
+    X = plant_rows(n=500)
+    calibration = np.stack([X[:200], X[200:400]])
+    tags = tuple("abcde")
+    columns = {"point": np.ones(100, np.int64), **{f"z_{j}": X[400:, j - 1] for j in range(1, 6)}}
+    saved = {}
+    for name, detector in (("ica", ICADetector(n_components=2, max_components=4, max_iter=50, fit_runs=1)),
+                           ("kpca", KernelPCADetector(n_components=3, width=4, max_components=6, fit_runs=1)),
+                           ("autoencoder", AutoencoderDetector(n_components=2, hidden=4, epochs=20, max_components=4,
+                                                               fit_runs=1))):
+        pipeline = OnlinePipeline([detector.online(calibration, tags)])
+        saved[name] = (pipeline.save(tmp_path / name), pipeline.update(columns))
+        with np.load(saved[name][0], allow_pickle=False) as stored:
+            assert all(stored[k].dtype != object for k in stored.files)
+    for module in [m for m in sys.modules if m.split(".")[0] in ("sklearn", "torch")]:
+        monkeypatch.setitem(sys.modules, module, None)
+    for module in ("mosd.detectors.ica", "mosd.detectors.kpca", "mosd.detectors.autoencoder"):
+        monkeypatch.delitem(sys.modules, module)
+    for name, (path, expected) in saved.items():
+        again = OnlinePipeline.load(path).update(columns)
+        for key in ("ratio", "alarm", "spe"):
+            np.testing.assert_array_equal(again[key], expected[key], err_msg=f"{name}: {key}")
+        assert 0 < np.sum(np.isfinite(again["ratio"]))

@@ -209,10 +209,10 @@ class KernelPCADetector(LatentDetector):
     def score(self, fitted: Mapping, X: np.ndarray, design: Mapping, carried: Mapping | None = None):
         r = np.shape(fitted["alphas"])[1]
         a = int(design["n_components"])
-        if not 1 <= a <= r - 1:
+        if not 1 <= a <= r:
             raise ConfigError(f"detector.n_components={a} is out of range for {r} kernel components "
                               f"(detector.max_components={design['max_components']}, {int(fitted['n'])} fit rows); "
-                              f"allowed: integers in [1, {r - 1}]")
+                              f"allowed: integers in [1, {r}]")
         # the served model scores each block once: no cache there
         every = (self._all_components(fitted, X) if np.size(X) > 4096
                  else KPCAModel.from_fitted(fitted).statistics(X))
