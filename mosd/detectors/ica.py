@@ -169,8 +169,10 @@ class ICADetector(LatentDetector):
     def fit(self, X: np.ndarray, design: Mapping) -> dict:
         model = ICAModel(X, seed=int(design["seed"]), max_iter=int(design["max_iter"]), tol=float(design["tol"]))
         if not model.converged:
-            warnings.warn(f"detector=ica: FastICA did not converge in max_iter={model.max_iter} iterations "
-                          f"(tol={model.tol:g}); a larger detector.max_iter or detector.tol converges", stacklevel=2)
+            # seen on TE's 33 variables (nearly Gaussian directions): the last iterate is still an unmixing
+            # whose I², I²ₑ and SPE are scored and limited empirically, so this is a warning, not an error
+            warnings.warn(f"detector=ica: FastICA did not converge in detector.max_iter={model.max_iter} iterations "
+                          f"(detector.tol={model.tol:g}); the statistics use its last unmixing matrix", stacklevel=2)
         return model.fitted()
 
     def score(self, fitted: Mapping, X: np.ndarray, design: Mapping, carried: Mapping | None = None):
