@@ -46,7 +46,9 @@ What the base does (for every statistic S of the design)
   a row that is not scored enters as that mean and is not alarmed;
 * the limit: the family's theoretical one when ``limits == "theoretical"``, λ = 1 and it has one,
   else the (1 − α) quantile of S̃ on the held-back calibration runs (``fit_runs``: the first
-  runs fit, the others are held back; all runs do both when None);
+  runs fit, the others are held back; all runs do both when None), at least :data:`RESOLUTION`
+  times the larger of the in-control mean and the held-back maximum (a quantile inside an EWMA's
+  decaying tail is numerical, not statistical);
 * ratio_k = max over the alarmed statistics of S̃_k / limit; alarm when ratio > 1 for
   ``persistence`` consecutive rows (:func:`~mosd.detectors.base.persistent`).
 
@@ -93,6 +95,8 @@ def latent_params(family: Mapping[str, Param], statistics: tuple[str, ...]) -> d
     }
 
 
+#: the smallest empirical limit, relative to the statistic's in-control scale (``LatentDetector._parts``)
+RESOLUTION = 1e-6
 #: entries a detector's cache keeps (fits, scores of data sets): a tuning needs a few per distinct fit
 CACHE_SIZE = 256
 
@@ -210,8 +214,14 @@ class LatentDetector(Detector):
             limit = None if self._empirical(lam) else self.limit(fitted, name, alpha, design)
             if limit is None:
                 on_held = self._scored(fitted, held, design)[name]
-                limit = empirical_limit(np.where(np.isfinite(on_held), ewma_from(on_held, lam, start), np.nan),
-                                        alpha)
+                smoothed = np.where(np.isfinite(on_held), ewma_from(on_held, lam, start), np.nan)
+                limit = empirical_limit(smoothed, alpha)
+                # a statistic with an atom at 0 (a CUSUM with a large allowance) smoothed by the EWMA never
+                # returns to 0: its quantile can fall in the EWMA's decaying tail (1e-20 and below), where
+                # every past excursion alarms for hundreds of rows. Below RESOLUTION of the statistic's
+                # in-control scale the limit is numerical, not statistical
+                scale = max(abs(start), float(np.nanmax(np.abs(smoothed))) if np.isfinite(smoothed).any() else 0.0)
+                limit = max(limit, RESOLUTION * scale)
             out[name] = (value, float(limit), start)
         return out
 

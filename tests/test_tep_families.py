@@ -1,0 +1,62 @@
+"""The fair protocol on Tennessee Eastman (issue 29, :mod:`mosd.systems.tep`): per-run keys, FAR episodes and
+their interval, the family table of ``python -m mosd.systems.tep --families``."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from mosd.systems import tep
+
+
+def test_protocol_keys_on_known_decisions():
+    decision = np.zeros((3, 800), bool)
+    decision[0, 10] = True                       # fault 1: a lone alarm at row 10, then a run of 3 from row 20
+    decision[0, 20:23] = True
+    decision[2, [5, 6, 300, 301, 302, 700]] = True  # fault-free: 3 episodes, 6 alarmed rows
+    labels = np.array([1, 2, 0])
+    out = tep.protocol(decision, labels)
+    assert out["fdr_idv1"] == 4 / 800 and out["fdr_idv2"] == 0.0
+    assert out["delay_first_idv1"] == 10 * 3.0 and out["delay_run_idv1"] == 22 * 3.0 and out["delay_run_k"] == 3
+    assert "delay_first_idv2" not in out          # never alarmed: no delay, not a zero
+    assert out["far"] == 6 / 800 and out["far_episodes"] == 3
+    # Garwood's exact Poisson interval on 3 episodes, scaled by the mean episode length (2 rows) over 800 rows
+    low, high = stats.chi2.ppf(0.025, 6) / 2, stats.chi2.ppf(0.975, 8) / 2
+    assert out["far_ci_low"] == pytest.approx(low * 2 / 800) and out["far_ci_high"] == pytest.approx(high * 2 / 800)
+    assert out["far_ci_low"] < out["far"] < out["far_ci_high"]
+
+
+def test_far_interval_counts_episodes_not_rows():
+    one_long = np.zeros(800, bool)
+    one_long[100:140] = True                     # one 40-row episode
+    scattered = np.zeros(800, bool)
+    scattered[::20] = True                       # 40 isolated alarms
+    far_a, low_a, high_a, n_a = tep.far_interval(one_long)
+    far_b, low_b, high_b, n_b = tep.far_interval(scattered)
+    assert far_a == far_b == 0.05 and (n_a, n_b) == (1, 40)
+    assert high_a - low_a > 3 * (high_b - low_b)  # the same rate is far less certain from one episode
+    assert tep.far_interval(np.zeros(800, bool))[1:] == (0.0, pytest.approx(stats.chi2.ppf(0.975, 2) / 2 / 800), 0)
+
+
+@pytest.mark.slow
+def test_families_command_prints_the_table_and_writes_the_figure(tmp_path, capsys):
+    code = tep.main(["--families", "--family", "cva", "--pop-size", "4", "--n-gen", "1", "--out", str(tmp_path)])
+    assert code == 0
+    printed = capsys.readouterr().out
+    assert "| IDV(21) |" in printed and "FAR episodes" in printed and "| fault | cva | pca_lit | dpca_lit |" in printed
+    results = json.loads((tmp_path / "tep_families.json").read_text())["results"]
+    assert set(results) == {"cva", "pca_lit", "dpca_lit"}
+    for name, result in results.items():
+        assert {f"fdr_idv{n}" for n in range(1, 22)} <= set(result)
+        assert {"far", "far_episodes", "far_ci_low", "far_ci_high", "delay_run_k"} <= set(result)
+        # the protocol's operating point on the training split
+        assert result["train"]["far"] <= tep.PROTOCOL_FAR + 1e-12, name
+    assert (tmp_path / "tep_families.png").stat().st_size > 10_000
+
+
+def test_families_command_refuses_a_bad_budget(tmp_path, capsys):
+    assert tep.main(["--families", "--pop-size", "1", "--out", str(tmp_path)]) == 2
+    assert "--pop-size" in capsys.readouterr().err
+    assert not list(tmp_path.iterdir())
