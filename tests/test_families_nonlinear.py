@@ -222,9 +222,15 @@ def test_kpca_family_served_equals_its_population_with_theoretical_limits(tmp_pa
     spe_fit = KPCAModel(X[:200], width=4, max_components=8).statistics(X[:200])["spe"][:, 2]
     assert limits["spe_limit"] == pytest.approx(spe_moment_limit(spe_fit, 0.02), rel=1e-6)
     assert whole["t2_limit"][0] == pytest.approx(limits["t2_limit"])
-    # a design per width: the width changes the decisions
-    other = detector.population(calibration, X[None, 400:], np.array([[3, 4, 0.02, 1, 1], [3, 40, 0.02, 1, 1]]))
-    assert not np.array_equal(other.statistic[0], other.statistic[1])
+    # designs of several widths in any order: each one's decisions are its own (taken width by width)
+    designs = np.array([[3, 40, 0.02, 1, 1], [3, 4, 0.02, 1, 2], [2, 40, 0.05, 0.5, 1]])
+    together = detector.population(calibration, X[None, 400:], designs)
+    assert not np.array_equal(together.statistic[0], together.statistic[1])
+    for p, (a, width, alpha, lam, persistence) in enumerate(designs):
+        alone = detector.with_params(n_components=a, width=width, alpha=alpha, lam=lam, persistence=persistence)
+        decided = alone.decide(calibration, X[None, 400:])
+        np.testing.assert_array_equal(together.statistic[p], decided.statistic)
+        np.testing.assert_array_equal(together.decision[p], decided.decision)
 
 
 def test_autoencoder_family_served_equals_its_population(tmp_path):
