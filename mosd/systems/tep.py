@@ -201,6 +201,10 @@ class Study(base.Study):
     * ``D_fdr_S_idvN`` — fault N's detection rate on its 800 post-onset test samples (all three
       statistics for ``lit``, the combined rule the design alarms on for ``tuned``);
     * ``D_far_S`` — the false-alarm rate on ``d00_te.dat`` rows 160-959;
+    * unprefixed, the fair protocol's keys of the run's own design (:func:`protocol`; docs/systems/tep.md):
+      ``fdr_idvN``, ``delay_first_idvN``, ``delay_run_idvN`` (k = ``delay_run_k``), ``far``, ``far_episodes``,
+      ``far_ci_low``/``far_ci_high``, from each test file streamed whole (its lead-in is the past at the onset,
+      :func:`whole_test_files`; ``tuned_fdr_combined_idvN`` starts every run at row 160 instead);
     * ``D_mdr_combined_mean`` — 1 − the mean combined detection rate over the training faults
       (``data.faults``, by default all but 3, 9 and 15): the MDR the optimiser minimised, on the test files.
     * ``lit_equal_far_alpha``, ``lit_equal_far_far_combined``, ``lit_equal_far_mdr_combined_mean`` — the
@@ -255,7 +259,10 @@ class Study(base.Study):
             out["far"][name] = {s: float(r[labels == 0][0]) for s, r in rates.items()}
             decision = detector.decide(calibration, z).decision
             out.setdefault("delays", {})[name] = self._delays(decision, labels)
-            out.setdefault("protocol", {})[name] = protocol(decision, labels)
+            # the protocol streams each test file whole: its lead-in is the past at the onset (whole_test_files)
+            whole, whole_labels = whole_test_files(experiment, source)
+            out.setdefault("protocol", {})[name] = protocol(detector.decide(calibration, whole).decision[:, ONSET:],
+                                                            whole_labels)
             out["params"][name] = {k: (int(v) if detector.tunable[k].integer else v)
                                    for k, v in base.design_params(detector).items()}
             if type(detector) is PCADetector:  # T², SPE and the contributions of a PCA of the tags
