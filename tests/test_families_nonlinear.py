@@ -246,12 +246,17 @@ def test_autoencoder_family_served_equals_its_population(tmp_path):
     np.testing.assert_allclose(whole["spe"][:100], stats["spe"][:100], rtol=1e-12)
 
 
-def test_autoencoder_population_trains_once_per_size_and_matches_single_designs():
+def test_autoencoder_population_trains_once_per_size_and_matches_single_designs(monkeypatch):
     X = plant_rows(n=500)
     calibration = np.stack([X[:200], X[200:400]])
     detector = AutoencoderDetector(n_components=2, hidden=5, epochs=30, fit_runs=1, max_components=4, seed=1)
     designs = np.array([[2, 5, 30, 0.05, 1, 1], [2, 5, 12, 0.05, 1, 1], [1, 5, 30, 0.05, 1, 1]], float)
+    trained, real = [], AutoencoderModel.trained.__func__
+    monkeypatch.setattr(AutoencoderModel, "trained",
+                        classmethod(lambda cls, *a, **k: trained.append(a[1:4]) or real(cls, *a, **k)))
     together = detector.population(calibration, X[None, 400:], designs)
+    assert sorted(trained) == [(1, 5, [30]), (2, 5, [12, 30])]  # one training run per size, to its largest budget
+    monkeypatch.undo()
     for p, row in enumerate(designs):
         alone = AutoencoderDetector(n_components=int(row[0]), hidden=int(row[1]), epochs=int(row[2]), alpha=0.05,
                                     fit_runs=1, max_components=4, seed=1).decide(calibration, X[None, 400:])
