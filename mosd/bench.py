@@ -43,7 +43,8 @@ or ``--skip`` says otherwise, prints the table on stderr and one JSON object on 
 with bibmon installed, ``bibmon_predict_rows_per_s``, ``monitor_speedup_vs_bibmon``, ``monitor_no_top_speedup_vs_bibmon``,
 ``t2_spe_floor_speedup_vs_bibmon``,
 ``bibmon_spe_agrees`` (1: the two SPEs agree to 1e-9 relative), and per family f in ica, kpca, autoencoder
-``tep_candidates_per_s_f``, ``tep_fit_score_s_f``, ``tep_library_fit_transform_s_f`` (:func:`bench_tep_nonlinear`); ``serve`` adds ``serve_latency_ms`` and ``serve_latency_p90_ms``.
+``tep_candidates_per_s_f``, ``tep_fit_score_s_f``, ``tep_library_fit_transform_s_f``
+(:func:`bench_tep_nonlinear`); ``serve`` adds ``serve_latency_ms`` and ``serve_latency_p90_ms``.
 """
 from __future__ import annotations
 
@@ -516,7 +517,8 @@ def bench_tep_nonlinear(quick: bool = False) -> tuple[list, dict]:
 
     Designs are drawn in each family's box (the preset's α box). ICA's fit does not depend on a design and is
     made before the clock starts (as PCA's); a kernel width or a network size is a new fit, inside the time.
-    Figures: ``tep_candidates_per_s_<family>``, ``tep_fit_score_s_<family>`` and ``tep_library_fit_transform_s_<family>``.
+    Figures: ``tep_candidates_per_s_<family>``, ``tep_fit_score_s_<family>`` and
+    ``tep_library_fit_transform_s_<family>``.
     """
     import warnings
 

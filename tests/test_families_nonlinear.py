@@ -268,7 +268,8 @@ def test_autoencoder_population_trains_once_per_size_and_matches_single_designs(
 def test_component_counts_beyond_the_fit_are_one_line_errors():
     X = plant_rows(n=300)
     calibration = np.stack([X[:150], X[150:]])
-    for detector, match in ((ICADetector(n_components=5, max_components=9, max_iter=20), r"detector.n_components=5 .* \[1, 4\]"),
+    for detector, match in ((ICADetector(n_components=5, max_components=9, max_iter=20),
+                             r"detector.n_components=5 .* \[1, 4\]"),
                             (AutoencoderDetector(n_components=5, epochs=2, max_components=9),
                              r"detector.n_components=5 .* \[1, 4\]")):
         with pytest.raises(ConfigError, match=match):

@@ -214,8 +214,8 @@ class AutoencoderDetector(LatentDetector):
 
     def fit(self, X: np.ndarray, design: Mapping) -> dict:
         self._check(np.shape(X)[-1], design)
-        model, = AutoencoderModel.trained(X, int(design["n_components"]), int(design["hidden"]), [int(design["epochs"])],
-                                          float(design["learning_rate"]), int(design["seed"]))
+        model, = AutoencoderModel.trained(X, int(design["n_components"]), int(design["hidden"]),
+                                          [int(design["epochs"])], float(design["learning_rate"]), int(design["seed"]))
         return model.fitted()
 
     def population(self, calibration_features: np.ndarray, features: np.ndarray, X: np.ndarray):
