@@ -21,7 +21,8 @@ their sum leaves out the part of Φ̃(x) outside the fit rows' span, which grows
 x moves away from them (a row far from every fit row has k ≈ 0, hence scores
 near those of the mean and their SPE near zero, while ‖Φ̃(x)‖² → 1 + k̄).
 
-Limits at level α: T²_α of the F distribution (:func:`mosd.detectors.pca.t2_limit`)
+Limits at level α: T²_α of the F distribution (:func:`mosd.detectors.pca.t2_limit`, PCA's
+new-observation form a(n² − 1)/(n(n − a)) F; Lee et al. write a(n − 1)/(n − a) F, (n + 1)/n smaller)
 and SPE_α = g χ²_h(α) with g = b / (2a), h = 2a² / b, a and b the mean and
 variance of the SPE on the fit rows (Lee et al.; Nomikos & MacGregor 1995); or the
 empirical (1 − α) quantiles on held-back calibration runs.
