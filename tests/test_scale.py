@@ -87,12 +87,14 @@ def test_cheap_populations_are_not_split_and_give_the_same_objectives(evaluators
 
 @pytest.mark.slow
 def test_dask_archive_equals_loky_and_in_process(evaluators):
-    for path in ("threads", "processes"):
-        X1, F1, _ = _tune(evaluators[path], 1, n_gen=3)
-        X, F, clock = _tune(evaluators[path], 2, backend="dask", n_gen=3)
-        np.testing.assert_array_equal(X, X1)
-        np.testing.assert_array_equal(F, F1)
-        assert clock.calls == 3 and clock.compute_s > 0.0
+    # the fused objectives on Dask: tests/test_scaleout.py; here the NumPy path, against loky processes too
+    X1, F1, _ = _tune(evaluators["processes"], 1, n_gen=3)
+    X2, F2, _ = _tune(evaluators["processes"], 2, n_gen=3)
+    X, F, clock = _tune(evaluators["processes"], 2, backend="dask", n_gen=3)
+    for other_X, other_F in ((X2, F2), (X, F)):
+        np.testing.assert_array_equal(other_X, X1)
+        np.testing.assert_array_equal(other_F, F1)
+    assert clock.calls == 3 and clock.compute_s > 0.0
 
 
 def test_job_counts_reach_the_machine_cores():
@@ -147,3 +149,18 @@ def test_jobs_under_the_joblib_launcher_pin_their_threads(tmp_path):
     expected = workers.sweep_share(2, workers.available_cpus())
     for log in logs:
         assert f"thread pools pinned to {expected} thread(s)" in log.read_text()
+
+
+def test_startup_loads_neither_scipy_integrate_nor_psutil():
+    # the fixed part of a run (issue 32): the max chart's moments are computed when first needed, and the
+    # memory check reads /proc/meminfo instead of importing psutil
+    code = ("import sys, mosd.detectors, mosd.app.preflight as p; print('scipy.integrate' in sys.modules, "
+            "'psutil' in sys.modules, p.available_memory())")
+    done = subprocess.run([sys.executable, "-c", code], env=dict(os.environ, PYTHONPATH=PACKAGE_PARENT),
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr[-2000:]
+    integrate, psutil_loaded, available = done.stdout.split()
+    assert integrate == "False" and psutil_loaded == "False"
+    import psutil
+
+    assert abs(int(available) - psutil.virtual_memory().available) < 0.05 * psutil.virtual_memory().total
