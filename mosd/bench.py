@@ -25,6 +25,11 @@ other, so machine noise hits both. Sections:
   ``PCA.predict`` on the same rows, in turns;
 * ``serve`` — ``mlflow models serve`` of a logged model on 127.0.0.1: the median
   latency of a request of 100 rows (the server is stopped afterwards).
+* ``scale`` — one tuning per evaluation path (threads: the main command's chart; processes:
+  paper 001's and 002's evaluators; recorded: TE PCA) at n_jobs = 1, 2, 4, … up to the CPUs and
+  on Dask at the largest: wall, serial, dispatch/gather and evaluation time per generation,
+  speed-up, efficiency; then a sweep of 2 × CPUs jobs with the joblib launcher against one after
+  the other (:mod:`mosd.app.scale_bench`; minutes; only with ``--only scale``).
 
 Usage: ``python -m mosd.bench [--only candidates,filter,...] [--skip serve] [--quick] [--json]``.
 ``--json`` runs candidates, filter, parallel, main, tep and serve unless ``--only``
@@ -45,7 +50,9 @@ with bibmon installed, ``bibmon_predict_rows_per_s``, ``monitor_speedup_vs_bibmo
 ``t2_spe_floor_speedup_vs_bibmon``,
 ``bibmon_spe_agrees`` (1: the two SPEs agree to 1e-9 relative), and per family f in ica, kpca, autoencoder
 ``tep_candidates_per_s_f``, ``tep_fit_score_s_f``, ``tep_library_fit_transform_s_f``
-(:func:`bench_tep_nonlinear`); ``serve`` adds ``serve_latency_ms`` and ``serve_latency_p90_ms``.
+(:func:`bench_tep_nonlinear`); ``serve`` adds ``serve_latency_ms`` and ``serve_latency_p90_ms``;
+``scale`` adds ``scale_speedup_<workload>_<n>``, ``scale_serial_share_<workload>``, ``scale_identical_<workload>``,
+``scale_dask_vs_loky_<workload>``, ``scale_sweep_speedup`` and ``scale_load_average_1min``.
 """
 from __future__ import annotations
 
@@ -57,7 +64,7 @@ import time
 
 import numpy as np
 
-SECTIONS = ("candidates", "filter", "parallel", "main", "tuning", "zdt", "tep", "serve")
+SECTIONS = ("candidates", "filter", "parallel", "main", "tuning", "zdt", "tep", "serve", "scale")
 DEFAULT_SECTIONS = ("candidates", "filter", "parallel", "tuning")
 #: what ``--json`` runs by default: every section that feeds a JSON key
 JSON_SECTIONS = ("candidates", "filter", "parallel", "main", "tep", "serve")
@@ -667,6 +674,13 @@ def bench_serve(quick: bool = False) -> tuple[list, dict]:
             ("served latency, 90th percentile ms", r["serve_latency_p90_ms"], ""),
             ("server start until /ping answers, s", r["serve_start_s"], "mlflow models serve --env-manager local")]
     return rows, {"serve_latency_ms": r["serve_latency_ms"], "serve_latency_p90_ms": r["serve_latency_p90_ms"]}
+
+
+def bench_scale(quick: bool = False) -> tuple[list, dict]:
+    """Speed-up, serial share and per-generation overhead per evaluation path (:mod:`mosd.app.scale_bench`)."""
+    from .app.scale_bench import bench_scale as scale
+
+    return scale(quick)
 
 
 def main(argv: list[str] | None = None) -> int:

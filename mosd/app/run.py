@@ -165,6 +165,12 @@ def run(cfg, started: float | None = None, checked=None):
             # nested joblib under the joblib launcher silently becomes threads: evaluate in-process
             log.info("joblib launcher: fitness evaluation runs in-process (optimizer.n_jobs=%d -> 1)", n_jobs)
             n_jobs = 1
+        if job_worker:
+            from ..optim.workers import pin_sweep_job
+
+            # jobs side by side: each keeps BLAS/OpenMP/numba to its share of the cores (docs/SCALING.md)
+            share = pin_sweep_job(hc.launcher.get("n_jobs"))
+            log.info("joblib launcher: this job's thread pools pinned to %d thread(s)", share)
 
         with signals.deferred():  # a run that exists in MLflow is one this process can mark KILLED
             tracker = _start_tracking(cfg, hc, labels, n_jobs, run_dir, tuple(setup.experiment.detector.tunable))

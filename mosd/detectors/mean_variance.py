@@ -1,6 +1,7 @@
 """Charts for the process mean and variance together: SS-DEWMA, SS-EWMA, M-DEWMA, Max-EWMA (paper 000, eqs. 19–27, 35)."""
 from __future__ import annotations
 
+import functools
 import math
 from typing import ClassVar
 
@@ -13,6 +14,7 @@ from .statistics import dewma_variance, ewma, ewma_time_major, ewma_variance, su
 
 
 
+@functools.cache  # computed when a theoretical max-chart limit first needs it: scipy.integrate stays unloaded until then
 def max_abs_normal_moments() -> tuple[float, float]:
     """Mean and standard deviation of max(|X₁|, |X₂|), X₁, X₂ i.i.d. N(0, 1).
 
@@ -106,11 +108,8 @@ class _MeanVarianceChart(Chart):
             return self._phase1_limit(self.K, n_points)
         if self.combine == "ss":
             return 2.0 * self.smoothed_variance(n_points) * (1.0 + self.K)
-        mean, sd = _MAX_ABS_MOMENTS
+        mean, sd = max_abs_normal_moments()
         return self._scale(n_points) * (mean + self.K * sd)
-
-
-_MAX_ABS_MOMENTS = max_abs_normal_moments()
 
 
 class SSDEWMA(_MeanVarianceChart):

@@ -161,14 +161,18 @@ def _identify(address: str, timeout: float, answer: dict, connection_args: dict 
         answer["error"] = exc
 
 
-def _evaluate_scattered(evaluator, X: np.ndarray) -> np.ndarray:
-    """A Dask task: the worker's copy of the scattered evaluator on one chunk of candidates."""
+def _evaluate_scattered(evaluator, X: np.ndarray) -> tuple[np.ndarray, float]:
+    """A Dask task: the worker's copy of the scattered evaluator on one chunk; objectives and seconds taken."""
+    import time
+
     from .workers import pin_threads
 
     # the LocalCluster's nanny already sets OMP/MKL/OpenBLAS to one thread; a worker of a
     # remote cluster may not, and n workers each starting a core's worth of BLAS threads thrash
     pin_threads()
-    return evaluator(X)
+    t0 = time.perf_counter()
+    F = evaluator(X)
+    return F, time.perf_counter() - t0
 
 
 class DaskEvaluation:
@@ -233,21 +237,28 @@ class DaskEvaluation:
             raise
 
     def n_chunks(self) -> int:
-        """Worker threads of the cluster now (the local cluster: n_jobs)."""
+        """Worker threads of the cluster now (the local cluster: n_jobs, without asking the scheduler)."""
+        if self.cluster is not None:
+            # the cluster this object started does not grow or shrink: no scheduler round trip per generation
+            return max(1, self.n_jobs)
         threads = sum(self.client.nthreads().values())
         return max(1, threads or self.n_jobs)
 
     def evaluate(self, X: np.ndarray) -> np.ndarray:
         """Objectives of every row of X, computed on the cluster's workers, in the order of X."""
+        return self.evaluate_timed(X)[0]
+
+    def evaluate_timed(self, X: np.ndarray) -> tuple[np.ndarray, float]:
+        """:meth:`evaluate`, and the seconds the workers computed (summed over the chunks)."""
         X = np.atleast_2d(X)
         chunks = np.array_split(X, max(1, min(self.n_chunks(), X.shape[0])))
-        futures = [self.client.submit(_evaluate_scattered, self._evaluator, chunk, pure=False) for chunk in chunks]
+        futures = self.client.map(_evaluate_scattered, [self._evaluator] * len(chunks), chunks, pure=False)
         try:
             parts = self.client.gather(futures)
         except BaseException:
             self.client.cancel(futures)
             raise
-        return np.concatenate(parts, axis=0)
+        return np.concatenate([F for F, _ in parts], axis=0), float(sum(seconds for _, seconds in parts))
 
     def close(self) -> None:
         """Close the client, then the local cluster if this object started it (idempotent)."""

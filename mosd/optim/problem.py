@@ -128,12 +128,51 @@ def _warm_up(delay: float) -> int:
     return os.getpid()
 
 
-def _evaluate_chunk(path: str, X: np.ndarray) -> np.ndarray:
+def _evaluate_chunk(path: str, X: np.ndarray) -> tuple[np.ndarray, float]:
+    """A pool task: the worker's resident evaluator on one chunk; the objectives and the seconds they took."""
     if _WORKER_CACHE["path"] != path:
         _pin_threads()
         with open(path, "rb") as fh:
             _WORKER_CACHE.update(path=path, evaluator=pickle.load(fh))
-    return _WORKER_CACHE["evaluator"](X)
+    return timed_call(_WORKER_CACHE["evaluator"], X)
+
+
+def timed_call(evaluator, X: np.ndarray) -> tuple[np.ndarray, float]:
+    """``evaluator(X)`` and the seconds it took (where it ran): the evaluation part of :class:`EvaluationClock`."""
+    t0 = time.perf_counter()
+    F = evaluator(X)
+    return F, time.perf_counter() - t0
+
+
+class EvaluationClock:
+    """Where a tuning's evaluation time goes, summed over the calls of :meth:`TuningProblem.evaluate_population`.
+
+    Attributes
+    ----------
+    calls : int
+        Populations evaluated (one per generation, plus the initial one).
+    candidates : int
+        Rows evaluated.
+    wall_s : float
+        Seconds inside ``evaluate_population``, as the optimiser waits for them.
+    compute_s : float
+        Seconds the evaluator itself ran, summed over every chunk wherever it ran (a worker
+        process or thread, a Dask worker, this thread). ``compute_s / n_jobs`` is the
+        evaluation a perfect split would take; ``wall_s`` minus that is dispatch, gather and
+        load imbalance.
+    """
+
+    def __init__(self):
+        self.calls = 0
+        self.candidates = 0
+        self.wall_s = 0.0
+        self.compute_s = 0.0
+
+    def add(self, candidates: int, wall_s: float, compute_s: float) -> None:
+        self.calls += 1
+        self.candidates += int(candidates)
+        self.wall_s += wall_s
+        self.compute_s += compute_s
 
 
 def worker_pool(n_jobs: int, warm: bool = False):
@@ -155,6 +194,12 @@ def worker_pool(n_jobs: int, warm: bool = False):
 _THREADS: dict = {"pool": None, "size": 0}
 #: chunks per thread in a threaded evaluation (see TuningProblem._evaluate_in_threads)
 _CHUNKS_PER_THREAD = 2
+#: what one chunk costs beyond its work: a loky round trip (pickle, pipe, wake-up) and a thread hand-over,
+#: measured on the project's 2-core machine (python -m mosd.bench --only scale, dispatch and gather)
+PROCESS_CHUNK_OVERHEAD_S = 1e-3
+THREAD_CHUNK_OVERHEAD_S = 5e-5
+#: a chunk carries at least this many times its overhead in work (else the population is split fewer ways)
+CHUNK_WORK_FACTOR = 10.0
 
 
 def _thread_pool(n_threads: int):
@@ -226,9 +271,13 @@ class TuningProblem(Problem):
         #: True for the integer parameters (rounded before every evaluation)
         self.is_integer = np.array([tunable[name].integer for name in self.names], bool)
         super().__init__(n_var=len(self.names), n_obj=len(evaluator.objectives), xl=np.array(xl), xu=np.array(xu),
-                         exclude_from_serialization=["evaluator", "_payload", "_dask", "in_threads"])
+                         exclude_from_serialization=["evaluator", "_payload", "_dask", "in_threads", "clock"])
         self._payload: str | None = None
         self._dask = None  # the DaskEvaluation of backend="dask", started on first use
+        #: where the evaluation time went (:class:`EvaluationClock`), summed over this problem's populations
+        self.clock = EvaluationClock()
+        # measured seconds per candidate (the last population's): sizes the process chunks
+        self._per_candidate_s: float | None = None
 
     @property
     def objectives(self) -> tuple[str, ...]:
@@ -258,57 +307,96 @@ class TuningProblem(Problem):
         out["F"] = self.evaluate_population(self.round(X))
 
     def evaluate_population(self, X: np.ndarray) -> np.ndarray:
-        """Objectives for every row of X; with ``n_jobs > 1`` split into n_jobs chunks.
+        """Objectives for every row of X; with ``n_jobs > 1`` split into chunks sized to the work.
 
         The main process evaluates the first chunk itself while ``n_jobs − 1``
         pool workers evaluate the others (it would otherwise sit idle waiting),
-        so n_jobs processes compute and only n_jobs − 1 chunks cross a pipe.
-        Each candidate's objectives do not depend on the chunk it lands in, so
-        the result is bit-identical for every n_jobs.
+        so n_jobs processes compute and only the other chunks cross a pipe.
+        A population whose measured cost (the previous population's seconds per
+        candidate) is too small to pay for a pipe round trip per chunk is split
+        into fewer chunks, down to none (:meth:`n_chunks`). Each candidate's
+        objectives do not depend on the chunk it lands in, so the result is
+        bit-identical for every n_jobs and every split. Every call adds its
+        times to :attr:`clock`.
         """
         X = np.atleast_2d(X)
+        t0 = time.perf_counter()
         if self.backend == "dask":
             if self._dask is None:
                 from .backends import DaskEvaluation
 
                 self._dask = DaskEvaluation(self.evaluator, self.n_jobs, self.dask_address)
-            return self._dask.evaluate(X)
-        if self.n_jobs == 1 or X.shape[0] < 2:
-            return self.evaluator(X)
-        if self.in_threads:
-            return self._evaluate_in_threads(X)
-        chunks = np.array_split(X, min(self.n_jobs, X.shape[0]))
+            F, compute = self._dask.evaluate_timed(X)
+        elif self.n_jobs == 1 or X.shape[0] < 2:
+            F, compute = timed_call(self.evaluator, X)
+        elif self.in_threads:
+            F, compute = self._evaluate_in_threads(X)
+        else:
+            F, compute = self._evaluate_in_processes(X)
+        self.clock.add(X.shape[0], time.perf_counter() - t0, compute)
+        if X.shape[0]:
+            self._per_candidate_s = compute / X.shape[0]
+        return F
+
+    def n_chunks(self, n_candidates: int, per_chunk_overhead_s: float, most: int) -> int:
+        """Chunks for ``n_candidates``: at most ``most``, each worth at least ``CHUNK_WORK_FACTOR`` overheads.
+
+        The cost per candidate is the previous population's (measured: candidates of
+        one problem cost about the same from one generation to the next); the first
+        population, with nothing measured, is split ``most`` ways.
+        """
+        most = max(1, min(most, n_candidates))
+        if self._per_candidate_s is None:
+            return most
+        worth = n_candidates * self._per_candidate_s / (CHUNK_WORK_FACTOR * per_chunk_overhead_s)
+        return int(max(1, min(most, worth)))
+
+    def _evaluate_in_processes(self, X: np.ndarray) -> tuple[np.ndarray, float]:
+        """The first chunk in this process, the others on the loky pool's workers (their evaluator resident)."""
+        chunks = np.array_split(X, self.n_chunks(X.shape[0], PROCESS_CHUNK_OVERHEAD_S, self.n_jobs))
+        if len(chunks) == 1:
+            return timed_call(self.evaluator, X)
         if self._payload is None:
             fd, self._payload = tempfile.mkstemp(prefix="mosd-evaluator-", suffix=".pkl")
             with os.fdopen(fd, "wb") as fh:
                 pickle.dump(self.evaluator, fh, protocol=pickle.HIGHEST_PROTOCOL)
         executor = worker_pool(self.n_jobs)
         futures = [executor.submit(_evaluate_chunk, self._payload, chunk) for chunk in chunks[1:]]
-        first = self.evaluator(chunks[0])
-        return np.concatenate([first] + [f.result() for f in futures], axis=0)
+        first, compute = timed_call(self.evaluator, chunks[0])
+        parts = [first]
+        for future in futures:
+            F, seconds = future.result()
+            parts.append(F)
+            compute += seconds
+        return np.concatenate(parts, axis=0), compute
 
-    def _evaluate_in_threads(self, X: np.ndarray) -> np.ndarray:
+    def _evaluate_in_threads(self, X: np.ndarray) -> tuple[np.ndarray, float]:
         """The population in small chunks that this thread and ``n_jobs − 1`` pool threads take in turn.
 
         Candidates do not cost the same (the wavelet's threshold search
         depends on the design), so a few chunks per thread, taken as each
         thread gets free, balance the load better than one chunk each.
         """
-        chunks = np.array_split(X, min(X.shape[0], _CHUNKS_PER_THREAD * self.n_jobs))
+        chunks = np.array_split(X, self.n_chunks(X.shape[0], THREAD_CHUNK_OVERHEAD_S,
+                                                 _CHUNKS_PER_THREAD * self.n_jobs))
+        if len(chunks) == 1:
+            return timed_call(self.evaluator, X)
         results: list = [None] * len(chunks)
+        seconds = [0.0] * len(chunks)
         taken = itertools.count()  # next() on it is atomic: each chunk goes to exactly one thread
 
         def work():
             for index in taken:
                 if index >= len(chunks):
                     return
-                results[index] = self.evaluator(chunks[index])
+                results[index], seconds[index] = timed_call(self.evaluator, chunks[index])
 
-        futures = [_thread_pool(self.n_jobs - 1).submit(work) for _ in range(self.n_jobs - 1)]
+        n_helpers = min(self.n_jobs, len(chunks)) - 1
+        futures = [_thread_pool(self.n_jobs - 1).submit(work) for _ in range(n_helpers)]
         work()
         for future in futures:
             future.result()
-        return np.concatenate(results, axis=0)
+        return np.concatenate(results, axis=0), float(sum(seconds))
 
     def close(self) -> None:
         """Delete the evaluator file the workers load and shut down the Dask client/cluster this problem started.

@@ -20,23 +20,93 @@ upgrade that changes one fails there, by name:
 """
 from __future__ import annotations
 
+import os
 import sys
 
 #: Where loky keeps the process-wide reusable executor.
 _LOKY_MODULE = "joblib.externals.loky.reusable_executor"
-_PINNED: dict = {"done": False}
+_PINNED: dict = {}
 
 
-def pin_threads() -> None:
-    """One BLAS/OpenMP thread per worker: n_jobs workers on n_jobs cores must not each start a core's worth of threads."""
-    if not _PINNED["done"]:
+#: the environment variables that size BLAS/OpenMP/numba pools in processes started from here
+THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "BLIS_NUM_THREADS",
+                    "NUMBA_NUM_THREADS", "MOSD_KERNEL_THREADS")
+
+
+def pin_threads(n_threads: int = 1, numba_pool: bool = False) -> None:
+    """Limit this process's thread pools to ``n_threads``: BLAS/OpenMP, numba and mosd's own kernels.
+
+    An evaluation worker takes the default, one: n_jobs workers on n_jobs cores must not each start
+    a core's worth of threads. A job of a parallel sweep takes its share of the cores
+    (:func:`pin_sweep_job`). Pools already loaded are limited now (``threadpoolctl``,
+    ``numba.set_num_threads``, :func:`mosd.kernels.set_threads`); the environment variables are set
+    too, for the processes this one starts. Results do not depend on the thread count.
+
+    ``numba_pool=True`` also sizes numba's own pool now, which starts its threading layer (an
+    OpenMP runtime: 0.1-0.2 s): a sweep job takes that once, an evaluation worker does not
+    (mosd's kernels do not use numba's parallel loops; a numba imported later reads
+    ``NUMBA_NUM_THREADS``).
+    """
+    n_threads = max(1, int(n_threads))
+    if _PINNED.get("threads") == n_threads:
+        return
+    for name in THREAD_VARIABLES:
+        os.environ[name] = str(n_threads)
+    numba = sys.modules.get("numba")
+    if numba is not None and numba_pool:  # not imported yet: NUMBA_NUM_THREADS above sizes its pool when it is
         try:
-            from threadpoolctl import threadpool_limits
-
-            threadpool_limits(limits=1)
-        except ImportError:  # pragma: no cover - threadpoolctl comes with joblib's dependencies (scikit-learn) or not
+            numba.set_num_threads(min(n_threads, numba.config.NUMBA_NUM_THREADS))
+        except (ValueError, RuntimeError):  # a threading layer that cannot start: nothing runs in parallel anyway
             pass
-        _PINNED["done"] = True
+    # after numba: its threading layer (an OpenMP runtime) loads when its threads are first set
+    try:
+        from threadpoolctl import threadpool_limits
+
+        threadpool_limits(limits=n_threads)
+    except ImportError:  # pragma: no cover - threadpoolctl comes with joblib's dependencies (scikit-learn) or not
+        pass
+    from .. import kernels
+
+    kernels.set_threads(n_threads)
+    _PINNED["threads"] = n_threads
+
+
+def pinned_threads() -> int | None:
+    """The thread count :func:`pin_threads` set in this process, or None if it was not called."""
+    return _PINNED.get("threads")
+
+
+def sweep_share(launcher_n_jobs: int | None, cpus: int | None = None) -> int:
+    """The cores of one job of a sweep whose launcher runs ``launcher_n_jobs`` jobs at once (joblib's convention).
+
+    ``None`` or 0 means one job at a time; negative counts are joblib's ``cpus + 1 + n_jobs``
+    (-1: one job per CPU).
+    """
+    cpus = cpus or available_cpus()
+    parallel = int(launcher_n_jobs or 1)
+    if parallel < 0:
+        parallel = max(1, cpus + 1 + parallel)
+    return max(1, cpus // parallel)
+
+
+def available_cpus() -> int:
+    """The CPUs this process may run on."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # pragma: no cover - not on Linux
+        return os.cpu_count() or 1
+
+
+def pin_sweep_job(launcher_n_jobs: int | None) -> int:
+    """Pin this sweep job's thread pools to its share of the cores (:func:`sweep_share`); return the share.
+
+    Without it, each of k jobs running at once starts a core's worth of BLAS, OpenMP and numba
+    threads: k × cores threads on the cores, and each job runs several times slower beside the
+    others than alone (issue 32's measurement: 2.8×).
+    """
+    share = sweep_share(launcher_n_jobs)
+    pin_threads(share, numba_pool=True)
+    return share
 
 
 def ignore_interrupt() -> None:

@@ -1,0 +1,206 @@
+"""The ``scale`` section of ``python -m mosd.bench``: where a tuning's time goes as workers are added.
+
+One generation-heavy tuning per kind of evaluation path, each built as the command builds it
+(Hydra composes the configuration here, in the layer that may load it):
+
+* ``threads`` — the main command's chart (``+fault=offset_var optimizer=mopso``): the compiled
+  fused evaluation, extra workers are threads of the run's process;
+* ``paper001``, ``paper002`` — the presets' evaluators (IMM mode probabilities, the entropy
+  filter's threshold detector): extra workers are loky processes;
+* ``tep`` — the Tennessee Eastman PCA preset on recorded data (``pip install ".[te]"``; without
+  the files the row says so).
+
+Each runs the optimiser of its set-up for a fixed number of generations at n_jobs = 1, 2, 4, …
+up to the machine's CPUs, then on a local Dask cluster of the largest n. Per generation it
+reports the wall time, the optimiser's own serial time (everything outside the evaluation:
+archive, operators, selection; pymoo's bookkeeping), dispatch and gather (the evaluation's wall
+time less a perfect split of its compute time: pipes, pickling, waiting on the slowest chunk) and
+the evaluation itself (the compute time over n). ``serial share`` is the optimiser's part of one
+n_jobs=1 generation: Amdahl's serial fraction, the bound 1/share on any speed-up. Every n must
+give the archive of n_jobs=1 bit for bit (``identical``).
+
+Then a sweep of 2 × CPUs jobs of the main command, one after the other and with the joblib
+launcher running CPUs jobs at once (each job's thread pools pinned to its share of the cores).
+"""
+from __future__ import annotations
+
+import copy
+import os
+import subprocess
+import sys
+import tempfile
+import time
+
+import numpy as np
+
+#: workload name -> (how the command builds it, what kind of evaluation path it exercises)
+WORKLOADS = {
+    "threads": ((), "+fault=offset_var optimizer=mopso: fused chart, threads"),
+    "paper001": (("paper001",), "+experiment=paper001: IMM mode probabilities, processes"),
+    "paper002": (("paper002",), "+experiment=paper002: entropy filter, processes"),
+    "tep": (("tep",), "+experiment=tep: recorded TE data, PCA, processes"),
+}
+#: generations timed per workload (the swarm is the set-up's own)
+N_GEN, N_GEN_QUICK = 20, 5
+
+
+def job_counts(cpus: int) -> list[int]:
+    """1, 2, 4, … below ``cpus``, then ``cpus`` itself."""
+    counts, n = [], 1
+    while n < cpus:
+        counts.append(n)
+        n *= 2
+    return counts + [max(1, cpus)]
+
+
+def load_average() -> float:
+    return os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+
+
+def build_setup(preset: tuple[str, ...]):
+    """The built set-up of ``python -m mosd +fault=offset_var optimizer=mopso`` or of ``+experiment=NAME``."""
+    from .presets import preset_setup
+
+    if preset:
+        return preset_setup(preset[0])
+    from hydra import compose, initialize_config_dir
+
+    from .build import build
+    from .config import CONFIG_DIR, CONFIG_NAME
+
+    with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3", job_name="mosd"):
+        cfg = compose(CONFIG_NAME, overrides=["+fault=offset_var", "optimizer=mopso", "tracking=none"])
+    return build(cfg)
+
+
+def time_tuning(setup, evaluator, n_jobs: int, n_gen: int, backend: str = "loky") -> dict:
+    """One tuning of ``n_gen`` generations on ``n_jobs`` workers; its wall time split as the module says."""
+    from pymoo.optimize import minimize
+
+    from ..optim.problem import EvaluationClock, TuningProblem
+
+    problem = TuningProblem(evaluator, bounds=setup.bounds, n_jobs=n_jobs, backend=backend)
+    try:
+        rng = np.random.default_rng(0)
+        warm = rng.uniform(problem.xl, problem.xu, size=(max(2, 2 * n_jobs), problem.n_var))
+        t0 = time.perf_counter()
+        problem.evaluate_population(problem.round(warm))  # pools, clusters and compiled kernels start here
+        start_s = time.perf_counter() - t0
+        problem.clock = EvaluationClock()
+        algorithm = copy.deepcopy(setup.algorithm)
+        t0 = time.perf_counter()
+        result = minimize(problem, algorithm, ("n_gen", n_gen), seed=setup.experiment.seed)
+        wall = time.perf_counter() - t0
+    finally:
+        problem.close()
+    clock = problem.clock
+    generations = max(1, clock.calls)
+    evaluation = clock.compute_s / n_jobs
+    return {"n_jobs": n_jobs, "backend": backend, "generations": generations, "wall_s": wall, "start_s": start_s,
+            "wall_per_gen_s": wall / generations, "serial_per_gen_s": (wall - clock.wall_s) / generations,
+            "dispatch_per_gen_s": max(0.0, clock.wall_s - evaluation) / generations,
+            "evaluation_per_gen_s": evaluation / generations, "candidates": clock.candidates,
+            "X": np.atleast_2d(result.X), "F": np.atleast_2d(result.F)}
+
+
+def bench_workload(name: str, quick: bool = False, cpus: int | None = None) -> tuple[list, dict]:
+    """Rows and JSON figures of one workload at every n_jobs and on Dask at the largest."""
+    import importlib.util
+
+    preset, what = WORKLOADS[name]
+    if name == "tep":
+        from ..data.tep import bibmon_directory
+
+        if bibmon_directory() is None:
+            return [(f"{name}: skipped, the TE files need pip install \".[te]\"", float("nan"), what)], {}
+    cpus = cpus or os.cpu_count() or 1
+    n_gen = N_GEN_QUICK if quick else N_GEN
+    load_before = load_average()
+    setup = build_setup(preset)
+    t0 = time.perf_counter()
+    data = setup.experiment.prepare()
+    prepare_s = time.perf_counter() - t0
+    evaluator = setup.experiment.evaluator(data)
+    runs = [time_tuning(setup, evaluator, n, n_gen) for n in job_counts(cpus)]
+    if importlib.util.find_spec("distributed") is not None:
+        runs.append(time_tuning(setup, evaluator, runs[-1]["n_jobs"], n_gen, backend="dask"))
+    one = runs[0]
+    pop = getattr(setup.algorithm, "pop_size", "?")
+    rows = [(f"{name}: prepare (simulate/estimate the training runs), s", prepare_s,
+             f"{what}; {pop} x {n_gen} generations timed")]
+    figures: dict = {}
+    serial_share = one["serial_per_gen_s"] / one["wall_per_gen_s"]
+    for run in runs:
+        speedup = one["wall_s"] / run["wall_s"]
+        identical = bool(np.array_equal(run["X"], one["X"]) and np.array_equal(run["F"], one["F"]))
+        label = f"{name}: n_jobs={run['n_jobs']}" + (" dask" if run["backend"] == "dask" else "")
+        share = run["serial_per_gen_s"] / run["wall_per_gen_s"]
+        note = (f"wall/gen {1e3 * run['wall_per_gen_s']:.2f} ms = serial {1e3 * run['serial_per_gen_s']:.2f} "
+                f"+ dispatch/gather {1e3 * run['dispatch_per_gen_s']:.2f} + evaluation "
+                f"{1e3 * run['evaluation_per_gen_s']:.2f} ms; serial share {share:.1%}; efficiency "
+                f"{speedup / run['n_jobs']:.0%}; identical {int(identical)}; start {run['start_s']:.2f} s")
+        rows.append((f"{label} speed-up vs n_jobs=1", speedup, note))
+        if run["backend"] == "dask":
+            loky = next(r for r in runs if r["n_jobs"] == run["n_jobs"] and r["backend"] == "loky")
+            figures[f"scale_dask_vs_loky_{name}"] = loky["wall_s"] / run["wall_s"]
+            figures[f"scale_dask_speedup_{name}_{run['n_jobs']}"] = speedup
+            figures[f"scale_dask_start_s_{name}"] = run["start_s"]
+        else:
+            figures[f"scale_speedup_{name}_{run['n_jobs']}"] = speedup
+        figures[f"scale_identical_{name}"] = int(identical and figures.get(f"scale_identical_{name}", 1))
+    figures[f"scale_serial_share_{name}"] = serial_share
+    figures[f"scale_wall_per_gen_ms_{name}_1"] = 1e3 * one["wall_per_gen_s"]
+    rows.append((f"{name}: serial share of an n_jobs=1 generation", serial_share,
+                 f"Amdahl's bound on the speed-up 1/share = {1 / max(serial_share, 1e-12):.0f}; load average "
+                 f"{load_before:.2f} -> {load_average():.2f}"))
+    return rows, figures
+
+
+def sweep_wall(n_jobs: int, launcher_jobs: int | None, quick: bool = False) -> float:
+    """Wall seconds of a sweep of ``n_jobs`` main-command jobs; ``launcher_jobs`` None: one after the other."""
+    seeds = ",".join(str(s) for s in range(1, max(1, n_jobs // 2) + 1))
+    args = ["-m", "+fault=offset,variance", f"seed={seeds}", "optimizer=mopso", "tracking=none", "progress=false"]
+    if quick:
+        args += ["optimizer.n_gen=10", "budget.n_test=10"]
+    if launcher_jobs is not None:
+        args += ["hydra/launcher=joblib", f"hydra.launcher.n_jobs={launcher_jobs}"]
+    with tempfile.TemporaryDirectory(prefix="mosd-scale-") as outputs:
+        env = dict(os.environ, MOSD_OUTPUTS=outputs)
+        t0 = time.perf_counter()
+        done = subprocess.run([sys.executable, "-m", "mosd", *args], env=env, capture_output=True, text=True)
+        wall = time.perf_counter() - t0
+    if done.returncode != 0:
+        raise RuntimeError(f"python -m mosd {' '.join(args)} failed: {done.stderr.strip()[-500:]}")
+    return wall
+
+
+def bench_sweep(quick: bool = False, cpus: int | None = None) -> tuple[list, dict]:
+    cpus = cpus or os.cpu_count() or 1
+    n_jobs = 2 * cpus
+    load_before = load_average()
+    one_by_one = sweep_wall(n_jobs, None, quick)
+    parallel = sweep_wall(n_jobs, cpus, quick)
+    note = f"load average {load_before:.2f} -> {load_average():.2f}"
+    rows = [(f"sweep of {n_jobs} main-command jobs one after the other, s", one_by_one,
+             "+fault=offset,variance seed=1.." + str(max(1, n_jobs // 2))),
+            (f"the same sweep, hydra/launcher=joblib hydra.launcher.n_jobs={cpus}, s", parallel,
+             "each job pinned to its share of the cores"),
+            ("sweep speed-up joblib launcher vs one after the other", one_by_one / parallel, note)]
+    return rows, {"scale_sweep_speedup": one_by_one / parallel, "scale_sweep_serial_s": one_by_one,
+                  "scale_sweep_parallel_s": parallel}
+
+
+def bench_scale(quick: bool = False) -> tuple[list, dict]:
+    """Every workload of :data:`WORKLOADS`, then the sweep; the load average beside them."""
+    rows: list = [("load average (1 min) at the start", load_average(), f"{os.cpu_count()} CPUs")]
+    figures: dict = {}
+    for name in WORKLOADS:
+        more, found = bench_workload(name, quick)
+        rows += more
+        figures.update(found)
+    more, found = bench_sweep(quick)
+    rows += more
+    figures.update(found)
+    figures["scale_load_average_1min"] = load_average()
+    rows.append(("load average (1 min) at the end", figures["scale_load_average_1min"], ""))
+    return rows, figures
