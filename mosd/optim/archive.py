@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 from pymoo.core.population import Population
+from pymoo.operators.survival.rank_and_crowding.metrics import calc_crowding_distance
 
 from ..validation import check_choice, check_int
 
@@ -23,6 +24,9 @@ LEADER_RULES = ("roulette", "tournament")
 REMOVAL_RULES = ("crowding", "random")
 #: What the archive holds while nothing feasible has been found, see :meth:`GridArchive.update`.
 INFEASIBLE_RULES = ("diverse", "least")
+#: How the archive of a constrained problem keeps its feasible front spread, see :meth:`GridArchive.select_leaders`
+#: and :meth:`GridArchive._truncate`.
+CONSTRAINED_RULES = ("crowding", "grid")
 #: ``infeasible="diverse"``: the least-infeasible set holds this share of the capacity. Measured on MW1
 #: (docs/MOPSO.md): the whole capacity kept too little selection pressure on the violation (seeds 1–3 at
 #: 3,000 evaluations: a first feasible point at generation 30, 30 and never), half reached one on all ten
@@ -195,20 +199,27 @@ class GridArchive:
         constraint violation first, then crowding, as NSGA-II's constrained domination ranks its population; "least"
         (Coello 2004), the constrained dominance alone, which keeps only the least infeasible
         point.
+    constrained : {"grid", "crowding"}
+        How a feasible archive is kept spread. "grid" (Coello 2004): leaders from sparse
+        cells, eq. 37 per cell. "crowding" (what :class:`~mosd.optim.mopso.MOPSO` passes for a
+        constrained problem, issue 33): leaders and parents by NSGA-II's crowding-distance
+        binary tournament, truncation of the most crowded members over the whole archive.
     """
 
     def __init__(self, capacity: int = 100, n_divisions: int = 50, removal: str = "crowding",
-                 keep_extremes: bool = True, infeasible: str = "least"):
+                 keep_extremes: bool = True, infeasible: str = "least", constrained: str = "grid"):
         self.capacity = check_int("optimizer.archive_size", capacity, 1)
         self.n_divisions = check_int("optimizer.n_divisions", n_divisions, 1)
         self.removal = check_choice("optimizer.removal", removal, REMOVAL_RULES)
         self.keep_extremes = check_choice("optimizer.keep_extremes", keep_extremes, (True, False))
         self.infeasible = check_choice("optimizer.infeasible", infeasible, INFEASIBLE_RULES)
+        self.constrained = check_choice("optimizer.constrained", constrained, CONSTRAINED_RULES)
         self.members = Population.empty()
         self._X, self._F, self._CV = np.empty((0, 0)), np.empty((0, 0)), np.empty(0)
         self.lower: np.ndarray | None = None
         self.upper: np.ndarray | None = None
         self._cells: tuple[np.ndarray, np.ndarray] | None = None
+        self._crowding: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.members)
@@ -362,6 +373,10 @@ class GridArchive:
             a = random_state.integers(size, size=n)
             b = (a + 1 + random_state.integers(size - 1, size=n)) % size
             return np.where(self._CV[a] <= self._CV[b], a, b)
+        if self.constrained == "crowding" and len(self._CV) > 2 and self.feasible:
+            crowding = self.crowding_distances()
+            a, b = random_state.integers(len(crowding), size=(2, n))
+            return np.where(crowding[a] >= crowding[b], a, b)
         labels, occupancy = self.cells()
         if rule == "tournament":
             a, b = random_state.integers(len(labels), size=(2, n))
@@ -375,10 +390,16 @@ class GridArchive:
         offset = np.floor(random_state.random(n) * occupancy[chosen]).astype(int)
         return by_cell[first[chosen] + offset]
 
+    def crowding_distances(self) -> np.ndarray:
+        """NSGA-II's crowding distance of each member (pymoo's ``calc_crowding_distance``; the extremes: inf)."""
+        if self._crowding is None:
+            self._crowding = calc_crowding_distance(self._F)
+        return self._crowding
+
     def _set_members(self, members: Population, X: np.ndarray, F: np.ndarray, CV: np.ndarray) -> None:
         # X, F and CV are kept as arrays too: Population.get walks every individual
         self.members, self._X, self._F, self._CV = members, X, F, CV
-        self._cells = None
+        self._cells = self._crowding = None
 
     def _outside_grid(self) -> bool:
         return bool(np.any(self._F < self.lower) or np.any(self._F > self.upper))
@@ -401,7 +422,11 @@ class GridArchive:
         typically all cells hold one member) are told apart by distances rather than by
         their index. ``keep_extremes`` protects the per-objective minima either way.
         """
-        labels, occupancy = self.cells()
+        if self.constrained == "crowding" and self.removal == "crowding":
+            # one cell: the most crowded members go wherever they are on the front
+            labels, occupancy = np.zeros(len(self._F), dtype=int), np.array([len(self._F)])
+        else:
+            labels, occupancy = self.cells()
         protected = np.zeros(len(labels), dtype=bool)
         if self.keep_extremes:
             protected[np.argmin(self._F, axis=0)] = True

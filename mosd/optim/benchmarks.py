@@ -240,10 +240,13 @@ NSGA3_NAME = "NSGA-III (pymoo)"
 SMPSO_NAME = "SMPSO (jMetalPy)"
 MOPSO_CD_NAME = "MOPSO_CD (pymoo)"
 EXPLORATION_NAME = "MOPSO (exploration only)"
+BEFORE_ISSUE33_NAME = "MOPSO (before issue 33)"
 #: ``MOPSO()`` before issue 21 (the no-loss reference), and after its first change (SMPSO's
 #: exploring move, no archive offspring), as constructor arguments.
 ISSUE14_DEFAULT = dict(exploration=None, recombination=None, mutation_eta=20.0)
 EXPLORATION_DEFAULT = dict(recombination=None, mutation_eta=20.0)
+#: ``MOPSO()`` before issue 33 (Coello's infeasible rule, the grid rules on constrained fronts).
+BEFORE_ISSUE33 = dict(infeasible="least", constrained="grid", constrained_fine_mutation=None)
 #: The peers of issue 21 (the "best peer" of a problem is the best of these that ran on it).
 PEERS = (NSGA2_NAME, NSGA3_NAME, SMPSO_NAME)
 
@@ -350,6 +353,7 @@ ALGORITHMS: dict[str, Callable[[], object]] = {
 OPTIONAL: dict[str, Callable[[], object]] = {
     EXPLORATION_NAME: lambda: MOPSO(**EXPLORATION_DEFAULT),
     PAPER_NAME: lambda: MOPSO(**PAPER_PRESET),
+    BEFORE_ISSUE33_NAME: lambda: MOPSO(**BEFORE_ISSUE33),
     MOPSO_CD_NAME: lambda: MOPSO_CD(pop_size=100, archive_size=100),
 }
 
@@ -362,6 +366,10 @@ ABLATIONS: dict[str, Callable[[], object]] = {
     "default, exploration=None": lambda: MOPSO(exploration=None),
     "default, leader=tournament": lambda: MOPSO(leader="tournament"),
     "default, infeasible=least": lambda: MOPSO(infeasible="least"),
+    "default, constrained=grid": lambda: MOPSO(constrained="grid"),
+    "default, constrained_fine_mutation=None": lambda: MOPSO(constrained_fine_mutation=None),
+    "default, constrained=grid, constrained_fine_mutation=None":
+        lambda: MOPSO(constrained="grid", constrained_fine_mutation=None),
 }
 
 
@@ -670,11 +678,11 @@ def main(argv=None) -> int:
                         help="also print the optimisers' own CPU per evaluation (µs, beyond the problem's)")
     parser.add_argument("--profile", default=None, choices=KNOWN_PROBLEMS, metavar="PROBLEM",
                         help="instead: the per-generation archive profile of one run (seed 1) of each algorithm "
-                             "(default: the default and the previous infeasible rule)")
+                             "(default: the default and the default before issue 33)")
     args = parser.parse_args(argv)
     if args.profile is not None:
         try:
-            for name in args.algorithms or (DEFAULT_NAME, "default, infeasible=least"):
+            for name in args.algorithms or (DEFAULT_NAME, BEFORE_ISSUE33_NAME):
                 print(f"{name}, {args.profile.upper()}, seed 1:\n")
                 print(format_profile(generation_profile(args.profile, name, 1, args.n_eval)) + "\n")
         except ConfigError as exc:

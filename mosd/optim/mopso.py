@@ -32,7 +32,12 @@ One class, two presets:
   collapsed onto one point (ZDT2) (issue 21).
   While nothing feasible has been found, the archive holds a bounded set of the least
   infeasible points instead of the single least infeasible one (``infeasible="diverse"``,
-  issue 33): leaders and parents stay diverse from an infeasible start (MW1).
+  issue 33): leaders and parents stay diverse from an infeasible start (MW1). Once a
+  constrained problem's archive is feasible, leaders and parents are drawn by crowding distance,
+  truncation removes the most crowded members over the whole archive, and half of the offspring
+  take NSGA-II's fine mutation steps (``constrained``, ``constrained_fine_mutation``): that spread
+  and converged the constrained fronts (CTP2, MW2, MW3, MW7, issue 33). Unconstrained runs are
+  unaffected.
 * ``MOPSO(**PAPER_PRESET)`` (``MOPSO.paper()``, ``optimizer=mopso_paper``) — the paper's
   pure swarm, paper 000's Table 2 literally (every evaluation a particle move): constriction
   w = 0.7298, c1 = c2 = 1.4962, velocities reflected at the bounds, roulette-wheel leaders,
@@ -81,8 +86,8 @@ from pymoo.termination.max_gen import MaximumGenerationTermination
 from pymoo.util.display.multi import MultiObjectiveOutput
 
 from ..validation import ConfigError, Interval, check_choice, check_in, check_int
-from .archive import (INFEASIBLE_RULES, LEADER_RULES, REMOVAL_RULES, GridArchive, evaluated_arrays,
-                      pairwise_dominates)
+from .archive import (CONSTRAINED_RULES, INFEASIBLE_RULES, LEADER_RULES, REMOVAL_RULES, GridArchive,
+                      evaluated_arrays, pairwise_dominates)
 
 #: φ = φ1 + φ2 of Clerc & Kennedy's constriction factor; paper 000 (below eq. 39) uses 4.1.
 CONSTRICTION_PHI = 4.1
@@ -110,6 +115,9 @@ SMPSO_MAX_VELOCITY = 0.5
 #: defaults, which are its NSGA-II's (probability 0.9 per pair, η = 15, each variable with probability 0.5).
 CROSSOVER_PROBABILITY = 0.9
 CROSSOVER_ETA = 15.0
+#: The polynomial mutation's distribution index of NSGA-II (pymoo's default): the fine steps a share
+#: ``constrained_fine_mutation`` of the archive offspring takes on a constrained problem's feasible front.
+FINE_MUTATION_ETA = 20.0
 #: Exponent of Coello's mutation decay law (1 - t / (T p_m))^1.5 (see :meth:`MOPSO._coello_mutation`).
 MUTATION_DECAY_EXPONENT = 1.5
 
@@ -117,7 +125,8 @@ MUTATION_DECAY_EXPONENT = 1.5
 PAPER_PRESET = dict(archive_size=100, n_divisions=30, velocity="constriction", w=None, c1=None,
                     c2=None, max_velocity=None, boundary="reflect", leader="roulette",
                     personal_best="coin", removal="random", keep_extremes=False, mutation="coello",
-                    mutation_rate=0.5, exploration=None, recombination=None, infeasible="least")
+                    mutation_rate=0.5, exploration=None, recombination=None, infeasible="least",
+                    constrained="grid", constrained_fine_mutation=None)
 
 
 def constriction_coefficients(phi: float = CONSTRICTION_PHI) -> tuple[float, float, float]:
@@ -400,7 +409,7 @@ class MOPSO(Algorithm):
         preset).
     infeasible : {"diverse", "least"}
         What the archive holds while no feasible point has been found
-        (:class:`~mosd.optim.archive.GridArchive`). "diverse" (default): the ``archive_size``
+        (:class:`~mosd.optim.archive.GridArchive`). "diverse" (default): the ⌈``archive_size`` / 2⌉
         least infeasible distinct points (constraint violation first, then crowding, as
         NSGA-II's constrained domination ranks its population), leaders and parents drawn from
         them by binary tournament on the violation; from the first feasible point on, the
@@ -408,6 +417,19 @@ class MOPSO(Algorithm):
         preset): the constrained dominance alone, which keeps only the least infeasible point,
         so that one point is every leader and both parents of every offspring until a feasible
         point is found (MW1: 60–100 generations, issue 33, docs/MOPSO.md).
+    constrained : {"crowding", "grid"}
+        How the feasible archive of a problem with constraints is kept spread. "crowding"
+        (default): leaders and parents by NSGA-II's crowding-distance binary tournament and
+        truncation of the most crowded members over the whole archive rather than cell by cell
+        (:class:`~mosd.optim.archive.GridArchive`); "grid" (paper preset): cells, eq. 37 and the
+        ``leader`` rule, as on an unconstrained problem. On CTP2, CTP3, MW2, MW3 and MW7 the grid
+        rules left the front's IGD 1.1–1.5 × NSGA-II's (issue 33, docs/MOPSO.md). An
+        unconstrained problem always uses the grid rules.
+    constrained_fine_mutation : float in [0, 1] or None
+        On a problem with constraints whose archive is feasible, this share of the archive
+        offspring is mutated with NSGA-II's η = 20 (:data:`FINE_MUTATION_ETA`) instead of
+        ``mutation_eta``: the optimum lies on a constraint boundary, where the long-tailed steps
+        mostly leave the feasible region (issue 33, docs/MOPSO.md). Default 0.5; None or 0: none.
     horizon : int or None
         Run length in generations (the initial swarm included) that scheduled
         coefficients and Coello's mutation refer to. None: taken from the termination if
@@ -437,7 +459,8 @@ class MOPSO(Algorithm):
                  removal: str = "crowding", keep_extremes: bool = True,
                  mutation: str | None = "polynomial", mutation_rate: float | None = 0.15,
                  mutation_eta: float = 3.0, exploration: float | None = 0.5,
-                 recombination: float | None = 0.7, infeasible: str = "diverse", horizon: int | None = None,
+                 recombination: float | None = 0.7, infeasible: str = "diverse", constrained: str = "crowding",
+                 constrained_fine_mutation: float | None = 0.5, horizon: int | None = None,
                  sampling: Sampling | None = None, output=None, **kwargs):
         super().__init__(output=MultiObjectiveOutput() if output is None else output, **kwargs)
         self.pop_size = check_int("optimizer.pop_size", pop_size, 1)
@@ -468,6 +491,10 @@ class MOPSO(Algorithm):
                               check_in("optimizer.recombination", recombination,
                                        Interval(0.0, 1.0, open_low=True, open_high=True)))
         self.infeasible = check_choice("optimizer.infeasible", infeasible, INFEASIBLE_RULES)
+        self.constrained = check_choice("optimizer.constrained", constrained, CONSTRAINED_RULES)
+        self.constrained_fine_mutation = (None if constrained_fine_mutation is None else
+                                          check_in("optimizer.constrained_fine_mutation", constrained_fine_mutation,
+                                                   Interval(0.0, 1.0)))
         self.horizon = None if horizon is None else check_int("optimizer.horizon", horizon, 1)
         if sampling is not None and not isinstance(sampling, Sampling):
             raise ConfigError(f"optimizer.sampling={sampling!r} is not allowed; allowed: a pymoo Sampling")
@@ -481,6 +508,7 @@ class MOPSO(Algorithm):
         self.pbest_F: np.ndarray | None = None
         self.pbest_CV: np.ndarray | None = None
         self.is_integer: np.ndarray | None = None
+        self.constrained_problem = False
         self.planned_generations: int | None = None
 
     @classmethod
@@ -495,8 +523,12 @@ class MOPSO(Algorithm):
                                             and np.all(np.isfinite(problem.xu))):
             raise ConfigError("optimizer: the problem needs finite bounds xl, xu; allowed: finite bounds")
         self.is_integer = _integer_mask(problem)
+        # issue 33: the crowding rules and the fine mutation act on constrained problems only, so that an
+        # unconstrained run (the presets' tuning problems, issue 21's table) is the same bit for bit
+        self.constrained_problem = bool(problem.has_constraints())
         self.leader_archive = GridArchive(self.archive_size, self.n_divisions, self.removal,
-                                          self.keep_extremes, self.infeasible)
+                                          self.keep_extremes, self.infeasible,
+                                          self.constrained if self.constrained_problem else "grid")
         self.particle_position = self.particle_velocity = None
         self.pbest_X = self.pbest_F = self.pbest_CV = None
         self.planned_generations = self._planned_generations()
@@ -618,7 +650,11 @@ class MOPSO(Algorithm):
         pairs = archive.select_leaders(2 * n, rng, self.leader).reshape(n, 2)
         children = sbx_children(archive.X[pairs[:, 0]], archive.X[pairs[:, 1]], problem.xl, problem.xu, rng,
                                 CROSSOVER_PROBABILITY, CROSSOVER_ETA)
-        return polynomial_mutation(children, problem.xl, problem.xu, self.mutation_eta, 1.0, rng)
+        if not (self.constrained_fine_mutation and self.constrained_problem and archive.feasible):
+            return polynomial_mutation(children, problem.xl, problem.xu, self.mutation_eta, 1.0, rng)
+        fine = int(round(self.constrained_fine_mutation * n))
+        return np.vstack([polynomial_mutation(children[:fine], problem.xl, problem.xu, FINE_MUTATION_ETA, 1.0, rng),
+                          polynomial_mutation(children[fine:], problem.xl, problem.xu, self.mutation_eta, 1.0, rng)])
 
     def _exploring_share(self) -> float:
         """Share of the swarm that makes SMPSO's move (:func:`smpso_velocity`) this move.

@@ -1,0 +1,108 @@
+"""Issue 33, item 2: the feasible front of a constrained problem kept spread (crowding rules, fine mutation)."""
+import warnings
+
+import numpy as np
+import pytest
+from pymoo.core.population import Population
+from pymoo.indicators.igd import IGD
+from pymoo.optimize import minimize
+from pymoo.problems import get_problem
+
+from mosd.optim import MOPSO, GridArchive
+from mosd.optim.benchmarks import BEFORE_ISSUE33, make_problem, normalisation
+from mosd.optim.mopso import PAPER_PRESET
+from mosd.validation import ConfigError
+
+
+def feasible_population(F):
+    F = np.asarray(F, dtype=float)
+    pop = Population.new(X=np.zeros((len(F), 2)), F=F)
+    pop.set("CV", np.zeros((len(F), 1)))
+    return pop
+
+
+def front(f1):
+    f1 = np.asarray(f1, dtype=float)
+    return np.column_stack([f1, 1.0 - np.sqrt(f1)])
+
+
+def test_crowding_truncation_spreads_the_archive_more_evenly_than_the_grid():
+    # 300 points crowded towards one end of a convex front, truncated to 40
+    f1 = np.sort(np.random.default_rng(3).random(300) ** 3)
+    gaps = {}
+    for rule in ("crowding", "grid"):
+        archive = GridArchive(capacity=40, n_divisions=50, constrained=rule)
+        archive.update(feasible_population(front(f1)), np.random.default_rng(0))
+        assert len(archive) == 40 and {0.0 + f1[0], f1[-1]} <= set(archive.F[:, 0])  # the extremes stay
+        F = archive.F[np.argsort(archive.F[:, 0])]
+        gaps[rule] = np.linalg.norm(np.diff(F, axis=0), axis=1)
+    # the grid leaves holes (its largest gap 0.23, where eq. 37 emptied neighbouring cells) and clumps;
+    # crowding over the whole archive neither
+    assert gaps["crowding"].max() < 0.5 * gaps["grid"].max()
+    assert gaps["crowding"].min() > 1.2 * gaps["grid"].min()
+    assert gaps["crowding"].std() < 0.5 * gaps["grid"].std()
+
+
+def test_crowding_leaders_prefer_the_ends_and_sparse_members_of_a_feasible_archive():
+    f1 = np.concatenate([np.linspace(0.0, 1.0, 11), 0.5 + 1e-3 * np.arange(1, 10)])  # a clump after 0.5
+    rng = np.random.default_rng(1)
+    archive = GridArchive(capacity=100, n_divisions=50, constrained="crowding")
+    archive.update(feasible_population(front(f1)), rng)
+    leaders = archive.select_leaders(20_000, rng)
+    share = np.bincount(leaders, minlength=len(archive)) / len(leaders)
+    clump = (archive.F[:, 0] > 0.5) & (archive.F[:, 0] < 0.51)
+    ends = np.isin(archive.F[:, 0], (0.0, 1.0))
+    # NSGA-II's crowding-distance tournament: the ends (infinite distance) win every tournament they enter
+    assert np.all(share[ends] > 1.5 / len(archive)) and share[clump].sum() < 0.5 * clump.mean()
+    grid = GridArchive(capacity=100, n_divisions=50, constrained="grid")
+    grid.update(feasible_population(front(f1)), rng)
+    assert grid.select_leaders(20_000, rng) is not None  # the grid rule still serves the unconstrained case
+
+
+def test_while_infeasible_the_crowding_rule_leaves_the_least_infeasible_tournament_alone():
+    rng = np.random.default_rng(2)
+    pop = Population.new(X=np.zeros((20, 2)), F=rng.random((20, 2)))
+    CV = 1.0 + rng.random(20)
+    pop.set("CV", CV.reshape(-1, 1))
+    archive = GridArchive(capacity=20, n_divisions=10, infeasible="diverse", constrained="crowding")
+    archive.update(pop, rng)
+    leaders = archive.select_leaders(2000, rng)
+    assert np.argmax(archive.CV) not in leaders and np.mean(archive.CV[leaders]) < np.mean(archive.CV)
+
+
+def test_rules_are_validated_and_the_paper_keeps_the_grid():
+    assert (MOPSO().constrained, MOPSO().constrained_fine_mutation) == ("crowding", 0.5)
+    assert (PAPER_PRESET["constrained"], PAPER_PRESET["constrained_fine_mutation"]) == ("grid", None)
+    with pytest.raises(ConfigError, match=r"^optimizer.constrained='cells'.*allowed: crowding, grid"):
+        MOPSO(constrained="cells")
+    with pytest.raises(ConfigError, match=r"^optimizer.constrained_fine_mutation=1.5"):
+        MOPSO(constrained_fine_mutation=1.5)
+
+
+def test_unconstrained_runs_are_the_same_bit_for_bit_and_constrained_ones_change():
+    zdt1 = get_problem("zdt1", n_var=10)
+    new = minimize(zdt1, MOPSO(), ("n_eval", 2000), seed=4).F
+    old = minimize(zdt1, MOPSO(**BEFORE_ISSUE33), ("n_eval", 2000), seed=4).F
+    assert np.array_equal(new, old)
+    ctp2 = get_problem("ctp2")
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", "invalid value encountered in divide", RuntimeWarning)
+        new = minimize(ctp2, MOPSO(), ("n_eval", 2000), seed=4).F
+        old = minimize(ctp2, MOPSO(**BEFORE_ISSUE33), ("n_eval", 2000), seed=4).F
+    assert not np.array_equal(new, old)
+
+
+@pytest.mark.slow
+def test_ctp2s_front_is_closer_to_nsga2s_igd_than_with_the_grid_rules():
+    """CTP2 (seeds 1-3, 10,000 evaluations): median IGD before issue 33's rules ~1.45 x NSGA-II's."""
+    problem, (_, _, true_front) = make_problem("ctp2"), normalisation("ctp2")
+    igd = {}
+    for name, kwargs in (("new", {}), ("grid", dict(constrained="grid", constrained_fine_mutation=None))):
+        values = []
+        for seed in (1, 2, 3):
+            with warnings.catch_warnings():
+                warnings.filterwarnings("ignore", "invalid value encountered in divide", RuntimeWarning)
+                result = minimize(problem, MOPSO(**kwargs), ("n_eval", 10_000), seed=seed)
+            values.append(IGD(true_front)(result.F[result.CV.reshape(-1) <= 0.0]))
+        igd[name] = np.median(values)
+    assert igd["new"] < 0.9 * igd["grid"], igd
