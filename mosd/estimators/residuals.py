@@ -162,9 +162,7 @@ class DedicatedObserverResidual(Estimator):
         if type(self).estimate is not DedicatedObserverResidual.estimate:
             # a subclass that changes the estimate would deploy an arithmetic its run did not use
             return super().online(model)
-        from .cubature import _CubatureFilterBase as base
-
-        if type(self.filter).filter is not base.filter:
+        if type(self.filter).filter is not _CubatureFilterBase.filter:
             raise NoStreamingForm(f"the filter {type(self.filter).__name__} overrides filter(): its stream would not "
                                   f"be the run's arithmetic")
         parts = {"plant": source["plant"], "noise": source["noise"], "filter": describe(self.filter)}

@@ -590,7 +590,8 @@ def family_study(directory: str | None = None, families=tuple(FAMILIES), pop_siz
             detector = detector.with_params(alpha=alpha)
             train = np.asarray(detector.decide(calibration, z).decision, bool)
             out[label] = {**_family_scores(experiment, detector),
-                          "train": {"far": float(train[fault_free].mean()), "mdr": float(1 - train[~fault_free].mean())}}
+                          "train": {"far": float(train[fault_free].mean()),
+                                    "mdr": float(1 - train[~fault_free].mean())}}
     return out
 
 
@@ -631,9 +632,11 @@ def format_families(results: Mapping[str, dict]) -> str:
     rows = [[f"IDV({f})"] + [f"{100 * results[n].get(f'fdr_idv{f}', np.nan):.1f}" for n in names] for f in ALL_FAULTS]
     rows.append(["mean MDR, 18 faults"] + [
         f"{100 * (1 - np.mean([results[n][f'fdr_idv{f}'] for f in DEFAULT_FAULTS])):.1f}" for n in names])
-    rows.append([f"first run of {DELAY_RUN}, median (min)"] + [
-        f"{np.median([results[n][f'delay_run_idv{f}'] for f in DEFAULT_FAULTS if f'delay_run_idv{f}' in results[n]]):.0f}"
-        for n in names])
+    def median_delay(result):
+        found = [result[f"delay_run_idv{f}"] for f in DEFAULT_FAULTS if f"delay_run_idv{f}" in result]
+        return f"{np.median(found):.0f}" if found else "–"
+
+    rows.append([f"first run of {DELAY_RUN}, median (min)"] + [median_delay(results[n]) for n in names])
     rows.append(["p vs chance, IDV(3)/(9)/(15)"] + [
         "/".join(f"{results[n][f'p_chance_idv{f}']:.2g}" if f"p_chance_idv{f}" in results[n] else "–"
                  for f in UNOBSERVABLE) for n in names])
