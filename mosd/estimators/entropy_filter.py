@@ -41,10 +41,9 @@ enters the same recursion (the paper's case 2: "repair, then filter").
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
-
-from dataclasses import dataclass
 
 from ..faults.random_amplitude import RandomAmplitudeFault
 from ..streaming import COUNT, FINITE, OnlineStage, StateVar, build
