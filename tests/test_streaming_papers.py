@@ -137,6 +137,18 @@ def test_paper002_em_design_streams_complete_outputs_and_refuses_a_gap():
         pipeline.update(columns)
 
 
+def test_paper002_em_design_on_gappy_data_has_no_raw_model_and_says_why():
+    """The run deploys from the filter's outputs instead (mosd.app.deploy), never a model that refuses its data."""
+    from mosd.estimators.entropy_filter import FixedGainFilter
+    from mosd.streaming import NoStreamingForm
+
+    plant, noise, model, trace = _paper002(missing_rate=0.1)
+    source = {"plant": describe(plant), "noise": describe(noise)}
+    with pytest.raises(NoStreamingForm, match=r"^the EM fill of missing outputs \(estimator.missing=em\) .*not causal"):
+        FixedGainFilter(missing="em").online(model, source, trace)
+    assert FixedGainFilter(missing="hold").online(model, source, trace).missing == "hold"
+
+
 def test_paper002_stream_past_the_designed_schedule_is_one_line():
     from mosd.estimators.entropy_filter import EntropyIsolationFilter
 

@@ -48,7 +48,7 @@ from typing import Sequence
 
 import numpy as np
 
-from ..streaming import COUNT, FINITE, OnlineStage, StateVar, build, describe
+from ..streaming import COUNT, FINITE, NoStreamingForm, OnlineStage, StateVar, build, describe
 from ..types import Residuals, Trace
 from ..validation import ConfigError, Interval, Param, check_in, check_names
 from .base import Estimator
@@ -239,27 +239,30 @@ class AsyncIMMFusion(Estimator):
             return super().online(model)
         grid = np.asarray(trace.t, float)
         if grid.size < 2 or not np.allclose(np.diff(grid), grid[1] - grid[0], rtol=0.0, atol=1e-12):
-            return super().online(model)
-        period = float(grid[1] - grid[0])
-        slots = 0
-        for name in model.sensor_names:
-            times = np.asarray(trace.sensors[name].t, float)
-            spacing = np.diff(times, axis=-1)
-            shortest = np.nanmin(spacing) if np.isfinite(spacing).any() else period
-            slots += int(math.ceil(period / shortest - 1e-9))
-        grouped = IntervalMeasurements.of(trace, model.sensor_names, grid)
-        slots = max(slots, int(grouped.valid.sum(axis=-1).max(initial=0)))
+            raise NoStreamingForm("the IMM's causal form needs fusion instants on a uniform grid (t0 + k·T)")
         n_models = len(self.model_set(model))
         return OnlineIMM(plant=source["plant"], noise=source["noise"], estimator=describe(self),
-                         t0=float(grid[0]), period=period, slots=slots, n_models=n_models,
-                         n_aug=model.n_x + 1, n_x=model.n_x, n_y=int(model.sensors[0].H.shape[0]))
+                         t0=float(grid[0]), period=float(grid[1] - grid[0]), slots=self._slots(trace, model),
+                         n_models=n_models, n_aug=model.n_x + 1, n_x=model.n_x, n_y=int(model.sensors[0].H.shape[0]))
+
+    @staticmethod
+    def _slots(trace: Trace, model) -> int:
+        """Packet slots per stream row: per sensor the most samples a fusion interval T can hold at its
+        shortest sampling period in ``trace`` (⌈T / period⌉), and never fewer than ``trace`` needs."""
+        grid = np.asarray(trace.t, float)
+        period, slots = float(grid[1] - grid[0]), 0
+        for name in model.sensor_names:
+            spacing = np.diff(np.asarray(trace.sensors[name].t, float), axis=-1)
+            spacing = spacing[np.isfinite(spacing) & (spacing > 0)]
+            slots += int(math.ceil(period / spacing.min() - 1e-9)) if spacing.size else 1
+        grouped = IntervalMeasurements.of(trace, model.sensor_names, grid)
+        return max(slots, int(grouped.valid.sum(axis=-1).max(initial=0)))
 
     def raw_stream(self, trace: Trace, model, input_names) -> dict[str, np.ndarray]:
         """The first replication's received packets as the causal form's columns, row k holding those sampled
         in (t_{k−1}, t_k] (the batch's grouping); ``packet<j>_sensor`` is the sensor's index in the plant's list."""
         grouped = IntervalMeasurements.of(trace, model.sensor_names, np.asarray(trace.t, float))
-        stage = self.online(model, {"plant": {}, "noise": {}}, trace)
-        return packet_columns(grouped, stage.slots, stage.n_y)
+        return packet_columns(grouped, self._slots(trace, model), int(model.sensors[0].H.shape[0]))
 
     @staticmethod
     def _sequential(x, P, meas, k, grid, step, H, Rm):

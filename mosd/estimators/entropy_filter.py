@@ -41,13 +41,12 @@ enters the same recursion (the paper's case 2: "repair, then filter").
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
-from dataclasses import dataclass
-
 from ..faults.random_amplitude import RandomAmplitudeFault
-from ..streaming import COUNT, FINITE, OnlineStage, StateVar, build
+from ..streaming import COUNT, FINITE, NoStreamingForm, OnlineStage, StateVar, build
 from ..types import Residuals, Trace
 from ..validation import ConfigError, Interval, Param
 from .base import Estimator
@@ -188,6 +187,12 @@ class _GainFilter(Estimator):
         if source is None:
             return super().online(model)
         plant = build(source["plant"])
+        gappy = getattr(plant, "missing_rate", 0.0) > 0 or (trace is not None and np.isnan(trace.y).any())
+        if self.missing == "em" and gappy:
+            # a stream would meet gaps this design fills from outputs it has not seen: refused, not approximated
+            raise NoStreamingForm("the EM fill of missing outputs (estimator.missing=em) uses the whole run's lag "
+                                  "windows, outputs after each gap included: not causal (estimator.missing=hold "
+                                  "or skip streams)")
         gains, constant = self._schedule()
         return OnlineGainFilter(plant=source["plant"], noise=source["noise"], gains=np.asarray(gains, float),
                                 constant=bool(constant), missing=self.missing,
