@@ -1,7 +1,8 @@
 """Every preset deploys what it tuned, or says why not (issue 28).
 
-For the main command and each of ``paper001``, ``paper002``, ``paper003``, ``tep`` and ``paper000
-denoise=wavelet_causal`` and the worked example ``two_tank``, run with ``debug=tiny``: ``summary.json["model"]`` holds the logged model's URI and
+For ``tep``, ``paper000 denoise=wavelet_causal`` and the worked example ``two_tank``, run with ``debug=tiny``
+(the main command's run is checked in ``test_streaming_cesckf.py`` and ``test_chart_model.py``, papers
+001–003's in ``test_streaming_papers.py``, each with more checks of its raw-input model): ``summary.json["model"]`` holds the logged model's URI and
 ``mosd monitor`` on the run's ``test_stream.parquet`` reproduces the run's own ``alarm`` column on every
 row. ``paper000`` (the paper's whole-series wavelet) logs no model and its summary says why in one line.
 """
@@ -16,10 +17,6 @@ from test_detector_model import _mosd  # the subprocess helper (MOSD_OUTPUTS, th
 
 SMALL = ["debug=tiny", "progress=false", "study=null"]
 PRESETS = {
-    "main": ["+fault=offset_var", "optimizer=mopso"],
-    "paper001": ["+experiment=paper001"],
-    "paper002": ["+experiment=paper002"],
-    "paper003": ["+experiment=paper003"],
     "tep": ["+experiment=tep"],
     "paper000_causal": ["+experiment=paper000", "denoise=wavelet_causal"],
     "two_tank": ["+experiment=two_tank"],
