@@ -39,6 +39,7 @@ or ``--skip`` says otherwise, prints the table on stderr and one JSON object on 
 ``main_command_first_wall_s`` (of the sections run) and ``cpus``,
 ``load_average_1min`` (other load on the machine skews every ratio), ``quick``; ``tep`` (Tennessee Eastman,
 :func:`mosd.systems.tep.benchmark`) adds ``tep_candidates_per_s``, ``tep_fit_score_s``,
+``tep_candidates_per_s_<family>`` and ``tep_fit_score_s_<family>`` (:func:`mosd.systems.tep.family_benchmark`),
 ``monitor_rows_per_s``, ``monitor_no_top_rows_per_s``, ``t2_spe_floor_rows_per_s``, ``monitor_load_average_1min`` and,
 with bibmon installed, ``bibmon_predict_rows_per_s``, ``monitor_speedup_vs_bibmon``, ``monitor_no_top_speedup_vs_bibmon``,
 ``t2_spe_floor_speedup_vs_bibmon``,
@@ -627,6 +628,11 @@ def _with_monitor(r: dict, quick: bool) -> tuple[list, dict]:
                "monitor_rows_per_s": m["monitor_rows_per_s"], "monitor_no_top_rows_per_s": m["monitor_no_top_rows_per_s"],
                "t2_spe_floor_rows_per_s": m["t2_spe_floor_rows_per_s"],
                "monitor_load_average_1min": m["load_average_1min_after"]}
+    for family, speed in r.get("families", {}).items():  # issue 29: every monitor family on the same rows
+        rows.append((f"{family} designs/s on the training split", speed["candidates_per_s"],
+                     f"fit + score of the 22 test files {speed['fit_score_s']:.3f} s"))
+        figures[f"tep_candidates_per_s_{family}"] = speed["candidates_per_s"]
+        figures[f"tep_fit_score_s_{family}"] = speed["fit_score_s"]
     if "bibmon_rows_per_s" in m:
         rows += [("bibmon PCA predict on the same rows, rows/s", m["bibmon_rows_per_s"],
                   f"in turns; SPE equal to {m['bibmon_spe_max_relative_difference']:.1e} relative"),

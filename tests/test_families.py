@@ -202,7 +202,9 @@ def test_tag_charts_against_their_recursions():
     ewma = TagEwmaDetector(smoothing=0.25, fit_runs=None, limits="theoretical").statistics(X[None], X[None])
     assert np.allclose(ewma["ewma"][0], top)
     # Šidák: each of the 3 two-sided tag limits at 1 − (1 − α)^(1/3)
-    assert ewma["ewma_limit"] == pytest.approx(float(__import__("scipy.stats").stats.norm.ppf(1 - (1 - 0.99 ** (1 / 3)) / 2)))
+    from scipy import stats
+
+    assert ewma["ewma_limit"] == pytest.approx(float(stats.norm.ppf(1 - (1 - 0.99 ** (1 / 3)) / 2)))
 
 
 def test_families_are_found_by_the_package_scan():

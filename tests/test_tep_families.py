@@ -28,6 +28,16 @@ def test_protocol_keys_on_known_decisions():
     assert out["far_ci_low"] < out["far"] < out["far_ci_high"]
 
 
+def test_unobservable_faults_get_a_p_value_against_chance_from_episodes():
+    decision = np.zeros((2, 800), bool)
+    decision[0, [10, 50, 51, 90, 200, 400]] = True   # IDV(3): 5 episodes, 6 rows
+    decision[1, 300:304] = True                      # fault-free: 1 episode, 4 rows
+    out = tep.protocol(decision, np.array([3, 0]))
+    assert out["fdr_over_far_idv3"] == pytest.approx(6 / 4)
+    assert out["p_chance_idv3"] == pytest.approx(stats.binom.sf(4, 6, 0.5))   # P(X >= 5), X ~ Bin(6, 1/2) = 7/64
+    assert "p_chance_idv1" not in tep.protocol(decision, np.array([1, 0]))
+
+
 def test_far_interval_counts_episodes_not_rows():
     one_long = np.zeros(800, bool)
     one_long[100:140] = True                     # one 40-row episode

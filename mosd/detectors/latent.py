@@ -99,6 +99,10 @@ def latent_params(family: Mapping[str, Param], statistics: tuple[str, ...]) -> d
 RESOLUTION = 1e-6
 #: entries a detector's cache keeps (fits, scores of data sets): a tuning needs a few per distinct fit
 CACHE_SIZE = 256
+#: cache keys of a family's per-component arrays of a data set (PCA's projections, CVA's variates, SFA's
+#: features), and how many of them a detector keeps
+BULKY = ("projected", "variates", "features")
+MAX_BULKY = 12
 
 
 class LatentDetector(Detector):
@@ -156,6 +160,11 @@ class LatentDetector(Detector):
         cache = self.__dict__.setdefault("_cache", {})
         hit = cache.get(key)
         if hit is None or any(a is not b for a, b in zip(hit[0], refs)):
+            bulky = [k for k in cache if k[0] in BULKY]
+            if key[0] in BULKY and len(bulky) >= MAX_BULKY:
+                # a (R, K, components) array per fit and data set: bounded by count, oldest first (a CVA
+                # tuning over 25 horizon pairs would otherwise keep ~0.6 GB of canonical variates)
+                cache.pop(bulky[0])
             if len(cache) >= CACHE_SIZE:
                 # scores go first: a fit costs more than a projection
                 keys = [k for k in cache if k[0] != "fit"] or list(cache)
