@@ -201,8 +201,8 @@ class AutoencoderDetector(LatentDetector):
 
     def __init__(self, n_components: int = 8, hidden: int = 24, epochs: int = 500, alpha: float = 0.01,
                  lam: float = 1.0, persistence: int = 1, statistic: str = "combined", limits: str = "empirical",
-                 fit_runs: int | None = None, max_components: int = 20, hidden_max: int = 64,
-                 epochs_max: int = 2000, persistence_max: int = 10, learning_rate: float = 0.01, seed: int = 0):
+                 fit_runs: int | None = None, max_components: int = 20, hidden_max: int = 32,
+                 epochs_max: int = 500, persistence_max: int = 10, learning_rate: float = 0.01, seed: int = 0):
         self._assign(locals())
         self._cache = {}
 
