@@ -36,10 +36,14 @@ def compose_preset(name: str, overrides: Sequence[str] = ()):
 
 
 def preset_setup(name: str, overrides: Sequence[str] = ()):
-    """The :class:`~mosd.app.build.Setup` of ``+experiment=NAME`` (components validated and built)."""
+    """The :class:`~mosd.app.build.Setup` of ``+experiment=NAME`` (components validated and built), its
+    component count's range bounded by the data as a run's is (:func:`mosd.app.preflight.fit_to_data`)."""
     from .build import build
+    from .preflight import fit_to_data
 
-    return build(compose_preset(name, overrides))
+    setup = build(compose_preset(name, overrides))
+    fit_to_data(setup)
+    return setup
 
 
 def component(group: str, option: str, overrides: Sequence[str] = ()):

@@ -534,8 +534,7 @@ def format_ablation(data: dict) -> str:
 
 #: the families ``--families`` tunes (conf/detector/<name>.yaml) and the overrides the tep preset needs for each:
 #: its detector block sets ``max_components`` (the top of PCA's and DPCA's component range), which the others lack
-FAMILIES = {"pca": (), "dpca": (), "cva": ("~detector.max_components",), "sfa": ("~detector.max_components",),
-            "tag_cusum": ("~detector.max_components",), "tag_ewma": ("~detector.max_components",)}
+FAMILIES = {name: () for name in ("pca", "dpca", "cva", "ica", "kpca", "sfa", "autoencoder", "tag_cusum", "tag_ewma")}
 #: the literature's designs in the family table: PCA as above (Yin et al. 2012); DPCA with Ku et al.'s (1995) l = 2
 #: lags and the literature PCA's 9 components per lagged copy (27; our reading, docs/systems/tep.md). Both keep
 #: their theoretical limits and are fitted on d00.dat; α is set by the protocol's rule (:func:`family_study`).
