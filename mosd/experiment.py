@@ -287,10 +287,9 @@ class Experiment:
         """Prepare, tune and evaluate the chosen design on fresh test runs.
 
         ``backend="dask"`` evaluates the optimiser's populations on a Dask cluster
-        (``dask_address``, or a local one of ``n_jobs`` workers); see :meth:`tune`.
+        (``dask_address``, or a local one of ``n_jobs`` workers, started before the
+        simulation so that it is up when the first generation needs it); see :meth:`tune`.
         """
-        from concurrent.futures import ThreadPoolExecutor
-
         from .optim.backends import check_backend
         from .optim.problem import uses_threads, worker_pool
 
@@ -299,6 +298,22 @@ class Experiment:
         timings: dict[str, float] = {}
         if n_jobs > 1 and backend == "loky" and not uses_threads(self.detector, self.objectives, n_jobs, backend):
             worker_pool(n_jobs, warm=True)  # workers start while the main process simulates
+        if backend == "dask" and dask_address is None:
+            from .optim.backends import discard_local_clusters, start_local_cluster
+
+            start_local_cluster(n_jobs)  # the local cluster starts while the main process simulates
+            try:
+                return self._run(algorithm, termination, n_jobs, bounds, choose, callback, verbose, backend,
+                                 dask_address, timings)
+            finally:
+                discard_local_clusters()  # one the tuning never took (it failed before)
+        return self._run(algorithm, termination, n_jobs, bounds, choose, callback, verbose, backend, dask_address,
+                         timings)
+
+    def _run(self, algorithm, termination, n_jobs, bounds, choose, callback, verbose, backend, dask_address,
+             timings: dict) -> ExperimentResult:
+        from concurrent.futures import ThreadPoolExecutor
+
         t0 = time.perf_counter()
         data = self.prepare()
         timings["prepare_s"] = time.perf_counter() - t0

@@ -164,3 +164,22 @@ def test_startup_loads_neither_scipy_integrate_nor_psutil():
     import psutil
 
     assert abs(int(available) - psutil.virtual_memory().available) < 0.05 * psutil.virtual_memory().total
+
+
+@pytest.mark.slow
+def test_a_local_cluster_started_ahead_is_adopted_or_discarded(evaluators):
+    from mosd.optim import backends
+
+    X = np.random.default_rng(5).uniform([0.01, 0.0], [0.99, 5.0], size=(7, 2))
+    backends.start_local_cluster(2)
+    early = backends._EARLY[2]
+    evaluation = backends.DaskEvaluation(evaluators["processes"], 2)
+    try:
+        assert evaluation.cluster is early.result() and not backends._EARLY  # adopted, not started again
+        np.testing.assert_array_equal(evaluation.evaluate(X), evaluators["processes"](X))
+    finally:
+        evaluation.close()
+    backends.start_local_cluster(2)
+    cluster = backends._EARLY[2].result()
+    backends.discard_local_clusters()  # nobody took it: closed
+    assert not backends._EARLY and cluster.status.name == "closed"

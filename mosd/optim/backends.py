@@ -175,6 +175,59 @@ def _evaluate_scattered(evaluator, X: np.ndarray) -> tuple[np.ndarray, float]:
     return F, time.perf_counter() - t0
 
 
+def _quiet_dask_logs() -> None:
+    # distributed configures its loggers at INFO: every worker start and stop would reach the
+    # run's stderr (the scheduler and nannies of a local cluster live in this process)
+    dask_logger = logging.getLogger("distributed")
+    if dask_logger.getEffectiveLevel() < logging.WARNING:
+        dask_logger.setLevel(logging.WARNING)
+
+
+def _local_cluster(n_jobs: int):
+    """A ``LocalCluster`` of ``n_jobs`` single-threaded worker processes on 127.0.0.1, no dashboard."""
+    import distributed
+
+    _quiet_dask_logs()
+    # no dashboard; the scheduler's remaining HTTP routes (health) on a free local port,
+    # not on 8787, which another cluster on the machine may hold
+    return distributed.LocalCluster(
+        n_workers=n_jobs, threads_per_worker=1, processes=True, host="127.0.0.1",
+        scheduler_port=0, dashboard_address=None, scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},
+        silence_logs=logging.ERROR)
+
+
+#: local clusters being started ahead of their problem: n_jobs -> Future of the LocalCluster
+_EARLY: dict = {}
+
+
+def start_local_cluster(n_jobs: int) -> None:
+    """Start the local cluster of a coming ``DaskEvaluation(…, n_jobs, address=None)`` now, in a background thread.
+
+    A local cluster takes seconds to start (worker processes, their imports); started before the
+    simulation, it is ready when the first generation needs it, as loky's pool is
+    (:func:`mosd.optim.problem.worker_pool` with ``warm=True``). The next :class:`DaskEvaluation`
+    of the same ``n_jobs`` adopts it (and closes it); :func:`discard_local_clusters` closes one that
+    no evaluation took (a run that failed before tuning).
+    """
+    if int(n_jobs) in _EARLY:
+        return
+    from concurrent.futures import ThreadPoolExecutor
+
+    starter = ThreadPoolExecutor(1, thread_name_prefix="mosd-dask-start")
+    _EARLY[int(n_jobs)] = starter.submit(_local_cluster, int(n_jobs))
+    starter.shutdown(wait=False)
+
+
+def discard_local_clusters() -> None:
+    """Close the local clusters started ahead (:func:`start_local_cluster`) that no evaluation adopted."""
+    while _EARLY:
+        _, future = _EARLY.popitem()
+        try:
+            future.result().close()
+        except Exception:  # it failed to start: nothing to close; the evaluation would have said why
+            pass
+
+
 class DaskEvaluation:
     """Evaluate populations of one problem on a Dask cluster; owns the client (and cluster) it starts.
 
@@ -205,23 +258,16 @@ class DaskEvaluation:
             import distributed
         except ImportError:
             raise _missing_distributed() from None
-        # distributed configures its loggers at INFO: every worker start and stop would reach the
-        # run's stderr (the scheduler and nannies of a local cluster live in this process)
-        dask_logger = logging.getLogger("distributed")
-        if dask_logger.getEffectiveLevel() < logging.WARNING:
-            dask_logger.setLevel(logging.WARNING)
+        _quiet_dask_logs()
         self.n_jobs = int(n_jobs)
         self.address = address
         self.cluster = None
         self.client = None
         try:
             if address is None:
-                # no dashboard; the scheduler's remaining HTTP routes (health) on a free local port,
-                # not on 8787, which another cluster on the machine may hold
-                self.cluster = distributed.LocalCluster(
-                    n_workers=self.n_jobs, threads_per_worker=1, processes=True, host="127.0.0.1",
-                    scheduler_port=0, dashboard_address=None, scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},
-                    silence_logs=logging.ERROR)
+                # started early (start_local_cluster, while the run simulated), or now
+                early = _EARLY.pop(self.n_jobs, None)
+                self.cluster = early.result() if early is not None else _local_cluster(self.n_jobs)
                 self.client = distributed.Client(self.cluster, set_as_default=False)
             else:
                 try:

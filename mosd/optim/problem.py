@@ -13,8 +13,12 @@ rule) are declared by the detector; the problem exposes them as
 sees a piecewise-constant objective in those coordinates and the reported
 designs are integral.
 
-Parallelism: a population is split into ``n_jobs`` chunks; the main process
-evaluates the first and ``n_jobs − 1`` workers the others. When the compiled
+Parallelism: a population is split into at most ``n_jobs`` chunks (fewer when
+the previous population's measured cost would not pay for a round trip per
+chunk, :meth:`TuningProblem.n_chunks`); the main process evaluates the first and
+``n_jobs − 1`` workers the others. :attr:`TuningProblem.clock` (an
+:class:`EvaluationClock`) sums where the evaluation time went, for
+``python -m mosd.bench --only scale``. When the compiled
 fused chart evaluation applies (:mod:`mosd.kernels.chart`), the workers are
 threads of this process: the kernel releases the GIL for all its work, so
 threads compute in parallel with no process to start, no evaluator to copy and
