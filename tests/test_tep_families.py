@@ -56,8 +56,12 @@ def test_families_command_prints_the_table_and_writes_the_figure(tmp_path, capsy
     assert code == 0
     printed = capsys.readouterr().out
     assert "| IDV(21) |" in printed and "FAR episodes" in printed and "| fault | cva | pca_lit | dpca_lit |" in printed
-    results = json.loads((tmp_path / "tep_families.json").read_text())["results"]
+    written = json.loads((tmp_path / "tep_families.json").read_text())
+    results = written["results"]
     assert set(results) == {"cva", "pca_lit", "dpca_lit"}
+    for name in results:  # the study's flat keys, one per family and fault
+        assert written["metrics"][f"family_far_{name}"] == results[name]["far"]
+        assert {f"family_fdr_{name}_idv{n}" for n in range(1, 22)} <= set(written["metrics"])
     for name, result in results.items():
         assert {f"fdr_idv{n}" for n in range(1, 22)} <= set(result)
         assert {"far", "far_episodes", "far_ci_low", "far_ci_high", "delay_run_k"} <= set(result)

@@ -622,6 +622,22 @@ def _family_scores(experiment, detector) -> dict:
     return {"params": params, **protocol(decision, labels)}
 
 
+def family_metrics(results: Mapping[str, dict]) -> dict[str, float]:
+    """The study's flat metrics of a family table: ``family_fdr_<design>_idvN``, ``family_far_<design>``,
+    ``family_far_episodes_<design>`` and ``family_mean_mdr_<design>`` (the 18 observable faults)."""
+    from ..data.tep import DEFAULT_FAULTS
+
+    metrics: dict[str, float] = {}
+    for name, result in results.items():
+        for f in ALL_FAULTS:
+            if f"fdr_idv{f}" in result:
+                metrics[f"family_fdr_{name}_idv{f}"] = float(result[f"fdr_idv{f}"])
+        metrics[f"family_far_{name}"] = float(result["far"])
+        metrics[f"family_far_episodes_{name}"] = float(result["far_episodes"])
+        metrics[f"family_mean_mdr_{name}"] = float(1 - np.mean([result[f"fdr_idv{f}"] for f in DEFAULT_FAULTS]))
+    return metrics
+
+
 def format_families(results: Mapping[str, dict]) -> str:
     """Rows: faults 1-21, the mean MDR over the 18 observable faults, FAR with its episodes and 95 % interval;
     columns: the designs (detection rates in %)."""
@@ -788,7 +804,8 @@ def main(argv=None) -> int:
         print()
         print(format_families(results))
         out = Path(args.out)
-        return [cli.write_json(out / "tep_families.json", {"results": results, "pop_size": args.pop_size,
+        return [cli.write_json(out / "tep_families.json", {"results": results, "metrics": family_metrics(results),
+                                                            "pop_size": args.pop_size,
                                                             "n_gen": args.n_gen, "protocol_far": PROTOCOL_FAR,
                                                             "delay_run_k": DELAY_RUN}),
                 families_figure(results, out / "tep_families.png")]
