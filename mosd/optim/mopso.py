@@ -650,7 +650,7 @@ class MOPSO(Algorithm):
         pairs = archive.select_leaders(2 * n, rng, self.leader).reshape(n, 2)
         children = sbx_children(archive.X[pairs[:, 0]], archive.X[pairs[:, 1]], problem.xl, problem.xu, rng,
                                 CROSSOVER_PROBABILITY, CROSSOVER_ETA)
-        if not (self.constrained_fine_mutation and self.constrained_problem and archive.feasible):
+        if not (self.constrained_fine_mutation and self.constrained_problem and archive.feasible and archive.filled):
             return polynomial_mutation(children, problem.xl, problem.xu, self.mutation_eta, 1.0, rng)
         fine = int(round(self.constrained_fine_mutation * n))
         return np.vstack([polynomial_mutation(children[:fine], problem.xl, problem.xu, FINE_MUTATION_ETA, 1.0, rng),
