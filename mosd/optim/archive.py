@@ -206,8 +206,9 @@ class GridArchive:
     constrained : {"grid", "crowding"}
         How a feasible archive is kept spread. "grid" (Coello 2004): leaders from sparse
         cells, eq. 37 per cell. "crowding" (what :class:`~mosd.optim.mopso.MOPSO` passes for a
-        constrained problem, issue 33): leaders and parents by NSGA-II's crowding-distance
-        binary tournament, truncation of the most crowded members over the whole archive.
+        constrained problem, issue 33): once the archive is full (:data:`SPREAD_FILL`), leaders
+        and parents by NSGA-II's crowding-distance binary tournament; truncation of the most
+        crowded members over the whole archive.
     """
 
     def __init__(self, capacity: int = 100, n_divisions: int = 50, removal: str = "crowding",
