@@ -375,7 +375,9 @@ class GridArchive:
 
         While the members are the least infeasible points (``infeasible="diverse"``, nothing
         feasible found yet) either rule becomes NSGA-II's constrained binary tournament: two
-        members uniformly at random, the smaller constraint violation wins.
+        members uniformly at random, the smaller constraint violation wins. With
+        ``constrained="crowding"`` and a feasible, full archive it is NSGA-II's crowding
+        tournament: two members uniformly at random, the larger crowding distance wins.
         """
         if self.infeasible == "diverse" and len(self._CV) > 1 and not self.feasible:
             # two distinct members, so the most infeasible one never wins
