@@ -33,11 +33,11 @@ One class, two presets:
   While nothing feasible has been found, the archive holds a bounded set of the least
   infeasible points instead of the single least infeasible one (``infeasible="diverse"``,
   issue 33): leaders and parents stay diverse from an infeasible start (MW1). Once a
-  constrained problem's archive is feasible, leaders and parents are drawn by crowding distance,
-  truncation removes the most crowded members over the whole archive, and half of the offspring
-  take NSGA-II's fine mutation steps (``constrained``, ``constrained_fine_mutation``): that spread
-  and converged the constrained fronts (CTP2, MW2, MW3, MW7, issue 33). Unconstrained runs are
-  unaffected.
+  constrained problem's archive is feasible and full, leaders and parents are drawn by crowding
+  distance, truncation removes the most crowded members over the whole archive, and half of the
+  offspring take NSGA-II's fine mutation steps (``constrained``, ``constrained_fine_mutation``):
+  that spread and converged the constrained fronts (MW2, MW3, CTP2, issue 33). Unconstrained runs
+  are unaffected.
 * ``MOPSO(**PAPER_PRESET)`` (``MOPSO.paper()``, ``optimizer=mopso_paper``) — the paper's
   pure swarm, paper 000's Table 2 literally (every evaluation a particle move): constriction
   w = 0.7298, c1 = c2 = 1.4962, velocities reflected at the bounds, roulette-wheel leaders,
@@ -419,14 +419,15 @@ class MOPSO(Algorithm):
         point is found (MW1: 60–100 generations, issue 33, docs/MOPSO.md).
     constrained : {"crowding", "grid"}
         How the feasible archive of a problem with constraints is kept spread. "crowding"
-        (default): leaders and parents by NSGA-II's crowding-distance binary tournament and
-        truncation of the most crowded members over the whole archive rather than cell by cell
+        (default): once the feasible archive is full (:data:`~mosd.optim.archive.SPREAD_FILL`),
+        leaders and parents by NSGA-II's crowding-distance binary tournament, and truncation of
+        the most crowded members over the whole archive rather than cell by cell
         (:class:`~mosd.optim.archive.GridArchive`); "grid" (paper preset): cells, eq. 37 and the
-        ``leader`` rule, as on an unconstrained problem. On CTP2, CTP3, MW2, MW3 and MW7 the grid
-        rules left the front's IGD 1.1–1.5 × NSGA-II's (issue 33, docs/MOPSO.md). An
-        unconstrained problem always uses the grid rules.
+        ``leader`` rule, as on an unconstrained problem. With the grid rules the IGD of MW2, MW3,
+        MW7, CTP2 and CTP3 was 1.3–1.7 × NSGA-II's (issue 33, docs/MOPSO.md). An unconstrained
+        problem always uses the grid rules.
     constrained_fine_mutation : float in [0, 1] or None
-        On a problem with constraints whose archive is feasible, this share of the archive
+        On a problem with constraints whose archive is feasible and full, this share of the archive
         offspring is mutated with NSGA-II's η = 20 (:data:`FINE_MUTATION_ETA`) instead of
         ``mutation_eta``: the optimum lies on a constraint boundary, where the long-tailed steps
         mostly leave the feasible region (issue 33, docs/MOPSO.md). Default 0.5; None or 0: none.
@@ -650,7 +651,7 @@ class MOPSO(Algorithm):
         pairs = archive.select_leaders(2 * n, rng, self.leader).reshape(n, 2)
         children = sbx_children(archive.X[pairs[:, 0]], archive.X[pairs[:, 1]], problem.xl, problem.xu, rng,
                                 CROSSOVER_PROBABILITY, CROSSOVER_ETA)
-        if not (self.constrained_fine_mutation and self.constrained_problem and archive.feasible):
+        if not (self.constrained_fine_mutation and self.constrained_problem and archive.feasible and archive.filled):
             return polynomial_mutation(children, problem.xl, problem.xu, self.mutation_eta, 1.0, rng)
         fine = int(round(self.constrained_fine_mutation * n))
         return np.vstack([polynomial_mutation(children[:fine], problem.xl, problem.xu, FINE_MUTATION_ETA, 1.0, rng),
