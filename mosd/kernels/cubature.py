@@ -32,48 +32,18 @@ import numpy as np
 from numba import njit
 
 
-from .plants import TRANSITIONS, transition, transition_lanes, transition_points  # noqa: F401  (re-exported)
+from .plants import TRANSITIONS, _inner, transition, transition_lanes, transition_points  # noqa: F401  (re-exported)
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
-def _tria(a, n_cols, out):
-    """Upper U (n_cols × n_cols), diag ≥ 0, with UᵀU = AᵀA, A = a[:, :n_cols]; Householder QR, ``a`` overwritten.
-
-    The transposed "tria" of eqs. 10–11, 15, 18. Diagonal signs are fixed so
-    Uᵀ is the Cholesky factor (the reference's convention).
-    """
-    n_rows = a.shape[0]
-    for j in range(n_cols):
-        norm2 = 0.0
-        for i in range(j, n_rows):
-            norm2 += a[i, j] * a[i, j]
-        if norm2 > 0.0:
-            norm = math.sqrt(norm2)
-            alpha = -norm if a[j, j] >= 0.0 else norm
-            v0 = a[j, j] - alpha
-            # H = I − 2 v vᵀ / vᵀv with v = (v0, a[j+1:, j]); vᵀv = norm² − 2 α a_jj + α² = 2 norm (norm + |a_jj|)
-            vtv = v0 * v0 + (norm2 - a[j, j] * a[j, j])
-            if vtv > 0.0:
-                for c in range(j + 1, n_cols):
-                    dot = v0 * a[j, c]
-                    for i in range(j + 1, n_rows):
-                        dot += a[i, j] * a[i, c]
-                    scale = 2.0 * dot / vtv
-                    a[j, c] -= scale * v0
-                    for i in range(j + 1, n_rows):
-                        a[i, c] -= scale * a[i, j]
-            a[j, j] = alpha
-        sign = -1.0 if a[j, j] < 0.0 else 1.0
-        for c in range(n_cols):
-            out[j, c] = sign * a[j, c] if c >= j else 0.0
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
+@_inner
 def _tria_lanes(a, n_rows, n_cols, out, n_lanes, norm2, v0, vtv, alpha, scale):
-    """:func:`_tria` on every lane of a (rows, cols, lanes) stack, lanes innermost (vectorised).
+    """Upper U (n_cols × n_cols), diag ≥ 0, with UᵀU = AᵀA, A = a[:n_rows, :n_cols], on every lane.
 
-    The same operations in the same order per lane as :func:`_tria`, so the
-    results are bit-identical to it; the guards become per-lane selections.
+    The transposed "tria" of eqs. 10–11, 15, 18 by Householder QR on every lane of a (rows, cols,
+    lanes) stack, lanes innermost (vectorised); ``a`` is overwritten. Diagonal signs are fixed so Uᵀ
+    is the Cholesky factor (the reference's convention). A column with nothing below the diagonal to
+    annihilate (or a zero column) gets a zero scale instead of a branch, so every lane runs the same
+    operations.
     """
     for j in range(n_cols):
         for b in range(n_lanes):
@@ -107,9 +77,12 @@ def _tria_lanes(a, n_rows, n_cols, out, n_lanes, norm2, v0, vtv, alpha, scale):
                 out[j, c, b] = sign * a[j, c, b] if c >= j else 0.0
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@_inner
 def _solve_columns(low, n, rhs, n_cols, out):
-    """out[:n, :n_cols] = (L Lᵀ)⁻¹ rhs[:n, :n_cols] by a forward and a backward substitution."""
+    """out[:n, :n_cols] = (L Lᵀ)⁻¹ rhs[:n, :n_cols] by a forward and a backward substitution.
+
+    Used by :mod:`mosd.kernels.imm` (the filter here solves on its lanes in :func:`_update_lanes`).
+    """
     for c in range(n_cols):
         for a in range(n):
             acc = rhs[a, c]
@@ -123,69 +96,85 @@ def _solve_columns(low, n, rhs, n_cols, out):
             out[a, c] = acc / low[a, a]
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
-def _update_lane(b, yk, xp, stp, centred_y, deviation, sr_t, xf, stf, present, stack_y, syy_used, pxy, gain, innov,
-                 yp, stack_yx, root):
-    """The measurement update of lane ``b`` with its missing channels (NaN in ``yk``) left out.
+@_inner
+def _update_lanes(n_ch, n_pts, centred_y, deviation, sr_t, xp, innov, nb, stack_y, syy, pxy, gain, acc, stack_yx,
+                  xf, stf, norm2, v0, vtv, alpha, scale):
+    """Eqs. 12–18 for lanes 0..nb on the first ``n_ch`` channels of ``centred_y`` (N, eq. 17) and ``sr_t``.
 
-    Eqs. 12–18 on the present channels only: N and S_R keep the rows of the
-    present channels (the rows of any square root of R are a square root of
-    that block of R); nothing present keeps the prediction.
+    ``sr_t`` is S_Rᵀ restricted to those channels' columns (all of its rows: the rows of any square
+    root of R are a square root of that block of R); ``innov`` the innovations r_k of those channels.
+    Gives S_yyᵀ in ``syy``, x̂_{k|k} in ``xf`` and S_{k|k}ᵀ in ``stf``. The same code serves every lane
+    with all channels and, one lane at a time, a lane with missing channels (their columns left out):
+    one body to compile.
     """
-    n_pts, n_y = centred_y.shape[0], centred_y.shape[1]
-    n_x = xp.shape[0]
-    n_present = 0
-    for c in range(n_y):
-        if not math.isnan(yk[c]):
-            present[n_present] = c
-            n_present += 1
-    if n_present == 0:
-        for i in range(n_x):
-            xf[i, b] = xp[i, b]
-            for j in range(n_x):
-                stf[i, j, b] = stp[i, j, b]
-        return
+    n_x = deviation.shape[1]
+    n_sr = sr_t.shape[0]
+    # eq. 15: S_yy = tria([N, S_R])
     for i in range(n_pts):
-        for a in range(n_present):
-            stack_y[i, a] = centred_y[i, present[a], b]
-    for i in range(n_y):
-        for a in range(n_present):
-            stack_y[n_pts + i, a] = sr_t[i, present[a]]
-    _tria(stack_y, n_present, syy_used)
-    for a in range(n_present):
+        for c in range(n_ch):
+            for b in range(nb):
+                stack_y[i, c, b] = centred_y[i, c, b]
+    _fill_rows(stack_y, n_pts, sr_t, nb)
+    _tria_lanes(stack_y, n_pts + n_sr, n_ch, syy, nb, norm2, v0, vtv, alpha, scale)
+    # eq. 14: P_xyᵀ = Nᵀ R; eq. 13: Kᵀ = S_yy⁻ᵀ (S_yy⁻¹ P_xyᵀ) by two triangular solves
+    for a in range(n_ch):
         for j in range(n_x):
-            acc = 0.0
+            for b in range(nb):
+                acc[b] = 0.0
             for i in range(n_pts):
-                acc += centred_y[i, present[a], b] * deviation[i, j, b]
-            pxy[a, j] = acc
-    # eq. 13: Kᵀ = P_yy⁻¹ P_xyᵀ with P_yy = S_yy S_yyᵀ and S_yy = syy_usedᵀ (lower)
-    _solve_columns(syy_used.T, n_present, pxy, n_x, gain)
-    for a in range(n_present):
-        innov[a] = yk[present[a]] - yp[present[a], b]
+                for b in range(nb):
+                    acc[b] += centred_y[i, a, b] * deviation[i, j, b]
+            for b in range(nb):
+                pxy[a, j, b] = acc[b]
     for j in range(n_x):
-        acc = xp[j, b]
-        for a in range(n_present):
-            acc += innov[a] * gain[a, j]
-        xf[j, b] = acc
+        for a in range(n_ch):  # forward: (S_yyᵀ)ᵀ z = P_xyᵀ, lower
+            for b in range(nb):
+                acc[b] = pxy[a, j, b]
+            for c in range(a):
+                for b in range(nb):
+                    acc[b] -= syy[c, a, b] * gain[c, j, b]
+            for b in range(nb):
+                gain[a, j, b] = acc[b] / syy[a, a, b]
+        for a in range(n_ch - 1, -1, -1):  # backward: S_yyᵀ Kᵀ = z, upper
+            for b in range(nb):
+                acc[b] = gain[a, j, b]
+            for c in range(a + 1, n_ch):
+                for b in range(nb):
+                    acc[b] -= syy[a, c, b] * gain[c, j, b]
+            for b in range(nb):
+                gain[a, j, b] = acc[b] / syy[a, a, b]
+    # eq. 12: x̂_{k|k} = x̂_{k|k−1} + K r_k
+    for j in range(n_x):
+        for b in range(nb):
+            acc[b] = xp[j, b]
+        for a in range(n_ch):
+            for b in range(nb):
+                acc[b] += innov[a, b] * gain[a, j, b]
+        for b in range(nb):
+            xf[j, b] = acc[b]
+    # eq. 18: S_{k|k} = tria([R − K N, K S_R])
     for i in range(n_pts):
         for j in range(n_x):
-            acc = 0.0
-            for a in range(n_present):
-                acc += centred_y[i, present[a], b] * gain[a, j]
-            stack_yx[i, j] = deviation[i, j, b] - acc
-    for i in range(n_y):
+            for b in range(nb):
+                acc[b] = 0.0
+            for a in range(n_ch):
+                for b in range(nb):
+                    acc[b] += centred_y[i, a, b] * gain[a, j, b]
+            for b in range(nb):
+                stack_yx[i, j, b] = deviation[i, j, b] - acc[b]
+    for i in range(n_sr):
         for j in range(n_x):
-            acc = 0.0
-            for a in range(n_present):
-                acc += sr_t[i, present[a]] * gain[a, j]
-            stack_yx[n_pts + i, j] = acc
-    _tria(stack_yx, n_x, root)
-    for i in range(n_x):
-        for j in range(n_x):
-            stf[i, j, b] = root[i, j]
+            for b in range(nb):
+                acc[b] = 0.0
+            for a in range(n_ch):
+                for b in range(nb):
+                    acc[b] += sr_t[i, a] * gain[a, j, b]
+            for b in range(nb):
+                stack_yx[n_pts + i, j, b] = acc[b]
+    _tria_lanes(stack_yx, n_pts + n_sr, n_x, stf, nb, norm2, v0, vtv, alpha, scale)
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@_inner
 def _store_lanes(first, k, n_lanes, x, root_t, x_out, root_out):
     """Step k of lanes 0..n_lanes into replications first..: x̂ and the lower root S (from Sᵀ, upper)."""
     n_x = x.shape[0]
@@ -198,7 +187,7 @@ def _store_lanes(first, k, n_lanes, x, root_t, x_out, root_out):
                 root_out[first + b, k, i, j] = 0.0
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@_inner
 def _fill_rows(stack, first_row, block, n_lanes):
     """stack[first_row + i, j, b] = block[i, j] for every lane: a square root shared by all replications."""
     for i in range(block.shape[0]):
@@ -220,7 +209,7 @@ def cesckf(kind, params, outputs, y, u, x0, st0, eps, weights, sq_t, sr_t, first
     Replications go ``lanes`` at a time, side by side: every array of the
     step carries them on its last axis, so each line of the algebra is a loop
     the compiler vectorises. A lane with a missing channel at a step has its
-    update redone on the present channels (:func:`_update_lane`).
+    update redone on the present channels (:func:`_update_lanes` on that lane alone).
 
     Parameters
     ----------
@@ -278,15 +267,16 @@ def cesckf(kind, params, outputs, y, u, x0, st0, eps, weights, sq_t, sr_t, first
     stf = np.empty((n_x, n_x, L))
     yp = np.empty((n_y, L))
     norm2, v0, vtv, alpha, scale = np.empty(L), np.empty(L), np.empty(L), np.empty(L), np.empty(L)
-    # one lane's scratch for _update_lane
+    # one lane with missing channels, its present ones gathered into lane 0 (the rest reuses the scratch above)
     present = np.empty(n_y, np.int64)
-    lane_stack_y = np.empty((n_pts + n_y, n_y))
-    lane_syy = np.empty((n_y, n_y))
-    lane_pxy = np.empty((n_y, n_x))
-    lane_gain = np.empty((n_y, n_x))
-    lane_innov = np.empty(n_y)
-    lane_stack_yx = np.empty((n_pts + n_y, n_x))
-    lane_root = np.empty((n_x, n_x))
+    lane_centred_y = np.empty((n_pts, n_y, 1))
+    lane_deviation = np.empty((n_pts, n_x, 1))
+    lane_sr_t = np.zeros((n_y, n_y))
+    lane_innov = np.empty((n_y, 1))
+    lane_xp = np.empty((n_x, 1))
+    lane_xf = np.empty((n_x, 1))
+    lane_stf = np.empty((n_x, n_x, 1))
+    one = np.int64(1)
 
     for r0 in range(first, stop, L):
         nb = min(L, stop - r0)
@@ -362,19 +352,21 @@ def cesckf(kind, params, outputs, y, u, x0, st0, eps, weights, sq_t, sr_t, first
                     for b in range(nb):
                         centred_y[i, c, b] = point[o, b]
                         yp[c, b] += w * point[o, b]
-            # eq. 17: N_i = √w_i (Y_i − ŷ); eq. 15: S_yy = tria([N, S_R]) over every channel
+            # eq. 17: N_i = √w_i (Y_i − ŷ)
             for i in range(n_pts):
                 s = sqrt_w[i]
                 for c in range(n_y):
                     for b in range(nb):
                         centred_y[i, c, b] = s * (centred_y[i, c, b] - yp[c, b])
-                        stack_y[i, c, b] = centred_y[i, c, b]
-            _fill_rows(stack_y, n_pts, sr_t, nb)
-            _tria_lanes(stack_y, n_pts + n_y, n_y, syy, nb, norm2, v0, vtv, alpha, scale)
+            for c in range(n_y):
+                for b in range(nb):
+                    innov[c, b] = y[r0 + b, k, c] - yp[c, b]
+            # eqs. 12–18 over every channel
+            _update_lanes(n_y, n_pts, centred_y, deviation, sr_t, xp, innov, nb, stack_y, syy, pxy, gain, acc,
+                          stack_yx, xf, stf, norm2, v0, vtv, alpha, scale)
             for b in range(nb):
                 for c in range(n_y):
                     y_pred[r0 + b, k, c] = yp[c, b]
-                    innov[c, b] = y[r0 + b, k, c] - yp[c, b]
                     innovation[r0 + b, k, c] = innov[c, b]
                 for a in range(n_y):
                     for c in range(n_y):
@@ -382,72 +374,42 @@ def cesckf(kind, params, outputs, y, u, x0, st0, eps, weights, sq_t, sr_t, first
                         for m in range(n_y):
                             total += syy[m, a, b] * syy[m, c, b]
                         innovation_cov[r0 + b, k, a, c] = total
-            # eq. 14: P_xyᵀ = Nᵀ R; eq. 13: Kᵀ = S_yy⁻ᵀ (S_yy⁻¹ P_xyᵀ) by two triangular solves
-            for a in range(n_y):
-                for j in range(n_x):
-                    for b in range(nb):
-                        acc[b] = 0.0
-                    for i in range(n_pts):
-                        for b in range(nb):
-                            acc[b] += centred_y[i, a, b] * deviation[i, j, b]
-                    for b in range(nb):
-                        pxy[a, j, b] = acc[b]
-            for j in range(n_x):
-                for a in range(n_y):  # forward: (S_yyᵀ)ᵀ z = P_xyᵀ, lower
-                    for b in range(nb):
-                        acc[b] = pxy[a, j, b]
-                    for c in range(a):
-                        for b in range(nb):
-                            acc[b] -= syy[c, a, b] * gain[c, j, b]
-                    for b in range(nb):
-                        gain[a, j, b] = acc[b] / syy[a, a, b]
-                for a in range(n_y - 1, -1, -1):  # backward: S_yyᵀ Kᵀ = z, upper
-                    for b in range(nb):
-                        acc[b] = gain[a, j, b]
-                    for c in range(a + 1, n_y):
-                        for b in range(nb):
-                            acc[b] -= syy[a, c, b] * gain[c, j, b]
-                    for b in range(nb):
-                        gain[a, j, b] = acc[b] / syy[a, a, b]
-            # eq. 12: x̂_{k|k} = x̂_{k|k−1} + K r_k
-            for j in range(n_x):
-                for b in range(nb):
-                    acc[b] = xp[j, b]
-                for a in range(n_y):
-                    for b in range(nb):
-                        acc[b] += innov[a, b] * gain[a, j, b]
-                for b in range(nb):
-                    xf[j, b] = acc[b]
-            # eq. 18: S_{k|k} = tria([R − K N, K S_R])
-            for i in range(n_pts):
-                for j in range(n_x):
-                    for b in range(nb):
-                        acc[b] = 0.0
-                    for a in range(n_y):
-                        for b in range(nb):
-                            acc[b] += centred_y[i, a, b] * gain[a, j, b]
-                    for b in range(nb):
-                        stack_yx[i, j, b] = deviation[i, j, b] - acc[b]
-            for i in range(n_y):
-                for j in range(n_x):
-                    for b in range(nb):
-                        acc[b] = 0.0
-                    for a in range(n_y):
-                        for b in range(nb):
-                            acc[b] += sr_t[i, a] * gain[a, j, b]
-                    for b in range(nb):
-                        stack_yx[n_pts + i, j, b] = acc[b]
-            _tria_lanes(stack_yx, n_pts + n_y, n_x, stf, nb, norm2, v0, vtv, alpha, scale)
-            # lanes with a missing channel: the update again on the present channels
+            # a lane with a missing channel: the update again on the present channels alone, through the same
+            # code with that lane's present columns gathered into lane 0; nothing present keeps the prediction
             for b in range(nb):
-                gap = False
+                # np.int64(0), not a bare 0 (here and for the 1 lane below): typing would first compile
+                # _update_lanes and everything it calls for the literal value as well (twice the compile)
+                n_present = np.int64(0)
                 for c in range(n_y):
-                    if math.isnan(y[r0 + b, k, c]):
-                        gap = True
-                if gap:
-                    _update_lane(b, y[r0 + b, k], xp, stp, centred_y, deviation, sr_t, xf, stf, present,
-                                 lane_stack_y, lane_syy, lane_pxy, lane_gain, lane_innov, yp, lane_stack_yx,
-                                 lane_root)
+                    if not math.isnan(y[r0 + b, k, c]):
+                        present[n_present] = c
+                        n_present += 1
+                if n_present == n_y:
+                    continue
+                if n_present == 0:
+                    for i in range(n_x):
+                        xf[i, b] = xp[i, b]
+                        for j in range(n_x):
+                            stf[i, j, b] = stp[i, j, b]
+                    continue
+                for i in range(n_pts):
+                    for a in range(n_present):
+                        lane_centred_y[i, a, 0] = centred_y[i, present[a], b]
+                    for j in range(n_x):
+                        lane_deviation[i, j, 0] = deviation[i, j, b]
+                for i in range(n_y):
+                    for a in range(n_present):
+                        lane_sr_t[i, a] = sr_t[i, present[a]]
+                for a in range(n_present):
+                    lane_innov[a, 0] = y[r0 + b, k, present[a]] - yp[present[a], b]
+                for j in range(n_x):
+                    lane_xp[j, 0] = xp[j, b]
+                _update_lanes(n_present, n_pts, lane_centred_y, lane_deviation, lane_sr_t, lane_xp, lane_innov, one,
+                              stack_y, syy, pxy, gain, acc, stack_yx, lane_xf, lane_stf, norm2, v0, vtv, alpha, scale)
+                for i in range(n_x):
+                    xf[i, b] = lane_xf[i, 0]
+                    for j in range(n_x):
+                        stf[i, j, b] = lane_stf[i, j, 0]
             _store_lanes(r0, k, nb, xf, stf, x_filt, sqrt_cov_filt)
 
 

@@ -19,8 +19,12 @@ TRANSITIONS = {"mould_oscillator": 0}
 
 _RPM_PER_RAD_S = 60.0 / (2.0 * math.pi)
 
+#: a kernel's helper, called only from compiled code: no CPython or C-callable entry point (each would be
+#: generated and compiled for every helper's signature, unboxing every array argument: compile time for nothing)
+_inner = njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 
-@njit(cache=True, nogil=True, error_model="numpy")
+
+@_inner
 def _mould_step(params, x_p, theta, n, i_q):
     """Euler step of :meth:`mosd.plants.MouldOscillator.f` (paper 000, eqs. 40–41) at one point.
 
@@ -37,13 +41,13 @@ def _mould_step(params, x_p, theta, n, i_q):
     return x_p + dt * (amplitude * omega * cos_theta), theta + dt * omega, n + dt * n_dot
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@_inner
 def _mould_oscillator(params, x, u, out):
     """:func:`_mould_step` on x (3,), u (1,) into out (3,)."""
     out[0], out[1], out[2] = _mould_step(params, x[0], x[1], x[2], u[0])
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@_inner
 def transition(kind, params, x, u, out):
     """out = f(x, u) of the transition numbered ``kind`` (see :data:`TRANSITIONS`)."""
     if kind == 0:
@@ -52,7 +56,7 @@ def transition(kind, params, x, u, out):
         raise ValueError("unknown compiled transition")
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@_inner
 def transition_lanes(kind, params, x, u, out, n_lanes):
     """out[:, b] = f(x[:, b], u[:, b]) for the first ``n_lanes`` lanes (replications) of (n, lanes) arrays."""
     if kind == 0:
@@ -103,7 +107,8 @@ def simulate_mould_oscillator(params, controller, x0, v, g, w):
     nxt = np.empty(n_x)
     uk = np.empty(1)
     for r in range(n_reps):
-        xk[:] = x0
+        for i in range(n_x):  # a loop, not xk[:] = x0: the slice assignment compiles numba's broadcast checks (~4 s)
+            xk[i] = x0[i]
         integral = 0.0
         for k in range(n_steps):
             for i in range(n_x):

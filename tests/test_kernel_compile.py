@@ -1,0 +1,68 @@
+"""What the plants' and the filter's kernels compile on an empty cache (issue 31: the first result soon after install).
+
+Numba compiles a function once per type signature it is called with; a literal argument (a bare ``0``
+or ``1``) is first typed as its own literal type, so a helper called with one compiles twice. Every
+kernel of mosd.kernels.plants and mosd.kernels.cubature must compile exactly once for a filter run
+with missing channels and a closed-loop simulation, and the helpers (called only from compiled code)
+must have no CPython entry point to build.
+"""
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+
+_PROBE = """
+import json
+import numpy as np
+from numba.core.registry import CPUDispatcher
+from mosd.estimators import CESCKF
+from mosd.kernels import cubature, plants
+from mosd.noise import GaussianNoise
+from mosd.plants import MouldOscillator
+from mosd.scenario import Scenario
+
+plant, noise = MouldOscillator(), GaussianNoise()
+trace = Scenario(plant, noise, None, duration=0.05).simulate(0, 3, stream="calibration")  # the compiled simulation
+y = trace.y.copy()
+y[0, 3, 1] = np.nan  # one lane with a missing channel: the update again on the present channels
+y[1, 4, :] = np.nan  # nothing measured
+CESCKF().filter(plant.model(noise), y, trace.u)
+out = {}
+for module in (plants, cubature):
+    for name, obj in vars(module).items():
+        if isinstance(obj, CPUDispatcher) and obj.py_func.__module__ == module.__name__:
+            out[module.__name__ + "." + name] = {
+                "signatures": [str(s) for s in obj.signatures],
+                "wrapper": not obj.targetoptions.get("no_cpython_wrapper", False),
+            }
+print(json.dumps(out))
+"""
+
+
+@pytest.fixture(scope="module")
+def compiled(tmp_path_factory):
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path_factory.mktemp("numba_cache")), MOSD_KERNEL_THREADS="1")
+    env.pop("MOSD_KERNELS", None)
+    run = subprocess.run([sys.executable, "-c", _PROBE], capture_output=True, text=True, env=env, timeout=600)
+    assert run.returncode == 0, run.stderr[-2000:]
+    return json.loads(run.stdout.strip().splitlines()[-1])
+
+
+@pytest.mark.slow
+def test_every_kernel_compiles_once_from_an_empty_cache(compiled):
+    twice = {name: info["signatures"] for name, info in compiled.items() if len(info["signatures"]) > 1}
+    assert not twice, f"compiled for several signatures: {twice}"
+    for name in ("mosd.kernels.cubature.cesckf", "mosd.kernels.cubature._update_lanes",
+                 "mosd.kernels.cubature._tria_lanes", "mosd.kernels.plants.simulate_mould_oscillator",
+                 "mosd.kernels.plants.transition_lanes"):
+        assert len(compiled[name]["signatures"]) == 1, name
+
+
+@pytest.mark.slow
+def test_helpers_have_no_python_entry_point(compiled):
+    entry = {"mosd.kernels.cubature.cesckf", "mosd.kernels.cubature._output_prediction",
+             "mosd.kernels.plants.simulate_mould_oscillator", "mosd.kernels.plants.transition_points"}
+    for name, info in compiled.items():
+        assert info["wrapper"] == (name in entry), name
