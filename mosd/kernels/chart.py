@@ -98,12 +98,12 @@ def pairwise_sum(a, start, n):
 def mean_std(values):
     """(np.mean(values), np.std(values, ddof=1)) of a contiguous 1-D array, bit for bit."""
     n = values.shape[0]
-    center = pairwise_sum(values, 0, n) / n
+    center = pairwise_sum(values, np.int64(0), n) / n  # an int64 start, not Literal[int](0): one compile
     deviations = np.empty(n)
     for i in range(n):
         d = values[i] - center
         deviations[i] = d * d
-    return center, math.sqrt(pairwise_sum(deviations, 0, n) / (n - 1))
+    return center, math.sqrt(pairwise_sum(deviations, np.int64(0), n) / (n - 1))
 
 
 @njit(cache=True, nogil=True)
