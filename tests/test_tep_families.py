@@ -67,6 +67,9 @@ def test_families_command_prints_the_table_and_writes_the_figure(tmp_path, capsy
         assert {"far", "far_episodes", "far_ci_low", "far_ci_high", "delay_run_k"} <= set(result)
         # the protocol's operating point on the training split
         assert result["train"]["far"] <= tep.PROTOCOL_FAR + 1e-12, name
+    # the family base's λ floor bounds the tuned design's smoothing (160-row held-back lead-ins)
+    from mosd.detectors.latent import lam_floor
+    assert results["cva"]["params"]["lam"] >= lam_floor(160)
     assert (tmp_path / "tep_families.png").stat().st_size > 10_000
 
 

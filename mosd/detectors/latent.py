@@ -95,6 +95,25 @@ def latent_params(family: Mapping[str, Param], statistics: tuple[str, ...]) -> d
     }
 
 
+#: EWMA memories (2 − λ)/λ a held-back calibration run must hold: the lower bound on λ (:func:`lam_floor`)
+MEMORIES_PER_RUN = 10
+
+
+def lam_floor(run_length: int) -> float:
+    """The smallest EWMA λ whose empirical limit held-back runs of ``run_length`` rows can judge.
+
+    An EWMA's effective memory is (2 − λ)/λ rows (the variance ratio λ/(2 − λ) of its stationary value
+    to one row's). Held-back runs start their EWMA at the in-control mean and end after ``run_length``
+    rows, so a smoothed statistic whose memory is a sizeable share of a run is sampled only in its
+    start-up transient and in a few independent stretches: its (1 − α) quantile is too low, and a monitor
+    streaming for much longer (the 800-row TE test file) alarms far above α (docs/systems/tep.md,
+    "Smoothing needs calibration runs as long as its memory"). The memory must fit
+    :data:`MEMORIES_PER_RUN` times in a run: (2 − λ)/λ ≤ run_length / MEMORIES_PER_RUN, i.e.
+    λ ≥ 2 / (run_length / MEMORIES_PER_RUN + 1); 0.118 for TE's 160-row held-back lead-ins.
+    """
+    return 2.0 / (float(run_length) / MEMORIES_PER_RUN + 1.0)
+
+
 #: the smallest empirical limit, relative to the statistic's in-control scale (``LatentDetector._parts``)
 RESOLUTION = 1e-6
 #: entries a detector's cache keeps (fits, scores of data sets): a tuning needs a few per distinct fit
@@ -187,6 +206,17 @@ class LatentDetector(Detector):
             return calibration_z
         return calibration_z[self.fit_runs:]
 
+    def lam_bounds(self, calibration_z: np.ndarray) -> tuple[float, float]:
+        """λ's search range on ``calibration_z``: [:func:`lam_floor` of the held-back runs, 1] when runs are held
+        back (``fit_runs``), else λ's declared range (the limits are then in-sample)."""
+        if self.fit_runs is None or np.shape(calibration_z)[0] <= self.fit_runs:
+            interval = self.tunable["lam"]
+            return float(interval.low), float(interval.high)
+        held = np.asarray(self.held_back(calibration_z), float)
+        # runs of unequal length are NaN-padded (TE: d00.dat's 500 rows fit, the 160-row lead-ins are held back)
+        rows = np.any(np.isfinite(held), axis=-1).sum(axis=-1)
+        return min(lam_floor(int(rows.min())), 1.0), 1.0
+
     def _split(self, calibration_z: np.ndarray):
         """(fit runs, held-back runs) as the same array objects on every call (cache keys)."""
         return self._remember(("split", id(calibration_z)), (calibration_z,), lambda: (
@@ -216,6 +246,12 @@ class LatentDetector(Detector):
         fit, held = self._split(calibration_z)
         own, on_fit = self._scored(fitted, z, design), self._scored(fitted, fit, design)
         alpha, lam = float(design["alpha"]), float(design["lam"])
+        floor = self._remember(("lam_floor", id(calibration_z)), (calibration_z,),
+                               lambda: self.lam_bounds(calibration_z)[0])
+        if lam < 1.0 and lam < floor * (1.0 - 1e-9):
+            raise ConfigError(f"detector.lam={lam:.4g}: its EWMA memory (2 - lam)/lam is more than a tenth of a "
+                              f"held-back calibration run, whose limits cannot judge it; allowed: lam >= {floor:.4g} "
+                              "(detector.bounds.lam), or longer held-back runs")
         out = {}
         for name in names:
             start = float(np.nanmean(on_fit[name]))  # the in-control mean

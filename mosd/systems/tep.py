@@ -570,27 +570,94 @@ def family_study(directory: str | None = None, families=tuple(FAMILIES), pop_siz
         setup = cli.preset(SYSTEM, [f"detector={name}", *FAMILIES[name], *common])
         experiment = setup.experiment
         t0 = time.perf_counter()
-        tuned = experiment.tune(experiment.prepare(), setup.algorithm, setup.termination, n_jobs=1,
-                                bounds=setup.bounds, choose=setup.choose)
+        data = experiment.prepare()
+        # the family base's λ floor: an EWMA's memory must fit well within a held-back run (latent.lam_floor)
+        floor, _ = experiment.detector.lam_bounds(data.phase1.z)
+        low, high = setup.bounds.get("lam", (floor, 1.0))
+        bounds = {**setup.bounds, "lam": (max(low, floor), high)}
+        tuned = experiment.tune(data, setup.algorithm, setup.termination, n_jobs=1, bounds=bounds,
+                                choose=setup.choose)
         detector = experiment.detector.with_params(**tuned.params)
         out[name] = {**_family_scores(experiment, detector), "train": tuned.train_objectives,
                      "tune_s": time.perf_counter() - t0}
     if literature:
         for label, (family, params) in LITERATURE_FAMILIES.items():
-            setup = cli.preset(SYSTEM, [f"detector={family}", *FAMILIES[family], *common])
-            experiment = setup.experiment
-            experiment.monitor.fit(experiment.estimator.estimate(experiment.data.trace("calibration"), None))
+            experiment = _family_experiment(family, common)
             detector = experiment.detector.with_params(**params, statistic="combined", limits="theoretical")
-            calibration = _z(experiment, experiment.data.trace("calibration"))
-            training = experiment.data.trace("training")
-            fault_free = training.fault_label.max(axis=1) == 0
-            z = _z(experiment, training)
-            alpha = alpha_for_far(detector, calibration, z, fault_free, PROTOCOL_FAR)
-            detector = detector.with_params(alpha=alpha)
-            train = np.asarray(detector.decide(calibration, z).decision, bool)
-            out[label] = {**_family_scores(experiment, detector),
-                          "train": {"far": float(train[fault_free].mean()),
-                                    "mdr": float(1 - train[~fault_free].mean())}}
+            out[label] = at_operating_point(experiment, detector)
+    return out
+
+
+def _family_experiment(family: str, overrides=()):
+    """The tep preset's experiment with ``detector=family``, its monitor fitted (no tuning)."""
+    setup = cli.preset(SYSTEM, [f"detector={family}", *FAMILIES[family], "progress=false", *overrides])
+    experiment = setup.experiment
+    experiment.monitor.fit(experiment.estimator.estimate(experiment.data.trace("calibration"), None))
+    return experiment
+
+
+def at_operating_point(experiment, detector, in_sample: bool = False) -> dict:
+    """``detector`` at the protocol's operating point and its test scores (:func:`_family_scores`).
+
+    α is the largest whose FAR on the training split's fault-free runs is at most :data:`PROTOCOL_FAR`
+    (:func:`alpha_for_far`: the rule a tuned design is chosen by, on the same rows). ``in_sample``: the
+    calibration is ``d00.dat`` alone, which fits the model and sets the empirical limits on its own rows
+    (no held-back lead-in seen). Returns the protocol keys, ``params``, ``train`` (FAR, MDR) and
+    ``calibration`` (``"d00.dat"`` or ``"d00.dat + held-back lead-ins"``).
+    """
+    calibration = _z(experiment, experiment.data.trace("calibration"))
+    calibration = calibration[:1] if in_sample else calibration
+    training = experiment.data.trace("training")
+    fault_free = training.fault_label.max(axis=1) == 0
+    z = _z(experiment, training)
+    detector = detector.with_params(alpha=alpha_for_far(detector, calibration, z, fault_free, PROTOCOL_FAR))
+    train = np.asarray(detector.decide(calibration, z).decision, bool)
+    held_back = not in_sample and (detector.limits == "empirical" or float(detector.lam) < 1.0)
+    return {**_family_scores(experiment, detector, calibration),
+            "train": {"far": float(train[fault_free].mean()), "mdr": float(1 - train[~fault_free].mean())},
+            "calibration": "d00.dat + held-back lead-ins" if held_back else "d00.dat"}
+
+
+#: the design decisions of the ablation (``--ablation``): each row is (family, changes to the literature's PCA
+#: design, calibration), ``"tuned"`` standing for the recorded tuned PCA design's value (designs/tep.json);
+#: calibration ``"design"`` is the design's own (d00.dat; plus the held-back lead-ins for empirical limits) and
+#: ``"d00"`` d00.dat alone, in-sample. Every row is scored at the protocol's operating point (α re-chosen).
+FAMILY_ABLATION = {
+    "literature": ("pca", {}, "design"),
+    "+ held-back limits": ("pca", {"limits": "empirical"}, "design"),
+    "+ tuned components": ("pca", {"n_components": "tuned"}, "design"),
+    "+ 2 lags (DPCA)": ("dpca", {"lags": 2}, "design"),
+    "+ 2 lags, 9 per copy (DPCA lit.)": ("dpca", {"lags": 2, "n_components": 27}, "design"),
+    "+ tuned EWMA": ("pca", {"lam": "tuned"}, "design"),
+    "+ persistence 3": ("pca", {"persistence": 3}, "design"),
+    "tuned PCA": ("pca", {"n_components": "tuned", "lam": "tuned", "persistence": "tuned"}, "design"),
+    "tuned, 9 components": ("pca", {"lam": "tuned", "persistence": "tuned"}, "design"),
+    "tuned, no EWMA": ("pca", {"n_components": "tuned", "persistence": "tuned", "limits": "empirical"}, "design"),
+    "tuned, persistence 3": ("pca", {"n_components": "tuned", "lam": "tuned", "persistence": 3}, "design"),
+    "tuned, limits from d00.dat in-sample": ("pca", {"n_components": "tuned", "lam": "tuned",
+                                                      "persistence": "tuned"}, "d00"),
+}
+
+
+def ablation_study(directory: str | None = None) -> dict:
+    """What each design decision buys (docs/systems/tep.md): :data:`FAMILY_ABLATION`, every row at the protocol's
+    operating point (:func:`at_operating_point`), the literature's PCA design with one decision switched on, and
+    the tuned PCA design with one switched off."""
+    tuned = base.recorded_designs(SYSTEM)[TUNED]
+    overrides = [f"data.directory={directory}"] if directory else []
+    experiments: dict[str, Any] = {}
+    out = {}
+    for row, (family, changes, calibration) in FAMILY_ABLATION.items():
+        if family not in experiments:
+            experiments[family] = _family_experiment(family, overrides)
+        experiment = experiments[family]
+        params = {**LITERATURE, **{k: tuned[k] if v == "tuned" else v for k, v in changes.items()}}
+        if family == "dpca":
+            params.setdefault("lags", 2)
+        limits = params.pop("limits", "empirical" if float(params["lam"]) < 1.0 else "theoretical")
+        detector = experiment.detector.with_params(**params, statistic="combined", limits=limits,
+                                                   max_components=max(int(params["n_components"]), 32))
+        out[row] = at_operating_point(experiment, detector, in_sample=calibration == "d00")
     return out
 
 
@@ -613,9 +680,9 @@ def whole_test_files(experiment, source: TennesseeEastman) -> tuple[np.ndarray, 
     return _z(experiment, whole), labels
 
 
-def _family_scores(experiment, detector) -> dict:
+def _family_scores(experiment, detector, calibration: np.ndarray | None = None) -> dict:
     source = _study_source(experiment.data)
-    calibration = _z(experiment, source.trace("calibration"))
+    calibration = _z(experiment, source.trace("calibration")) if calibration is None else calibration
     z, labels = whole_test_files(experiment, source)
     decision = detector.decide(calibration, z).decision[:, ONSET:]
     params = {k: (int(v) if detector.tunable[k].integer else float(v)) for k, v in base.design_params(detector).items()}
@@ -662,6 +729,29 @@ def format_families(results: Mapping[str, dict]) -> str:
     rows.append(["training FAR / MDR (%)"] + [f"{100 * results[n]['train']['far']:.2f} / "
                                               f"{100 * results[n]['train']['mdr']:.1f}" for n in names])
     return cli.markdown_table(["fault"] + names, rows)
+
+
+def format_ablation_rows(results: Mapping[str, dict]) -> str:
+    """The ablation (:func:`ablation_study`): per row its design, calibration, α at the operating point, mean MDR
+    over the 18 observable faults, IDV(21), the test FAR with its episodes and interval, the median delay."""
+    from ..data.tep import DEFAULT_FAULTS
+
+    rows = []
+    for name, r in results.items():
+        p = r["params"]
+        design = ", ".join(f"{k} {p[k]:.3g}" if isinstance(p[k], float) else f"{k} {p[k]}"
+                           for k in p if k != "alpha")
+        delays = [r[f"delay_run_idv{f}"] for f in DEFAULT_FAULTS if f"delay_run_idv{f}" in r]
+        rows.append([name, design, r["calibration"], f"{p['alpha']:.2g}",
+                     f"{100 * (1 - np.mean([r[f'fdr_idv{f}'] for f in DEFAULT_FAULTS])):.1f}",
+                     f"{100 * r['fdr_idv21']:.1f}",
+                     f"{100 * r['far']:.2f} ({int(r['far_episodes'])}; {100 * r['far_ci_low']:.2f}-"
+                     f"{100 * r['far_ci_high']:.2f})",
+                     f"{100 * r['train']['far']:.2f} / {100 * r['train']['mdr']:.1f}",
+                     f"{np.median(delays):.0f}" if delays else "–"])
+    return cli.markdown_table(["row", "design", "calibration", "α", "mean MDR, 18 faults (%)", "IDV(21) (%)",
+                               "test FAR % (episodes; 95 %)", "training FAR / MDR (%)",
+                               f"run of {DELAY_RUN}, median (min)"], rows)
 
 
 def families_figure(results: Mapping[str, dict], path: Path) -> Path:
@@ -765,6 +855,9 @@ def main(argv=None) -> int:
                         help="tune every monitor family and print the per-fault table of the fair protocol")
     parser.add_argument("--family", action="append", default=None, choices=tuple(FAMILIES),
                         help="--families: only these families (repeat; default all)")
+    parser.add_argument("--ablation", action="store_true",
+                        help="the ablation: the literature's PCA design with one decision switched on at a time, the "
+                             "tuned one with one switched off, each at the protocol's operating point")
     parser.add_argument("--pop-size", type=int, default=20, help="--families: the optimiser's population")
     parser.add_argument("--n-gen", type=int, default=5, help="--families: the optimiser's generations")
     cli.design_options(parser, SYSTEM)
@@ -810,7 +903,17 @@ def main(argv=None) -> int:
                                                             "delay_run_k": DELAY_RUN}),
                 families_figure(results, out / "tep_families.png")]
 
+    def ablation_body(args):
+        results = ablation_study(args.directory)
+        print(f"## Tennessee Eastman, what each design decision buys: every row at training FAR <= "
+              f"{100 * PROTOCOL_FAR:g} % (alpha re-chosen on the training split), test files\n")
+        print(format_ablation_rows(results))
+        return [cli.write_json(Path(args.out) / "tep_ablation.json",
+                               {"results": results, "protocol_far": PROTOCOL_FAR, "delay_run_k": DELAY_RUN})]
+
     def body(args):
+        if args.ablation:
+            return ablation_body(args) + (families_body(args) if args.families else [])
         if args.families:
             return families_body(args)
         if args.export:
@@ -893,10 +996,14 @@ def family_benchmark(te: TennesseeEastman, quick: bool = False, seed: int = 0) -
     calibration, test = te.trace("calibration").y, te.trace("test").y
     out = {}
     for name in FAMILIES:
-        detector = cli.component("detector", name, ["fit_runs=1"])
+        # the tep preset's detector (a family's seed is the run's: cli.component cannot resolve it alone)
+        detector = cli.preset(SYSTEM, [f"detector={name}", "progress=false"]).experiment.detector
         experiment = RecordedExperiment(te, MeasuredSignals(), OutputMonitor(), detector)
-        evaluator = experiment.evaluator(experiment.prepare())
-        box = [(1e-4, 0.1) if k == "alpha" else (float(i.low), float(i.high)) for k, i in detector.tunable.items()]
+        data = experiment.prepare()
+        evaluator = experiment.evaluator(data)
+        # λ within the family base's floor for the held-back runs (latent.lam_floor)
+        box = [(1e-4, 0.1) if k == "alpha" else detector.lam_bounds(data.phase1.z) if k == "lam"
+               else (float(i.low), float(i.high)) for k, i in detector.tunable.items()]
         X = np.column_stack([rng.uniform(lo + 1e-9, hi, n) for lo, hi in box])
         evaluator(X[:2])
         out[name] = {"candidates_per_s": n / best_of(lambda: evaluator(X), repeats),
