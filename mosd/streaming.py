@@ -229,7 +229,8 @@ class OnlinePipeline:
                               f"{', '.join(self.state_names) or 'none'}")
         out = {}
         for stage in self.stages:
-            out.update(stage.check_state({k: v for k, v in (state or {}).items() if k in stage.state_vars()}))
+            declared = stage.state_vars()  # once per stage: a stage may build its declarations on each call
+            out.update(stage.check_state({k: v for k, v in (state or {}).items() if k in declared}))
         return out
 
     def update(self, columns: Mapping[str, np.ndarray], state: Mapping | None = None) -> dict[str, np.ndarray]:
@@ -239,17 +240,19 @@ class OnlinePipeline:
         flowing = {k: np.asarray(v) for k, v in columns.items()}
         result: dict[str, np.ndarray] = {}
         for stage in self.stages:
-            own = {k: state[k] for k in stage.state_vars()}
+            declared = tuple(stage.state_vars())
+            own = {k: state[k] for k in declared}
             out = stage.update({k: flowing[k] for k in stage.inputs}, own)
-            for name in (*stage.outputs, *stage.state_vars()):
+            for name in (*stage.outputs, *declared):
                 flowing[name] = result[name] = _per_row(out[name], rows)
         return {name: result[name] for name in self.outputs}
 
     def state_var(self, name: str) -> StateVar:
         """The declaration of state ``name`` (a KeyError names a state the pipeline does not carry)."""
         for stage in self.stages:
-            if name in stage.state_vars():
-                return stage.state_vars()[name]
+            declared = stage.state_vars()
+            if name in declared:
+                return declared[name]
         raise KeyError(f"state {name!r} is not carried by this pipeline; it carries {', '.join(self.state_names)}")
 
     def final_state(self, result: Mapping[str, np.ndarray], state: Mapping | None = None) -> dict:

@@ -541,15 +541,12 @@ class OnlineIMM(OnlineStage):
                 [f"imm_P_{m}_{i}_{j}" for m in range(M) for i in range(n) for j in range(n)])
 
     def state_vars(self) -> dict[str, StateVar]:
-        cached = self.__dict__.get("_state_vars")   # asked once per state param by the pipeline: built once
-        if cached is None:
-            mus, xs, Ps = self._state_names()
-            cached = {"imm_step": StateVar("Fusion instants seen since the stream's start.", COUNT)}
-            cached.update({k: StateVar("A model's probability after the row.", Interval(0.0, 1.0)) for k in mus})
-            cached.update({k: StateVar("An entry of a model's state estimate after the row.", FINITE) for k in xs})
-            cached.update({k: StateVar("An entry of a model's covariance after the row.", FINITE) for k in Ps})
-            self.__dict__["_state_vars"] = cached
-        return cached
+        mus, xs, Ps = self._state_names()
+        declared = {"imm_step": StateVar("Fusion instants seen since the stream's start.", COUNT)}
+        declared.update({k: StateVar("A model's probability after the row.", Interval(0.0, 1.0)) for k in mus})
+        declared.update({k: StateVar("An entry of a model's state estimate after the row.", FINITE) for k in xs})
+        declared.update({k: StateVar("An entry of a model's covariance after the row.", FINITE) for k in Ps})
+        return declared
 
     def initial_state(self) -> dict:
         _, models, _, mu0, *_ = self._setup()

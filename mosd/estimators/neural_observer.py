@@ -447,15 +447,12 @@ class OnlineObserver(OnlineStage):
         return [f"observer_lag{lag}_{n}" for lag in range(self.window, 0, -1) for n in self.channels]
 
     def state_vars(self) -> dict[str, StateVar]:
-        cached = self.__dict__.get("_state_vars")   # asked once per state param by the pipeline: built once
-        if cached is None:
-            cached = {"observer_rows": StateVar("Log rows seen since the stream's start.", COUNT)}
-            cached.update({k: StateVar("A logged value of an earlier row (the rollout's window; NaN: not seen).",
-                                       FINITE, missing=True) for k in self._lags()})
-            cached["kf_z"] = StateVar("The χ² filter's altitude estimate after the row.", FINITE)
-            cached["kf_P"] = StateVar("The χ² filter's variance after the row.", SQUARES)
-            self.__dict__["_state_vars"] = cached
-        return cached
+        declared = {"observer_rows": StateVar("Log rows seen since the stream's start.", COUNT)}
+        declared.update({k: StateVar("A logged value of an earlier row (the rollout's window; NaN: not seen).",
+                                     FINITE, missing=True) for k in self._lags()})
+        declared["kf_z"] = StateVar("The χ² filter's altitude estimate after the row.", FINITE)
+        declared["kf_P"] = StateVar("The χ² filter's variance after the row.", SQUARES)
+        return declared
 
     def initial_state(self) -> dict:
         return {"observer_rows": 0, **{k: math.nan for k in self._lags()}, "kf_z": 0.0, "kf_P": 1e6}

@@ -236,12 +236,6 @@ class OnlineDedicatedObserver(OnlineStage):
     def _root_names(self):
         return [(i, j, f"sqrt_cov_filt_{i}_{j}") for i in range(self._n_x) for j in range(i + 1)]
 
-    def state_vars(self) -> dict[str, StateVar]:
-        # declared once per stage: the pipeline asks for them several times per chunk
-        cached = self.__dict__.get("_state_vars")
-        if cached is None:
-            cached = self.__dict__["_state_vars"] = self._declare_state()
-        return cached
 
     @property
     def inputs(self) -> tuple[str, ...]:
@@ -251,7 +245,7 @@ class OnlineDedicatedObserver(OnlineStage):
     def outputs(self) -> tuple[str, ...]:
         return tuple(f"residual_{n}" for n in self.outputs_of_plant)
 
-    def _declare_state(self) -> dict[str, StateVar]:
+    def state_vars(self) -> dict[str, StateVar]:
         out = {"filter_step": StateVar("Rows the filter has seen (0: start from x̂_0, P_0).", COUNT)}
         out.update({f"x_filt_{i}": StateVar(f"x̂_k|k of state {i} (eq. 12).", FINITE) for i in range(self._n_x)})
         for i, j, name in self._root_names():
