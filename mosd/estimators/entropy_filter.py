@@ -46,10 +46,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..faults.random_amplitude import RandomAmplitudeFault
-from ..streaming import COUNT, FINITE, NoStreamingForm, OnlineStage, StateVar, build
+from ..streaming import COUNT, FINITE, NoStreamingForm, StateVar, build
 from ..types import Residuals, Trace
 from ..validation import ConfigError, Interval, Param
-from .base import Estimator
+from .base import Estimator, PlantStage
 from .imputation import HALF_WIDTHS, EMImputer, hold_last
 
 #: fills of a missing output: EM on lag windows (the paper), hold the last sample, or skip the correction
@@ -345,7 +345,7 @@ class EntropyIsolationFilter(_GainFilter):
 
 
 @dataclass
-class OnlineGainFilter(OnlineStage):
+class OnlineGainFilter(PlantStage):
     """The causal form of :class:`EntropyIsolationFilter` and :class:`FixedGainFilter` (paper 002).
 
     In per row: the raw output ``y_<output>`` (NaN where it is missing) and, with ``truth``, the simulated
@@ -370,12 +370,6 @@ class OnlineGainFilter(OnlineStage):
     missing: str
     output_name: str = "y"
     truth: bool = True
-
-    def _model(self):
-        cached = self.__dict__.get("_model_object")
-        if cached is None:
-            cached = self.__dict__["_model_object"] = build(self.plant).model(build(self.noise))
-        return cached
 
     @property
     def inputs(self) -> tuple[str, ...]:

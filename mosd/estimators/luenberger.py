@@ -14,10 +14,10 @@ import numpy as np
 from scipy.signal import place_poles
 
 from ..model import StateSpaceModel
-from ..streaming import FINITE, OnlineStage, StateVar, build
+from ..streaming import FINITE, StateVar
 from ..types import Residuals, Trace
 from ..validation import ConfigError, Interval, Param
-from .base import Estimator
+from .base import Estimator, PlantStage
 
 
 def observer_step(model: StateSpaceModel, x_hat: np.ndarray, y: np.ndarray, u: np.ndarray, gain: np.ndarray):
@@ -111,7 +111,7 @@ class LuenbergerObserver(Estimator):
 
 
 @dataclass
-class OnlineLuenberger(OnlineStage):
+class OnlineLuenberger(PlantStage):
     """:class:`LuenbergerObserver`'s causal form: ``y_<output>`` and ``u_<input>`` in, ``residual_<output>`` out.
 
     The plant's model is rebuilt from its description (``plant``, ``noise``); the state is x̂ (``x_hat_<i>``),
@@ -130,20 +130,6 @@ class OnlineLuenberger(OnlineStage):
         self.gain, self.x0 = np.asarray(gain, float), np.asarray(x0, float)
         self.outputs_of_plant = tuple(outputs_of_plant or outputs)
         self.inputs_of_plant = tuple(inputs_of_plant or inputs)
-
-    def _model(self) -> StateSpaceModel:
-        cached = self.__dict__.get("_model_object")
-        if cached is None:
-            cached = self.__dict__["_model_object"] = build(self.plant).model(build(self.noise))
-        return cached
-
-    @property
-    def inputs(self) -> tuple[str, ...]:
-        return (*(f"y_{n}" for n in self.outputs_of_plant), *(f"u_{n}" for n in self.inputs_of_plant))
-
-    @property
-    def outputs(self) -> tuple[str, ...]:
-        return tuple(f"residual_{n}" for n in self.outputs_of_plant)
 
     def state_vars(self) -> dict[str, StateVar]:
         return {f"x_hat_{i}": StateVar(f"The observer's estimate of state {i}.", FINITE) for i in range(len(self.x0))}

@@ -23,10 +23,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..model import StateSpaceModel
-from ..streaming import COUNT, FINITE, NoStreamingForm, OnlineStage, StateVar, build, describe
+from ..streaming import COUNT, FINITE, NoStreamingForm, StateVar, build, describe
 from ..types import Residuals, Trace
 from ..validation import ConfigError, Interval, Param, check_int
-from .base import Estimator
+from .base import Estimator, PlantStage
 from .cubature import CESCKF, FilterResult, FilterStart, _CubatureFilterBase, _lower_sqrt
 
 
@@ -187,7 +187,7 @@ class DedicatedObserverResidual(Estimator):
 
 
 @dataclass
-class OnlineDedicatedObserver(OnlineStage):
+class OnlineDedicatedObserver(PlantStage):
     """:class:`DedicatedObserverResidual`'s causal form: ``y_<output>``, ``u_<input>`` in, ``residual_<output>`` out.
 
     Each chunk goes through :meth:`DedicatedObserverResidual.residuals` (the batch arithmetic: the
@@ -222,12 +222,11 @@ class OnlineDedicatedObserver(OnlineStage):
 
     def _built(self):
         """(the model, the residual generator), rebuilt once from their descriptions."""
-        cached = self.__dict__.get("_built_objects")
+        cached = self.__dict__.get("_generator")
         if cached is None:
-            model = build(self.plant).model(build(self.noise))
-            cached = self.__dict__["_built_objects"] = (
-                model, DedicatedObserverResidual(filter=build(self.filter), monitored=self.monitored))
-        return cached
+            cached = self.__dict__["_generator"] = DedicatedObserverResidual(filter=build(self.filter),
+                                                                             monitored=self.monitored)
+        return self._model(), cached
 
     @property
     def _n_x(self) -> int:
@@ -236,14 +235,6 @@ class OnlineDedicatedObserver(OnlineStage):
     def _root_names(self):
         return [(i, j, f"sqrt_cov_filt_{i}_{j}") for i in range(self._n_x) for j in range(i + 1)]
 
-
-    @property
-    def inputs(self) -> tuple[str, ...]:
-        return (*(f"y_{n}" for n in self.outputs_of_plant), *(f"u_{n}" for n in self.inputs_of_plant))
-
-    @property
-    def outputs(self) -> tuple[str, ...]:
-        return tuple(f"residual_{n}" for n in self.outputs_of_plant)
 
     def state_vars(self) -> dict[str, StateVar]:
         out = {"filter_step": StateVar("Rows the filter has seen (0: start from x̂_0, P_0).", COUNT)}
