@@ -166,6 +166,17 @@ def _count(plotted, n_calibration, width, faulty, calibration, healthy_alarms, f
 
 
 @njit(cache=True, nogil=True)
+def _buffers(u, feedback, n_calibration):
+    """Both kernels' outputs (zeroed counts (P, R_train)) and scratch: the statistic (C, K), the recursion's
+    past values (4, C) and the calibration points."""
+    n_points, n_columns = u.shape
+    n_candidates = feedback.shape[0]
+    n_train = n_columns - n_calibration
+    return (np.zeros((n_candidates, n_train), np.int64), np.zeros((n_candidates, n_train), np.int64),
+            np.empty((n_columns, n_points)), np.empty((4, n_columns)), np.empty(n_calibration * n_points))
+
+
+@njit(cache=True, nogil=True)
 def alarm_counts(u, v, n_calibration, gains, feedback, widths, combine_max, faulty):
     """Per-run alarm counts of every candidate, fused (module docstring), with no denoiser.
 
@@ -185,15 +196,9 @@ def alarm_counts(u, v, n_calibration, gains, feedback, widths, combine_max, faul
     A kernel of its own (not a flag of :func:`alarm_counts_denoised`): numba compiles every function a
     body calls, taken branch or not, so a run without a denoiser never compiles the wavelet.
     """
-    n_points, n_columns = u.shape
-    n_candidates, order = feedback.shape
-    n_train = n_columns - n_calibration
-    healthy_alarms = np.zeros((n_candidates, n_train), np.int64)
-    faulty_misses = np.zeros((n_candidates, n_train), np.int64)
-    raw = np.empty((n_columns, n_points))
-    y = np.empty((4, n_columns))
-    calibration = np.empty(n_calibration * n_points)
-    for p in range(n_candidates):
+    healthy_alarms, faulty_misses, raw, y, calibration = _buffers(u, feedback, n_calibration)
+    order = feedback.shape[1]
+    for p in range(feedback.shape[0]):
         f2 = feedback[p, 1] if order == 2 else 0.0
         _statistics(u, v, gains[p], feedback[p, 0], f2, order, combine_max, raw, y)
         _count(raw, n_calibration, widths[p], faulty, calibration, healthy_alarms, faulty_misses, p)
@@ -205,17 +210,12 @@ def alarm_counts_denoised(u, v, n_calibration, gains, feedback, widths, combine_
                           lo, hi, rec_lo, rec_hi, level, per_level, source, rule, fixed, hard):
     """:func:`alarm_counts` with each run's statistic wavelet-denoised before the limit and the counts
     (the remaining arguments: :func:`mosd.kernels.wavelet.denoise_row`)."""
+    healthy_alarms, faulty_misses, raw, y, calibration = _buffers(u, feedback, n_calibration)
+    order = feedback.shape[1]
     n_points, n_columns = u.shape
-    n_candidates, order = feedback.shape
-    n_train = n_columns - n_calibration
-    healthy_alarms = np.zeros((n_candidates, n_train), np.int64)
-    faulty_misses = np.zeros((n_candidates, n_train), np.int64)
-    raw = np.empty((n_columns, n_points))
     plotted = np.empty((n_columns, n_points))
-    y = np.empty((4, n_columns))
     work = np.empty(work_size(n_points, lo.shape[0], level))
-    calibration = np.empty(n_calibration * n_points)
-    for p in range(n_candidates):
+    for p in range(feedback.shape[0]):
         f2 = feedback[p, 1] if order == 2 else 0.0
         _statistics(u, v, gains[p], feedback[p, 0], f2, order, combine_max, raw, y)
         for c in range(n_columns):
