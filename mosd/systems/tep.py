@@ -967,7 +967,8 @@ def benchmark(quick: bool = False, seed: int = 0) -> dict:
     evaluator = experiment.evaluator(experiment.prepare())
     rng = np.random.default_rng(seed)
     n = 50 if quick else 200
-    X = np.column_stack([rng.integers(1, 26, n), rng.uniform(1e-4, 0.1, n), rng.uniform(0.01, 1.0, n),
+    lam_low, _ = experiment.detector.lam_bounds(evaluator.calibration_features)  # latent.lam_floor
+    X = np.column_stack([rng.integers(1, 26, n), rng.uniform(1e-4, 0.1, n), rng.uniform(lam_low, 1.0, n),
                          rng.integers(1, 11, n)]).astype(float)
     evaluator(X[:2])  # imports (scipy.signal) and the cached projections
     repeats = 2 if quick else 3
