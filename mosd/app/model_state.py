@@ -23,11 +23,13 @@ def strict_json(frame):
     import numpy as np
 
     columns = {}
-    for name in frame.columns:
-        column = frame[name]
-        if column.dtype.kind == "f" and not np.isfinite(column.to_numpy()).all():
-            column = column.astype(object).where(np.isfinite(column.to_numpy()), None)
-        columns[name] = column
+    for name, dtype in zip(frame.columns, frame.dtypes):
+        if dtype.kind != "f":
+            continue
+        values = frame[name].to_numpy()
+        finite = np.isfinite(values)
+        if not finite.all():  # only these columns change (re-setting every column cost a served request ~1 ms)
+            columns[name] = frame[name].astype(object).where(finite, None)
     return frame.assign(**columns) if columns else frame
 
 

@@ -405,19 +405,36 @@ class OnlinePCA(OnlineStage):
         model = self.__dict__.get("_model") or self.__dict__.setdefault("_model", self.model())
         raw = {"t2": np.empty(n), "spe": np.empty(n)}
         finite = np.empty(n, bool)
-        tops = {"t2": np.empty(n, dtype=object), "spe": np.empty(n, dtype=object)} if top else None
-        # blocks of BLOCK rows, so that the (block, m) intermediates stay in cache; every step is row by
-        # row, so the blocks change no bit
-        with _one_blas_thread():
-            for lo in range(0, n, BLOCK):
-                block = X[lo:lo + BLOCK]
-                proj = _Projected.of(model, block, components=a)
-                raw["t2"][lo:lo + len(block)], raw["spe"][lo:lo + len(block)] = proj.t2[:, 0], proj.spe[:, 0]
-                finite[lo:lo + len(block)] = proj.finite
-                if top:
-                    Z = np.where(proj.finite[:, None], (block - self.mean) / self.scale, 0.0)
-                    for name in ("t2", "spe"):
-                        tops[name][lo:lo + len(block)] = self._top(Z, proj.finite, name)
+        from .. import kernels
+
+        fused = kernels.enabled() and model.loadings.shape[1] >= model.m
+        if fused:  # one pass per row, the same bits as _Projected.of (kernels.projection.t2_spe)
+            from ..kernels.projection import t2_spe
+
+            raw["t2"], raw["spe"], finite = t2_spe(np.ascontiguousarray(X, dtype=float), model.mean, model.scale,
+                                                   np.ascontiguousarray(model.loadings), model.eigenvalues, a)
+        # blocks of BLOCK rows, so that the (block, m) intermediates stay in cache (buffers made once per
+        # call); every step is row by row, so the blocks change no bit
+        index = {"t2": np.empty((n, TOP), np.intp), "spe": np.empty((n, TOP), np.intp)} if top else None
+        if top or not fused:
+            block = min(BLOCK, n)
+            Z_buffer, c_buffer = np.empty((block, model.m)), np.empty((block, model.m))
+            with _one_blas_thread():
+                for lo in range(0, n, BLOCK):
+                    hi = min(lo + BLOCK, n)
+                    if not fused:
+                        proj = _Projected.of(model, X[lo:hi], components=a)
+                        raw["t2"][lo:hi], raw["spe"][lo:hi] = proj.t2[:, 0], proj.spe[:, 0]
+                        finite[lo:hi] = proj.finite
+                    if top:
+                        Z = np.subtract(X[lo:hi], self.mean, out=Z_buffer[:hi - lo])
+                        Z /= self.scale
+                        ok = finite[lo:hi]
+                        if not ok.all():
+                            Z[~ok] = 0.0
+                        for name in ("t2", "spe"):
+                            index[name][lo:hi] = self._top(Z, name, c_buffer[:hi - lo])
+        tops = {name: self._labels(index[name], finite) for name in ("t2", "spe")} if top else None
         out: dict[str, np.ndarray] = {}
         ratios = []
         for name, start, limit in (("t2", self.t2_start, self.t2_limit), ("spe", self.spe_start, self.spe_limit)):
@@ -438,9 +455,9 @@ class OnlinePCA(OnlineStage):
             out[f"top_{name}"] = tops[name] if top else np.full(n, "", dtype=object)
         return out
 
-    def _top(self, Z: np.ndarray, finite: np.ndarray, name: str) -> np.ndarray:
-        """``tag;tag;tag`` per standardised row of Z (0 where missing), largest contribution first ('' where the
-        row is not scored).
+    def _top(self, Z: np.ndarray, name: str, out: np.ndarray) -> np.ndarray:
+        """Indices of the :data:`TOP` largest contributions per standardised row of Z (0 where missing), largest
+        first; ``out`` (rows, m) is scratch.
 
         T²: c_i = z_i (Pₐ Λₐ⁻¹ Pₐᵀ z)_i; SPE: c_i = e_i², e = (I − Pₐ Pₐᵀ) z (:meth:`PCAModel.contributions`),
         each one product with an (m, m) matrix made once.
@@ -451,19 +468,22 @@ class OnlinePCA(OnlineStage):
             maps = self.__dict__["_maps"] = {
                 "t2": (P[:, :a] / np.asarray(self.eigenvalues)[:a]) @ P[:, :a].T,
                 "spe": np.eye(len(P)) - P[:, :a] @ P[:, :a].T}
-        c = Z @ maps[name]
+        c = np.matmul(Z, maps[name], out=out)
         if name == "t2":
             c *= Z
         else:
             c *= c
-        out = self._labels(_largest(c, TOP))
+        return _largest(c, TOP)
+
+    def _labels(self, index: np.ndarray, finite: np.ndarray) -> np.ndarray:
+        """``tag;tag;tag`` per row of (n, TOP) indices, largest first ('' where the row is not scored): each
+        combination joined once (a few hundred in a file), then looked up in a table of every combination."""
+        out = self._joined(index)
         if not finite.all():
             out[~finite] = ""
         return out
 
-    def _labels(self, index: np.ndarray) -> np.ndarray:
-        """``tag;tag;tag`` per row of (n, TOP) indices, largest first: each combination joined once (a few
-        hundred in a file), then looked up in a table of every combination."""
+    def _joined(self, index: np.ndarray) -> np.ndarray:
         m, k = len(self.tags), index.shape[1]
         code = np.zeros(len(index), np.int64)
         for j in range(k):

@@ -105,7 +105,10 @@ class OnlineSelect(OnlineStage):
 
     @property
     def points(self) -> tuple[str, ...]:
-        return tuple(f"z_{j}" for j in range(1, len(self.columns) + 1))
+        cached = self.__dict__.get("_points")  # asked for on every served request: made once
+        if cached is None or len(cached) != len(self.columns):
+            cached = self.__dict__["_points"] = tuple(f"z_{j}" for j in range(1, len(self.columns) + 1))
+        return cached
 
     @property
     def outputs(self) -> tuple[str, ...]:
@@ -127,7 +130,9 @@ class OnlineSelect(OnlineStage):
         index = seen + np.arange(rows) - self.burn_in            # point index past the burn-in (< 0: in it)
         live = index >= 0
         out = {"point": np.where(live, index + 1, 0).astype(np.int64)}
+        every = bool(live.all())  # past the burn-in: the columns pass as they are
         for name, column in zip(self.points, self.columns):
-            out[name] = np.where(live, np.asarray(columns[column], float), np.nan)
+            values = np.asarray(columns[column], float)
+            out[name] = values if every else np.where(live, values, np.nan)
         out["samples_seen"] = seen + np.arange(1, rows + 1, dtype=np.int64)
         return out
