@@ -61,6 +61,16 @@ class Estimator(Component):
         raise NotImplementedError
 
 
+def plant_columns(trace: Trace, model: Any, input_names) -> dict[str, np.ndarray]:
+    """The first replication's measurements and inputs as a plant stage's columns: ``y_<output>`` per output of
+    ``model`` and ``u_<input>`` per input (``input_names``, or u0, u1, ... when the plant names none)."""
+    y, u = np.asarray(trace.y, float)[0], np.asarray(trace.u, float)[0]
+    columns = {f"y_{name}": y[:, j] for j, name in enumerate(model.output_names)}
+    names = tuple(input_names or (f"u{i}" for i in range(u.shape[-1])))
+    columns.update({f"u_{name}": u[:, j] for j, name in enumerate(names)})
+    return columns
+
+
 class PlantStage(OnlineStage):
     """An estimator's causal form that rebuilds its plant's model from the description it saves (dataclass
     fields ``plant`` and ``noise``, as :func:`mosd.streaming.describe` gives them).

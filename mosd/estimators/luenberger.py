@@ -17,7 +17,7 @@ from ..model import StateSpaceModel
 from ..streaming import FINITE, StateVar
 from ..types import Residuals, Trace
 from ..validation import ConfigError, Interval, Param
-from .base import Estimator, PlantStage
+from .base import Estimator, PlantStage, plant_columns
 
 
 def observer_step(model: StateSpaceModel, x_hat: np.ndarray, y: np.ndarray, u: np.ndarray, gain: np.ndarray):
@@ -104,10 +104,7 @@ class LuenbergerObserver(Estimator):
 
     def raw_stream(self, trace: Trace, model: StateSpaceModel, input_names) -> dict[str, np.ndarray]:
         """The first replication's measurements and inputs as the causal form's columns."""
-        y, u = np.asarray(trace.y, float)[0], np.asarray(trace.u, float)[0]
-        columns = {f"y_{name}": y[:, j] for j, name in enumerate(model.output_names)}
-        columns.update({f"u_{name}": u[:, j] for j, name in enumerate(input_names)})
-        return columns
+        return plant_columns(trace, model, input_names)
 
 
 @dataclass

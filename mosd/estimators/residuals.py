@@ -26,7 +26,7 @@ from ..model import StateSpaceModel
 from ..streaming import COUNT, FINITE, NoStreamingForm, StateVar, build, describe
 from ..types import Residuals, Trace
 from ..validation import ConfigError, Interval, Param, check_int
-from .base import Estimator, PlantStage
+from .base import Estimator, PlantStage, plant_columns
 from .cubature import CESCKF, FilterResult, FilterStart, _CubatureFilterBase, _lower_sqrt
 
 
@@ -72,14 +72,32 @@ class InnovationResidual(Estimator):
     def estimate(self, trace: Trace, model: StateSpaceModel) -> Residuals:
         """Filter the trace and return the innovations of all channels with their predicted covariance."""
         _check_trace(trace, model)
-        res = self.filter.filter(model, trace.y, trace.u)
+        r, cov, res, y_pred = self.residuals(model, np.asarray(trace.y, float), trace.u)
         return Residuals.of(
             trace,
-            r=res.innovation,
+            r=r,
             channels=model.output_names,
-            cov=res.innovation_cov,
-            extra={"x_pred": res.x_pred, "x_filt": res.x_filt, "y_pred": res.y_pred, "generator": "innovation"},
+            cov=cov,
+            extra={"x_pred": res.x_pred, "x_filt": res.x_filt, "y_pred": y_pred, "generator": "innovation"},
         )
+
+    def residuals(self, model: StateSpaceModel, y: np.ndarray, u, start: FilterStart | None = None):
+        """(r, cov, the filter's result, ŷ) of ``y`` (R, N, n_y): the one arithmetic of :meth:`estimate` and of
+        the causal form (:class:`OnlineDedicatedObserver` with no channel left out, from the carried ``start``)."""
+        res = (self.filter.filter(model, y, u) if start is None
+               else self.filter.filter(model, y, u, start=start))
+        return res.innovation, res.innovation_cov, res, res.y_pred
+
+    def online(self, model: StateSpaceModel = None, source=None, trace: Trace | None = None):
+        """The innovation as a stream of the plant's raw measurements and inputs: ``y_<output>`` and
+        ``u_<input>`` in, ``residual_<output>`` out (:class:`OnlineDedicatedObserver` with ``monitored=()``)."""
+        if source is None or trace is None or type(self).estimate is not InnovationResidual.estimate:
+            return super().online(model)
+        return _online_filter(self, model, source, trace, monitored=())
+
+    def raw_stream(self, trace: Trace, model: StateSpaceModel, input_names) -> dict[str, np.ndarray]:
+        """The first replication's measurements and inputs as the causal form's columns."""
+        return plant_columns(trace, model, input_names)
 
 
 class DedicatedObserverResidual(Estimator):
@@ -162,33 +180,36 @@ class DedicatedObserverResidual(Estimator):
         if type(self).estimate is not DedicatedObserverResidual.estimate:
             # a subclass that changes the estimate would deploy an arithmetic its run did not use
             return super().online(model)
-        if type(self.filter).filter is not _CubatureFilterBase.filter:
-            raise NoStreamingForm(f"the filter {type(self.filter).__name__} overrides filter(): its stream would not "
-                                  f"be the run's arithmetic")
-        parts = {"plant": source["plant"], "noise": source["noise"], "filter": describe(self.filter)}
-        foreign = [f"{key} {d['class']}" for key, d in parts.items() if not d["class"].startswith("mosd.")]
-        if foreign:
-            raise NoStreamingForm(f"the {foreign[0]} is not mosd's: a deployed model rebuilds mosd's classes only")
         _check_monitored("estimator.monitored", self.monitored, self)
-        inputs = tuple(source.get("input_names") or (f"u{i}" for i in range(np.shape(trace.u)[-1])))
-        sqrt_p0 = _lower_sqrt(np.asarray(model.P0, float))
-        return OnlineDedicatedObserver(
-            plant=parts["plant"], noise=parts["noise"], filter=parts["filter"],
-            monitored=tuple(int(m) for m in self.monitored), x0=np.asarray(model.x0, float),
-            sqrt_p0=sqrt_p0, outputs_of_plant=tuple(model.output_names), inputs_of_plant=inputs)
+        return _online_filter(self, model, source, trace, monitored=tuple(int(m) for m in self.monitored))
 
     def raw_stream(self, trace: Trace, model: StateSpaceModel, input_names) -> dict[str, np.ndarray]:
         """The first replication's measurements and inputs as the causal form's columns."""
-        y, u = np.asarray(trace.y, float)[0], np.asarray(trace.u, float)[0]
-        columns = {f"y_{name}": y[:, j] for j, name in enumerate(model.output_names)}
-        names = tuple(input_names or (f"u{i}" for i in range(u.shape[-1])))
-        columns.update({f"u_{name}": u[:, j] for j, name in enumerate(names)})
-        return columns
+        return plant_columns(trace, model, input_names)
+
+
+def _online_filter(estimator, model: StateSpaceModel, source, trace: Trace, monitored: tuple) -> "OnlineDedicatedObserver":
+    """The causal form of a cubature-filter residual (``monitored``: the channels left out of the update; none:
+    the innovation), its plant, noise and filter rebuilt from their descriptions."""
+    if type(estimator.filter).filter is not _CubatureFilterBase.filter:
+        raise NoStreamingForm(f"the filter {type(estimator.filter).__name__} overrides filter(): its stream would not "
+                              f"be the run's arithmetic")
+    parts = {"plant": source["plant"], "noise": source["noise"], "filter": describe(estimator.filter)}
+    foreign = [f"{key} {d['class']}" for key, d in parts.items() if not d["class"].startswith("mosd.")]
+    if foreign:
+        raise NoStreamingForm(f"the {foreign[0]} is not mosd's: a deployed model rebuilds mosd's classes only")
+    inputs = tuple(source.get("input_names") or (f"u{i}" for i in range(np.shape(trace.u)[-1])))
+    sqrt_p0 = _lower_sqrt(np.asarray(model.P0, float))
+    return OnlineDedicatedObserver(
+        plant=parts["plant"], noise=parts["noise"], filter=parts["filter"], monitored=monitored,
+        x0=np.asarray(model.x0, float), sqrt_p0=sqrt_p0, outputs_of_plant=tuple(model.output_names),
+        inputs_of_plant=inputs)
 
 
 @dataclass
 class OnlineDedicatedObserver(PlantStage):
-    """:class:`DedicatedObserverResidual`'s causal form: ``y_<output>``, ``u_<input>`` in, ``residual_<output>`` out.
+    """:class:`DedicatedObserverResidual`'s causal form: ``y_<output>``, ``u_<input>`` in, ``residual_<output>`` out
+    (with ``monitored=()``, :class:`InnovationResidual`'s: the innovation of every channel).
 
     Each chunk goes through :meth:`DedicatedObserverResidual.residuals` (the batch arithmetic: the
     compiled CESCKF kernel where the batch used it) from the carried state, a
@@ -224,8 +245,9 @@ class OnlineDedicatedObserver(PlantStage):
         """(the model, the residual generator), rebuilt once from their descriptions."""
         cached = self.__dict__.get("_generator")
         if cached is None:
-            cached = self.__dict__["_generator"] = DedicatedObserverResidual(filter=build(self.filter),
-                                                                             monitored=self.monitored)
+            cached = self.__dict__["_generator"] = (
+                DedicatedObserverResidual(filter=build(self.filter), monitored=self.monitored) if self.monitored
+                else InnovationResidual(filter=build(self.filter)))  # no channel left out: the innovation (eq. 7)
         return self._model(), cached
 
     @property
