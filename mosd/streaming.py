@@ -131,10 +131,11 @@ class OnlineStage:
         raise NotImplementedError
 
     # -- generic -----------------------------------------------------------------------
-    def check_state(self, state: Mapping | None) -> dict:
-        """The initial state updated with ``state``, each value checked against its declared domain."""
+    def check_state(self, state: Mapping | None, variables: Mapping[str, StateVar] | None = None) -> dict:
+        """The initial state updated with ``state``, each value checked against its declared domain
+        (``variables``: :meth:`state_vars`, when the caller has them)."""
         out = dict(self.initial_state())
-        variables = self.state_vars()
+        variables = self.state_vars() if variables is None else variables
         for name, value in (state or {}).items():
             if name in variables and (value is not None or variables[name].missing):
                 out[name] = variables[name].check(name, value)
@@ -195,8 +196,8 @@ class OnlinePipeline:
 
     def __post_init__(self):
         seen: dict[str, int] = {}
-        for i, stage in enumerate(self.stages):
-            for name in stage.state_vars():
+        for i, declared in enumerate(self._declared()):
+            for name in declared:
                 if name in seen:
                     raise ValueError(f"state variable {name!r} of stage {i} is also stage {seen[name]}'s")
                 seen[name] = i
@@ -205,9 +206,17 @@ class OnlinePipeline:
     def inputs(self) -> tuple[str, ...]:
         return tuple(self.stages[0].inputs)
 
+    def _declared(self) -> list[dict[str, StateVar]]:
+        """Each stage's state declarations, asked for once per pipeline (a fitted stage does not change; a
+        stage may build its declarations on each call: a served row asked nine times)."""
+        cached = self.__dict__.get("_declarations")
+        if cached is None or len(cached[0]) != len(self.stages) or any(a is not b for a, b in zip(cached[0], self.stages)):
+            cached = self.__dict__["_declarations"] = (list(self.stages), [s.state_vars() for s in self.stages])
+        return cached[1]
+
     @property
     def state_names(self) -> tuple[str, ...]:
-        return tuple(name for stage in self.stages for name in stage.state_vars())
+        return tuple(name for declared in self._declared() for name in declared)
 
     @property
     def outputs(self) -> tuple[str, ...]:
@@ -228,9 +237,8 @@ class OnlinePipeline:
             raise ConfigError(f"param {unknown[0]!r} is not a state of the model; allowed: "
                               f"{', '.join(self.state_names) or 'none'}")
         out = {}
-        for stage in self.stages:
-            declared = stage.state_vars()  # once per stage: a stage may build its declarations on each call
-            out.update(stage.check_state({k: v for k, v in (state or {}).items() if k in declared}))
+        for stage, declared in zip(self.stages, self._declared()):
+            out.update(stage.check_state({k: v for k, v in (state or {}).items() if k in declared}, declared))
         return out
 
     def update(self, columns: Mapping[str, np.ndarray], state: Mapping | None = None) -> dict[str, np.ndarray]:
@@ -239,8 +247,7 @@ class OnlinePipeline:
         rows = len(next(iter(columns.values()))) if columns else 0
         flowing = {k: np.asarray(v) for k, v in columns.items()}
         result: dict[str, np.ndarray] = {}
-        for stage in self.stages:
-            declared = tuple(stage.state_vars())
+        for stage, declared in zip(self.stages, self._declared()):
             own = {k: state[k] for k in declared}
             out = stage.update({k: flowing[k] for k in stage.inputs}, own)
             for name in (*stage.outputs, *declared):
@@ -249,8 +256,7 @@ class OnlinePipeline:
 
     def state_var(self, name: str) -> StateVar:
         """The declaration of state ``name`` (a KeyError names a state the pipeline does not carry)."""
-        for stage in self.stages:
-            declared = stage.state_vars()
+        for declared in self._declared():
             if name in declared:
                 return declared[name]
         raise KeyError(f"state {name!r} is not carried by this pipeline; it carries {', '.join(self.state_names)}")

@@ -110,6 +110,9 @@ class EmbeddedCubatureRule:
         Order: the centre, the 2^n δ₂ corners, the 2^n δ₁ corners.
         """
         n = check_int("n", n, 1, 20)
+        cached = self.__dict__.setdefault("_points", {}).get((n, self.delta1))  # per filter call: made once
+        if cached is not None:
+            return cached
         d1sq = self.delta1**2
         corners = _sign_corners(n)
         eps = np.concatenate(
@@ -119,6 +122,8 @@ class EmbeddedCubatureRule:
         w_delta2 = (2.0 * d1sq - 1.0) ** 2 / (2.0 ** (n + 3) * d1sq**2)
         w_delta1 = 1.0 / (2.0 ** (n + 2) * d1sq**2)
         weights = np.concatenate([[w_centre], np.full(2**n, w_delta2), np.full(2**n, w_delta1)])
+        eps.flags.writeable = weights.flags.writeable = False  # shared by every call
+        self._points[(n, self.delta1)] = (eps, weights)
         return eps, weights
 
 

@@ -255,7 +255,11 @@ class OnlineDedicatedObserver(PlantStage):
         return len(self.x0)
 
     def _root_names(self):
-        return [(i, j, f"sqrt_cov_filt_{i}_{j}") for i in range(self._n_x) for j in range(i + 1)]
+        cached = self.__dict__.get("_roots")  # four times per served row: made once
+        if cached is None:
+            cached = self.__dict__["_roots"] = [(i, j, f"sqrt_cov_filt_{i}_{j}") for i in range(self._n_x)
+                                                for j in range(i + 1)]
+        return cached
 
 
     def state_vars(self) -> dict[str, StateVar]:
