@@ -106,3 +106,22 @@ def test_an_explicit_lam_below_the_floor_is_one_line_on_te(capsys):
     err = capsys.readouterr().err.strip()
     assert code == 2 and "\n" not in err, err
     assert "detector.bounds.lam=[0.05, 1] reaches lam=0.05," in err and f"[{lam_floor(160):g}, 1]" in err
+
+
+def test_a_job_built_without_preflight_gets_the_same_box_on_a_simulated_system():
+    """A launcher's worker builds its job itself (fit_to_data): the mould oscillator's 3 residual channels take
+    at most 2 components, as preflight's dry run finds (before issue 29 the worker kept [1, 1000])."""
+    from hydra import compose, initialize_config_dir
+
+    from mosd.app.build import build
+    from mosd.app.config import CONFIG_DIR, CONFIG_NAME
+    from mosd.app.preflight import fit_to_data
+
+    with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3", job_name="mosd"):
+        cfg = compose(CONFIG_NAME, overrides=["+fault=offset_var", "detector=pca", "monitor=signals",
+                                              "tracking=none"])
+    setup = build(cfg)
+    assert setup.experiment.detector.tunable["n_components"].high == 1000
+    fit_to_data(setup)
+    detector = setup.experiment.detector
+    assert detector.tunable["n_components"].high == 2 and detector.n_components == 2 and setup.bounds == {}

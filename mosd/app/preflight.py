@@ -247,8 +247,10 @@ def narrow_to_data(setup: Setup, box: dict[str, tuple[float, float]] | None) -> 
     ranges are the data's (the summary then calls the end "the largest value n_components allows", not
     a box to widen); any other end goes into ``setup.bounds``. The detector's own value of an integer
     parameter outside the box is moved to its nearest end (the table's 9 default components on 8 tags:
-    7); a real one is refused. An explicit ``detector.bounds.X`` is the user's box:
-    :func:`check_search_box` refuses it, naming the key, if the data cannot take it.
+    7); a real one is refused. An explicit ``detector.bounds.X`` is the user's box and is not moved: where it
+    leaves what the data allow it is refused here, naming the key (a family that would lower the value itself,
+    SFA's slow features, would otherwise run another box than the user's); :func:`check_search_box` then
+    evaluates its ends.
     """
     if not box:
         return
@@ -279,7 +281,8 @@ def narrow_to_data(setup: Setup, box: dict[str, tuple[float, float]] | None) -> 
                               "(detector.fit_runs)")
         if new_low == float(interval.low) and new_high == float(interval.high):
             continue
-        for end, value, moved in (("low", new_low, new_low > interval.low), ("high", new_high, new_high < interval.high)):
+        for end, value, moved in (("low", new_low, new_low > interval.low),
+                                  ("high", new_high, new_high < interval.high)):
             reference = getattr(declared, end)
             if moved and isinstance(reference, str):
                 changes[reference] = int(value) if interval.integer else value
