@@ -103,6 +103,22 @@ def test_sfa_literature_count_follows_the_slowness_rule():
     assert SFADetector().shang_slow_features(rng.standard_normal((1, 2000, 5))) <= 4
 
 
+def test_literature_comparison_flags_a_design_that_cannot_reach_the_operating_point():
+    from mosd.data.tep import DEFAULT_FAULTS
+
+    def result(rate, far, train_far):
+        return {**{f"fdr_idv{f}": rate for f in DEFAULT_FAULTS}, "far": far, "train": {"far": train_far}}
+
+    results = {"cva": result(0.95, 0.01, 0.009), "cva_lit": result(0.9, 0.008, 0.0097),
+               "tag_cusum": result(0.9, 0.0, 0.0), "tag_cusum_lit": result(0.95, 0.1, 0.056)}
+    compared = tep.literature_comparison(results)
+    assert compared["cva"]["beats"] == 1.0 and compared["cva"]["lit_reached"] == 1.0
+    assert compared["cva"]["tuned_mdr"] == pytest.approx(0.05) and compared["cva"]["lit_mdr"] == pytest.approx(0.1)
+    assert compared["tag_cusum"]["beats"] == 0.0 and compared["tag_cusum"]["lit_reached"] == 0.0
+    assert "above the operating point" in tep.format_literature_comparison(results)
+    assert tep.family_metrics({k: {**v, "far_episodes": 1} for k, v in results.items()})["family_beats_lit_cva"] == 1
+
+
 def test_families_command_refuses_a_bad_budget(tmp_path, capsys):
     assert tep.main(["--families", "--pop-size", "1", "--out", str(tmp_path)]) == 2
     assert "--pop-size" in capsys.readouterr().err

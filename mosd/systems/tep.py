@@ -545,8 +545,9 @@ LITERATURE_FAMILIES = {
     # Ku, Storer & Georgakis (1995): l = 2 lags (their order for a process of TE's dynamics); 27 components, 9 per
     # lagged copy: our reading, not a published table
     "dpca": {"n_components": 27, "lags": 2},
-    # Russell, Chiang & Braatz (2000), on TE: past = future = 3 lags and 29 states (their AIC choices on the 52
-    # variables); kept as published on our 33 (reconstructed: the AIC on these variables is not re-run)
+    # Russell, Chiang & Braatz (2000), on TE: past = future = 3 lags and 29 states, their AIC choices on the 52
+    # variables as we read them (not re-checked against the text for this table); kept on our 33 (reconstructed:
+    # the AIC on these variables is not re-run)
     "cva": {"past": 3, "future": 3, "n_states": 29},
     # Lee, Yoo & Lee (2004), J. Process Control 14, 467-485: I², I²ₑ, SPE, limits from the fault-free data's
     # density (here its quantile); d = 9 dominant components, as many as the PCA's (reconstructed: the paper picks
@@ -635,15 +636,20 @@ def literature_comparison(results: Mapping[str, dict]) -> dict[str, dict[str, fl
         lit = results.get(f"{name}_lit")
         if lit is None or name.endswith("_lit"):
             continue
+        # a literature design whose held-back maximum still alarms above the operating point is compared anyway,
+        # and flagged (``lit_reached`` 0): its MDR is not at the tuned design's FAR
         out[name] = {"tuned_mdr": mdr(result), "tuned_far": float(result["far"]), "lit_mdr": mdr(lit),
-                     "lit_far": float(lit["far"]), "beats": float(mdr(result) < mdr(lit))}
+                     "lit_far": float(lit["far"]), "beats": float(mdr(result) < mdr(lit)),
+                     "lit_reached": float(lit["train"]["far"] <= PROTOCOL_FAR + 1e-12)}
     return out
 
 
 def format_literature_comparison(results: Mapping[str, dict]) -> str:
     """:func:`literature_comparison` as a table (%)."""
     rows = [[name, f"{100 * c['tuned_mdr']:.1f} ({100 * c['tuned_far']:.2f})",
-             f"{100 * c['lit_mdr']:.1f} ({100 * c['lit_far']:.2f})", "yes" if c["beats"] else "no"]
+             f"{100 * c['lit_mdr']:.1f} ({100 * c['lit_far']:.2f})" + ("" if c["lit_reached"] else
+                                                                        ", above the operating point"),
+             "yes" if c["beats"] else "no"]
             for name, c in literature_comparison(results).items()]
     return cli.markdown_table(["family", "tuned: mean MDR (test FAR), %", "literature: mean MDR (test FAR), %",
                                "tuned beats literature"], rows)
