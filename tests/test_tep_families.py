@@ -55,10 +55,14 @@ def test_families_command_prints_the_table_and_writes_the_figure(tmp_path, capsy
     code = tep.main(["--families", "--family", "cva", "--pop-size", "4", "--n-gen", "1", "--out", str(tmp_path)])
     assert code == 0
     printed = capsys.readouterr().out
-    assert "| IDV(21) |" in printed and "FAR episodes" in printed and "| fault | cva | pca_lit | dpca_lit |" in printed
+    assert "| IDV(21) |" in printed and "FAR episodes" in printed and "| fault | cva | cva_lit | pca_lit |" in printed
     written = json.loads((tmp_path / "tep_families.json").read_text())
     results = written["results"]
-    assert set(results) == {"cva", "pca_lit", "dpca_lit"}
+    assert set(results) == {"cva", "cva_lit", "pca_lit"}
+    # the tuned design against its own literature design (Russell et al. 2000: 3 lags, 29 states), same calibration
+    assert results["cva_lit"]["params"]["past"] == 3 and results["cva_lit"]["params"]["n_states"] == 29
+    assert results["cva_lit"]["calibration"] == "d00.dat + held-back lead-ins"
+    assert written["metrics"]["family_beats_lit_cva"] in (0.0, 1.0) and "tuned beats literature" in printed
     for name in results:  # the study's flat keys, one per family and fault
         assert written["metrics"][f"family_far_{name}"] == results[name]["far"]
         assert {f"family_fdr_{name}_idv{n}" for n in range(1, 22)} <= set(written["metrics"])
@@ -71,6 +75,48 @@ def test_families_command_prints_the_table_and_writes_the_figure(tmp_path, capsy
     from mosd.detectors.latent import lam_floor
     assert results["cva"]["params"]["lam"] >= lam_floor(160)
     assert (tmp_path / "tep_families.png").stat().st_size > 10_000
+
+
+def test_every_family_has_a_literature_design_with_its_source_counts():
+    """Issue 29: each family's literature design (LITERATURE_FAMILIES), built on the tep preset's detector."""
+    assert set(tep.LITERATURE_FAMILIES) == set(tep.FAMILIES) - {"autoencoder"}
+    cases = {"cva": {"past": 3, "future": 3, "n_states": 29}, "kpca": {"width": 10, "n_components": 9},
+             "tag_ewma": {"smoothing": 0.2}, "tag_cusum": {"allowance": 0.5}, "ica": {"n_components": 9}}
+    for family, expected in cases.items():
+        detector = tep.literature_design(tep._family_experiment(family), family)
+        assert {k: getattr(detector, k) for k in expected} == expected, family
+        assert (detector.lam, detector.persistence, detector.limits) == (1.0, 1, "empirical"), family
+
+
+def test_sfa_literature_count_follows_the_slowness_rule():
+    from mosd.detectors.sfa import SFADetector
+
+    rng = np.random.default_rng(0)
+    slow = np.cumsum(rng.standard_normal((1, 2000, 2)), axis=1) * 0.05      # two slowly drifting sources
+    fast = rng.standard_normal((1, 2000, 3))                                 # three white ones
+    X = np.concatenate([slow, fast], axis=-1) @ rng.standard_normal((5, 5))
+    # the mixed inputs are each at least as fast as a white source (they carry one): the features slower than
+    # the fastest input are the two drifts and the white ones up to it, never all five
+    M = SFADetector().shang_slow_features(X)
+    assert 2 <= M <= 4
+    # five white inputs: every feature is about as fast as the inputs, at most m - 1 kept
+    assert SFADetector().shang_slow_features(rng.standard_normal((1, 2000, 5))) <= 4
+
+
+def test_literature_comparison_flags_a_design_that_cannot_reach_the_operating_point():
+    from mosd.data.tep import DEFAULT_FAULTS
+
+    def result(rate, far, train_far):
+        return {**{f"fdr_idv{f}": rate for f in DEFAULT_FAULTS}, "far": far, "train": {"far": train_far}}
+
+    results = {"cva": result(0.95, 0.01, 0.009), "cva_lit": result(0.9, 0.008, 0.0097),
+               "tag_cusum": result(0.9, 0.0, 0.0), "tag_cusum_lit": result(0.95, 0.1, 0.056)}
+    compared = tep.literature_comparison(results)
+    assert compared["cva"]["beats"] == 1.0 and compared["cva"]["lit_reached"] == 1.0
+    assert compared["cva"]["tuned_mdr"] == pytest.approx(0.05) and compared["cva"]["lit_mdr"] == pytest.approx(0.1)
+    assert compared["tag_cusum"]["beats"] == 0.0 and compared["tag_cusum"]["lit_reached"] == 0.0
+    assert "above the operating point" in tep.format_literature_comparison(results)
+    assert tep.family_metrics({k: {**v, "far_episodes": 1} for k, v in results.items()})["family_beats_lit_cva"] == 1
 
 
 def test_families_command_refuses_a_bad_budget(tmp_path, capsys):

@@ -226,36 +226,77 @@ def _default_design(setup: Setup) -> np.ndarray:
     return np.array([row], float)
 
 
-def component_limit(detector, calibration_z: np.ndarray) -> int | None:
-    """The most principal components the calibration data can take (variables and rows less one), or None.
+def data_box(detector, calibration_z: np.ndarray) -> dict[str, tuple[float, float]]:
+    """The search box the calibration points allow the detector (its ``data_bounds``), or {} for a detector without one.
 
-    Only for a detector whose component count is tunable up to its
-    ``max_components`` (:class:`mosd.detectors.pca.PCADetector`): its PCA of the
-    calibration points has min(variables, rows) − 1 usable components.
+    Each family states its own rules (:meth:`mosd.detectors.latent.LatentDetector.data_bounds`: λ's floor
+    for the held-back runs, PCA/DPCA/ICA/KPCA/autoencoder components, CVA horizons and states, slow features).
     """
-    if "n_components" not in getattr(detector, "tunable", {}) or not hasattr(detector, "max_components") \
-            or not hasattr(detector, "model"):
-        return None
-    model = detector.model(np.asarray(calibration_z, float))
-    return int(min(model.m, model.n)) - 1
+    declare = getattr(detector, "data_bounds", None)
+    if declare is None:
+        return {}
+    return {name: (float(low), float(high)) for name, (low, high) in
+            declare(np.asarray(detector.features(calibration_z), float)).items() if name in detector.tunable}
 
 
-def bound_by_data(setup: Setup, limit: int | None) -> None:
-    """Lower the detector's ``max_components`` to what the data can take (``limit``), unless ``detector.bounds`` names it.
+def narrow_to_data(setup: Setup, box: dict[str, tuple[float, float]] | None) -> None:
+    """Narrow the optimiser's box to what the data allow (:func:`data_box`), except where ``detector.bounds`` names it.
 
-    ``max_components`` (default 20) is the top of ``n_components``' search range;
-    a table of 8 tags has 7 usable components, so without this the optimiser
-    would try 13 mid-run. An explicit ``detector.bounds.n_components`` is the
-    user's box: :func:`check_search_box` refuses it if the data cannot take it.
+    Where a parameter's declared range ends at another parameter (``n_components`` up to
+    ``max_components``, ``lam`` above ``lam_min``), that parameter is moved, so that the detector's own
+    ranges are the data's (the summary then calls the end "the largest value n_components allows", not
+    a box to widen); any other end goes into ``setup.bounds``. The detector's own value of an integer
+    parameter outside the box is moved to its nearest end (the table's 9 default components on 8 tags:
+    7); a real one is refused. An explicit ``detector.bounds.X`` is the user's box and is not moved: where it
+    leaves what the data allow it is refused here, naming the key (a family that would lower the value itself,
+    SFA's slow features, would otherwise run another box than the user's); :func:`check_search_box` then
+    evaluates its ends.
     """
-    detector = setup.experiment.detector
-    if limit is None or "n_components" in setup.bounds or limit >= int(detector.max_components):
+    if not box:
         return
-    if limit < 1:
-        raise ConfigError(f"the calibration data have {limit + 1} usable dimension(s) for "
-                          f"{type(detector).__name__}; allowed: at least 2 tags that vary and 3 complete rows")
-    setup.experiment.detector = detector.with_params(max_components=limit,
-                                                     n_components=min(int(detector.n_components), limit))
+    from ..validation import Interval
+
+    detector = setup.experiment.detector
+    changes: dict = {}
+    for name, (low, high) in box.items():
+        if name not in detector.tunable:
+            continue
+        interval, declared = detector.tunable[name], type(detector).params[name].domain
+        if interval.integer:
+            low, high = math.ceil(low - 1e-9), math.floor(high + 1e-9)
+        if name in setup.bounds:  # the user's box: refused where it leaves what the data allow
+            allowed = Interval(max(low, interval.low), min(high, interval.high), interval.open_low and
+                               low <= interval.low, interval.open_high and high >= interval.high, interval.integer)
+            user_low, user_high = setup.bounds[name]
+            outside = next((v for v in (user_low, user_high) if v not in allowed and not (
+                v == allowed.low and allowed.open_low or v == allowed.high and allowed.open_high)), None)
+            if outside is not None:
+                raise ConfigError(f"detector.bounds.{name}=[{user_low:g}, {user_high:g}] reaches {name}={outside:g}, "
+                                  f"which the calibration data cannot take; allowed: {allowed}")
+            continue
+        new_low, new_high = max(low, float(interval.low)), min(high, float(interval.high))
+        if new_low > new_high or new_low == new_high and (interval.open_low or interval.open_high):
+            raise ConfigError(f"the calibration data allow detector.{name} only in [{low:g}, {high:g}], outside its "
+                              f"range {interval}; allowed: more (or longer) calibration runs, or fewer held back "
+                              "(detector.fit_runs)")
+        if new_low == float(interval.low) and new_high == float(interval.high):
+            continue
+        for end, value, moved in (("low", new_low, new_low > interval.low),
+                                  ("high", new_high, new_high < interval.high)):
+            reference = getattr(declared, end)
+            if moved and isinstance(reference, str):
+                changes[reference] = int(value) if interval.integer else value
+            elif moved:
+                old = setup.bounds.get(name, (float(interval.low), float(interval.high)))
+                setup.bounds[name] = (new_low, old[1]) if end == "low" else (old[0], new_high)
+        value = getattr(detector, name)
+        if not (new_low <= float(value) <= new_high) or interval.open_low and float(value) <= new_low:
+            if not interval.integer:
+                raise ConfigError(f"detector.{name}={value:g} is outside what the calibration data allow; allowed: "
+                                  f"{'(' if interval.open_low else '['}{new_low:g}, {new_high:g}]")
+            changes[name] = int(min(max(float(value), new_low), new_high))
+    if changes:
+        setup.experiment.detector = detector.with_params(**changes)
 
 
 def search_box(setup: Setup) -> list[tuple[str, float, np.ndarray]]:
@@ -321,17 +362,38 @@ def check_search_box(setup: Setup, evaluate: Callable[[np.ndarray], Any], source
 
 
 def fit_to_data(setup: Setup) -> None:
-    """:func:`bound_by_data` for a job built without preflight (in a launcher's worker process)."""
+    """:func:`narrow_to_data` for a job built without preflight (in a launcher's worker process, a system's script).
+
+    Recorded data: their calibration split; a simulated system: one calibration replication, as the
+    dry run's (a detector without ``data_bounds`` costs nothing).
+    """
     exp = setup.experiment
-    detector = exp.detector
-    if getattr(exp, "data", None) is None or "n_components" not in getattr(detector, "tunable", {}) \
-            or not hasattr(detector, "max_components"):
+    if not hasattr(exp.detector, "data_bounds"):
         return
     copied = copy.deepcopy(exp)
-    bound_by_data(setup, component_limit(copied.detector, copied.prepare().phase1.z))
+    if getattr(exp, "data", None) is not None:
+        calibration = copied.prepare().phase1.z
+    else:
+        calibration = _simulated_calibration(copied)
+        if calibration is None:
+            return
+    narrow_to_data(setup, data_box(copied.detector, calibration))
 
 
-def dry_run(setup: Setup) -> int | None:
+def _simulated_calibration(exp) -> np.ndarray | None:
+    """The detector's calibration points of one simulated replication (None for an estimator trained first)."""
+    from ..experiment import Budget, Experiment
+
+    if getattr(exp.estimator, "requires_fit", False):
+        return None
+    mini = Experiment(exp.plant, exp.noise, exp.fault, exp.estimator, exp.monitor, exp.detector,
+                      duration=exp.duration, budget=Budget(1, 1, 1, 1), seed=exp.seed, objectives=exp.objectives)
+    calibration = mini.residuals(None, 1, "calibration")
+    mini.monitor.fit(calibration)
+    return mini.prepare(calibration=calibration).phase1.z
+
+
+def dry_run(setup: Setup) -> dict | None:
     """Run the pipeline's shapes once, on one replication per seed stream; raise ConfigError on a misfit.
 
     Catches, before any work, the values that are valid one by one but not
@@ -340,16 +402,16 @@ def dry_run(setup: Setup) -> int | None:
     (a neural observer) are not simulated: their output length is taken as the
     trace's. Works on copies of the components: the run uses them as built
     (a fitted monitor, a detector's fitted limit stay out of it), except that a
-    component count is bounded by the data (:func:`bound_by_data`). Every end of
+    search box is narrowed to the data (:func:`narrow_to_data`). Every end of
     the search box is evaluated (:func:`check_search_box`), not only the default
     design: the optimiser goes there.
 
-    Returns the component limit the data set (:func:`component_limit`), or None.
+    Returns the box the data allow the detector (:func:`data_box`), or None for an estimator trained first.
     """
     from ..experiment import Budget, Experiment
 
     original = setup
-    setup = dataclasses.replace(setup, experiment=copy.deepcopy(setup.experiment))
+    setup = dataclasses.replace(setup, experiment=copy.deepcopy(setup.experiment), bounds=dict(setup.bounds))
     exp = setup.experiment
     if getattr(exp, "data", None) is not None:  # recorded data: the real splits (mosd.recorded)
         try:
@@ -361,12 +423,12 @@ def dry_run(setup: Setup) -> int | None:
             raise ConfigError(f"estimator {type(exp.estimator).__name__} needs a plant model, which recorded data "
                               f"({exp.data!r}) do not have; allowed: estimator=measured or estimator=pca with "
                               "monitor=signals, or the preset +experiment=table (data=table) / +experiment=tep") from None
-        limit = component_limit(exp.detector, data.phase1.z)
-        bound_by_data(original, limit)
-        bound_by_data(setup, limit)
+        box = data_box(exp.detector, data.phase1.z)
+        narrow_to_data(original, box)
+        narrow_to_data(setup, box)
         check_search_box(setup, exp.evaluator(data), _run_length(setup))
         exp.data.trace("test")
-        return limit
+        return box
     mini = Experiment(exp.plant, exp.noise, exp.fault, exp.estimator, exp.monitor, exp.detector,
                       duration=exp.duration, budget=Budget(1, 1, 1, 1), seed=exp.seed, objectives=exp.objectives)
     if getattr(exp.estimator, "requires_fit", False):
@@ -384,13 +446,13 @@ def dry_run(setup: Setup) -> int | None:
     data = mini.prepare(calibration=calibration)
     _check_denoiser(setup, int(data.train.z.shape[1]))
     _check_onset(setup, data.train)
-    limit = component_limit(mini.detector, data.phase1.z)
-    bound_by_data(original, limit)
-    bound_by_data(setup, limit)
+    box = data_box(mini.detector, data.phase1.z)
+    narrow_to_data(original, box)
+    narrow_to_data(setup, box)
     mini.detector = setup.experiment.detector
     check_search_box(setup, mini.evaluator(data), _run_length(setup))
     mini.evaluate(mini.detector, data, test=(data.train, data.train_residuals))
-    return limit
+    return box
 
 
 def _shape_key(cfg) -> str:
@@ -433,8 +495,8 @@ def check_job(cfg, setup: Setup, done: dict, multirun: bool = False) -> None:
         except Exception as exc:  # a misfit the components did not name: still one line, before any work
             raise ConfigError(f"the configuration fails on a one-replication dry run "
                               f"({_run_length(setup)}): {type(exc).__name__}: {one_line(exc)}") from None
-    else:  # a job of the same shapes (another seed): the same data, the same limit
-        bound_by_data(setup, done[key])
+    else:  # a job of the same shapes (another seed): the same data, the same box
+        narrow_to_data(setup, done[key])
 
 
 def job_key(cfg) -> str | None:

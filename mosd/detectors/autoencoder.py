@@ -202,7 +202,8 @@ class AutoencoderDetector(LatentDetector):
     def __init__(self, n_components: int = 8, hidden: int = 24, epochs: int = 500, alpha: float = 0.01,
                  lam: float = 1.0, persistence: int = 1, statistic: str = "combined", limits: str = "empirical",
                  fit_runs: int | None = None, max_components: int = 20, hidden_max: int = 32,
-                 epochs_max: int = 500, persistence_max: int = 10, learning_rate: float = 0.01, seed: int = 0):
+                 epochs_max: int = 500,
+                 persistence_max: int = 10, lam_min: float = 0.0, learning_rate: float = 0.01, seed: int = 0):
         self._assign(locals())
         self._cache = {}
 
@@ -211,6 +212,10 @@ class AutoencoderDetector(LatentDetector):
         if not 1 <= a <= m - 1:
             raise ConfigError(f"detector.n_components={a} is out of range for {m} variables; allowed: integers in "
                               f"[1, {m - 1}] (a bottleneck narrower than the rows)")
+
+    def data_bounds(self, calibration_z: np.ndarray) -> dict[str, tuple[float, float]]:
+        """λ's floor and a bottleneck of at most m − 1 of the m variables (:meth:`_check`)."""
+        return {**super().data_bounds(calibration_z), "n_components": (1, np.shape(calibration_z)[-1] - 1)}
 
     def fit(self, X: np.ndarray, design: Mapping) -> dict:
         self._check(np.shape(X)[-1], design)

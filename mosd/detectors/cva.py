@@ -55,9 +55,20 @@ class CVADetector(LatentDetector):
 
     def __init__(self, past: int = 2, future: int = 2, n_states: int = 25, alpha: float = 0.01, lam: float = 1.0,
                  persistence: int = 1, statistic: str = "combined", limits: str = "theoretical",
-                 fit_runs: int | None = None, max_lags: int = 5, max_states: int = 100, persistence_max: int = 10):
+                 fit_runs: int | None = None, max_lags: int = 5, max_states: int = 100,
+                 persistence_max: int = 10, lam_min: float = 0.0):
         self._assign(locals())
         self._cache: dict = {}
+
+    def data_bounds(self, calibration_z: np.ndarray) -> dict[str, tuple[float, float]]:
+        """λ's floor, the horizons h = p = f that leave the fit the 2 h m complete (past, future) rows it needs
+        (:meth:`fit`'s rule: any p, f ≤ h then do), and n ≤ h m − 1 states at the largest."""
+        fit = np.asarray(self.fit_rows(calibration_z), float)
+        m = fit.shape[-1]
+        usable = [h for h in range(1, int(self.max_lags) + 1) if self.complete_count(fit, h, h - 1) >= 2 * h * m]
+        top = max(usable, default=0)
+        return {**super().data_bounds(calibration_z), "past": (1, top), "future": (1, top),
+                "n_states": (1, top * m - 1)}
 
     def fit(self, X: np.ndarray, design) -> dict:
         p, f = int(design["past"]), int(design["future"])

@@ -33,9 +33,20 @@ class DPCADetector(PCADetector):
 
     def __init__(self, n_components: int = 20, lags: int = 2, alpha: float = 0.01, lam: float = 1.0,
                  persistence: int = 1, statistic: str = "combined", limits: str = "theoretical",
-                 fit_runs: int | None = None, max_components: int = 60, max_lags: int = 5, persistence_max: int = 10):
+                 fit_runs: int | None = None, max_components: int = 60, max_lags: int = 5,
+                 persistence_max: int = 10, lam_min: float = 0.0):
         self._assign(locals())
         self._cache: dict = {}
+
+    def data_bounds(self, calibration_z: np.ndarray) -> dict[str, tuple[float, float]]:
+        """λ's floor, the lags l whose lagged fit rows number at least (l + 1) m + 1 (a PCA with a residual on
+        every lagged column), and a ≤ (l + 1) m − 1 at the largest of them (a smaller l lowers a to its own)."""
+        fit = np.asarray(self.fit_rows(calibration_z), float)
+        m = fit.shape[-1]
+        usable = [lags for lags in range(int(self.max_lags) + 1) if self.complete_count(fit, lags) > (lags + 1) * m]
+        top = max(usable, default=0)
+        return {**LatentDetector.data_bounds(self, calibration_z), "lags": (0, top),
+                "n_components": (1, min((top + 1) * m, self.complete_count(fit, top)) - 1)}
 
     def fit(self, X: np.ndarray, design) -> dict:
         rows, _ = lagged(X, int(design["lags"]))

@@ -161,10 +161,18 @@ class ICADetector(LatentDetector):
 
     def __init__(self, n_components: int = 9, alpha: float = 0.01, lam: float = 1.0, persistence: int = 1,
                  statistic: str = "combined", limits: str = "empirical", fit_runs: int | None = None,
-                 max_components: int = 20, persistence_max: int = 10, seed: int = 0, max_iter: int = 1000,
+                 max_components: int = 20,
+                 persistence_max: int = 10, lam_min: float = 0.0, seed: int = 0, max_iter: int = 1000,
                  tol: float = 1e-4):
         self._assign(locals())
         self._cache = {}
+
+    def data_bounds(self, calibration_z: np.ndarray) -> dict[str, tuple[float, float]]:
+        """λ's floor and a ≤ min(m, N) − 1 dominant components: FastICA whitens N complete fit rows of m variables
+        into min(m, N) components, and I²ₑ keeps at least one."""
+        fit = np.asarray(self.fit_rows(calibration_z), float)
+        return {**super().data_bounds(calibration_z),
+                "n_components": (1, min(fit.shape[-1], self.complete_count(fit)) - 1)}
 
     def fit(self, X: np.ndarray, design: Mapping) -> dict:
         model = ICAModel(X, seed=int(design["seed"]), max_iter=int(design["max_iter"]), tol=float(design["tol"]))

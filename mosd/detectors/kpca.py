@@ -180,9 +180,14 @@ class KernelPCADetector(LatentDetector):
     def __init__(self, n_components: int = 9, width: int = 10, alpha: float = 0.01, lam: float = 1.0,
                  persistence: int = 1, statistic: str = "combined", limits: str = "theoretical",
                  fit_runs: int | None = None, max_components: int = 20, width_max: int = 1000,
-                 persistence_max: int = 10):
+                 persistence_max: int = 10, lam_min: float = 0.0):
         self._assign(locals())
         self._cache = {}
+
+    def data_bounds(self, calibration_z: np.ndarray) -> dict[str, tuple[float, float]]:
+        """λ's floor and a ≤ N − 1 kernel components of N complete fit rows (the centred kernel matrix's rank)."""
+        fit = np.asarray(self.fit_rows(calibration_z), float)
+        return {**super().data_bounds(calibration_z), "n_components": (1, self.complete_count(fit) - 1)}
 
     def fit(self, X: np.ndarray, design: Mapping) -> dict:
         return KPCAModel(X, width=float(design["width"]), max_components=int(design["max_components"])).fitted()

@@ -79,8 +79,10 @@ def latent_params(family: Mapping[str, Param], statistics: tuple[str, ...]) -> d
     return {
         **family,
         "persistence_max": Param(Interval(1, 10_000, integer=True), "Upper end of the persistence's range."),
+        "lam_min": Param(Interval(0.0, 1.0, open_high=True), "Lower end of lam's range (open); raised before a run "
+                         "to the floor the held-back calibration runs can judge (LatentDetector.data_bounds)."),
         "alpha": Param(Interval(0.0, 0.5, open_low=True), "Significance level of each limit.", tunable=True),
-        "lam": Param(Interval(0.0, 1.0, open_low=True), "EWMA smoothing of every statistic; 1 = no smoothing.",
+        "lam": Param(Interval("lam_min", 1.0, open_low=True), "EWMA smoothing of every statistic; 1 = no smoothing.",
                      tunable=True),
         "persistence": Param(Interval(1, "persistence_max", integer=True), "Consecutive points above the limit "
                              "before an alarm.", tunable=True),
@@ -130,7 +132,7 @@ class LatentDetector(Detector):
     STATISTICS: tuple[str, ...] = ()
     #: the family parameters the fit depends on (None: all the family's own parameters)
     fit_keys: tuple[str, ...] | None = None
-    COMMON = ("persistence_max", "alpha", "lam", "persistence", "statistic", "limits", "fit_runs")
+    COMMON = ("persistence_max", "lam_min", "alpha", "lam", "persistence", "statistic", "limits", "fit_runs")
 
     # -- the family's part (module docstring) ------------------------------------------------
     def fit(self, X: np.ndarray, design: Mapping) -> dict:
@@ -216,6 +218,30 @@ class LatentDetector(Detector):
         # runs of unequal length are NaN-padded (TE: d00.dat's 500 rows fit, the 160-row lead-ins are held back)
         rows = np.any(np.isfinite(held), axis=-1).sum(axis=-1)
         return min(lam_floor(int(rows.min())), 1.0), 1.0
+
+    def data_bounds(self, calibration_z: np.ndarray) -> dict[str, tuple[float, float]]:
+        """The search box the calibration data ``calibration_z`` (R, K, m) allow: {parameter: (low, high)}.
+
+        Only the parameters the data limit are named; the optimiser's box is the intersection with the
+        declared ranges and ``detector.bounds`` (:func:`mosd.app.preflight.narrow_to_data` applies it before a
+        run, for every system). The base names λ (:meth:`lam_bounds`: its floor for the held-back runs);
+        a family adds its own counts (components, lags, states, slow features), each by its own rule,
+        calling ``super().data_bounds`` first.
+        """
+        return {"lam": self.lam_bounds(calibration_z)}
+
+    @staticmethod
+    def complete_count(calibration_z: np.ndarray, lags: int = 0, ahead: int = 0) -> int:
+        """Rows with ``lags`` complete rows before them and ``ahead`` after them, within each run: what a
+        (lagged) fit of ``calibration_z`` (R, K, m) can use."""
+        complete = np.all(np.isfinite(np.asarray(calibration_z, float)), axis=-1)    # (R, K)
+        K = complete.shape[-1]
+        span = lags + ahead + 1
+        if span > K:
+            return 0
+        # a window of span rows is usable when every row of it is complete
+        windows = np.lib.stride_tricks.sliding_window_view(complete, span, axis=-1)
+        return int(windows.all(axis=-1).sum())
 
     def _split(self, calibration_z: np.ndarray):
         """(fit runs, held-back runs) as the same array objects on every call (cache keys)."""

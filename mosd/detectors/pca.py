@@ -277,11 +277,18 @@ class PCADetector(LatentDetector):
 
     def __init__(self, n_components: int = 9, alpha: float = 0.01, lam: float = 1.0, persistence: int = 1,
                  statistic: str = "combined", limits: str = "theoretical", fit_runs: int | None = None,
-                 max_components: int = 20, persistence_max: int = 10):
+                 max_components: int = 20, persistence_max: int = 10, lam_min: float = 0.0):
         self._assign(locals())
         self._cache: dict = {}
 
     # -- the family ------------------------------------------------------------------------
+    def data_bounds(self, calibration_z: np.ndarray) -> dict[str, tuple[float, float]]:
+        """λ's floor (the base's) and a ≤ min(m, N) − 1: a PCA of N complete fit rows of m variables has that many
+        components with a residual left for SPE."""
+        fit = np.asarray(self.fit_rows(calibration_z), float)
+        return {**super().data_bounds(calibration_z),
+                "n_components": (1, min(fit.shape[-1], self.complete_count(fit)) - 1)}
+
     def fit(self, X: np.ndarray, design) -> dict:
         return PCAModel(X).fitted()
 

@@ -40,9 +40,13 @@ class SFADetector(LatentDetector):
 
     def __init__(self, n_slow: int = 10, alpha: float = 0.01, lam: float = 1.0, persistence: int = 1,
                  statistic: str = "combined", limits: str = "theoretical", fit_runs: int | None = None,
-                 max_slow: int = 30, persistence_max: int = 10):
+                 max_slow: int = 30, persistence_max: int = 10, lam_min: float = 0.0):
         self._assign(locals())
         self._cache: dict = {}
+
+    def data_bounds(self, calibration_z: np.ndarray) -> dict[str, tuple[float, float]]:
+        """λ's floor and M ≤ m − 1 slow features (the fast part T²ₑ, S²ₑ keeps at least one)."""
+        return {**super().data_bounds(calibration_z), "n_slow": (1, np.shape(calibration_z)[-1] - 1)}
 
     def fit(self, X: np.ndarray, design) -> dict:
         mean, scale = scaling(complete_rows(X), "SFA")
@@ -58,6 +62,20 @@ class SFADetector(LatentDetector):
             A = np.cov(dz, rowvar=False)
             omega, W = linalg.eigh(A, B)                            # ascending ω; Wᵀ B W = I
         return {"mean": mean, "scale": scale, "W": W, "omega": omega, "n": int(len(pairs))}
+
+    def shang_slow_features(self, calibration_z: np.ndarray) -> int:
+        """Shang et al.'s (2015) choice of M on the fit runs of ``calibration_z``: the slow features no faster than
+        the fastest standardised input, ω_j ≤ max_i Δ(z_i) with Δ(z_i) = Var(ż_i) / Var(z_i) (a feature faster
+        than every measured variable is taken for noise); our reading of their partition rule, within [1, m − 1].
+        """
+        fit = np.asarray(self.fit_rows(calibration_z), float)
+        fitted = self.fit(fit, self.design_values())
+        rows, _ = lagged((fit - fitted["mean"]) / fitted["scale"], 1)
+        pairs = complete_rows(rows)
+        m = len(fitted["mean"])
+        z, dz = pairs[:, :m], pairs[:, :m] - pairs[:, m:]
+        fastest = float(np.max(dz.var(axis=0, ddof=1) / z.var(axis=0, ddof=1)))
+        return int(np.clip(np.count_nonzero(np.asarray(fitted["omega"]) <= fastest), 1, m - 1))
 
     def _slow(self, fitted, design) -> int:
         return int(min(int(design["n_slow"]), len(fitted["omega"]) - 1))
