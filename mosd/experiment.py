@@ -132,6 +132,19 @@ def replication_blocks(n_reps: int, n_jobs: int) -> list[tuple[int, int]]:
     return [(edges[i], edges[i + 1] - edges[i]) for i in range(n_blocks)]
 
 
+def _blocks_pay(estimator) -> bool:
+    """Whether :meth:`Experiment.residuals` may cut ``estimator``'s replications into blocks.
+
+    Not when a replication's outputs depend on the others in its batch, to the last bit (the
+    estimator says ``independent_replications = False``: one block keeps the numbers), nor when
+    the estimator's filter already spreads the replications over the cores
+    (``splits_replications``: blocks would only add threads).
+    """
+    parts = (estimator, getattr(estimator, "filter", None))
+    return (getattr(estimator, "independent_replications", True)
+            and not any(getattr(part, "splits_replications", False) for part in parts))
+
+
 def _truth(subgroups: Subgroups) -> Subgroups:
     """The fault truth of some points without the points (what workers need to score)."""
     return replace(subgroups, z=np.empty((0,)))
@@ -208,11 +221,9 @@ class Experiment:
         joined (:func:`concatenate_replications`) are bit for bit the arrays of one call, for every
         ``n_jobs`` (``tests/test_scale_prepare.py``). The blocks run on threads of this process: the
         simulation's draws and the compiled estimators release Python's lock, and nothing is pickled.
+        One block where blocks would not pay or would change a bit (:func:`_blocks_pay`).
         """
-        # an estimator whose replication r depends on the others in its batch (its numbers, to the last bit)
-        # says so: one block, the same data as before
-        independent = getattr(self.estimator, "independent_replications", True)
-        blocks = replication_blocks(n_reps, n_jobs if independent else 1)
+        blocks = replication_blocks(n_reps, n_jobs if _blocks_pay(self.estimator) else 1)
         if len(blocks) == 1:
             return self.estimator.estimate(self.simulate(fault, n_reps, stream), self.model)
         self.fault_scale(fault)  # the calibration a relative fault needs, once, before the blocks share it

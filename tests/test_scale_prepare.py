@@ -8,7 +8,7 @@ from hydra import compose, initialize_config_dir
 
 from mosd.app.build import build
 from mosd.app.config import CONFIG_DIR, with_debug_last
-from mosd.experiment import concatenate_replications, replication_blocks
+from mosd.experiment import _blocks_pay, concatenate_replications, replication_blocks
 from mosd.types import Residuals
 
 
@@ -93,3 +93,15 @@ def test_a_run_is_the_same_for_every_n_jobs():
     assert first.params == second.params
     np.testing.assert_array_equal(first.archive_F, second.archive_F)
     assert first.test.summary() == second.test.summary()
+
+
+@pytest.mark.parametrize("overrides, cut", [
+    (("+fault=offset_var",), False),                        # CESCKF: its kernel spreads the replications itself
+    (("+fault=offset_var", "estimator=measured"), True),
+    (("+fault=offset_var", "estimator=pca", "estimator.n_components=2"), True),
+    (("+experiment=paper001",), False),                     # async IMM: batch-dependent in the last bit
+    (("+experiment=paper002",), True),
+    (("+experiment=two_tank",), True),
+], ids=lambda o: "-".join(v.split("=")[-1] for v in o) if isinstance(o, tuple) else str(o))
+def test_which_estimators_are_cut_into_blocks(overrides, cut):
+    assert _blocks_pay(_experiment(*overrides).estimator) is cut

@@ -523,7 +523,8 @@ def preflight(argv: Sequence[str]) -> Checked:
                 raise UsageError(one_line(exc)) from None
             check_job(cfg, setup, done, multirun=bool(args.multirun))
             checked.add(cfg, setup)
-    if not (args.multirun or args.config_path or args.config_dir or args.config_name):
+    if not (args.multirun or args.config_path or args.config_dir or args.config_name) and \
+            getattr(cfg.hydra.mode, "name", "RUN") == "RUN":  # (hydra.mode=MULTIRUN without -m: Hydra sweeps)
         checked.config = cfg
     return checked
 
