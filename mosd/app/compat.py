@@ -18,7 +18,8 @@ adapter, :mod:`mosd.optim.workers`: the science core cannot import the app.)
 * :func:`run_composed` — Hydra's ``Hydra.run`` without its two compositions
   (``hydra._internal``: ``Hydra.create_main_hydra2``, ``Callbacks``, ``run_and_report``): a single
   run uses the configuration preflight composed. ``hydra.main`` composes it twice more (once
-  to read ``hydra.mode``, once for the run), 0.3–0.7 s each on this machine.
+  to read ``hydra.mode``, once for the run): 0.33 s each for the main command (fastest of 8 on the
+  project's 2-core machine at load average 7.7).
 * :data:`MLFLOW_CORE_TABLES`, :data:`MLFLOW_MIGRATION_LEFTOVER`,
   :data:`MLFLOW_VERSION_TABLE` — what :mod:`mosd.app.store` reads of MLflow's sqlite
   schema (with the standard library, read-only: importing MLflow costs seconds,
