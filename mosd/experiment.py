@@ -104,6 +104,47 @@ def first_replication(outputs: Residuals) -> Residuals:
                    extra={k: first(v) for k, v in outputs.extra.items()}, fault_label=first(outputs.fault_label))
 
 
+def concatenate_replications(parts: Sequence[Residuals]) -> Residuals:
+    """One :class:`Residuals` from consecutive blocks of replications (every per-replication array joined on R).
+
+    The inverse of cutting replications into blocks: what :meth:`Experiment.residuals`
+    computes block by block on ``n_jobs`` threads is the array one call would give.
+    """
+    if len(parts) == 1:
+        return parts[0]
+    first = parts[0]
+
+    def joined(values):
+        head = values[0]
+        return np.concatenate(values, axis=0) if isinstance(head, np.ndarray) and head.ndim >= 2 else head
+
+    return replace(first, r=np.concatenate([p.r for p in parts], axis=0),
+                   fault_mask=np.concatenate([p.fault_mask for p in parts], axis=0),
+                   cov=None if first.cov is None else np.concatenate([p.cov for p in parts], axis=0),
+                   extra={k: joined([p.extra[k] for p in parts]) for k in first.extra},
+                   fault_label=joined([p.fault_label for p in parts]))
+
+
+def replication_blocks(n_reps: int, n_jobs: int) -> list[tuple[int, int]]:
+    """``(first, count)`` of at most ``n_jobs`` consecutive blocks covering replications ``0 .. n_reps-1``."""
+    n_blocks = max(1, min(int(n_jobs), int(n_reps)))
+    edges = [n_reps * i // n_blocks for i in range(n_blocks + 1)]
+    return [(edges[i], edges[i + 1] - edges[i]) for i in range(n_blocks)]
+
+
+def _blocks_pay(estimator) -> bool:
+    """Whether :meth:`Experiment.residuals` may cut ``estimator``'s replications into blocks.
+
+    Not when a replication's outputs depend on the others in its batch, to the last bit (the
+    estimator says ``independent_replications = False``: one block keeps the numbers), nor when
+    the estimator's filter already spreads the replications over the cores
+    (``splits_replications``: blocks would only add threads).
+    """
+    parts = (estimator, getattr(estimator, "filter", None))
+    return (getattr(estimator, "independent_replications", True)
+            and not any(getattr(part, "splits_replications", False) for part in parts))
+
+
 def _truth(subgroups: Subgroups) -> Subgroups:
     """The fault truth of some points without the points (what workers need to score)."""
     return replace(subgroups, z=np.empty((0,)))
@@ -166,14 +207,37 @@ class Experiment:
         calibration = self._calibration if self._calibration is not None else self.calibrate()
         return self.monitor.fault_scale(calibration, channels[0])
 
-    def simulate(self, fault, n_reps: int, stream: str):
-        """Replications of a seed stream; a relative fault in σ of the fault-free residual (:meth:`fault_scale`)."""
-        return Scenario(self.plant, self.noise, fault, self.duration).simulate(self.seed, n_reps, stream=stream,
-                                                                               fault_scale=self.fault_scale(fault))
+    def simulate(self, fault, n_reps: int, stream: str, first: int = 0):
+        """Replications ``first .. first+n_reps-1`` of a seed stream; a relative fault in σ of the fault-free
+        residual (:meth:`fault_scale`)."""
+        return Scenario(self.plant, self.noise, fault, self.duration).simulate(
+            self.seed, n_reps, stream=stream, fault_scale=self.fault_scale(fault), first=first)
 
-    def residuals(self, fault, n_reps: int, stream: str) -> Residuals:
-        """Simulate a seed stream and run the estimator on it."""
-        return self.estimator.estimate(self.simulate(fault, n_reps, stream), self.model)
+    def residuals(self, fault, n_reps: int, stream: str, n_jobs: int = 1) -> Residuals:
+        """Simulate a seed stream and run the estimator on it; ``n_jobs`` blocks of replications at once.
+
+        Each replication has its own generator (:func:`mosd.scenario.replication_rngs`) and the
+        estimator treats replications independently, so blocks simulated and estimated apart and
+        joined (:func:`concatenate_replications`) are bit for bit the arrays of one call, for every
+        ``n_jobs`` (``tests/test_scale_prepare.py``). The blocks run on threads of this process: the
+        simulation's draws and the compiled estimators release Python's lock, and nothing is pickled.
+        One block where blocks would not pay or would change a bit (:func:`_blocks_pay`).
+        """
+        blocks = replication_blocks(n_reps, n_jobs if _blocks_pay(self.estimator) else 1)
+        if len(blocks) == 1:
+            return self.estimator.estimate(self.simulate(fault, n_reps, stream), self.model)
+        self.fault_scale(fault)  # the calibration a relative fault needs, once, before the blocks share it
+
+        def block(first_count):
+            first, count = first_count
+            return self.estimator.estimate(self.simulate(fault, count, stream, first=first), self.model)
+
+        from concurrent.futures import ThreadPoolExecutor
+
+        with ThreadPoolExecutor(len(blocks) - 1, thread_name_prefix="mosd-replications") as pool:
+            others = pool.map(block, blocks[1:])  # submitted now: they run while this thread computes the first
+            head = block(blocks[0])
+            return concatenate_replications([head, *others])
 
     def fit_estimator(self) -> None:
         """Train the estimator on its own seed stream (no-op for estimators without ``fit``)."""
@@ -184,33 +248,36 @@ class Experiment:
         # the training's own randomness (initial weights, shuffling) also comes from the estimator stream
         self.estimator.fit(trace, self.model, training_rng(self.seed))
 
-    def calibrate(self) -> Residuals:
+    def calibrate(self, n_jobs: int = 1) -> Residuals:
         """Train the estimator (if it needs it), then fit the monitor on fault-free calibration runs."""
         self.fit_estimator()
-        phase1_res = self.residuals(None, self.budget.n_calibration, "calibration")
+        phase1_res = self.residuals(None, self.budget.n_calibration, "calibration", n_jobs=n_jobs)
         self.monitor.fit(phase1_res)
         self._calibration = phase1_res
         return phase1_res
 
-    def prepare(self, calibration: Residuals | None = None, fault=None) -> PreparedData:
+    def prepare(self, calibration: Residuals | None = None, fault=None, n_jobs: int = 1) -> PreparedData:
         """Calibration and the training runs of ``fault`` (default: the experiment's): what the optimiser caches.
 
         ``calibration`` is the output of :meth:`calibrate` when several faults
         share one calibration (the calibration stream is fault-free, so it is
-        the same for every fault).
+        the same for every fault). ``n_jobs``: blocks of replications simulated at
+        once (:meth:`residuals`; the same data for every value).
         """
         fault = fault or self.fault
-        phase1_res = self.calibrate() if calibration is None else calibration
+        phase1_res = self.calibrate(n_jobs=n_jobs) if calibration is None else calibration
         self._calibration = phase1_res
         sigma = self.fault_scale(fault)
-        train_res = self.residuals(fault, self.budget.n_train, "training")
+        train_res = self.residuals(fault, self.budget.n_train, "training", n_jobs=n_jobs)
         return PreparedData(sigma=sigma, phase1=self.monitor.transform(phase1_res),
                             train=self.monitor.transform(train_res), phase1_residuals=phase1_res,
                             train_residuals=train_res)
 
-    def test_data(self, data: PreparedData, n_test: int | None = None, fault=None) -> tuple[Subgroups, Residuals]:
-        """Fresh test replications (seed stream ``test``) of ``fault`` (default: the experiment's)."""
-        test_res = self.residuals(fault or self.fault, n_test or self.budget.n_test, "test")
+    def test_data(self, data: PreparedData, n_test: int | None = None, fault=None,
+                  n_jobs: int = 1) -> tuple[Subgroups, Residuals]:
+        """Fresh test replications (seed stream ``test``) of ``fault`` (default: the experiment's), ``n_jobs``
+        blocks at once (:meth:`residuals`)."""
+        test_res = self.residuals(fault or self.fault, n_test or self.budget.n_test, "test", n_jobs=n_jobs)
         return self.monitor.transform(test_res), test_res
 
     def evaluator(self, data: PreparedData, detector=None):
@@ -315,11 +382,11 @@ class Experiment:
         from concurrent.futures import ThreadPoolExecutor
 
         t0 = time.perf_counter()
-        data = self.prepare()
+        data = self.prepare(n_jobs=n_jobs)
         timings["prepare_s"] = time.perf_counter() - t0
         # the test runs do not depend on the design: simulate them while the workers optimise
         with ThreadPoolExecutor(max_workers=1) as background:
-            test_future = background.submit(self.test_data, data)
+            test_future = background.submit(self.test_data, data, n_jobs=n_jobs)
             tuned = self.tune(data, algorithm, termination, n_jobs=n_jobs, bounds=bounds, choose=choose,
                               callback=callback, verbose=verbose, backend=backend, dask_address=dask_address)
             timings["optimise_s"] = tuned.seconds

@@ -57,7 +57,7 @@ class RecordedExperiment(Experiment):
             rng = np.random.default_rng([self.seed, 3, 2**31])
             self.estimator.fit(self.data.trace("calibration"), None, rng)
 
-    def calibrate(self) -> Residuals:
+    def calibrate(self, n_jobs: int = 1) -> Residuals:
         residuals = super().calibrate()
         a = getattr(self.detector, "n_components", None)
         if a is not None:
@@ -69,8 +69,9 @@ class RecordedExperiment(Experiment):
                                   f"detector.n_components={a}; allowed: more calibration rows than components")
         return residuals
 
-    def prepare(self, calibration: Residuals | None = None, fault=None) -> PreparedData:
-        """Calibration and the training split: what the optimiser caches (``fault`` does not apply)."""
+    def prepare(self, calibration: Residuals | None = None, fault=None, n_jobs: int = 1) -> PreparedData:
+        """Calibration and the training split: what the optimiser caches (``fault`` and ``n_jobs`` do not apply:
+        the splits are read, not simulated)."""
         phase1_res = self.calibrate() if calibration is None else calibration
         train_res = self.residuals(None, 0, "training")
         if not np.asarray(train_res.fault_mask).any():
@@ -80,8 +81,9 @@ class RecordedExperiment(Experiment):
                             train=self.monitor.transform(train_res), phase1_residuals=phase1_res,
                             train_residuals=train_res)
 
-    def test_data(self, data: PreparedData, n_test: int | None = None, fault=None) -> tuple[Subgroups, Residuals]:
-        """The test split (held out)."""
+    def test_data(self, data: PreparedData, n_test: int | None = None, fault=None,
+                  n_jobs: int = 1) -> tuple[Subgroups, Residuals]:
+        """The test split (held out; ``n_jobs`` does not apply)."""
         test_res = self.residuals(None, 0, "test")
         return self.monitor.transform(test_res), test_res
 

@@ -198,13 +198,19 @@ def _main(argv: list[str], started: float) -> int:
 
     redact_warnings()
 
-    @hydra.main(version_base="1.3", config_path=str(CONFIG_DIR), config_name=CONFIG_NAME)
-    def task(cfg):
+    def run_task(cfg):
         from .run import run
 
         run(cfg, started=started, checked=checked)
 
     global _LAUNCHED
+    if checking and checked.config is not None:  # a single run: the configuration preflight composed
+        from .compat import run_composed
+
+        _LAUNCHED = True
+        run_composed(checked.config, run_task, str(CONFIG_DIR))
+        return 0
+    task = hydra.main(version_base="1.3", config_path=str(CONFIG_DIR), config_name=CONFIG_NAME)(run_task)
     saved = sys.argv
     sys.argv = [saved[0] if saved else "mosd", *argv]
     try:

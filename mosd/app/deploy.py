@@ -119,14 +119,15 @@ def _stream(points: np.ndarray, columns: dict, outputs, decision: np.ndarray):
     return frame
 
 
-def save_for_run(setup, result, run_dir) -> tuple[Path | None, Deployable]:
+def save_for_run(setup, result, run_dir, found: Deployable | None = None) -> tuple[Path | None, Deployable]:
     """Save the run's pipeline under ``run_dir/model/`` and its test stream beside it (module docstring).
 
-    Returns the model file (None: no model) and what :func:`deployable` found.
+    Returns the model file (None: no model) and what :func:`deployable` found. ``found``: what
+    :func:`deployable` already returned (the app builds it while its figures are drawn).
     """
     from .atomic import write_atomically
 
-    found = deployable(setup, result)
+    found = deployable(setup, result) if found is None else found
     run_dir = Path(run_dir)
     if found.stream is not None:
         write_atomically(run_dir / STREAM_FILE, lambda out: found.stream.to_parquet(out, index=False), binary=True)

@@ -520,6 +520,9 @@ class Checked:
 
     def __init__(self):
         self._setups: dict[str, list[Setup]] = {}
+        #: a single run's composed configuration (hydra section included): the run uses it as composed
+        #: (:func:`mosd.app.compat.run_composed`) instead of Hydra composing it twice more; None for a sweep
+        self.config = None
 
     def add(self, cfg, setup: Setup) -> None:
         key = job_key(cfg)
@@ -536,7 +539,7 @@ class Checked:
 
     def __getstate__(self):
         # a job in another process (the joblib launcher pickles the task) builds its own: nothing is shipped
-        return {"_setups": {}}
+        return {"_setups": {}, "config": None}
 
 
 def preflight(argv: Sequence[str]) -> Checked:
@@ -582,6 +585,9 @@ def preflight(argv: Sequence[str]) -> Checked:
                 raise UsageError(one_line(exc)) from None
             check_job(cfg, setup, done, multirun=bool(args.multirun))
             checked.add(cfg, setup)
+    if not (args.multirun or args.config_path or args.config_dir or args.config_name) and \
+            getattr(cfg.hydra.mode, "name", "RUN") == "RUN":  # (hydra.mode=MULTIRUN without -m: Hydra sweeps)
+        checked.config = cfg
     return checked
 
 

@@ -100,6 +100,10 @@ class AsyncIMMFusion(Estimator):
     ``Residuals.r`` has no channels: the detector reads mode probabilities.
     """
 
+    #: a replication's mode probabilities move in the last bit with the batch it is filtered in (the mixing's
+    #: matrix product over replications): :meth:`mosd.experiment.Experiment.residuals` keeps one batch
+    independent_replications = False
+
     params = {
         "transition": Param(lambda key, value, est: _check_transition(value), "Λ with λ_{i,m} = P(model i at t_{k−1} "
                             "→ model m at t_k), rows summing to 1; a float p in (0, 1] means p on the diagonal and "

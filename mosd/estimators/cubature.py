@@ -234,6 +234,9 @@ class _CubatureFilterBase(Component):
     """
 
     config_group = "estimator.filter"  # a filter is configured under estimator.filter (conf/estimator/*.yaml)
+    #: the compiled filter spreads a batch's replications over the cores itself (mosd.kernels.threads):
+    #: :meth:`mosd.experiment.Experiment.residuals` adds no blocks of its own on top
+    splits_replications = True
     params = {
         "delta1": Param(_DELTA1_RANGE, "δ₁ of the embedded rule (eq. 3), δ₁² > 1/2 (used with rule=embedded)."),
         "rule": Param(RULES, "Point set: embedded (the paper's) or spherical_radial (the third-degree CKF set)."),

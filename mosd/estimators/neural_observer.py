@@ -122,6 +122,9 @@ class MultiStepNeuralObserver(Estimator):
 
     requires_fit = True
     fit_on_faults = False
+    #: the network's batched products move a replication's outputs in the last bit with its batch:
+    #: :meth:`mosd.experiment.Experiment.residuals` keeps one batch
+    independent_replications = False
 
     def __init__(self, window: int = 12, hidden: int = 10, fusion: int = 10, epochs: int = 300,
                  learning_rate: float = 1e-3, lr_step: int = 100, lr_decay: float = 0.1, patience: int = 10,
