@@ -372,7 +372,7 @@ ABLATIONS: dict[str, Callable[[], object]] = {
     "default, constrained=grid, constrained_fine_mutation=None":
         lambda: MOPSO(constrained="grid", constrained_fine_mutation=None),
     "default, constrained_reset=None": lambda: MOPSO(constrained_reset=None),
-    "default, constrained_fine_mutation=1": lambda: MOPSO(constrained_fine_mutation=1.0),
+    "default, constrained_fine_mutation=0.5": lambda: MOPSO(constrained_fine_mutation=0.5),
 }
 
 

@@ -34,10 +34,12 @@ One class, two presets:
   infeasible points instead of the single least infeasible one (``infeasible="diverse"``,
   issue 33): leaders and parents stay diverse from an infeasible start (MW1). Once a
   constrained problem's archive is feasible and full, leaders and parents are drawn by crowding
-  distance, truncation removes the most crowded members over the whole archive, and half of the
-  offspring take NSGA-II's fine mutation steps (``constrained``, ``constrained_fine_mutation``):
-  that spread and converged the constrained fronts (MW2, MW3, CTP2, issue 33). Unconstrained runs
-  are unaffected.
+  distance, truncation removes the most crowded members over the whole archive, and the offspring
+  take NSGA-II's fine mutation steps (``constrained``, ``constrained_fine_mutation``):
+  that spread and converged the constrained fronts (MW2, MW3, CTP2, issue 33). On a constrained
+  problem a tenth of the offspring also get one variable redrawn uniformly (``constrained_reset``),
+  which lets the archive leave a local front such as MW2's (issue 33). Unconstrained runs are
+  unaffected.
 * ``MOPSO(**PAPER_PRESET)`` (``MOPSO.paper()``, ``optimizer=mopso_paper``) — the paper's
   pure swarm, paper 000's Table 2 literally (every evaluation a particle move): constriction
   w = 0.7298, c1 = c2 = 1.4962, velocities reflected at the bounds, roulette-wheel leaders,
@@ -459,7 +461,9 @@ class MOPSO(Algorithm):
         On a problem with constraints whose archive is feasible and full, this share of the archive
         offspring is mutated with NSGA-II's η = 20 (:data:`FINE_MUTATION_ETA`) instead of
         ``mutation_eta``: the optimum lies on a constraint boundary, where the long-tailed steps
-        mostly leave the feasible region (issue 33, docs/MOPSO.md). Default 0.5; None or 0: none.
+        mostly leave the feasible region (issue 33, docs/MOPSO.md). Default 1 (all of them: with the
+        uniform redraw of ``constrained_reset`` the long-tailed steps are no longer needed there; 0.5
+        before it, measured in docs/MOPSO.md); None or 0: none.
     constrained_reset : float in [0, 1] or None
         On a problem with constraints, this share of each generation's archive offspring gets one
         variable, chosen at random, redrawn uniformly in its bounds after crossover and mutation
@@ -497,7 +501,7 @@ class MOPSO(Algorithm):
                  mutation: str | None = "polynomial", mutation_rate: float | None = 0.15,
                  mutation_eta: float = 3.0, exploration: float | None = 0.5,
                  recombination: float | None = 0.7, infeasible: str = "diverse", constrained: str = "crowding",
-                 constrained_fine_mutation: float | None = 0.5,
+                 constrained_fine_mutation: float | None = 1.0,
                  constrained_reset: float | None = CONSTRAINED_RESET, horizon: int | None = None,
                  sampling: Sampling | None = None, output=None, **kwargs):
         super().__init__(output=MultiObjectiveOutput() if output is None else output, **kwargs)
