@@ -246,7 +246,8 @@ BEFORE_ISSUE33_NAME = "MOPSO (before issue 33)"
 ISSUE14_DEFAULT = dict(exploration=None, recombination=None, mutation_eta=20.0)
 EXPLORATION_DEFAULT = dict(recombination=None, mutation_eta=20.0)
 #: ``MOPSO()`` before issue 33 (Coello's infeasible rule, the grid rules on constrained fronts).
-BEFORE_ISSUE33 = dict(infeasible="least", constrained="grid", constrained_fine_mutation=None)
+BEFORE_ISSUE33 = dict(infeasible="least", constrained="grid", constrained_fine_mutation=None,
+                      constrained_reset=None)
 #: The peers of issue 21 (the "best peer" of a problem is the best of these that ran on it).
 PEERS = (NSGA2_NAME, NSGA3_NAME, SMPSO_NAME)
 
@@ -370,6 +371,8 @@ ABLATIONS: dict[str, Callable[[], object]] = {
     "default, constrained_fine_mutation=None": lambda: MOPSO(constrained_fine_mutation=None),
     "default, constrained=grid, constrained_fine_mutation=None":
         lambda: MOPSO(constrained="grid", constrained_fine_mutation=None),
+    "default, constrained_reset=None": lambda: MOPSO(constrained_reset=None),
+    "default, constrained_fine_mutation=0.5": lambda: MOPSO(constrained_fine_mutation=0.5),
 }
 
 
