@@ -414,8 +414,26 @@ def points_of(columns: Mapping[str, np.ndarray], n: int, index: str = "point") -
     at = np.flatnonzero(number > 0)
     if not n:
         return len(number), at, np.empty((len(at), 0))
-    Z = np.column_stack([np.asarray(columns[f"z_{j}"], float) for j in range(1, n + 1)])
+    values = [np.asarray(columns[f"z_{j}"], float) for j in range(1, n + 1)]
+    Z = _columns_of(values)
+    if Z is None:
+        Z = np.column_stack(values)
     return len(number), at, (Z if len(at) == len(number) else Z[at])
+
+
+def _columns_of(values: list[np.ndarray]) -> np.ndarray | None:
+    """The (rows, n) array whose columns in order the 1-D arrays ``values`` are views of (a table converted in one
+    step, :meth:`OnlinePipeline.rows`), or None: the copy into a new array is then needed."""
+    base = values[0].base
+    if base is None or not isinstance(base, np.ndarray) or base.ndim != 2 or base.shape[1] != len(values) \
+            or base.dtype != np.float64 or base.shape[0] != len(values[0]):
+        return None
+    start, (row_stride, column_stride) = base.__array_interface__["data"][0], base.strides
+    for j, column in enumerate(values):
+        if column.base is not base or column.strides != (row_stride,) \
+                or column.__array_interface__["data"][0] != start + j * column_stride:
+            return None
+    return base
 
 
 def spread(rows: int, at: np.ndarray, per_point: Mapping[str, np.ndarray], state: Mapping) -> dict[str, np.ndarray]:
