@@ -100,13 +100,18 @@ EVALUATION_MODULES = ("ewma", "chart")  # the wavelet's chart kernel compiles wh
 
 
 def warm_up(modules: tuple[str, ...] = EVALUATION_MODULES) -> None:
-    """Load (or compile) the kernels of ``modules`` now, e.g. in a fresh worker before its first task."""
+    """Load (or compile) the kernels of ``modules`` now, e.g. in a fresh worker before its first task.
+
+    A name is a module of :data:`MODULES` (its ``warm_up``) or ``module:part`` (its ``warm_up_<part>``,
+    one of :data:`PARTS`).
+    """
     if not enabled():
         return
     import importlib
 
     for name in modules:
-        importlib.import_module(f"{__name__}.{name}").warm_up()
+        module, _, part = name.partition(":")
+        getattr(importlib.import_module(f"{__name__}.{module}"), f"warm_up_{part}" if part else "warm_up")()
 
 
 def cached(name: str) -> bool:
@@ -128,8 +133,10 @@ def cached(name: str) -> bool:
 
 #: CPU seconds each module's :func:`warm_up` takes on an empty cache (this project's 2-core machine, nearly
 #: free): how :func:`compile_ahead` shares the modules between two processes; only the ratios matter
-COMPILE_SECONDS = {"ewma": 2.0, "wavelet": 8.0, "chart": 5.0, "plants": 3.0, "cubature": 14.0, "imm": 18.0,
-                   "entropy": 2.0}
+COMPILE_SECONDS = {"ewma": 2.0, "wavelet": 8.0, "chart": 5.0, "plants": 3.0, "cubature:filter": 12.0,
+                   "cubature:output": 1.5, "imm": 18.0, "entropy": 2.0}
+#: modules whose warm-up :func:`compile_ahead` shares out in parts (``module:part``, see :func:`warm_up`)
+PARTS = {"cubature": ("cubature:filter", "cubature:output")}
 #: what a second process costs before it compiles anything (interpreter, NumPy and numba imports)
 PROCESS_START_SECONDS = 1.0
 
@@ -166,7 +173,7 @@ def compile_ahead(modules: tuple[str, ...]) -> tuple[list[str], list[str]]:
     """
     if not enabled():
         return [], []
-    missing = tuple(name for name in modules if not cached(name))
+    missing = tuple(part for name in modules if not cached(name) for part in PARTS.get(name, (name,)))
     try:
         cpus = len(os.sched_getaffinity(0))
     except AttributeError:  # pragma: no cover - not on Linux
