@@ -196,10 +196,13 @@ def compile_ahead(modules: tuple[str, ...]) -> tuple[list[str], list[str]]:
             here, there = here + there, []
     try:
         warm_up(tuple(here))
-    finally:
+    except BaseException:  # a stop signal or an error: nothing left to compile for
         if helper is not None:
-            if helper.wait() != 0:  # the run compiles what is missing itself, where it calls it
-                there = []
+            helper.kill()
+            helper.wait()
+        raise
+    if helper is not None and helper.wait() != 0:  # the run compiles what is missing itself, where it calls it
+        there = []
     return here, there
 
 
