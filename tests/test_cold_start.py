@@ -67,3 +67,16 @@ def test_a_warm_cache_starts_no_second_process(monkeypatch):
     monkeypatch.setattr("subprocess.Popen", lambda *a, **k: started.append(a))
     assert kernels.compile_ahead(("plants", "cubature", "ewma", "chart")) == ([], [])
     assert not started
+
+
+def test_a_failed_compile_ahead_leaves_the_run_to_compile_where_it_calls(monkeypatch, caplog):
+    from mosd.app import compile_ahead
+
+    def broken(modules):
+        raise RuntimeError("no space left on device")
+
+    monkeypatch.setattr(kernels, "compile_ahead", broken)
+    monkeypatch.setattr(compile_ahead, "kernel_modules", lambda experiment: ("chart",))
+    with caplog.at_level("WARNING"):
+        compile_ahead.compile_for(object())  # no exception: the dry run goes on
+    assert "kernels not compiled ahead: RuntimeError: no space left on device" in caplog.text

@@ -64,7 +64,11 @@ def compile_for(experiment) -> None:
     from .. import kernels
 
     t0 = time.perf_counter()
-    here, there = kernels.compile_ahead(kernel_modules(experiment))
+    try:
+        here, there = kernels.compile_ahead(kernel_modules(experiment))
+    except Exception as exc:  # noqa: BLE001 - an optimisation: the dry run compiles and reports on its own
+        log.warning("kernels not compiled ahead: %s: %s", type(exc).__name__, exc)
+        return
     if here or there:
         log.info("kernels compiled ahead in %.1f s: %s here, %s in a second process", time.perf_counter() - t0,
                  ", ".join(here) or "none", ", ".join(there) or "none")
