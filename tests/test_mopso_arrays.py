@@ -107,3 +107,18 @@ def test_individuals_history_and_callbacks_are_pymoos():
         fresh.CV = None
         assert np.array_equal(individual.CV, fresh.CV)
     assert digest(res) == digest(run(("osy", "default", 6, 1)))
+
+
+def test_one_draw_of_integers_is_pymoos_choice_of_a_parent():
+    """sbx_children draws the parents of the pairs that do not cross with ``integers(2, size=k)``: the same
+    numbers, and the same generator state after, as pymoo's ``choice(np.arange(2), size=1, replace=False)``
+    per pair (also after draws that leave half of a 64-bit output buffered)."""
+    for seed in range(200):
+        one, other = np.random.default_rng(seed), np.random.default_rng(seed)
+        for rng in (one, other):
+            rng.random(seed % 3)
+            rng.integers(7, size=seed % 5)
+        k = seed % 11
+        per_pair = [one.choice(np.arange(2), size=1, replace=False)[0] for _ in range(k)]
+        assert per_pair == list(other.integers(2, size=k))
+        assert one.random() == other.random() and one.integers(2**40) == other.integers(2**40)

@@ -312,8 +312,11 @@ def sbx_children(first: np.ndarray, second: np.ndarray, xl: np.ndarray, xu: np.n
         second_child = random_state.random(size=n) < 0.5
         Q[0, second_child] = Q[1, second_child]
         children[cross] = Q[0, cross]
-    for k in np.flatnonzero(~cross):
-        children[k] = X[random_state.choice(np.arange(2), size=1, replace=False)[0], k]
+    copied = np.flatnonzero(~cross)
+    if len(copied):
+        # the operator draws ``choice(np.arange(2), size=1, replace=False)`` per pair: one bounded 32-bit draw
+        # each, the draws ``integers(2, size=k)`` makes in one call (tests/test_mopso_arrays.py checks)
+        children[copied] = X[random_state.integers(2, size=len(copied)), copied]
     return children
 
 
@@ -361,7 +364,8 @@ def new_population(X: np.ndarray) -> Population:
     """``Population.new("X", X)``: one fresh :class:`~pymoo.core.individual.Individual` per row, built directly.
 
     The individuals are pymoo's own class in the state its constructor leaves them in, X set
-    to a copy of the row (``Population.set`` copies a view); what is skipped is the generic
+    to the row of a copy of X owned by this population (``Population.set`` copies each row, so
+    that no individual holds a view of a caller's array, pymoo #455); what is skipped is the generic
     path: a new configuration dictionary per individual (one shared, never modified, as pymoo
     only reads it) and ``Individual.set``'s attribute lookup per key and individual, which
     together cost more per generation than the swarm's whole move (issue 32).
@@ -383,8 +387,8 @@ def new_population(X: np.ndarray) -> Population:
 class ArrayEvaluator(Evaluator):
     """pymoo's :class:`~pymoo.core.evaluator.Evaluator` that sets the results on the individuals directly.
 
-    The same problem call and the same attributes as the base class (F, G, H as copies of
-    their rows, ``evaluated``, CV where the problem has constraints, computed by pymoo's
+    The same problem call and the same attributes as the base class (F, G, H as rows of a copy of
+    the problem's output, ``evaluated``, CV where the problem has constraints, computed by pymoo's
     ``calc_cv`` row by row as ``Individual.CV`` would), without ``Population.get``/``set``'s
     generic per-key, per-individual lookups; the evaluated arrays are kept in
     :attr:`last` (population, X, F, CV) so that :class:`MOPSO` does not read them back.
