@@ -698,6 +698,8 @@ class MOPSO(Algorithm):
         """X, F, CV of the evaluated infills: :class:`ArrayEvaluator`'s arrays, else read from the individuals."""
         last = getattr(self.evaluator, "last", None)
         if last is not None and last[0] is infills:
+            # read once: res.history's copies of the algorithm need not carry them
+            self.evaluator.last = None
             return last[1:]
         return evaluated_arrays(infills, self.problem.has_constraints())
 
