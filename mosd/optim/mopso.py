@@ -370,14 +370,16 @@ def new_population(X: np.ndarray) -> Population:
     only reads it) and ``Individual.set``'s attribute lookup per key and individual, which
     together cost more per generation than the swarm's whole move (issue 32).
     """
-    template = Individual().__dict__
-    individuals = np.empty(len(X), dtype=object)
-    for i, row in enumerate(np.array(X, dtype=float)):
-        individual = Individual.__new__(Individual)
-        state = template.copy()
-        state.update(_X=row, data={}, evaluated=set())
-        individual.__dict__ = state
-        individuals[i] = individual
+    template, create = Individual().__dict__, Individual.__new__
+    built = []
+    for row in np.array(X, dtype=float):
+        individual = create(Individual)
+        state = individual.__dict__
+        state.update(template)
+        state["_X"], state["data"], state["evaluated"] = row, {}, set()
+        built.append(individual)
+    individuals = np.empty(len(built), dtype=object)
+    individuals[:] = built
     population = individuals.view(Population)
     # read by ArrayEvaluator.eval: nothing here is evaluated yet
     population._mosd_fresh = True
