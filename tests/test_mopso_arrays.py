@@ -1,11 +1,11 @@
 """Issue 32: MOPSO keeps X/F/CV as arrays and builds pymoo's individuals directly (ArrayEvaluator,
 new_population) — the archives must be those of the code before, bit for bit.
 
-The hashes in :data:`PINNED` were recorded from the code before this change (integration branch
-at 8cdc547, mosd/optim/mopso.py and archive.py as they were there) by running
-``PYTHONPATH=<checkout of 8cdc547> python`` on this module's :func:`archive_hash` for each case
-(a copy of the test module imported from that checkout's Python path); the new code must give the
-same SHA-256 of the final archive's X and F bytes (``res.X``, ``res.F``).
+The hashes in :data:`PINNED` were recorded from the code before this change (commit 8cdc547 of
+the integration branch, exported with ``git archive 8cdc547 | tar -x -C OLD``): with
+``PYTHONPATH=OLD`` (so ``mosd`` is the old package) and this file's directory on ``sys.path``,
+``import test_mopso_arrays as t; [t.archive_hash(case) for case in t.CASES]``. The new code must
+give the same SHA-256 of the final archive's X and F bytes (``res.X``, ``res.F``).
 """
 from __future__ import annotations
 

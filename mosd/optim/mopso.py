@@ -47,7 +47,10 @@ One class, two presets:
   same seed it gives the same archive as this module did before the robust default.
 
 The archive (grid, eq. 37, leader choice) and the constrained dominance live in
-:mod:`mosd.optim.archive`; this module keeps the swarm.
+:mod:`mosd.optim.archive`; this module keeps the swarm. The swarm's state is arrays; pymoo's
+individuals are built only where its API needs them (:func:`new_population`, evaluated by
+:class:`ArrayEvaluator`, which hands X, F and CV back as arrays): per-candidate ``Individual``
+and ``Population`` bookkeeping was most of the optimiser's own time per generation (issue 32).
 
 Where the paper and Coello 2004 leave a detail open, the choice is documented at the
 place that implements it:
