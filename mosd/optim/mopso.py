@@ -47,7 +47,10 @@ One class, two presets:
   same seed it gives the same archive as this module did before the robust default.
 
 The archive (grid, eq. 37, leader choice) and the constrained dominance live in
-:mod:`mosd.optim.archive`; this module keeps the swarm.
+:mod:`mosd.optim.archive`; this module keeps the swarm. The swarm's state is arrays; pymoo's
+individuals are built only where its API needs them (:func:`new_population`, evaluated by
+:class:`ArrayEvaluator`, which hands X, F and CV back as arrays): per-candidate ``Individual``
+and ``Population`` bookkeeping was most of the optimiser's own time per generation (issue 32).
 
 Where the paper and Coello 2004 leave a detail open, the choice is documented at the
 place that implements it:
@@ -77,6 +80,8 @@ import warnings
 
 import numpy as np
 from pymoo.core.algorithm import Algorithm
+from pymoo.core.evaluator import Evaluator
+from pymoo.core.individual import Individual, calc_cv
 from pymoo.core.population import Population
 from pymoo.core.sampling import Sampling
 from pymoo.operators.crossover.sbx import cross_sbx
@@ -310,8 +315,11 @@ def sbx_children(first: np.ndarray, second: np.ndarray, xl: np.ndarray, xu: np.n
         second_child = random_state.random(size=n) < 0.5
         Q[0, second_child] = Q[1, second_child]
         children[cross] = Q[0, cross]
-    for k in np.flatnonzero(~cross):
-        children[k] = X[random_state.choice(np.arange(2), size=1, replace=False)[0], k]
+    copied = np.flatnonzero(~cross)
+    if len(copied):
+        # the operator draws ``choice(np.arange(2), size=1, replace=False)`` per pair: one bounded 32-bit draw
+        # each, the draws ``integers(2, size=k)`` makes in one call (tests/test_mopso_arrays.py checks)
+        children[copied] = X[random_state.integers(2, size=len(copied)), copied]
     return children
 
 
@@ -349,6 +357,97 @@ def round_integers(X: np.ndarray, is_integer: np.ndarray | None, xl: np.ndarray,
     box = Interval(xl[is_integer], xu[is_integer], integer=True)
     X[:, is_integer] = box.round(X[:, is_integer], clip=True)
     return X
+
+
+#: what :class:`ArrayEvaluator` sets as attributes of the individuals (``Population.set`` does the rest)
+_ARRAY_KEYS = ("F", "G", "H")
+
+
+def new_population(X: np.ndarray) -> Population:
+    """``Population.new("X", X)``: one fresh :class:`~pymoo.core.individual.Individual` per row, built directly.
+
+    The individuals are pymoo's own class in the state its constructor leaves them in, X set
+    to the row of a copy of X owned by this population (``Population.set`` copies each row, so
+    that no individual holds a view of a caller's array, pymoo #455); what is skipped is the generic
+    path: a new configuration dictionary per individual (one shared, never modified, as pymoo
+    only reads it) and ``Individual.set``'s attribute lookup per key and individual, which
+    together cost more per generation than the swarm's whole move (issue 32).
+    """
+    template, create = Individual().__dict__, Individual.__new__
+    built = []
+    for row in np.array(X, dtype=float):
+        individual = create(Individual)
+        state = individual.__dict__
+        state.update(template)
+        state["_X"], state["data"], state["evaluated"] = row, {}, set()
+        built.append(individual)
+    individuals = np.empty(len(built), dtype=object)
+    individuals[:] = built
+    population = individuals.view(Population)
+    # read by ArrayEvaluator.eval: nothing here is evaluated yet
+    population._mosd_fresh = True
+    return population
+
+
+class ArrayEvaluator(Evaluator):
+    """pymoo's :class:`~pymoo.core.evaluator.Evaluator` that sets the results on the individuals directly.
+
+    The same problem call and the same attributes as the base class (F, G, H as rows of a copy of
+    the problem's output, ``evaluated``, CV where the problem has constraints, computed by pymoo's
+    ``calc_cv`` row by row as ``Individual.CV`` would), without ``Population.get``/``set``'s
+    generic per-key, per-individual lookups; the evaluated arrays are kept in
+    :attr:`last` (population, X, F, CV) so that :class:`MOPSO` does not read them back.
+    """
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        self.last: tuple | None = None
+        self._arrays: tuple | None = None
+
+    def eval(self, problem, pop, skip_already_evaluated=None, evaluate_values_of=None, count_evals=True, **kwargs):
+        self.last = self._arrays = None
+        fresh = getattr(pop, "_mosd_fresh", False)
+        if fresh and len(pop):
+            # :func:`new_population`'s individuals have nothing evaluated: the base class's check of every
+            # individual's ``evaluated`` set would select them all
+            values = self.evaluate_values_of if evaluate_values_of is None else evaluate_values_of
+            self._eval(problem, pop, values, **kwargs)
+            if count_evals:
+                self.n_eval += len(pop)
+            if self.callback:
+                self.callback(pop)
+            pop._mosd_fresh = False
+        else:
+            pop = super().eval(problem, pop, skip_already_evaluated, evaluate_values_of, count_evals, **kwargs)
+        # the arrays describe ``pop`` when every individual was evaluated now (the base class passes pop[I])
+        if self._arrays is not None and isinstance(pop, Population) and len(self._arrays[0]) == len(pop):
+            self.last = (pop, *self._arrays[1:])
+        self._arrays = None
+        return pop
+
+    def _eval(self, problem, pop, evaluate_values_of, **kwargs):
+        X = np.array([individual._X for individual in pop])
+        out = problem.evaluate(X, return_values_of=evaluate_values_of, return_as_dictionary=True, **kwargs)
+        keys = set(out.keys())
+        # one copy per key (the problem may reuse its output buffers); each individual gets a row of it, the
+        # memory Population.set's copy of every row (pymoo #455) protects being this population's own
+        owned = {key: np.array(value, copy=True) for key, value in out.items() if value is not None}
+        names = ["_" + key for key in owned if key in _ARRAY_KEYS]
+        columns = [list(owned[key]) for key in owned if key in _ARRAY_KEYS]
+        others = {key: value for key, value in owned.items() if key not in _ARRAY_KEYS}
+        CV = None
+        if problem.has_constraints() and len(pop):
+            # pymoo's calc_cv on the whole arrays loops over the rows with the function Individual.CV calls
+            CV = np.array(np.broadcast_to(calc_cv(G=out.get("G"), H=out.get("H"), config=pop[0].config),
+                                          (len(pop),)), dtype=float).reshape(-1, 1)
+            names.append("_CV")
+            columns.append(list(CV))
+        for individual, *rows in zip(pop, *columns):
+            individual.__dict__.update(zip(names, rows))
+            individual.evaluated.update(keys)
+        if others:
+            pop.set(**others)
+        self._arrays = (pop, X, owned["F"], CV if CV is not None else np.zeros((len(pop), 1)))
 
 
 class MOPSO(Algorithm):
@@ -504,6 +603,8 @@ class MOPSO(Algorithm):
                  constrained_fine_mutation: float | None = 1.0,
                  constrained_reset: float | None = CONSTRAINED_RESET, horizon: int | None = None,
                  sampling: Sampling | None = None, output=None, **kwargs):
+        # ArrayEvaluator unless the caller brings an evaluator (then the arrays are read back from the individuals)
+        kwargs.setdefault("evaluator", ArrayEvaluator())
         super().__init__(output=MultiObjectiveOutput() if output is None else output, **kwargs)
         self.pop_size = check_int("optimizer.pop_size", pop_size, 1)
         self.archive_size = check_int("optimizer.archive_size", archive_size, 1)
@@ -581,11 +682,35 @@ class MOPSO(Algorithm):
     def _initialize_infill(self):
         X = self.sampling.do(self.problem, self.pop_size, algorithm=self,
                              random_state=self.random_state).get("X")
-        return Population.new("X", round_integers(X, self.is_integer, self.problem.xl, self.problem.xu))
+        return new_population(round_integers(X, self.is_integer, self.problem.xl, self.problem.xu))
+
+    def infill(self) -> Population | None:
+        """pymoo's ``Algorithm.infill`` (initialise on the first call, then ``_infill``), tagging the infills'
+        ``n_gen`` and ``n_iter`` (data of the individuals) without ``Population.set``'s per-individual lookups."""
+        if self.problem is None:
+            raise Exception("Please call `setup(problem)` before calling next().")
+        if not self.is_initialized:
+            self._initialize()
+            infills = self._initialize_infill()
+        else:
+            infills = self._infill()
+        if infills is not None:
+            for individual in infills:
+                individual.data["n_gen"] = individual.data["n_iter"] = self.n_iter
+        return infills
+
+    def _evaluated(self, infills: Population) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """X, F, CV of the evaluated infills: :class:`ArrayEvaluator`'s arrays, else read from the individuals."""
+        last = getattr(self.evaluator, "last", None)
+        if last is not None and last[0] is infills:
+            # read once: res.history's copies of the algorithm need not carry them
+            self.evaluator.last = None
+            return last[1:]
+        return evaluated_arrays(infills, self.problem.has_constraints())
 
     def _initialize_advance(self, infills=None, **kwargs):
         # paper 000 step 1: v_0 = 0 and Pbest_0 = Pop_0
-        X, F, CV = evaluated = evaluated_arrays(infills, self.problem.has_constraints())
+        X, F, CV = evaluated = self._evaluated(infills)
         self.particle_position = X
         self.particle_velocity = np.zeros_like(X, dtype=float)
         self.pbest_X, self.pbest_F, self.pbest_CV = X.copy(), F.copy(), CV.reshape(-1).copy()
@@ -636,11 +761,11 @@ class MOPSO(Algorithm):
             X_new = np.vstack([X_new, self._archive_offspring(n_offspring)])
             velocity = np.vstack([velocity, np.zeros((n_offspring, problem.n_var))])
         self.particle_velocity = velocity
-        return Population.new("X", round_integers(X_new, self.is_integer, problem.xl, problem.xu))
+        return new_population(round_integers(X_new, self.is_integer, problem.xl, problem.xu))
 
     def _advance(self, infills=None, **kwargs):
         self.pop = infills
-        evaluated = evaluated_arrays(infills, self.problem.has_constraints())
+        evaluated = self._evaluated(infills)
         self.leader_archive.update(infills, self.random_state, evaluated)
         self._update_personal_best(*evaluated)
 
