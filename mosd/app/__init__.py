@@ -15,7 +15,7 @@ Modules by job (docs/ARCHITECTURE.md has their import graph):
 
 * the command line: :mod:`.config` (where the configs are, which keys exist),
   :mod:`.preflight` (the whole command line checked before Hydra creates
-  anything; :mod:`.compile_ahead`, the run's kernels compiled on two cores on an empty cache), :mod:`.build` (config → validated components), :mod:`.compat`
+  anything), :mod:`.build` (config → validated components), :mod:`.compat`
   (the only contact with Hydra's and the standard library's private parts);
 * one run: :mod:`.run` (the Hydra task), :mod:`.signals` (stop signals),
   :mod:`.files` (the run directory), :mod:`.summary` (printed metrics),

@@ -488,9 +488,6 @@ def check_job(cfg, setup: Setup, done: dict, multirun: bool = False) -> None:
         done[("dask", setup.dask_address)] = True
     key = _shape_key(cfg)
     if key not in done:
-        from .compile_ahead import compile_for
-
-        compile_for(setup.experiment)  # an empty kernel cache: the dry run's kernels compiled on two cores first
         try:
             done[key] = dry_run(setup)
         except ConfigError:

@@ -100,18 +100,13 @@ EVALUATION_MODULES = ("ewma", "chart")  # the wavelet's chart kernel compiles wh
 
 
 def warm_up(modules: tuple[str, ...] = EVALUATION_MODULES) -> None:
-    """Load (or compile) the kernels of ``modules`` now, e.g. in a fresh worker before its first task.
-
-    A name is a module of :data:`MODULES` (its ``warm_up``) or ``module:part`` (its ``warm_up_<part>``,
-    one of :data:`PARTS`).
-    """
+    """Load (or compile) the kernels of ``modules`` now, e.g. in a fresh worker before its first task."""
     if not enabled():
         return
     import importlib
 
     for name in modules:
-        module, _, part = name.partition(":")
-        getattr(importlib.import_module(f"{__name__}.{module}"), f"warm_up_{part}" if part else "warm_up")()
+        importlib.import_module(f"{__name__}.{name}").warm_up()
 
 
 def cached(name: str) -> bool:
@@ -129,81 +124,6 @@ def cached(name: str) -> bool:
         if path is not None and getattr(obj, "__module__", None) == module.__name__:
             return bool(glob.glob(os.path.join(glob.escape(path), f"{name}.*.nbi")))
     return True  # nothing cached by numba in this module
-
-
-#: CPU seconds each module's :func:`warm_up` takes on an empty cache (this project's 2-core machine, nearly
-#: free): how :func:`compile_ahead` shares the modules between two processes; only the ratios matter
-COMPILE_SECONDS = {"ewma": 2.0, "wavelet": 8.0, "chart": 5.0, "plants": 3.0, "cubature:filter": 12.0,
-                   "cubature:output": 1.5, "imm": 18.0, "entropy": 2.0}
-#: modules whose warm-up :func:`compile_ahead` shares out in parts (``module:part``, see :func:`warm_up`)
-PARTS = {"cubature": ("cubature:filter", "cubature:output")}
-#: what a second process costs before it compiles anything (interpreter, NumPy and numba imports)
-PROCESS_START_SECONDS = 1.0
-
-
-def share(modules: tuple[str, ...], workers: int = 2) -> tuple[list[str], list[str]]:
-    """The modules for this process and those for a second one: the largest first, each to the less loaded
-    process (the second counted from :data:`PROCESS_START_SECONDS`). With one worker (or one module) all here."""
-    order = sorted(modules, key=lambda name: -COMPILE_SECONDS.get(name, 1.0))
-    if workers < 2 or len(order) < 2:
-        return order, []
-    here, there = [], [order[0]]
-    load_here, load_there = 0.0, PROCESS_START_SECONDS + COMPILE_SECONDS.get(order[0], 1.0)
-    for name in order[1:]:
-        cost = COMPILE_SECONDS.get(name, 1.0)
-        if load_here <= load_there:
-            here.append(name)
-            load_here += cost
-        else:
-            there.append(name)
-            load_there += cost
-    return here, there
-
-
-def compile_ahead(modules: tuple[str, ...]) -> tuple[list[str], list[str]]:
-    """Compile, before a run calls them, the kernels of ``modules`` that the on-disk cache lacks, on two cores.
-
-    A run compiles each kernel where it first calls it, one after the other in one process; on an empty
-    cache that is most of a first run's time (issue 31). Here the missing modules are shared out
-    (:func:`share`): a second Python process compiles its share into numba's cache (``python -m
-    mosd.kernels``) while this one compiles the rest, then this one waits for it, so that the run loads
-    every kernel instead of compiling it. Each module's ``warm_up`` compiles the signatures a run calls, no
-    other. Nothing happens with the kernels off, a warm cache or one CPU; should the second process fail,
-    the run compiles what it lacks as before. Returns (compiled here, compiled by the second process).
-    """
-    if not enabled():
-        return [], []
-    missing = tuple(part for name in modules if not cached(name) for part in PARTS.get(name, (name,)))
-    try:
-        cpus = len(os.sched_getaffinity(0))
-    except AttributeError:  # pragma: no cover - not on Linux
-        cpus = os.cpu_count() or 1
-    here, there = share(missing, workers=min(cpus, 2))
-    helper = None
-    if there:
-        import subprocess
-        import sys
-
-        code = f"from mosd import kernels; kernels.warm_up({tuple(there)!r})"
-        # this very package (numba's cache is keyed by the source file), whatever the child's path would find
-        package_parent = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-        env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, (package_parent,
-                                                                         os.environ.get("PYTHONPATH")))))
-        try:
-            helper = subprocess.Popen([sys.executable, "-c", code], stdin=subprocess.DEVNULL, env=env,
-                                      stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        except OSError:
-            here, there = here + there, []
-    try:
-        warm_up(tuple(here))
-    except BaseException:  # a stop signal or an error: nothing left to compile for
-        if helper is not None:
-            helper.kill()
-            helper.wait()
-        raise
-    if helper is not None and helper.wait() != 0:  # the run compiles what is missing itself, where it calls it
-        there = []
-    return here, there
 
 
 def compile_module(name: str) -> tuple[str, float]:

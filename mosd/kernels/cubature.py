@@ -512,21 +512,9 @@ def output_prediction(x_pred, sqrt_cov_pred, eps, weights, outputs, meas_cov, th
 
 
 def warm_up() -> None:
-    """Load (or compile) the filter and the output prediction for the mould oscillator's shapes."""
-    warm_up_filter()
-    warm_up_output()
-
-
-def warm_up_filter() -> None:
-    """Load (or compile) the filter alone (most of this module's compile: :func:`mosd.kernels.compile_ahead`
-    gives it a process of its own)."""
+    """Load (or compile) the filter for the mould oscillator's shapes."""
     n_x = 3
     filter_batch(0, np.ones(8), np.arange(n_x), np.zeros((1, 2, n_x)), np.zeros((1, 2, 1)), np.zeros(n_x),
                  np.eye(n_x), np.zeros((1, n_x)), np.ones(1), np.eye(n_x), np.eye(n_x), threads=1)
-
-
-def warm_up_output() -> None:
-    """Load (or compile) the output prediction alone."""
-    n_x = 3
     output_prediction(np.zeros((1, 2, n_x)), np.zeros((1, 2, n_x, n_x)), np.zeros((1, n_x)), np.ones(1),
                       np.arange(n_x), np.eye(n_x), threads=1)
