@@ -230,7 +230,10 @@ def warm_up(denoised: bool = False) -> None:
     (db3, three levels, SURE: the paper's wavelet)."""
     u = np.zeros((64, 3))
     faulty = np.zeros((2, 64), bool)
-    alarm_counts(u, u, 1, np.ones(1), np.zeros((1, 2)), np.ones(1), False, faulty)
+    # K as the tuning passes it: a column of the population (a strided view, numba's layout 'A'); a contiguous
+    # array here would compile a signature the run never calls, and the run would compile its own
+    widths = np.ones((2, 2))[:, 1]
+    alarm_counts(u, u, 1, np.ones(2), np.zeros((2, 2)), widths, False, faulty)
     if not denoised:
         return
     import pywt
@@ -240,7 +243,7 @@ def warm_up(denoised: bool = False) -> None:
     wavelet = pywt.Wavelet("db3")
     filters = [np.asarray(f, float) for f in (wavelet.dec_lo, wavelet.dec_hi, wavelet.rec_lo, wavelet.rec_hi)]
     args = (*filters, 3, False, SOURCE_COARSEST, RULE_SURE, np.zeros(3), False)
-    alarm_counts_denoised(u, u, 1, np.ones(1), np.zeros((1, 2)), np.ones(1), False, faulty, *args)
+    alarm_counts_denoised(u, u, 1, np.ones(2), np.zeros((2, 2)), widths, False, faulty, *args)
 
 
 def warm_up_all() -> None:
