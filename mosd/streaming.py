@@ -414,34 +414,19 @@ def points_of(columns: Mapping[str, np.ndarray], n: int, index: str = "point") -
     at = np.flatnonzero(number > 0)
     if not n:
         return len(number), at, np.empty((len(at), 0))
-    values = [np.asarray(columns[f"z_{j}"], float) for j in range(1, n + 1)]
-    Z = _columns_of(values)
-    if Z is None:
-        Z = np.column_stack(values)
+    Z = np.column_stack([np.asarray(columns[f"z_{j}"], float) for j in range(1, n + 1)])
     return len(number), at, (Z if len(at) == len(number) else Z[at])
-
-
-def _columns_of(values: list[np.ndarray]) -> np.ndarray | None:
-    """The (rows, n) array whose columns in order the 1-D arrays ``values`` are views of (a table converted in one
-    step, :meth:`OnlinePipeline.rows`), or None: the copy into a new array is then needed."""
-    base = values[0].base
-    if base is None or not isinstance(base, np.ndarray) or base.ndim != 2 or base.shape[1] != len(values) \
-            or base.dtype != np.float64 or base.shape[0] != len(values[0]):
-        return None
-    start, (row_stride, column_stride) = base.__array_interface__["data"][0], base.strides
-    for j, column in enumerate(values):
-        if column.base is not base or column.strides != (row_stride,) \
-                or column.__array_interface__["data"][0] != start + j * column_stride:
-            return None
-    return base
 
 
 def spread(rows: int, at: np.ndarray, per_point: Mapping[str, np.ndarray], state: Mapping) -> dict[str, np.ndarray]:
     """Per-point results onto every row: an output is empty (NaN, False, 0 or '') on a row that is no point;
     a state variable (a key of ``state``) keeps its value from the last point before (or ``state``)."""
     if len(at) == rows:  # every row a point: the values are the columns
-        return {name: np.asarray(values) if np.asarray(values).dtype.kind in "biuO" or name in state
-                else np.asarray(values, float) for name, values in per_point.items()}
+        out = {}
+        for name, values in per_point.items():
+            values = np.asarray(values)
+            out[name] = values if values.dtype.kind in "biuO" or name in state else values.astype(float, copy=False)
+        return out
     out = {}
     last = np.full(rows, -1)
     if len(at):
