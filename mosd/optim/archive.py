@@ -12,7 +12,6 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 from pymoo.core.population import Population
-from pymoo.operators.survival.rank_and_crowding.metrics import calc_crowding_distance
 
 from ..validation import check_choice, check_int
 
@@ -405,6 +404,10 @@ class GridArchive:
     def crowding_distances(self) -> np.ndarray:
         """NSGA-II's crowding distance of each member (pymoo's ``calc_crowding_distance``; the extremes: inf)."""
         if self._crowding is None:
+            # imported here: pymoo's rank_and_crowding package loads scipy.spatial and scipy.linalg (0.2-0.8 s of a
+            # run's startup), and only a constrained problem's full archive needs it (issue 32)
+            from pymoo.operators.survival.rank_and_crowding.metrics import calc_crowding_distance
+
             self._crowding = calc_crowding_distance(self._F)
         return self._crowding
 
