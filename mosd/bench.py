@@ -26,7 +26,8 @@ other, so machine noise hits both. Sections:
 * ``serve`` — ``mlflow models serve`` of a logged model on 127.0.0.1: the median
   latency of a request of 100 rows (the server is stopped afterwards).
 * ``scale`` — one tuning per evaluation path (threads: the main command's chart; processes:
-  paper 001's and 002's evaluators; recorded: TE PCA) at n_jobs = 1, 2, 4, … up to the CPUs and
+  paper 001's and 002's evaluators; recorded: TE PCA; the main command again at 20 times its
+  training runs, ``threads_n200``) at n_jobs = 1, 2, 4, … up to the CPUs and
   on Dask at the largest: wall, serial, dispatch/gather and evaluation time per generation,
   speed-up, efficiency; then a sweep of 2 × CPUs jobs with the joblib launcher against one after
   the other (:mod:`mosd.app.scale_bench`; minutes; only with ``--only scale``).
