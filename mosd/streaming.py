@@ -282,18 +282,23 @@ class OnlinePipeline:
         if extra:
             raise ConfigError(f"input column {extra[0]!r} is not an input of the model; allowed: the model's "
                               f"{len(inputs)} inputs ({shown}), in any order")
-        frame = frame.set_axis(names, axis=1)
         first = self.stages[0]
         if all(dtype.kind in "fiub" for dtype in frame.dtypes):
-            # numbers only: one conversion of the whole table (a column at a time costs pandas' overhead 33 times)
-            X = frame[list(inputs)].to_numpy(dtype=float)
-            bad = ~np.isfinite(X)
-            if not first.accepts_missing and bad.any():
+            # numbers only: one conversion of the whole table (a column at a time costs pandas' overhead 33
+            # times), then the model's column order
+            X = frame.to_numpy(dtype=float)
+            where = {c: i for i, c in enumerate(names)}
+            order = [where[t] for t in inputs]
+            if order != list(range(len(order))):
+                X = X[:, order]
+            bad = None if first.accepts_missing else ~np.isfinite(X)
+            if bad is not None and bad.any():
                 column = int(np.argmax(bad.any(axis=0)))
                 row = int(np.argmax(bad[:, column]))
-                raise ConfigError(f"input column {inputs[column]!r} row {row} is {frame[inputs[column]].iloc[row]!r}, "
+                raise ConfigError(f"input column {inputs[column]!r} row {row} is {X[row, column]!r}, "
                                   f"not a finite number; allowed: numbers ({type(first).__name__} has no policy for a gap)")
             return {name: X[:, j] for j, name in enumerate(inputs)}
+        frame = frame.set_axis(names, axis=1)
         out = {}
         for name in inputs:
             column = frame[name]

@@ -21,3 +21,26 @@ def test_the_fused_scores_are_the_array_form_s_bits(m, n_fit):
         np.testing.assert_array_equal(t2, expected.t2[:, 0])
         np.testing.assert_array_equal(spe, expected.spe[:, 0])
     assert np.isnan(t2[[3, 50, 699]]).all() and np.isfinite(np.delete(t2, [3, 50, 699])).all()
+
+
+@pytest.mark.parametrize("m", [3, 7])
+def test_the_fused_ranking_is_the_contributions_argsort_in_any_chunks(m):
+    """kernels.projection.scores ranks each row as a stable argsort of PCAModel.contributions (ties to the
+    lower index), k = min(3, m); rows with a gap are not ranked; chunks of any size rank alike."""
+    from mosd.kernels.projection import scores
+
+    rng = np.random.default_rng(m)
+    model = PCAModel(rng.standard_normal((200, m)) @ rng.standard_normal((m, m)))
+    X = rng.standard_normal((300, m)) * 2.0
+    X[5, 0] = np.nan
+    a, k = 1, min(3, m)
+    args = (model.mean, model.scale, np.ascontiguousarray(model.loadings), model.eigenvalues, a, k)
+    _, _, complete, top_t2, top_spe = scores(X, *args)
+    c_t2, c_spe = model.contributions(np.nan_to_num(X), a)
+    for top, c in ((top_t2, c_t2), (top_spe, c_spe)):
+        expected = np.argsort(-c, axis=1, kind="stable")[:, :k]
+        np.testing.assert_array_equal(top[complete], expected[complete])
+    assert not complete[5] and complete.sum() == len(X) - 1
+    pieces = [scores(X[lo:lo + 13], *args) for lo in range(0, len(X), 13)]
+    np.testing.assert_array_equal(np.concatenate([p[3] for p in pieces]), top_t2)
+    np.testing.assert_array_equal(np.concatenate([p[4] for p in pieces]), top_spe)

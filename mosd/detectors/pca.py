@@ -415,24 +415,27 @@ class OnlinePCA(OnlineStage):
         from .. import kernels
 
         fused = kernels.enabled() and model.loadings.shape[1] >= model.m
-        if fused:  # one pass per row, the same bits as _Projected.of (kernels.projection.t2_spe)
-            from ..kernels.projection import t2_spe
+        index = None
+        if fused:  # one pass per row, the same bits as _Projected.of (kernels.projection.scores)
+            from ..kernels.projection import scores
 
-            raw["t2"], raw["spe"], finite = t2_spe(np.ascontiguousarray(X, dtype=float), model.mean, model.scale,
-                                                   np.ascontiguousarray(model.loadings), model.eigenvalues, a)
-        # blocks of BLOCK rows, so that the (block, m) intermediates stay in cache (buffers made once per
-        # call); every step is row by row, so the blocks change no bit
-        index = {"t2": np.empty((n, TOP), np.intp), "spe": np.empty((n, TOP), np.intp)} if top else None
-        if top or not fused:
+            k = min(TOP, model.m) if top else 0
+            raw["t2"], raw["spe"], finite, top_t2, top_spe = scores(
+                np.ascontiguousarray(X, dtype=float), model.mean, model.scale, np.ascontiguousarray(model.loadings),
+                model.eigenvalues, a, k)
+            index = {"t2": top_t2, "spe": top_spe}
+        else:
+            # blocks of BLOCK rows, so that the (block, m) intermediates stay in cache (buffers made once per
+            # call); every step is row by row, so the blocks change no bit
+            index = {"t2": np.empty((n, TOP), np.intp), "spe": np.empty((n, TOP), np.intp)} if top else None
             block = min(BLOCK, n)
             Z_buffer, c_buffer = np.empty((block, model.m)), np.empty((block, model.m))
             with _one_blas_thread():
                 for lo in range(0, n, BLOCK):
                     hi = min(lo + BLOCK, n)
-                    if not fused:
-                        proj = _Projected.of(model, X[lo:hi], components=a)
-                        raw["t2"][lo:hi], raw["spe"][lo:hi] = proj.t2[:, 0], proj.spe[:, 0]
-                        finite[lo:hi] = proj.finite
+                    proj = _Projected.of(model, X[lo:hi], components=a)
+                    raw["t2"][lo:hi], raw["spe"][lo:hi] = proj.t2[:, 0], proj.spe[:, 0]
+                    finite[lo:hi] = proj.finite
                     if top:
                         Z = np.subtract(X[lo:hi], self.mean, out=Z_buffer[:hi - lo])
                         Z /= self.scale
