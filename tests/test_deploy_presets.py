@@ -1,6 +1,7 @@
 """Every preset deploys what it tuned, or says why not (issue 28).
 
-For ``tep``, ``paper000 denoise=wavelet_causal`` and the worked example ``two_tank``, run with ``debug=tiny``
+For ``tep`` (with its PCA detector, and with the PCA residual generator and a threshold), ``paper000
+denoise=wavelet_causal`` and the worked example ``two_tank``, run with ``debug=tiny``
 (the main command's run is checked in ``test_streaming_cesckf.py`` and ``test_chart_model.py``, papers
 001–003's in ``test_streaming_papers.py``, each with more checks of its raw-input model): ``summary.json["model"]`` holds the logged model's URI and
 ``mosd monitor`` on the run's ``test_stream.parquet`` reproduces the run's own ``alarm`` column on every
@@ -20,6 +21,9 @@ PRESETS = {
     "tep": ["+experiment=tep"],
     "paper000_causal": ["+experiment=paper000", "denoise=wavelet_causal"],
     "two_tank": ["+experiment=two_tank"],
+    # the PCA residual generator's causal form: the model's input is the recorded tags themselves
+    "tep_pca_residual": ["+experiment=tep", "estimator=pca", "estimator.fit_runs=1", "monitor.outputs=[t2]",
+                         "detector=threshold", "~detector.fit_runs", "~detector.bounds", "detector.threshold_max=200"],
 }
 
 
@@ -41,6 +45,8 @@ def test_preset_logs_a_model_that_reproduces_its_test_stream(tmp_path, preset):
     assert uri and uri.startswith("models:/"), (summary.get("deployment"), run.stdout[-2000:])
     stream = pd.read_parquet(run_dir / "test_stream.parquet")
     assert {"t", "alarm", "decision"} <= set(stream.columns)
+    if preset == "tep_pca_residual":   # the model reads the raw tags, not the estimator's residuals
+        assert "XMEAS(1)" in stream.columns and not any(c.startswith("residual_") for c in stream.columns)
     out = tmp_path / "scored.csv"
     scored = _mosd(["monitor", "--model", uri, str(run_dir / "test_stream.parquet"), "--out", str(out),
                     "--tracking-uri", tracking, "--chunk", "97"], tmp_path, tmp_path / "out")

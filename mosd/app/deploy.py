@@ -7,8 +7,8 @@ answer is one line saying why (the run's summary prints it):
 
 * the estimator has none (no preset's estimator today: the CESCKF dedicated observer, the IMM, the
   gain filters and the observers stream the plant's raw ``y_<output>``/``u_<input>`` columns or
-  packets): the pipeline starts at the monitor and the model's input is the estimator's output
-  stream; the summary says so;
+  packets, and on recorded data the PCA residual generator its tags): the pipeline starts at the
+  monitor and the model's input is the estimator's output stream; the summary says so;
 * the monitor or the detector has none (paper 000's whole-series wavelet, MS-OEWMA's prefilter):
   no model (the test stream is still written when the monitor streams).
 
@@ -88,7 +88,10 @@ def _estimator_stage(experiment, estimator):
     plant, noise = getattr(experiment, "plant", None), getattr(experiment, "noise", None)
     if plant is None or noise is None or getattr(experiment, "data", None) is not None:
         stage = estimator.online(getattr(experiment, "model", None))   # recorded data: measured signals or none
-        return None, stage
+        if stage is None:
+            return None, None
+        # a stage on the recorded tags (the PCA residual): the test split's first run, raw
+        return estimator.raw_stream(experiment.simulate(None, 1, "test"), None, ()), stage
     input_names = tuple(getattr(plant, "input_names", ()) or ())
     source = {"plant": describe(plant), "noise": describe(noise), "input_names": input_names}
     # the first test replication again (seed streams: replication 0 whatever the batch), raw

@@ -13,11 +13,13 @@ tunes the number of components itself.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from ..detectors.pca import PCAModel
+from ..streaming import OnlineStage
 from ..types import Residuals, Trace
 from ..validation import ConfigError, Interval, Param
 from .base import Estimator
@@ -48,14 +50,88 @@ class PCAResidual(Estimator):
         return self
 
     def estimate(self, trace: Trace, model: Any = None) -> Residuals:
+        fitted = self._fitted()
+        a = self.n_components
+        residual, t2, spe, scores = pca_residual(trace.y, fitted.mean, fitted.scale, fitted.loadings[:, :a],
+                                                 fitted.eigenvalues[:a])
+        extra = {"t2": t2, "spe": spe, "scores": scores}
+        return Residuals.of(trace, r=residual, channels=fitted.names, extra=extra)
+
+    def _fitted(self) -> PCAModel:
         fitted = getattr(self, "model_", None)
         if fitted is None:
             raise ConfigError("estimator PCAResidual is not fitted; allowed: fit on fault-free runs first "
                               "(the experiment does this)")
-        a = self.n_components
-        z = fitted.standardise(trace.y)
-        scores = fitted.scores(z, standardised=True)[..., :a]
-        residual = z - scores @ fitted.loadings[:, :a].T
-        extra = {"t2": np.sum(scores**2 / fitted.eigenvalues[:a], axis=-1), "spe": np.sum(residual**2, axis=-1),
-                 "scores": scores}
-        return Residuals.of(trace, r=residual, channels=fitted.names, extra=extra)
+        return fitted
+
+    # -- the causal form ----------------------------------------------------------------
+    def online(self, model: Any = None, source=None, trace: Trace | None = None) -> "OnlinePCAResidual":
+        """The fitted PCA as a stream of the measured tags (one column per variable, by its name): memoryless."""
+        fitted, a = self._fitted(), self.n_components
+        return OnlinePCAResidual(tags=tuple(fitted.names), mean=np.asarray(fitted.mean, float),
+                                 scale=np.asarray(fitted.scale, float),
+                                 loadings=np.ascontiguousarray(fitted.loadings[:, :a], dtype=float),
+                                 eigenvalues=np.asarray(fitted.eigenvalues[:a], float))
+
+    def raw_stream(self, trace: Trace, model: Any, input_names=()) -> dict[str, np.ndarray]:
+        """The first replication's measurements, one column per variable (the causal form's inputs)."""
+        y = np.asarray(trace.y, float)[0]
+        return {name: y[:, j] for j, name in enumerate(self._fitted().names)}
+
+
+def pca_residual(Y, mean, scale, loadings, eigenvalues):
+    """(residual e (..., m), T² (...), SPE (...), scores t (..., a)) of every row of Y (..., m).
+
+    z = (y − mean)/scale, t = Pₐᵀ z, e = z − Pₐ t = (I − Pₐ Pₐᵀ) z, T² = Σ_j t_j²/λ_j, SPE = Σ_i e_i², each sum
+    taken in a fixed order over one row's own numbers (no matrix product, whose kernel a BLAS picks by the
+    row count): a series gives the same bits in one call, in chunks or row by row, so the batch estimate
+    and :class:`OnlinePCAResidual` agree bit for bit. A row with a missing value gives NaN.
+    """
+    Z = (np.asarray(Y, float) - mean) / scale
+    m, a = loadings.shape
+    t = np.zeros((*Z.shape[:-1], a))
+    for i in range(m):
+        t += Z[..., i:i + 1] * loadings[i]
+    fitted = np.zeros_like(Z)
+    for j in range(a):
+        fitted += t[..., j:j + 1] * loadings[:, j]
+    residual = Z - fitted
+    t2 = np.zeros(Z.shape[:-1])
+    for j in range(a):
+        t2 += t[..., j] ** 2 / eigenvalues[j]
+    spe = np.zeros(Z.shape[:-1])
+    for i in range(m):
+        spe += residual[..., i] ** 2
+    return residual, t2, spe, t
+
+
+@dataclass
+class OnlinePCAResidual(OnlineStage):
+    """:class:`PCAResidual`'s causal form: the tags in (by name), ``residual_<tag>``, ``t2``, ``spe`` and
+    ``scores_<j>`` out (:func:`pca_residual`); no state (each row is scored on its own)."""
+
+    tags: tuple
+    mean: np.ndarray
+    scale: np.ndarray
+    loadings: np.ndarray
+    eigenvalues: np.ndarray
+
+    @property
+    def inputs(self) -> tuple[str, ...]:
+        return tuple(self.tags)
+
+    @property
+    def outputs(self) -> tuple[str, ...]:
+        return (*(f"residual_{tag}" for tag in self.tags), "t2", "spe",
+                *(f"scores_{j}" for j in range(len(self.eigenvalues))))
+
+    def example_row(self) -> np.ndarray:
+        return np.asarray(self.mean, float)
+
+    def update(self, columns, state) -> dict[str, np.ndarray]:
+        Y = np.column_stack([np.asarray(columns[tag], float) for tag in self.tags])
+        residual, t2, spe, scores = pca_residual(Y, self.mean, self.scale, self.loadings, self.eigenvalues)
+        out = {f"residual_{tag}": residual[:, j] for j, tag in enumerate(self.tags)}
+        out.update({"t2": t2, "spe": spe})
+        out.update({f"scores_{j}": scores[:, j] for j in range(scores.shape[1])})
+        return out
