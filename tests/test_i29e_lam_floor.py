@@ -35,6 +35,9 @@ def test_every_detector_yaml_that_declares_lam_min_lists_it_with_its_meaning():
         assert line is not None, f"{path.name} does not list lam_min"
         value, _, comment = line.partition("#")
         assert float(value.split(":", 1)[1]) == 0.0 and "lam" in comment and "held-back" in comment, line
+        # the base's other common option (detector.flatline) is listed beside it, off by default
+        flat = next((ln for ln in path.read_text().splitlines() if ln.startswith("flatline:")), "")
+        assert yaml.safe_load(flat) == {"flatline": None} and "#" in flat, f"{path.name}: {flat!r}"
 
 
 def _setup(overrides):
