@@ -49,6 +49,9 @@ What the base does (for every statistic S of the design)
   runs fit, the others are held back; all runs do both when None), at least :data:`RESOLUTION`
   times the larger of the in-control mean and the held-back maximum (a quantile inside an EWMA's
   decaying tail is numerical, not statistical);
+* with ``flatline`` set, one more statistic beside the family's, ``flat`` (:func:`flat_statistic`: a tag whose
+  increments collapse, a stuck valve), smoothed and limited the same way (always empirically), alarmed whatever
+  ``statistic`` picks among the family's, and carried by the deployed stage;
 * ratio_k = max over the alarmed statistics of S̃_k / limit; alarm when ratio > 1 for
   ``persistence`` consecutive rows (:func:`~mosd.detectors.base.persistent`).
 
@@ -341,7 +344,8 @@ class LatentDetector(Detector):
 
     def _alarmed(self) -> tuple[str, ...]:
         # the flat statistic is a check beside the family's: it stays on when one family statistic is chosen
-        return self.names() if self.statistic == "combined" else (self.statistic, *self.names()[len(self.STATISTICS):])
+        extra = self.names()[len(self.STATISTICS):]
+        return self.names() if self.statistic == "combined" else (self.statistic, *extra)
 
     def statistics(self, calibration_z: np.ndarray, z: np.ndarray, design: dict | None = None) -> dict:
         """Every statistic of one design on z (smoothed when lam < 1) and its limit: what the figures plot.
