@@ -388,9 +388,24 @@ def _simulated_calibration(exp) -> np.ndarray | None:
         return None
     mini = Experiment(exp.plant, exp.noise, exp.fault, exp.estimator, exp.monitor, exp.detector,
                       duration=exp.duration, budget=Budget(1, 1, 1, 1), seed=exp.seed, objectives=exp.objectives)
-    calibration = mini.residuals(None, 1, "calibration")
+    calibration = mini.residuals(None, _dry_calibration_runs(exp), "calibration")
     mini.monitor.fit(calibration)
     return mini.prepare(calibration=calibration).phase1.z
+
+
+def _dry_calibration_runs(exp) -> int:
+    """Calibration replications a simulated dry run needs: one, or one past the detector's ``fit_runs``.
+
+    A family that holds calibration runs back (``detector.fit_runs`` below ``budget.n_calibration``) bounds
+    λ by the length of a held-back run (:meth:`mosd.detectors.latent.LatentDetector.lam_bounds`); with a
+    single replication nothing is held back, so the dry run would miss the floor that the run then enforces
+    midway, after its outputs exist. Simulated replications all have the same length, so one held-back
+    replication gives the run's floor.
+    """
+    fit_runs = getattr(exp.detector, "fit_runs", None)
+    if fit_runs is None or getattr(exp.detector, "data_bounds", None) is None:
+        return 1
+    return int(min(exp.budget.n_calibration, fit_runs + 1))
 
 
 def dry_run(setup: Setup) -> dict | None:
@@ -439,8 +454,8 @@ def dry_run(setup: Setup) -> dict | None:
             check_samples(int(trace.y.shape[1]))
         _check_burn_in(setup, int(round(exp.duration / exp.plant.dt)))
         return
-    calibration = mini.residuals(None, 1, "calibration")
-    _check_memory(setup, _nbytes(calibration))
+    calibration = mini.residuals(None, _dry_calibration_runs(exp), "calibration")
+    _check_memory(setup, _nbytes(calibration) // int(calibration.r.shape[0]))
     _check_burn_in(setup, int(calibration.r.shape[1]))
     mini.monitor.fit(calibration)
     data = mini.prepare(calibration=calibration)

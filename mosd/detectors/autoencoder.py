@@ -203,7 +203,8 @@ class AutoencoderDetector(LatentDetector):
                  lam: float = 1.0, persistence: int = 1, statistic: str = "combined", limits: str = "empirical",
                  fit_runs: int | None = None, max_components: int = 20, hidden_max: int = 32,
                  epochs_max: int = 500,
-                 persistence_max: int = 10, lam_min: float = 0.0, learning_rate: float = 0.01, seed: int = 0):
+                 persistence_max: int = 10, lam_min: float = 0.0,
+                 flatline: float | None = None, learning_rate: float = 0.01, seed: int = 0):
         self._assign(locals())
         self._cache = {}
 

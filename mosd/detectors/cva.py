@@ -56,7 +56,7 @@ class CVADetector(LatentDetector):
     def __init__(self, past: int = 2, future: int = 2, n_states: int = 25, alpha: float = 0.01, lam: float = 1.0,
                  persistence: int = 1, statistic: str = "combined", limits: str = "theoretical",
                  fit_runs: int | None = None, max_lags: int = 5, max_states: int = 100,
-                 persistence_max: int = 10, lam_min: float = 0.0):
+                 persistence_max: int = 10, lam_min: float = 0.0, flatline: float | None = None):
         self._assign(locals())
         self._cache: dict = {}
 

@@ -34,7 +34,7 @@ class DPCADetector(PCADetector):
     def __init__(self, n_components: int = 20, lags: int = 2, alpha: float = 0.01, lam: float = 1.0,
                  persistence: int = 1, statistic: str = "combined", limits: str = "theoretical",
                  fit_runs: int | None = None, max_components: int = 60, max_lags: int = 5,
-                 persistence_max: int = 10, lam_min: float = 0.0):
+                 persistence_max: int = 10, lam_min: float = 0.0, flatline: float | None = None):
         self._assign(locals())
         self._cache: dict = {}
 

@@ -162,7 +162,8 @@ class ICADetector(LatentDetector):
     def __init__(self, n_components: int = 9, alpha: float = 0.01, lam: float = 1.0, persistence: int = 1,
                  statistic: str = "combined", limits: str = "empirical", fit_runs: int | None = None,
                  max_components: int = 20,
-                 persistence_max: int = 10, lam_min: float = 0.0, seed: int = 0, max_iter: int = 1000,
+                 persistence_max: int = 10, lam_min: float = 0.0,
+                 flatline: float | None = None, seed: int = 0, max_iter: int = 1000,
                  tol: float = 1e-4):
         self._assign(locals())
         self._cache = {}

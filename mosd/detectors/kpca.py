@@ -180,7 +180,7 @@ class KernelPCADetector(LatentDetector):
     def __init__(self, n_components: int = 9, width: int = 10, alpha: float = 0.01, lam: float = 1.0,
                  persistence: int = 1, statistic: str = "combined", limits: str = "theoretical",
                  fit_runs: int | None = None, max_components: int = 20, width_max: int = 1000,
-                 persistence_max: int = 10, lam_min: float = 0.0):
+                 persistence_max: int = 10, lam_min: float = 0.0, flatline: float | None = None):
         self._assign(locals())
         self._cache = {}
 

@@ -49,6 +49,9 @@ What the base does (for every statistic S of the design)
   runs fit, the others are held back; all runs do both when None), at least :data:`RESOLUTION`
   times the larger of the in-control mean and the held-back maximum (a quantile inside an EWMA's
   decaying tail is numerical, not statistical);
+* with ``flatline`` set, one more statistic beside the family's, ``flat`` (:func:`flat_statistic`: a tag whose
+  increments collapse, a stuck valve), smoothed and limited the same way (always empirically), alarmed whatever
+  ``statistic`` picks among the family's, and carried by the deployed stage;
 * ratio_k = max over the alarmed statistics of S̃_k / limit; alarm when ratio > 1 for
   ``persistence`` consecutive rows (:func:`~mosd.detectors.base.persistent`).
 
@@ -94,6 +97,10 @@ def latent_params(family: Mapping[str, Param], statistics: tuple[str, ...]) -> d
         "fit_runs": Param(Interval(1, math.inf, integer=True), "The first fit_runs calibration runs fit the model; "
                           "the others are held back for the empirical limits. None: all runs do both (the "
                           "empirical limits are then in-sample).", optional=True),
+        "flatline": Param(Interval(0.0, 1.0, open_low=True), "Smoothing λ_f of each tag's EWMA of squared "
+                          "increments: adds the statistic flat (a stuck valve, a frozen transmitter: a tag "
+                          "whose increments collapse; :func:`flat_statistic`) to the combined rule. None: off.",
+                          optional=True),
     }
 
 
@@ -132,7 +139,10 @@ class LatentDetector(Detector):
     STATISTICS: tuple[str, ...] = ()
     #: the family parameters the fit depends on (None: all the family's own parameters)
     fit_keys: tuple[str, ...] | None = None
-    COMMON = ("persistence_max", "lam_min", "alpha", "lam", "persistence", "statistic", "limits", "fit_runs")
+    COMMON = ("persistence_max", "lam_min", "alpha", "lam", "persistence", "statistic", "limits", "fit_runs",
+              "flatline")
+    #: the base's own statistic (``flatline``): the largest collapse of a tag's increments
+    FLAT = "flat"
 
     # -- the family's part (module docstring) ------------------------------------------------
     def fit(self, X: np.ndarray, design: Mapping) -> dict:
@@ -173,7 +183,32 @@ class LatentDetector(Detector):
         return tuple((k, design[k]) for k in keys)
 
     def _score_key(self, design: Mapping) -> tuple:
-        return tuple((k, design[k]) for k in self.family_names())
+        return (*((k, design[k]) for k in self.family_names()), ("flatline", design.get("flatline")))
+
+    def names(self, design: Mapping | None = None) -> tuple[str, ...]:
+        """The design's statistics: the family's, and ``flat`` when ``flatline`` is set."""
+        flatline = (self.get_params() if design is None else design).get("flatline")
+        return (*self.STATISTICS, *((self.FLAT,) if flatline else ()))
+
+    def score_all(self, fitted: Mapping, X: np.ndarray, design: Mapping, carried: Mapping | None = None):
+        """The family's :meth:`score`, with the base's ``flat`` statistic and state when ``flatline`` is set."""
+        own = None if carried is None else {k: v for k, v in carried.items() if not k.startswith("flat_")}
+        statistics, after = self.score(fitted, X, design, own or None)
+        if not design.get("flatline"):
+            return statistics, after
+        flat, flat_after = flat_statistic(X, fitted["flat_scale"], float(design["flatline"]), carried)
+        return {**statistics, self.FLAT: flat}, {**after, **flat_after}
+
+    def state_all(self, fitted: Mapping, design: Mapping) -> dict[str, tuple[StateVar, float]]:
+        """The family's :meth:`state`, with the ``flat`` statistic's (each tag's last value and EWMA) when set."""
+        own = self.state(fitted, design)
+        if not design.get("flatline"):
+            return own
+        m = len(fitted["flat_scale"])
+        return {**own, **{f"flat_last_{i}": (StateVar(f"Tag {i}'s last value (null before the first row).", FINITE,
+                                                      missing=True), math.nan) for i in range(1, m + 1)},
+                **{f"flat_ewma_{i}": (StateVar(f"EWMA of tag {i}'s squared standardised increments.", SQUARES), 1.0)
+                   for i in range(1, m + 1)}}
 
     # -- the cache (parameter-free parts per data set) ----------------------------------------
     def _remember(self, key, refs, make):
@@ -252,12 +287,17 @@ class LatentDetector(Detector):
         """The family's model of the fit runs of ``calibration_z`` (R, K, m) (cached while the array lives)."""
         design = self.design_values() if design is None else design
         fit, _ = self._split(calibration_z)
-        return self._remember(("fit", id(calibration_z), self._fit_key(design)), (calibration_z,),
-                              lambda: self.fit(fit, design))
+        family = self._remember(("fit", id(calibration_z), self._fit_key(design)), (calibration_z,),
+                                lambda: self.fit(fit, design))
+        if not design.get("flatline"):
+            return family
+        # one merged dict per family fit (its id keys the scores)
+        return self._remember(("fit_flat", id(calibration_z), self._fit_key(design)), (calibration_z, family),
+                              lambda: {**family, "flat_scale": increment_scale(fit)})
 
     def _scored(self, fitted: Mapping, z: np.ndarray, design: Mapping) -> dict:
         return self._remember(("score", id(fitted), id(z), self._score_key(design)), (fitted, z),
-                              lambda: self.score(fitted, z, design, None)[0])
+                              lambda: self.score_all(fitted, z, design, None)[0])
 
     # -- the decision -------------------------------------------------------------------
     def features(self, z: np.ndarray) -> np.ndarray:
@@ -278,11 +318,17 @@ class LatentDetector(Detector):
             raise ConfigError(f"detector.lam={lam:.4g}: its EWMA memory (2 - lam)/lam is more than a tenth of a "
                               f"held-back calibration run, whose limits cannot judge it; allowed: lam >= {floor:.4g} "
                               "(detector.bounds.lam), or longer held-back runs")
+        flatline = design.get("flatline")
+        if flatline is not None and float(flatline) < 1.0 and float(flatline) < floor * (1.0 - 1e-9):
+            # the flat statistic's own EWMA: the same reason as λ's floor
+            raise ConfigError(f"detector.flatline={float(flatline):.4g}: its EWMA memory is more than a tenth of a "
+                              f"held-back calibration run, whose limits cannot judge it; allowed: flatline >= "
+                              f"{floor:.4g}, or null")
         out = {}
         for name in names:
             start = float(np.nanmean(on_fit[name]))  # the in-control mean
             value = np.where(np.isfinite(own[name]), ewma_from(own[name], lam, start), np.nan)
-            limit = None if self._empirical(lam) else self.limit(fitted, name, alpha, design)
+            limit = None if self._empirical(lam) or name == self.FLAT else self.limit(fitted, name, alpha, design)
             if limit is None:
                 on_held = self._scored(fitted, held, design)[name]
                 smoothed = np.where(np.isfinite(on_held), ewma_from(on_held, lam, start), np.nan)
@@ -297,7 +343,9 @@ class LatentDetector(Detector):
         return out
 
     def _alarmed(self) -> tuple[str, ...]:
-        return tuple(self.STATISTICS) if self.statistic == "combined" else (self.statistic,)
+        # the flat statistic is a check beside the family's: it stays on when one family statistic is chosen
+        extra = self.names()[len(self.STATISTICS):]
+        return self.names() if self.statistic == "combined" else (self.statistic, *extra)
 
     def statistics(self, calibration_z: np.ndarray, z: np.ndarray, design: dict | None = None) -> dict:
         """Every statistic of one design on z (smoothed when lam < 1) and its limit: what the figures plot.
@@ -306,7 +354,7 @@ class LatentDetector(Detector):
         """
         values = {**self.get_params(), **(design or {})}
         values = self.design_values([values[k] for k in self.tunable], base=values)
-        parts = self._parts(calibration_z, z, values, self.STATISTICS)
+        parts = self._parts(calibration_z, z, values, self.names(values))
         return {key: v for name, (value, limit, _) in parts.items()
                 for key, v in ((name, value), (f"{name}_limit", limit))}
 
@@ -332,9 +380,9 @@ class LatentDetector(Detector):
         """This design calibrated on ``calibration_z`` (R, K, m) as an :class:`OnlineLatent` on the columns ``inputs``."""
         calibration_z = np.asarray(calibration_z, float)
         design = self.design_values()
-        parts = self._parts(calibration_z, calibration_z[:1, :1], design, self.STATISTICS)
+        parts = self._parts(calibration_z, calibration_z[:1, :1], design, self.names(design))
         return OnlineLatent(tags=tuple(str(t) for t in inputs), detector=json.dumps(describe(self)),
-                            names=tuple(self.STATISTICS), limits=tuple(p[1] for p in parts.values()),
+                            names=self.names(design), limits=tuple(p[1] for p in parts.values()),
                             starts=tuple(p[2] for p in parts.values()), fitted=dict(self.fitted(calibration_z, design)))
 
 
@@ -375,12 +423,12 @@ class OnlineLatent(OnlineStage):
         return (*(f"{n}{suffix}" for n in self.names for suffix in ("", "_smoothed", "_limit")), "ratio", "alarm")
 
     def state_vars(self) -> dict[str, StateVar]:
-        own = {name: var for name, (var, _) in self._family().state(self.fitted, self._design()).items()}
+        own = {name: var for name, (var, _) in self._family().state_all(self.fitted, self._design()).items()}
         return {**{f"ewma_{n}": StateVar(f"EWMA of {n} after the last row.", SQUARES) for n in self.names},
                 "run_length": StateVar("Consecutive points above the limit.", COUNT), **own}
 
     def initial_state(self) -> dict:
-        own = {name: initial for name, (_, initial) in self._family().state(self.fitted, self._design()).items()}
+        own = {name: initial for name, (_, initial) in self._family().state_all(self.fitted, self._design()).items()}
         return {**{f"ewma_{n}": float(s) for n, s in zip(self.names, self.starts)}, "run_length": 0, **own}
 
     def example_row(self) -> np.ndarray:
@@ -394,9 +442,9 @@ class OnlineLatent(OnlineStage):
     def score(self, X: np.ndarray, state) -> dict[str, np.ndarray]:
         """Outputs and state after each row of X (rows, m: the tags in order), from ``state``."""
         family, design = self._family(), self._design()
-        own = family.state(self.fitted, design)
+        own = family.state_all(self.fitted, design)
         carried = {k: np.asarray([state[k]], float) for k in own} or None
-        stats, after = family.score(self.fitted, np.asarray(X, float)[None], design, carried)
+        stats, after = family.score_all(self.fitted, np.asarray(X, float)[None], design, carried)
         lam = float(design["lam"])
         out: dict[str, np.ndarray] = {k: np.asarray(v)[0] for k, v in after.items()}
         ratios = []
@@ -513,3 +561,54 @@ def ewma_from(x: np.ndarray, lam: float, start: float, previous: float | None = 
 
     zi = np.full(x.shape[:-1] + (1,), (1.0 - lam) * (start if previous is None else previous))
     return lfilter([lam], [1.0, -(1.0 - lam)], x, axis=-1, zi=zi)[0]
+
+
+def increment_scale(runs: np.ndarray) -> np.ndarray:
+    """Mean squared increment of each tag (m,) within the runs (R, K, m): the in-control scale of ``flat``."""
+    steps = np.diff(np.asarray(runs, float), axis=1).reshape(-1, np.shape(runs)[-1])
+    steps = steps[np.all(np.isfinite(steps), axis=1)]
+    if len(steps) < 2:
+        raise ConfigError(f"the flatline statistic has {len(steps)} complete increments in the fit runs; allowed: "
+                          "at least 2 (detector.flatline=null turns it off)")
+    scale = np.mean(steps**2, axis=0)
+    flat = np.flatnonzero(~(scale > 0.0))
+    if flat.size:
+        raise ConfigError(f"variable {flat[0] + 1} never changes over the fit runs, so its increments cannot "
+                          "collapse; allowed: detector.flatline=null, or variables that vary")
+    return scale
+
+
+def flat_statistic(X: np.ndarray, scale: np.ndarray, smoothing: float, carried: Mapping | None = None):
+    """The largest collapse of a tag's increments, per row: a stuck valve or a frozen transmitter.
+
+    Each tag's squared increment over its in-control mean square, u_{k,i} = (x_{k,i} − x_{k−1,i})² / s_i
+    (:func:`increment_scale`), is smoothed, v_{k,i} = λ_f u_{k,i} + (1 − λ_f) v_{k−1,i} from v = 1 (the
+    exponentially weighted moving variance of MacGregor & Harris 1993, of the increments so that a slow drift
+    does not move it), and the row's statistic is flat_k = max(0, max_i −ln v_{k,i}) (larger increments are the
+    other statistics' business; at 0 it stays a square's domain): small in control, growing by
+    −ln(1 − λ_f) per row while any tag stays exactly constant. Upper-tail statistics of a model (T², SPE) see
+    no such tag: its values stay at their mean. A missing increment (a run's first row without a carried
+    value, a missing value) enters as 1 (in control); an incomplete row is not scored.
+
+    Returns (flat (R, K), after: ``flat_last_<i>``, ``flat_ewma_<i>`` (R, K) each).
+    """
+    from scipy.signal import lfilter
+
+    X = np.asarray(X, float)
+    R, K, m = X.shape
+    last = np.full((R, 1, m), np.nan)
+    start = np.ones((R, m))
+    if carried:
+        last[:, 0] = np.column_stack([np.asarray(carried[f"flat_last_{i}"], float).reshape(R)
+                                      for i in range(1, m + 1)])
+        start = np.column_stack([np.asarray(carried[f"flat_ewma_{i}"], float).reshape(R) for i in range(1, m + 1)])
+    steps = np.diff(np.concatenate([last, X], axis=1), axis=1) ** 2 / scale
+    steps = np.moveaxis(np.where(np.isfinite(steps), steps, 1.0), -1, 1)         # (R, m, K): time last
+    lam = float(smoothing)
+    v = steps if lam >= 1.0 else lfilter([lam], [1.0, -(1.0 - lam)], steps, axis=-1,
+                                        zi=(1.0 - lam) * start[..., None])[0]
+    complete = np.all(np.isfinite(X), axis=-1)
+    flat = np.where(complete, np.maximum(-np.log(np.maximum(v, np.finfo(float).tiny).min(axis=1)), 0.0), np.nan)
+    after = {**{f"flat_last_{i}": X[..., i - 1] for i in range(1, m + 1)},
+             **{f"flat_ewma_{i}": v[:, i - 1] for i in range(1, m + 1)}}
+    return flat, after

@@ -277,7 +277,8 @@ class PCADetector(LatentDetector):
 
     def __init__(self, n_components: int = 9, alpha: float = 0.01, lam: float = 1.0, persistence: int = 1,
                  statistic: str = "combined", limits: str = "theoretical", fit_runs: int | None = None,
-                 max_components: int = 20, persistence_max: int = 10, lam_min: float = 0.0):
+                 max_components: int = 20, persistence_max: int = 10, lam_min: float = 0.0,
+                 flatline: float | None = None):
         self._assign(locals())
         self._cache: dict = {}
 
@@ -324,6 +325,8 @@ class PCADetector(LatentDetector):
         """
         calibration_z = np.asarray(calibration_z, float)
         generic = super().online(calibration_z, inputs)
+        if self.flatline:  # OnlinePCA scores T² and SPE only: the base's flat statistic needs the generic stage
+            return generic
         model = self._model(generic.fitted)
         limits, starts = dict(zip(generic.names, generic.limits)), dict(zip(generic.names, generic.starts))
         return OnlinePCA(tags=tuple(str(t) for t in inputs), mean=model.mean, scale=model.scale,

@@ -40,7 +40,7 @@ class SFADetector(LatentDetector):
 
     def __init__(self, n_slow: int = 10, alpha: float = 0.01, lam: float = 1.0, persistence: int = 1,
                  statistic: str = "combined", limits: str = "theoretical", fit_runs: int | None = None,
-                 max_slow: int = 30, persistence_max: int = 10, lam_min: float = 0.0):
+                 max_slow: int = 30, persistence_max: int = 10, lam_min: float = 0.0, flatline: float | None = None):
         self._assign(locals())
         self._cache: dict = {}
 

@@ -36,7 +36,7 @@ class TagEwmaDetector(LatentDetector):
 
     def __init__(self, smoothing: float = 0.2, alpha: float = 0.01, lam: float = 1.0, persistence: int = 1,
                  statistic: str = "combined", limits: str = "empirical", fit_runs: int | None = None,
-                 persistence_max: int = 10, lam_min: float = 0.0):
+                 persistence_max: int = 10, lam_min: float = 0.0, flatline: float | None = None):
         self._assign(locals())
         self._cache: dict = {}
 

@@ -568,7 +568,7 @@ PROTOCOL_FAR = 0.01
 
 
 def family_study(directory: str | None = None, families=tuple(FAMILIES), pop_size: int = 20, n_gen: int = 5,
-                 seed: int = 0, literature: bool = True) -> dict:
+                 seed: int = 0, literature: bool = True, flatline: float | None = None) -> dict:
     """The fair protocol on every family (docs/systems/tep.md): tuned, then scored on the 21 test faults.
 
     Each family is tuned by the preset's optimiser (``pop_size`` × ``n_gen``, one process) for training FAR
@@ -577,6 +577,9 @@ def family_study(directory: str | None = None, families=tuple(FAMILIES), pop_siz
     (:func:`alpha_for_far` on the training split: the same rule, the same rows). Every design is fitted on
     the same calibration split (d00.dat; the even test files' lead-ins for empirical limits) and scored on
     rows 160-959 of every ``dNN_te.dat``, each file streamed whole (:func:`whole_test_files`, :func:`protocol`).
+
+    ``flatline``: every tuned family also alarms on the base's ``flat`` statistic with this smoothing
+    (``detector.flatline``; the literature designs never do).
 
     Returns ``{design: {"params", "train": {far, mdr}, "tune_s", **protocol keys}}``.
     """
@@ -589,7 +592,8 @@ def family_study(directory: str | None = None, families=tuple(FAMILIES), pop_siz
               "progress=false", *([f"data.directory={directory}"] if directory else [])]
     for name in families:
         check_choice("--family", name, tuple(FAMILIES))
-        setup = cli.preset(SYSTEM, [f"detector={name}", *FAMILIES[name], *common])
+        flat = [f"detector.flatline={float(flatline)!r}"] if flatline is not None else []
+        setup = cli.preset(SYSTEM, [f"detector={name}", *FAMILIES[name], *common, *flat])
         experiment = setup.experiment
         t0 = time.perf_counter()
         data = experiment.prepare()
@@ -619,7 +623,7 @@ def literature_design(experiment, family: str):
         if isinstance(top, str):
             params[top] = max(getattr(detector, top), value)
     return detector.with_params(**{"alpha": 0.01, "lam": 1.0, "persistence": 1, **params}, statistic="combined",
-                                limits="empirical")
+                                limits="empirical", flatline=None)
 
 
 def literature_comparison(results: Mapping[str, dict]) -> dict[str, dict[str, float]]:
@@ -930,6 +934,9 @@ def main(argv=None) -> int:
                              "tuned one with one switched off, each at the protocol's operating point")
     parser.add_argument("--pop-size", type=int, default=20, help="--families: the optimiser's population")
     parser.add_argument("--n-gen", type=int, default=5, help="--families: the optimiser's generations")
+    parser.add_argument("--flatline", type=float, default=None, metavar="LAM",
+                        help="--families: every tuned family also alarms on the flat statistic (a tag whose "
+                             "increments collapse: a stuck valve) with this smoothing (detector.flatline)")
     cli.design_options(parser, SYSTEM)
 
     def export_body(args):
@@ -958,7 +965,8 @@ def main(argv=None) -> int:
     def families_body(args):
         check_int("--pop-size", args.pop_size, 2, 10_000)
         check_int("--n-gen", args.n_gen, 1, 10_000)
-        results = family_study(args.directory, tuple(args.family or FAMILIES), args.pop_size, args.n_gen)
+        results = family_study(args.directory, tuple(args.family or FAMILIES), args.pop_size, args.n_gen,
+                               flatline=args.flatline)
         print(f"## Tennessee Eastman, monitor families at training FAR <= {100 * PROTOCOL_FAR:g} % "
               f"(min_mdr_far_le; tuned {args.pop_size} x {args.n_gen}): detection rates in % on rows 160-959 of "
               f"the test files, delays to the first run of {DELAY_RUN} alarms\n")
@@ -974,6 +982,7 @@ def main(argv=None) -> int:
         return [cli.write_json(out / "tep_families.json", {"results": results, "metrics": family_metrics(results),
                                                             "pop_size": args.pop_size,
                                                             "n_gen": args.n_gen, "protocol_far": PROTOCOL_FAR,
+                                                            "flatline": args.flatline,
                                                             "delay_run_k": DELAY_RUN}),
                 families_figure(results, out / "tep_families.png")]
 
