@@ -381,9 +381,16 @@ class LatentDetector(Detector):
         calibration_z = np.asarray(calibration_z, float)
         design = self.design_values()
         parts = self._parts(calibration_z, calibration_z[:1, :1], design, self.names(design))
-        return OnlineLatent(tags=tuple(str(t) for t in inputs), detector=json.dumps(describe(self)),
+        return OnlineLatent(tags=point_names(inputs, calibration_z.shape[-1]), detector=json.dumps(describe(self)),
                             names=self.names(design), limits=tuple(p[1] for p in parts.values()),
                             starts=tuple(p[2] for p in parts.values()), fitted=dict(self.fitted(calibration_z, design)))
+
+
+def point_names(inputs, m: int) -> tuple[str, ...]:
+    """The names of a point's m values: the stream's columns ``inputs`` when a point is one row of them (the
+    signals monitor), else ``z_1`` … ``z_m`` (a subgroup monitor's point holds several rows of one channel)."""
+    names = tuple(str(t) for t in inputs)
+    return names if len(names) == m else tuple(f"z_{j}" for j in range(1, m + 1))
 
 
 @dataclass

@@ -37,7 +37,7 @@ from scipy import linalg, special
 from ..streaming import COUNT, SQUARES, OnlineStage, StateVar, points_of, spread
 from ..validation import ConfigError, Interval, Param
 from .base import run_lengths
-from .latent import LIMITS, LatentDetector, empirical_limit, ewma_from, latent_params  # noqa: F401 (re-exported)
+from .latent import LIMITS, LatentDetector, empirical_limit, ewma_from, latent_params, point_names  # noqa: F401 (re-exported)
 
 STATISTICS = ("combined", "t2", "spe")
 
@@ -329,7 +329,7 @@ class PCADetector(LatentDetector):
             return generic
         model = self._model(generic.fitted)
         limits, starts = dict(zip(generic.names, generic.limits)), dict(zip(generic.names, generic.starts))
-        return OnlinePCA(tags=tuple(str(t) for t in inputs), mean=model.mean, scale=model.scale,
+        return OnlinePCA(tags=point_names(inputs, len(model.mean)), mean=model.mean, scale=model.scale,
                          loadings=model.loadings, eigenvalues=model.eigenvalues, n_fit=int(model.n),
                          n_components=int(self.n_components), alpha=float(self.alpha), lam=float(self.lam),
                          persistence=int(self.persistence), statistic=str(self.statistic),
