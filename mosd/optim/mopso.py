@@ -127,7 +127,7 @@ CROSSOVER_ETA = 15.0
 #: ``constrained_fine_mutation`` of the particles and archive offspring takes on a constrained problem.
 FINE_MUTATION_ETA = 20.0
 #: ``constrained_reset``'s default: the share of a constrained problem's archive offspring with one variable redrawn
-#: uniformly in its bounds, (until the archive is feasible and full, from then on). The redraw replaces the long
+#: uniformly in its bounds: (until the archive is feasible and full, from then on). The redraw replaces the long
 #: steps of η = 3 that the fine mutation gives up from the first generation: 0.3 kept OSY's disconnected regions and
 #: MW2 off its local front, 0.1 afterwards the convergence of MW3 (issue 33, docs/MOPSO.md).
 CONSTRAINED_RESET = (0.3, 0.1)
@@ -527,8 +527,10 @@ class MOPSO(Algorithm):
     mutation_eta : float
         Distribution index of the polynomial mutation (of particles and of archive
         offspring), >= 0. Default 3: long-tailed steps, which let offspring jump between
-        OSY's disconnected feasible regions (20, the issue-14 value: mostly steps of
-        about 5 % of the range; docs/MOPSO.md).
+        the basins of multimodal problems (20, the issue-14 value: mostly steps of
+        about 5 % of the range; docs/MOPSO.md). On a problem with constraints
+        ``constrained_fine_mutation`` replaces it by 20 (the default) and the redraw of
+        ``constrained_reset`` makes the long jumps (OSY's disconnected feasible regions).
     exploration : float in (0, 1] or None
         While the archive holds fewer than ``exploration`` × ``archive_size`` members,
         the first ⌈s N⌉ particles, s = 1 − |A| / (``exploration`` × Z_ar)
