@@ -526,11 +526,11 @@ class MOPSO(Algorithm):
         (the pre-existing key's meaning).
     mutation_eta : float
         Distribution index of the polynomial mutation (of particles and of archive
-        offspring), >= 0. Default 3: long-tailed steps, which let offspring jump between
-        the basins of multimodal problems (20, the issue-14 value: mostly steps of
-        about 5 % of the range; docs/MOPSO.md). On a problem with constraints
-        ``constrained_fine_mutation`` replaces it by 20 (the default) and the redraw of
-        ``constrained_reset`` makes the long jumps (OSY's disconnected feasible regions).
+        offspring), >= 0. Default 3: long-tailed steps, chosen (issue 21) so that offspring
+        jump between OSY's disconnected feasible regions (20, the issue-14 value: mostly steps
+        of about 5 % of the range; docs/MOPSO.md). On a problem with constraints, OSY
+        included, ``constrained_fine_mutation`` now replaces it by 20 and the redraw of
+        ``constrained_reset`` makes those jumps (issue 33).
     exploration : float in (0, 1] or None
         While the archive holds fewer than ``exploration`` × ``archive_size`` members,
         the first ⌈s N⌉ particles, s = 1 − |A| / (``exploration`` × Z_ar)
