@@ -373,6 +373,7 @@ ABLATIONS: dict[str, Callable[[], object]] = {
         lambda: MOPSO(constrained="grid", constrained_fine_mutation=None),
     "default, constrained_reset=None": lambda: MOPSO(constrained_reset=None),
     "default, constrained_fine_mutation=0.5": lambda: MOPSO(constrained_fine_mutation=0.5),
+    "default, constrained_reset=0.1": lambda: MOPSO(constrained_reset=0.1),
 }
 
 

@@ -32,14 +32,15 @@ One class, two presets:
   collapsed onto one point (ZDT2) (issue 21).
   While nothing feasible has been found, the archive holds a bounded set of the least
   infeasible points instead of the single least infeasible one (``infeasible="diverse"``,
-  issue 33): leaders and parents stay diverse from an infeasible start (MW1). Once a
-  constrained problem's archive is feasible and full, leaders and parents are drawn by crowding
-  distance, truncation removes the most crowded members over the whole archive, and the offspring
-  take NSGA-II's fine mutation steps (``constrained``, ``constrained_fine_mutation``):
-  that spread and converged the constrained fronts (MW2, MW3, CTP2, issue 33). On a constrained
-  problem a tenth of the offspring also get one variable redrawn uniformly (``constrained_reset``),
-  which lets the archive leave a local front such as MW2's (issue 33). Unconstrained runs are
-  unaffected.
+  issue 33): leaders and parents stay diverse from an infeasible start (MW1). On a constrained
+  problem, particles and offspring take NSGA-II's fine mutation steps (η = 20,
+  ``constrained_fine_mutation``) from the first generation, and a share of the offspring gets one
+  variable redrawn uniformly (``constrained_reset``: 30 % until the archive is feasible and full,
+  10 % afterwards), which makes the long jumps instead (OSY's disconnected regions) and lets the
+  archive leave a local front such as MW2's; once the archive is feasible and full, leaders and
+  parents are drawn by crowding distance and truncation removes the most crowded members over the
+  whole archive (``constrained``). That spread and converged the constrained fronts (MW2, MW3, MW7,
+  CTP2, CTP3, issue 33). Unconstrained runs are unaffected.
 * ``MOPSO(**PAPER_PRESET)`` (``MOPSO.paper()``, ``optimizer=mopso_paper``) — the paper's
   pure swarm, paper 000's Table 2 literally (every evaluation a particle move): constriction
   w = 0.7298, c1 = c2 = 1.4962, velocities reflected at the bounds, roulette-wheel leaders,
@@ -123,11 +124,13 @@ SMPSO_MAX_VELOCITY = 0.5
 CROSSOVER_PROBABILITY = 0.9
 CROSSOVER_ETA = 15.0
 #: The polynomial mutation's distribution index of NSGA-II (pymoo's default): the fine steps a share
-#: ``constrained_fine_mutation`` of the archive offspring takes on a constrained problem's feasible front.
+#: ``constrained_fine_mutation`` of the particles and archive offspring takes on a constrained problem.
 FINE_MUTATION_ETA = 20.0
 #: ``constrained_reset``'s default: the share of a constrained problem's archive offspring with one variable redrawn
-#: uniformly in its bounds (issue 33, docs/MOPSO.md: 0.05 and 0.1 both kept MW2 off its local front; 0.1 kept OSY).
-CONSTRAINED_RESET = 0.1
+#: uniformly in its bounds: (until the archive is feasible and full, from then on). The redraw replaces the long
+#: steps of η = 3 that the fine mutation gives up from the first generation: 0.3 kept OSY's disconnected regions and
+#: MW2 off its local front, 0.1 afterwards the convergence of MW3 (issue 33, docs/MOPSO.md).
+CONSTRAINED_RESET = (0.3, 0.1)
 #: Exponent of Coello's mutation decay law (1 - t / (T p_m))^1.5 (see :meth:`MOPSO._coello_mutation`).
 MUTATION_DECAY_EXPONENT = 1.5
 
@@ -234,9 +237,12 @@ def apply_bounds(X: np.ndarray, V: np.ndarray, xl: np.ndarray, xu: np.ndarray,
     return set_to_bounds_if_outside(np.array(X, dtype=float), xl, xu), V
 
 
-def polynomial_mutation(X: np.ndarray, xl: np.ndarray, xu: np.ndarray, eta: float, share: float,
+def polynomial_mutation(X: np.ndarray, xl: np.ndarray, xu: np.ndarray, eta, share: float,
                         random_state: np.random.Generator) -> np.ndarray:
     """pymoo's ``PolynomialMutation(prob=share, prob_var=1/n_var, eta=eta)`` on the rows of X, on arrays.
+
+    ``eta`` is one distribution index for every row or one per row (shape (n,)); ``mut_pm`` takes
+    one per row either way, so the draws do not depend on it.
 
     The arithmetic is pymoo's own function (``mut_pm``: Deb's polynomial mutation, each variable
     with probability 1/n_var), and the draws are those of the operator's ``do`` in the same
@@ -251,7 +257,8 @@ def polynomial_mutation(X: np.ndarray, xl: np.ndarray, xu: np.ndarray, eta: floa
     """
     n, n_var = X.shape
     X = np.asarray(X, dtype=float)
-    mutated = mut_pm(X, xl, xu, np.full(n, float(eta)), np.full(n, 1.0 / n_var), at_least_once=False,
+    etas = np.array(np.broadcast_to(np.asarray(eta, dtype=float), (n,)))
+    mutated = mut_pm(X, xl, xu, etas, np.full(n, 1.0 / n_var), at_least_once=False,
                      random_state=random_state)
     hit = random_state.random(size=n) <= share
     out = X.copy()
@@ -519,9 +526,11 @@ class MOPSO(Algorithm):
         (the pre-existing key's meaning).
     mutation_eta : float
         Distribution index of the polynomial mutation (of particles and of archive
-        offspring), >= 0. Default 3: long-tailed steps, which let offspring jump between
-        OSY's disconnected feasible regions (20, the issue-14 value: mostly steps of
-        about 5 % of the range; docs/MOPSO.md).
+        offspring), >= 0. Default 3: long-tailed steps, chosen (issue 21) so that offspring
+        jump between OSY's disconnected feasible regions (20, the issue-14 value: mostly steps
+        of about 5 % of the range; docs/MOPSO.md). On a problem with constraints, OSY
+        included, ``constrained_fine_mutation`` now replaces it by 20 and the redraw of
+        ``constrained_reset`` makes those jumps (issue 33).
     exploration : float in (0, 1] or None
         While the archive holds fewer than ``exploration`` × ``archive_size`` members,
         the first ⌈s N⌉ particles, s = 1 − |A| / (``exploration`` × Z_ar)
@@ -557,19 +566,21 @@ class MOPSO(Algorithm):
         MW7, CTP2 and CTP3 was 1.3–1.7 × NSGA-II's (issue 33, docs/MOPSO.md). An unconstrained
         problem always uses the grid rules.
     constrained_fine_mutation : float in [0, 1] or None
-        On a problem with constraints whose archive is feasible and full, this share of the archive
-        offspring is mutated with NSGA-II's η = 20 (:data:`FINE_MUTATION_ETA`) instead of
-        ``mutation_eta``: the optimum lies on a constraint boundary, where the long-tailed steps
-        mostly leave the feasible region (issue 33, docs/MOPSO.md). Default 1 (all of them: with the
-        uniform redraw of ``constrained_reset`` the long-tailed steps are no longer needed there; 0.5
-        before it, measured in docs/MOPSO.md); None or 0: none.
-    constrained_reset : float in [0, 1] or None
+        On a problem with constraints, this share of the archive offspring and of the mutated
+        particles (the first round(share × n) rows) is mutated with NSGA-II's η = 20
+        (:data:`FINE_MUTATION_ETA`) instead of ``mutation_eta``, from the first generation on: the
+        optimum lies on a constraint boundary, where the long-tailed steps mostly leave the feasible
+        region (issue 33, docs/MOPSO.md). Default 1 (all of them; the long jumps come from the uniform
+        redraw of ``constrained_reset``); None or 0: none.
+    constrained_reset : float in [0, 1], pair of them, or None
         On a problem with constraints, this share of each generation's archive offspring gets one
         variable, chosen at random, redrawn uniformly in its bounds after crossover and mutation
-        (:func:`uniform_reset`). MW2's distance function has a second basin far from the optimum in each
-        variable; on 2 of 5 seeds the default settled there (a local front 0.04–0.1 above the true one),
-        and the polynomial mutation's steps do not leave it (issue 33, docs/MOPSO.md). Default 0.1 (7 of 70
-        offspring); None or 0: none.
+        (:func:`uniform_reset`); a pair [s1, s2]: s1 until the archive is feasible and full, s2 from
+        then on. MW2's distance function has a second basin far from the optimum in each variable; on 2
+        of 5 seeds the default settled there (a local front 0.04–0.1 above the true one), and the
+        polynomial mutation's steps do not leave it; and with the fine mutation from the first generation
+        the redraw is what still finds OSY's disconnected feasible regions while the archive fills
+        (issue 33, docs/MOPSO.md). Default [0.3, 0.1] (21, then 7 of 70 offspring); None or 0: none.
     horizon : int or None
         Run length in generations (the initial swarm included) that scheduled
         coefficients and Coello's mutation refer to. None: taken from the termination if
@@ -601,7 +612,7 @@ class MOPSO(Algorithm):
                  mutation_eta: float = 3.0, exploration: float | None = 0.5,
                  recombination: float | None = 0.7, infeasible: str = "diverse", constrained: str = "crowding",
                  constrained_fine_mutation: float | None = 1.0,
-                 constrained_reset: float | None = CONSTRAINED_RESET, horizon: int | None = None,
+                 constrained_reset=CONSTRAINED_RESET, horizon: int | None = None,
                  sampling: Sampling | None = None, output=None, **kwargs):
         # ArrayEvaluator unless the caller brings an evaluator (then the arrays are read back from the individuals)
         kwargs.setdefault("evaluator", ArrayEvaluator())
@@ -638,8 +649,7 @@ class MOPSO(Algorithm):
         self.constrained_fine_mutation = (None if constrained_fine_mutation is None else
                                           check_in("optimizer.constrained_fine_mutation", constrained_fine_mutation,
                                                    Interval(0.0, 1.0)))
-        self.constrained_reset = (None if constrained_reset is None else
-                                  check_in("optimizer.constrained_reset", constrained_reset, Interval(0.0, 1.0)))
+        self.constrained_reset = _reset_shares(constrained_reset)
         self.horizon = None if horizon is None else check_int("optimizer.horizon", horizon, 1)
         if sampling is not None and not isinstance(sampling, Sampling):
             raise ConfigError(f"optimizer.sampling={sampling!r} is not allowed; allowed: a pymoo Sampling")
@@ -668,7 +678,7 @@ class MOPSO(Algorithm):
                                             and np.all(np.isfinite(problem.xu))):
             raise ConfigError("optimizer: the problem needs finite bounds xl, xu; allowed: finite bounds")
         self.is_integer = _integer_mask(problem)
-        # issue 33: the crowding rules and the fine mutation act on constrained problems only, so that an
+        # issue 33: the crowding rules, the fine mutation and the redraw act on constrained problems only, so that an
         # unconstrained run (the presets' tuning problems, issue 21's table) is the same bit for bit
         self.constrained_problem = bool(problem.has_constraints())
         self.leader_archive = GridArchive(self.archive_size, self.n_divisions, self.removal,
@@ -756,7 +766,8 @@ class MOPSO(Algorithm):
             X_new = self._coello_mutation(X_new, move)
         elif self.mutation_rate is not None and self.mutation == "polynomial":
             # pymoo's operator: a share mutation_rate of the particles, each variable with 1/n_var
-            X_new = polynomial_mutation(X_new, problem.xl, problem.xu, self.mutation_eta, self.mutation_rate, rng)
+            X_new = polynomial_mutation(X_new, problem.xl, problem.xu, self._mutation_etas(n_particles),
+                                        self.mutation_rate, rng)
         if n_offspring:
             X_new = np.vstack([X_new, self._archive_offspring(n_offspring)])
             velocity = np.vstack([velocity, np.zeros((n_offspring, problem.n_var))])
@@ -813,13 +824,15 @@ class MOPSO(Algorithm):
         collapsed onto one point has every attractor on that point (ZDT2's f1 = 0 end):
         only a mutated copy of a converged member enters such an archive. Crossover of
         archive members does both, as NSGA-II's variation does; its children of a
-        one-member archive are mutated copies of it. On a problem with constraints, a share
-        ``constrained_reset`` of the children then gets one variable redrawn uniformly (:func:`uniform_reset`).
+        one-member archive are mutated copies of it. On a problem with constraints, the mutation takes
+        η = 20 (``constrained_fine_mutation``, :meth:`_mutation_etas`) and a share ``constrained_reset``
+        of the children then gets one variable redrawn uniformly (:func:`uniform_reset`, :meth:`_reset_share`).
         """
         children = self._varied_children(n)
-        if self.constrained_reset and self.constrained_problem:
+        share = self._reset_share()
+        if share:
             problem = self.problem
-            children = uniform_reset(children, problem.xl, problem.xu, self.constrained_reset, self.random_state)
+            children = uniform_reset(children, problem.xl, problem.xu, share, self.random_state)
         return children
 
     def _varied_children(self, n: int) -> np.ndarray:
@@ -828,11 +841,30 @@ class MOPSO(Algorithm):
         pairs = archive.select_leaders(2 * n, rng, self.leader).reshape(n, 2)
         children = sbx_children(archive.X[pairs[:, 0]], archive.X[pairs[:, 1]], problem.xl, problem.xu, rng,
                                 CROSSOVER_PROBABILITY, CROSSOVER_ETA)
-        if not (self.constrained_fine_mutation and self.constrained_problem and archive.feasible and archive.filled):
-            return polynomial_mutation(children, problem.xl, problem.xu, self.mutation_eta, 1.0, rng)
-        fine = int(round(self.constrained_fine_mutation * n))
-        return np.vstack([polynomial_mutation(children[:fine], problem.xl, problem.xu, FINE_MUTATION_ETA, 1.0, rng),
-                          polynomial_mutation(children[fine:], problem.xl, problem.xu, self.mutation_eta, 1.0, rng)])
+        return polynomial_mutation(children, problem.xl, problem.xu, self._mutation_etas(n), 1.0, rng)
+
+    def _mutation_etas(self, n: int):
+        """The polynomial mutation's distribution index for n rows (particles or archive offspring).
+
+        ``mutation_eta``, except on a problem with constraints, where the first
+        round(``constrained_fine_mutation`` × n) rows take NSGA-II's :data:`FINE_MUTATION_ETA` from the
+        first generation on (issue 33, docs/MOPSO.md: the fronts lie on constraint boundaries, where the
+        long-tailed steps mostly leave the feasible region; the redraw of ``constrained_reset`` makes the long
+        jumps instead). A scalar when all rows share one, so that unconstrained runs are unchanged.
+        """
+        if not (self.constrained_fine_mutation and self.constrained_problem):
+            return self.mutation_eta
+        etas = np.full(n, float(self.mutation_eta))
+        etas[:int(round(self.constrained_fine_mutation * n))] = FINE_MUTATION_ETA
+        return etas
+
+    def _reset_share(self) -> float:
+        """The share of this generation's archive offspring redrawn by :func:`uniform_reset` (``constrained_reset``):
+        the first share until the archive is feasible and full, the second from then on; 0 without constraints."""
+        if not (self.constrained_reset and self.constrained_problem):
+            return 0.0
+        archive = self.leader_archive
+        return self.constrained_reset[1] if archive.feasible and archive.filled else self.constrained_reset[0]
 
     def _exploring_share(self) -> float:
         """Share of the swarm that makes SMPSO's move (:func:`smpso_velocity`) this move.
@@ -940,6 +972,24 @@ def _coefficient(name: str, value, default):
     if not (math.isfinite(number) and number >= 0.0):
         raise ConfigError(f"{name}={value!r} is out of range; allowed: {allowed}")
     return value if isinstance(value, float) else number
+
+
+def _reset_shares(value) -> tuple[float, float] | None:
+    """``constrained_reset`` checked: a share in [0, 1] (both phases) or a pair [until full, afterwards]; None: no redraw."""
+    if value is None:
+        return None
+    name, allowed = "optimizer.constrained_reset", "a share in [0, 1], a pair [until full, afterwards] of them, or null"
+    if isinstance(value, (list, tuple)):
+        if len(value) != 2:
+            raise ConfigError(f"{name}={value!r} is not allowed; allowed: {allowed}")
+        shares = tuple(_reset_shares(item) for item in value)
+        if any(share is None or share[0] != share[1] for share in shares):
+            raise ConfigError(f"{name}={value!r} is not allowed; allowed: {allowed}")
+        return shares[0][0], shares[1][0]
+    if isinstance(value, bool):
+        raise ConfigError(f"{name}={value!r} is not allowed; allowed: {allowed}")
+    share = check_in(name, value, Interval(0.0, 1.0))
+    return share, share
 
 
 def _integer_mask(problem) -> np.ndarray | None:
