@@ -95,13 +95,14 @@ def set_threads(n: int) -> None:
 
 
 #: LLVM settings the kernels compile with (set by :func:`configure_compiler`). The kernels' loops run over
-#: replications or columns side by side with trip counts known only at run time; LLVM's defaults give each
-#: such loop a four-way interleaved vector body, a second (epilogue) vector loop and a scalar remainder, and
-#: unroll the loop around it twice more: code to optimise and to generate that the kernels do not need.
-#: Without it the filter, the plants' and the chart's kernels compile in about a fifth less CPU time, the
-#: filter runs as fast, and no number changes (these change which loops are vectorised and how, never the
-#: arithmetic of a lane: numba compiles without fast-math, so nothing is reassociated or fused).
-LLVM_OPTIONS = ("-unroll-runtime=false", "-force-vector-interleave=1", "-enable-epilogue-vectorization=false")
+#: replications or columns side by side with trip counts known only at run time; with LLVM's defaults each
+#: such loop gets its vector body, a second (epilogue) vector loop and a scalar remainder, and the loop
+#: around it is unrolled at run time into two more copies of all that: code to optimise and to generate that
+#: the kernels gain little from. Without the epilogue loops and the runtime unrolling the filter, the plants'
+#: and the chart's kernels compile in about a fifth less CPU time; no number changes (these change how loops
+#: are copied, never the arithmetic of a lane: numba compiles without fast-math, so nothing is reassociated
+#: or fused). Not ``-force-vector-interleave=1``: it cut another tenth of the compile but slowed the filter.
+LLVM_OPTIONS = ("-unroll-runtime=false", "-enable-epilogue-vectorization=false")
 
 
 def configure_compiler() -> None:
