@@ -21,6 +21,10 @@ import math
 import numpy as np
 from numba import njit
 
+from . import configure_compiler
+
+configure_compiler()  # before this module's first compile
+
 from .ewma import ewma_step
 from .wavelet import denoise_row, work_size
 

@@ -31,6 +31,10 @@ import math
 import numpy as np
 from numba import njit
 
+from . import configure_compiler
+
+configure_compiler()  # before this module's first compile
+
 
 from .plants import TRANSITIONS, _inner, transition, transition_lanes, transition_points  # noqa: F401  (re-exported)
 

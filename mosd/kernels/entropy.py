@@ -37,6 +37,10 @@ import math
 import numpy as np
 from numba import njit
 
+from . import configure_compiler
+
+configure_compiler()  # before this module's first compile
+
 _SQRT_2PI = math.sqrt(2.0 * math.pi)
 
 # exp(x) = 2^k exp(r), k = round(x / ln 2), r = x − k ln 2 (|r| <= ln2 / 2), by branch-free operations that

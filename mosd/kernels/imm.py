@@ -34,6 +34,10 @@ import math
 import numpy as np
 from numba import njit
 
+from . import configure_compiler
+
+configure_compiler()  # before this module's first compile
+
 from .cubature import _over_replications, _solve_columns
 
 _LOG_2PI = math.log(2.0 * math.pi)

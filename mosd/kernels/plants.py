@@ -14,6 +14,10 @@ import math
 import numpy as np
 from numba import njit
 
+from . import configure_compiler
+
+configure_compiler()  # before this module's first compile
+
 #: transition name -> the integer the kernel dispatches on
 TRANSITIONS = {"mould_oscillator": 0}
 

@@ -25,6 +25,10 @@ import math
 import numpy as np
 from numba import njit
 
+from . import configure_compiler
+
+configure_compiler()  # before this module's first compile
+
 RULE_SURE, RULE_FIXED = 0, 1
 SOURCE_COARSEST, SOURCE_FINEST, SOURCE_ALL = 0, 1, 2
 
