@@ -1,9 +1,39 @@
-"""Fixtures shared by several test modules."""
+"""Fixtures shared by several test modules, and the pytest-xdist set-up of the README's test command."""
+import os
+
 import numpy as np
 import pytest
 
 from mosd.app import serving
+from mosd.optim import workers
 from mosd.types import SensorSamples, Trace
+
+
+@pytest.hookimpl(optionalhook=True)  # a hook of pytest-xdist (the test extra): no error where it is missing
+def pytest_xdist_auto_num_workers(config):
+    """``-n auto``: one worker per CPU this process may run on.
+
+    pytest-xdist's own count is psutil's physical cores: 1 on a 2-vCPU machine with two threads per
+    core (most cloud CI machines), where ``-n auto`` would then run nothing in parallel; and every
+    core of the host inside a container limited to a few of them. ``PYTEST_XDIST_AUTO_NUM_WORKERS``
+    still decides when set.
+    """
+    if os.environ.get("PYTEST_XDIST_AUTO_NUM_WORKERS"):
+        return None  # xdist's own hook reads it
+    return workers.available_cpus()
+
+
+def pytest_configure(config):
+    """Under pytest-xdist, each worker keeps its thread pools to its share of the CPUs.
+
+    The same as a job of a parallel sweep (``workers.pin_sweep_job``, issue 32: k processes each
+    starting a core's worth of BLAS/OpenMP/numba threads ran each 2.8x slower): BLAS, OpenMP (torch),
+    numba and mosd's kernels in this worker, and, through the environment, in the ``mosd`` runs it
+    starts. Results do not depend on the thread count; tests of the thread count set their own.
+    """
+    count = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT") or 1)
+    if os.environ.get("PYTEST_XDIST_WORKER") and count > 1:
+        workers.pin_threads(max(1, workers.available_cpus() // count))
 
 
 @pytest.fixture(scope="session")

@@ -124,6 +124,26 @@ def _browser(profile: Path):
     return webdriver.Chrome(options=options, service=Service(CHROMEDRIVER))
 
 
+def _click(driver, find, timeout: float = 30.0) -> None:
+    """``find(driver).click()``, found again while the element goes stale.
+
+    The runs grid re-renders its rows when the UI's calls return (slower on a busy machine, e.g. beside
+    another pytest-xdist worker): an element found just before is then detached and its click raises
+    StaleElementReferenceException without clicking; the same row, found again, takes the click.
+    """
+    from selenium.common.exceptions import StaleElementReferenceException
+
+    deadline = time.monotonic() + timeout
+    while True:
+        try:
+            find(driver).click()
+            return
+        except StaleElementReferenceException:
+            if time.monotonic() > deadline:
+                raise
+            time.sleep(0.2)
+
+
 class Page:
     """A browser tab on the MLflow UI: navigate, wait for text, screenshot."""
 
@@ -152,7 +172,7 @@ class Page:
     def click_text(self, text: str) -> None:
         from selenium.webdriver.common.by import By
 
-        self.driver.find_element(By.XPATH, f"//*[normalize-space(text())={text!r}]").click()
+        _click(self.driver, lambda d: d.find_element(By.XPATH, f"//*[normalize-space(text())={text!r}]"))
 
     def shot(self, name: str) -> Path:
         path = self.shots / f"{name}.png"
@@ -255,15 +275,16 @@ def test_the_ui_shows_the_sweep_its_children_their_comparison_and_the_hypervolum
     names = [c.info.run_name for c in children]
     assert not any(name in page.text() for name in names)  # folded under the parent until opened
     row = f"//div[@role='row' and @row-id='{parent.info.run_id}']"
-    driver.find_element(By.XPATH, f"{row}//button[contains(@data-component-id,'runnamecellrenderer')]").click()
+    expand = f"{row}//button[contains(@data-component-id,'runnamecellrenderer')]"
+    _click(driver, lambda d: d.find_element(By.XPATH, expand))
     page.wait_for(*names)
     page.shot("runs-sweep-expanded")
 
     # select the children, Compare: the swept params (those that differ) and FAR/MDR of each
     for child in children:
-        driver.find_element(By.XPATH, f"//div[@role='row' and @row-id='{child.info.run_id}']"
-                                      f"//input[contains(@class,'ag-checkbox-input')]").click()
-    next(b for b in driver.find_elements(By.TAG_NAME, "button") if b.text.strip() == "Compare").click()
+        _click(driver, lambda d: d.find_element(By.XPATH, f"//div[@role='row' and @row-id='{child.info.run_id}']"
+                                                          f"//input[contains(@class,'ag-checkbox-input')]"))
+    _click(driver, lambda d: next(b for b in d.find_elements(By.TAG_NAME, "button") if b.text.strip() == "Compare"))
     swept = sorted(k for k in children[0].data.params
                    if len({c.data.params.get(k) for c in children}) > 1 and not k.startswith(("tracking.", "outputs")))
     assert {"fault.kind", "optimizer._target_"} <= set(swept)
