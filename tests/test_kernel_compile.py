@@ -37,17 +37,44 @@ for module in (plants, cubature):
                 "signatures": [str(s) for s in obj.signatures],
                 "wrapper": not obj.targetoptions.get("no_cpython_wrapper", False),
             }
+# issue 31's compile cuts, on the same empty cache (after the signatures above are taken): the EWMA
+# recursion compiles once for the population and the deployed chart; a lane loop holds one vector body
+import re
+from mosd.detectors.statistics import ewma_continue, ewma_time_major
+from mosd.kernels import ewma
+
+x = np.random.default_rng(0).normal(size=(30, 4))
+ewma_time_major(x, np.array([0.2, 0.5]), 2)  # the population: ewma_population
+ewma_continue(x, 0.3, 2, np.zeros((2, 4)))  # the deployed chart: ewma_recursion directly
+if not cubature._fill_rows.signatures:
+    cubature.warm_up()
+fill_rows = cubature._fill_rows.inspect_llvm(cubature._fill_rows.signatures[0])
+out["_compile_cuts"] = {
+    "ewma_recursion": [str(s) for s in ewma.ewma_recursion.signatures],
+    "epilogue_loops": len(re.findall(r"^vec\\.epilog\\.vector\\.body[\\w.]*:", fill_rows, re.M)),
+    "vector_loops": len(re.findall(r"^vector\\.body[\\w.]*:", fill_rows, re.M))}
 print(json.dumps(out))
 """
 
 
 @pytest.fixture(scope="module")
-def compiled(tmp_path_factory):
+def probe(tmp_path_factory):
     env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path_factory.mktemp("numba_cache")), MOSD_KERNEL_THREADS="1")
     env.pop("MOSD_KERNELS", None)
     run = subprocess.run([sys.executable, "-c", _PROBE], capture_output=True, text=True, env=env, timeout=600)
     assert run.returncode == 0, run.stderr[-2000:]
-    return json.loads(run.stdout.strip().splitlines()[-1])
+    out = json.loads(run.stdout.strip().splitlines()[-1])
+    return out.pop("_compile_cuts"), out
+
+
+@pytest.fixture(scope="module")
+def compiled(probe):
+    return probe[1]
+
+
+@pytest.fixture(scope="module")
+def compile_cuts(probe):
+    return probe[0]
 
 
 @pytest.mark.slow
@@ -66,3 +93,16 @@ def test_helpers_have_no_python_entry_point(compiled):
              "mosd.kernels.plants.simulate_mould_oscillator", "mosd.kernels.plants.transition_points"}
     for name, info in compiled.items():
         assert info["wrapper"] == (name in entry), name
+
+
+@pytest.mark.slow
+def test_ewma_recursion_compiles_once_for_the_population_and_the_deployed_chart(compile_cuts):
+    assert len(compile_cuts["ewma_recursion"]) == 1, compile_cuts["ewma_recursion"]
+
+
+@pytest.mark.slow
+def test_lane_loops_compile_without_epilogue_loops_or_runtime_unrolling(compile_cuts):
+    # _fill_rows is one lane loop inside two loops: with LLVM's defaults (before mosd.kernels.LLVM_OPTIONS) it
+    # held 3 vector bodies and 3 epilogue vector loops (the middle loop unrolled twice, plus its remainder)
+    assert compile_cuts["epilogue_loops"] == 0
+    assert compile_cuts["vector_loops"] == 1, compile_cuts["vector_loops"]
