@@ -555,6 +555,7 @@ def _wait_until_optimising(proc: subprocess.Popen, db: Path, timeout: float = 24
     pytest.fail("the run did not reach the optimisation")
 
 
+@pytest.mark.serial  # signals and seconds: run after the parallel phase, one at a time (README)
 @pytest.mark.slow
 @pytest.mark.parametrize("workers", ["threads", "processes"])
 def test_sigterm_mid_optimisation_kills_the_run_and_leaves_no_process(tmp_path, workers):
@@ -582,6 +583,7 @@ def test_sigterm_mid_optimisation_kills_the_run_and_leaves_no_process(tmp_path, 
     assert summary["status"] == "killed" and summary["error"] == "stopped by SIGTERM"
 
 
+@pytest.mark.serial  # signals and seconds: run after the parallel phase, one at a time (README)
 @pytest.mark.slow
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["ctrl_c", "sigterm"])
 def test_a_signal_to_the_process_group_is_one_line_and_a_killed_run(tmp_path, sig):
@@ -702,6 +704,7 @@ LAUNCHERS = {"basic": [], "joblib": ["hydra/launcher=joblib", "hydra.launcher.n_
 FIGURES = {"chart.png", "residual.png", "history.png", "pareto.png", "summary.json", "history.csv", "pareto.csv"}
 
 
+@pytest.mark.serial  # signals and seconds: run after the parallel phase, one at a time (README)
 @pytest.mark.slow
 @pytest.mark.parametrize("launcher, delivery, sig", [
     ("basic", "pid", signal.SIGTERM), ("basic", "group", signal.SIGINT),
@@ -714,21 +717,26 @@ def test_a_signal_during_a_sweep_kills_the_started_jobs_and_keeps_the_finished_o
                             start_new_session=True)
     db = tmp_path / "outputs" / "mlflow.db"
     running_jobs = 2 if launcher == "joblib" else 1
-    deadline = time.monotonic() + 300
-    while True:  # the two short jobs finished, the long ones optimising
-        assert proc.poll() is None, proc.communicate()[1][-3000:]
-        assert time.monotonic() < deadline, "the sweep did not reach its long jobs"
-        counts = _runs_by_status(db)
-        if counts.get("FINISHED", 0) >= 2 and counts.get("RUNNING", 0) >= 1 + running_jobs:  # + the sweep's run
-            break
-        time.sleep(0.2)
-    time.sleep(1.5)
-    children = _descendants(proc.pid)
-    if delivery == "group":
-        os.killpg(proc.pid, sig)  # Ctrl-C in a terminal signals the whole foreground process group
-    else:
-        proc.send_signal(sig)
-    out, err = proc.communicate(timeout=120)
+    try:
+        deadline = time.monotonic() + 300
+        while True:  # the two short jobs finished, the long ones optimising
+            assert proc.poll() is None, proc.communicate()[1][-3000:]
+            assert time.monotonic() < deadline, "the sweep did not reach its long jobs"
+            counts = _runs_by_status(db)
+            if counts.get("FINISHED", 0) >= 2 and counts.get("RUNNING", 0) >= 1 + running_jobs:  # + the sweep's run
+                break
+            time.sleep(0.2)
+        time.sleep(1.5)
+        children = _descendants(proc.pid)
+        if delivery == "group":
+            os.killpg(proc.pid, sig)  # Ctrl-C in a terminal signals the whole foreground process group
+        else:
+            proc.send_signal(sig)
+        out, err = proc.communicate(timeout=120)
+    finally:  # a failed check must not leave a 100,000-generation sweep running beside the other tests
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
     assert proc.returncode == 128 + sig, err[-3000:]
     assert "Fatal Python error" not in err and "Traceback" not in err, err[-3000:]
     # one line per stopped job, one more for the sweep under joblib, and nothing else (issue 34: no cut-off
