@@ -118,6 +118,7 @@ def _serve() -> None:
     # meant for the app must not end this process first and leave the run RUNNING
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    signal.signal(signal.SIGHUP, signal.SIG_IGN)  # a stop signal of the app's too (mosd.app.signals.STOP_SIGNALS)
     replies = os.fdopen(os.dup(1), "w", buffering=1)
     os.dup2(2, 1)  # anything MLflow prints must not corrupt the reply channel
     handler = Handler()
