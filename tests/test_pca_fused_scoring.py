@@ -1,9 +1,9 @@
-"""The deployed PCA's one-pass scoring (kernels.projection.t2_spe) gives the tuning's numbers bit for bit."""
+"""The deployed PCA's one-pass scoring (kernels.projection.scores) gives the tuning's numbers bit for bit."""
 import numpy as np
 import pytest
 
 from mosd.detectors.pca import PCAModel, _Projected
-from mosd.kernels.projection import t2_spe
+from mosd.kernels.projection import scores
 
 
 @pytest.mark.parametrize("m, n_fit", [(5, 40), (33, 500)])
@@ -15,8 +15,8 @@ def test_the_fused_scores_are_the_array_form_s_bits(m, n_fit):
     X[[3, 50, 699], [0, m - 1, m // 2]] = [np.nan, np.inf, np.nan]
     for a in range(1, m + 1):
         expected = _Projected.of(model, X, components=a)
-        t2, spe, complete = t2_spe(X, model.mean, model.scale, np.ascontiguousarray(model.loadings),
-                                   model.eigenvalues, a)
+        t2, spe, complete, _, _ = scores(X, model.mean, model.scale, np.ascontiguousarray(model.loadings),
+                                         model.eigenvalues, a, 0)
         np.testing.assert_array_equal(complete, expected.finite)
         np.testing.assert_array_equal(t2, expected.t2[:, 0])
         np.testing.assert_array_equal(spe, expected.spe[:, 0])
@@ -27,8 +27,6 @@ def test_the_fused_scores_are_the_array_form_s_bits(m, n_fit):
 def test_the_fused_ranking_is_the_contributions_argsort_in_any_chunks(m):
     """kernels.projection.scores ranks each row as a stable argsort of PCAModel.contributions (ties to the
     lower index), k = min(3, m); rows with a gap are not ranked; chunks of any size rank alike."""
-    from mosd.kernels.projection import scores
-
     rng = np.random.default_rng(m)
     model = PCAModel(rng.standard_normal((200, m)) @ rng.standard_normal((m, m)))
     X = rng.standard_normal((300, m)) * 2.0

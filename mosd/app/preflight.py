@@ -381,7 +381,8 @@ def fit_to_data(setup: Setup) -> None:
 
 
 def _simulated_calibration(exp) -> np.ndarray | None:
-    """The detector's calibration points of one simulated replication (None for an estimator trained first)."""
+    """The detector's calibration points of the dry run's simulated replications (:func:`_dry_calibration_runs`;
+    None for an estimator trained first)."""
     from ..experiment import Budget, Experiment
 
     if getattr(exp.estimator, "requires_fit", False):

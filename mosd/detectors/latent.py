@@ -599,8 +599,6 @@ def flat_statistic(X: np.ndarray, scale: np.ndarray, smoothing: float, carried: 
 
     Returns (flat (R, K), after: ``flat_last_<i>``, ``flat_ewma_<i>`` (R, K) each).
     """
-    from scipy.signal import lfilter
-
     X = np.asarray(X, float)
     R, K, m = X.shape
     last = np.full((R, 1, m), np.nan)
@@ -609,11 +607,9 @@ def flat_statistic(X: np.ndarray, scale: np.ndarray, smoothing: float, carried: 
         last[:, 0] = np.column_stack([np.asarray(carried[f"flat_last_{i}"], float).reshape(R)
                                       for i in range(1, m + 1)])
         start = np.column_stack([np.asarray(carried[f"flat_ewma_{i}"], float).reshape(R) for i in range(1, m + 1)])
-    steps = np.diff(np.concatenate([last, X], axis=1), axis=1) ** 2 / scale
-    steps = np.moveaxis(np.where(np.isfinite(steps), steps, 1.0), -1, 1)         # (R, m, K): time last
-    lam = float(smoothing)
-    v = steps if lam >= 1.0 else lfilter([lam], [1.0, -(1.0 - lam)], steps, axis=-1,
-                                        zi=(1.0 - lam) * start[..., None])[0]
+    steps = np.moveaxis(np.diff(np.concatenate([last, X], axis=1), axis=1) ** 2 / scale, -1, 1)  # (R, m, K)
+    # a missing increment enters as 1, the in-control value; each tag's EWMA continues from its carried value
+    v = ewma_from(steps, float(smoothing), 1.0, previous=start[..., None])
     complete = np.all(np.isfinite(X), axis=-1)
     flat = np.where(complete, np.maximum(-np.log(np.maximum(v, np.finfo(float).tiny).min(axis=1)), 0.0), np.nan)
     after = {**{f"flat_last_{i}": X[..., i - 1] for i in range(1, m + 1)},

@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from ..detectors.pca import PCAModel
+from ..detectors.pca import PCAModel, project
 from ..streaming import OnlineStage
 from ..types import Residuals, Trace
 from ..validation import ConfigError, Interval, Param
@@ -83,19 +83,15 @@ def pca_residual(Y, mean, scale, loadings, eigenvalues):
     """(residual e (..., m), T² (...), SPE (...), scores t (..., a)) of every row of Y (..., m).
 
     z = (y − mean)/scale, t = Pₐᵀ z, e = z − Pₐ t = (I − Pₐ Pₐᵀ) z, T² = Σ_j t_j²/λ_j, SPE = Σ_i e_i², each sum
-    taken in a fixed order over one row's own numbers (no matrix product, whose kernel a BLAS picks by the
-    row count): a series gives the same bits in one call, in chunks or row by row, so the batch estimate
-    and :class:`OnlinePCAResidual` agree bit for bit. A row with a missing value gives NaN.
+    taken in a fixed order over one row's own numbers (both products through
+    :func:`mosd.detectors.pca.project`, not a BLAS product, whose kernel a BLAS picks by the row count):
+    a series gives the same bits in one call, in chunks or row by row, so the batch estimate and
+    :class:`OnlinePCAResidual` agree bit for bit. A row with a missing value gives NaN.
     """
     Z = (np.asarray(Y, float) - mean) / scale
     m, a = loadings.shape
-    t = np.zeros((*Z.shape[:-1], a))
-    for i in range(m):
-        t += Z[..., i:i + 1] * loadings[i]
-    fitted = np.zeros_like(Z)
-    for j in range(a):
-        fitted += t[..., j:j + 1] * loadings[:, j]
-    residual = Z - fitted
+    t = project(Z, loadings)
+    residual = Z - project(t, loadings.T)
     t2 = np.zeros(Z.shape[:-1])
     for j in range(a):
         t2 += t[..., j] ** 2 / eigenvalues[j]

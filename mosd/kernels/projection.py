@@ -130,12 +130,6 @@ def scores(X, mean, scale, loadings, eigenvalues, a, k):
     return t2, spe, complete_rows, top_t2, top_spe
 
 
-def t2_spe(X, mean, scale, loadings, eigenvalues, a):
-    """T²(a), SPE(a) and completeness of each row of X (n, m): :func:`scores` without the ranking."""
-    t2, spe, complete, _, _ = scores(X, mean, scale, loadings, eigenvalues, a, 0)
-    return t2, spe, complete
-
-
 def warm_up() -> None:
     """Load (or compile) the kernels."""
     project(np.zeros((2, 3)), np.zeros((3, 2)))
