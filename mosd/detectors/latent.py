@@ -51,7 +51,8 @@ What the base does (for every statistic S of the design)
   decaying tail is numerical, not statistical);
 * with ``flatline`` set, one more statistic beside the family's, ``flat`` (:func:`flat_statistic`: a tag whose
   increments collapse, a stuck valve), smoothed and limited the same way (always empirically), alarmed whatever
-  ``statistic`` picks among the family's, and carried by the deployed stage;
+  ``statistic`` picks among the family's, and carried by the deployed stage λ_f is then tunable (one more column of the
+  optimiser's box, above the same floor as λ);
 * ratio_k = max over the alarmed statistics of S̃_k / limit; alarm when ratio > 1 for
   ``persistence`` consecutive rows (:func:`~mosd.detectors.base.persistent`).
 
@@ -71,7 +72,7 @@ from typing import Mapping
 import numpy as np
 
 from ..streaming import COUNT, FINITE, SQUARES, OnlineStage, StateVar, build, describe, points_of, spread
-from ..validation import ConfigError, Interval, Param, check_choice
+from ..validation import Component, ConfigError, Interval, Param, check_choice
 from .base import Decisions, Detector, persistent, run_lengths
 
 LIMITS = ("theoretical", "empirical")
@@ -82,8 +83,9 @@ def latent_params(family: Mapping[str, Param], statistics: tuple[str, ...]) -> d
     return {
         **family,
         "persistence_max": Param(Interval(1, 10_000, integer=True), "Upper end of the persistence's range."),
-        "lam_min": Param(Interval(0.0, 1.0, open_high=True), "Lower end of lam's range (open); raised before a run "
-                         "to the floor the held-back calibration runs can judge (LatentDetector.data_bounds)."),
+        "lam_min": Param(Interval(0.0, 1.0, open_high=True), "Lower end of lam's range, and of flatline's (open); "
+                         "raised before a run to the floor the held-back calibration runs can judge "
+                         "(LatentDetector.data_bounds)."),
         "alpha": Param(Interval(0.0, 0.5, open_low=True), "Significance level of each limit.", tunable=True),
         "lam": Param(Interval("lam_min", 1.0, open_low=True), "EWMA smoothing of every statistic; 1 = no smoothing.",
                      tunable=True),
@@ -97,10 +99,11 @@ def latent_params(family: Mapping[str, Param], statistics: tuple[str, ...]) -> d
         "fit_runs": Param(Interval(1, math.inf, integer=True), "The first fit_runs calibration runs fit the model; "
                           "the others are held back for the empirical limits. None: all runs do both (the "
                           "empirical limits are then in-sample).", optional=True),
-        "flatline": Param(Interval(0.0, 1.0, open_low=True), "Smoothing λ_f of each tag's EWMA of squared "
+        "flatline": Param(Interval("lam_min", 1.0, open_low=True), "Smoothing λ_f of each tag's EWMA of squared "
                           "increments: adds the statistic flat (a stuck valve, a frozen transmitter: a tag "
-                          "whose increments collapse; :func:`flat_statistic`) to the combined rule. None: off.",
-                          optional=True),
+                          "whose increments collapse; :func:`flat_statistic`) to the combined rule, and λ_f to the "
+                          "optimiser's box (above lam_min, like lam; the value is where a search starts). None: off "
+                          "and not tuned.", optional=True, tunable=True),
     }
 
 
@@ -133,8 +136,23 @@ BULKY = ("projected", "variates", "features")
 MAX_BULKY = 12
 
 
+class _FamilyTunable:
+    """``LatentDetector.tunable``: the declared tunables, λ_f (``flatline``) only on a design whose flat statistic is
+    on. ``flatline: null`` is off and outside the box (the class view, the default); a number switches the
+    statistic on and its smoothing becomes one more column of the optimiser's box, chosen on the training split
+    like every other parameter (docs/systems/tep.md, "The protocol")."""
+
+    def __get__(self, owner, cls) -> dict[str, Interval]:
+        view = Component.__dict__["tunable"].__get__(owner, cls)
+        if owner is None or owner.__dict__.get("flatline") is None:
+            view.pop("flatline", None)
+        return view
+
+
 class LatentDetector(Detector):
     """Base of the recorded-data monitor families (module docstring: the contract)."""
+
+    tunable = _FamilyTunable()
 
     STATISTICS: tuple[str, ...] = ()
     #: the family parameters the fit depends on (None: all the family's own parameters)
@@ -183,7 +201,7 @@ class LatentDetector(Detector):
         return tuple((k, design[k]) for k in keys)
 
     def _score_key(self, design: Mapping) -> tuple:
-        return (*((k, design[k]) for k in self.family_names()), ("flatline", design.get("flatline")))
+        return tuple((k, design[k]) for k in self.family_names())
 
     def names(self, design: Mapping | None = None) -> tuple[str, ...]:
         """The design's statistics: the family's, and ``flat`` when ``flatline`` is set."""
@@ -259,11 +277,14 @@ class LatentDetector(Detector):
 
         Only the parameters the data limit are named; the optimiser's box is the intersection with the
         declared ranges and ``detector.bounds`` (:func:`mosd.app.preflight.narrow_to_data` applies it before a
-        run, for every system). The base names λ (:meth:`lam_bounds`: its floor for the held-back runs);
+        run, for every system). The base names λ (:meth:`lam_bounds`: its floor for the held-back runs) and, on a
+        design with the flat statistic, λ_f (the same floor);
         a family adds its own counts (components, lags, states, slow features), each by its own rule,
         calling ``super().data_bounds`` first.
         """
-        return {"lam": self.lam_bounds(calibration_z)}
+        lam = self.lam_bounds(calibration_z)
+        # the flat statistic's EWMA has the same floor, for the same reason (``_parts``)
+        return {"lam": lam, **({"flatline": lam} if "flatline" in self.tunable else {})}
 
     @staticmethod
     def complete_count(calibration_z: np.ndarray, lags: int = 0, ahead: int = 0) -> int:
@@ -296,8 +317,16 @@ class LatentDetector(Detector):
                               lambda: {**family, "flat_scale": increment_scale(fit)})
 
     def _scored(self, fitted: Mapping, z: np.ndarray, design: Mapping) -> dict:
-        return self._remember(("score", id(fitted), id(z), self._score_key(design)), (fitted, z),
-                              lambda: self.score_all(fitted, z, design, None)[0])
+        """:meth:`score_all` from a run's start, the family's statistics and ``flat`` cached apart: a tuned λ_f
+        takes a new value per candidate, the family's statistics do not depend on it."""
+        own = self._remember(("score", id(fitted), id(z), self._score_key(design)), (fitted, z),
+                             lambda: self.score(fitted, z, design, None)[0])
+        flatline = design.get("flatline")
+        if not flatline:
+            return own
+        flat = self._remember(("flat", id(fitted), id(z), float(flatline)), (fitted, z),
+                              lambda: flat_statistic(z, fitted["flat_scale"], float(flatline))[0])
+        return {**own, self.FLAT: flat}
 
     # -- the decision -------------------------------------------------------------------
     def features(self, z: np.ndarray) -> np.ndarray:

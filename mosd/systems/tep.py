@@ -23,6 +23,7 @@ that drive the alarms.
 """
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -565,10 +566,15 @@ LITERATURE_FAMILIES = {
 }
 #: the protocol's operating point: the optimiser's selection rule ``min_mdr_far_le`` at this FAR on the training split
 PROTOCOL_FAR = 0.01
+#: where a tuned family's λ_f (``detector.flatline``, the stuck-valve statistic) starts: it is one more column of the
+#: optimiser's box, (λ's floor, 1] on TE, and the design's value is the protocol's choice on the training split
+FLATLINE_START = 0.5
+#: the name of an ablation row of ``--families --flatline``: the tuned design with λ_f replaced (not the protocol's)
+FLATLINE_ABLATION = "{family}_flatline_{value}"
 
 
 def family_study(directory: str | None = None, families=tuple(FAMILIES), pop_size: int = 20, n_gen: int = 5,
-                 seed: int = 0, literature: bool = True, flatline: float | None = None) -> dict:
+                 seed: int = 0, literature: bool = True, flat: bool = True, flatline_ablation=()) -> dict:
     """The fair protocol on every family (docs/systems/tep.md): tuned, then scored on the 21 test faults.
 
     Each family is tuned by the preset's optimiser (``pop_size`` × ``n_gen``, one process) for training FAR
@@ -578,8 +584,12 @@ def family_study(directory: str | None = None, families=tuple(FAMILIES), pop_siz
     the same calibration split (d00.dat; the even test files' lead-ins for empirical limits) and scored on
     rows 160-959 of every ``dNN_te.dat``, each file streamed whole (:func:`whole_test_files`, :func:`protocol`).
 
-    ``flatline``: every tuned family also alarms on the base's ``flat`` statistic with this smoothing
-    (``detector.flatline``; the literature designs never do).
+    ``flat``: every tuned family also alarms on the base's ``flat`` statistic (a stuck valve), its smoothing λ_f
+    tuned in the box with the family's other parameters (``detector.flatline``, from :data:`FLATLINE_START`); the
+    literature designs never have it. ``flatline_ablation``: values of λ_f (a number, or None for off) each
+    tuned design is also scored with, α re-chosen by the protocol's rule on the training split
+    (:func:`at_operating_point`): an ablation of what the statistic buys, ``<family>_flatline_<value>`` rows
+    marked ``"ablation"``, never the protocol's design.
 
     Returns ``{design: {"params", "train": {far, mdr}, "tune_s", **protocol keys}}``.
     """
@@ -592,8 +602,8 @@ def family_study(directory: str | None = None, families=tuple(FAMILIES), pop_siz
               "progress=false", *([f"data.directory={directory}"] if directory else [])]
     for name in families:
         check_choice("--family", name, tuple(FAMILIES))
-        flat = [f"detector.flatline={float(flatline)!r}"] if flatline is not None else []
-        setup = cli.preset(SYSTEM, [f"detector={name}", *FAMILIES[name], *common, *flat])
+        on = [f"detector.flatline={FLATLINE_START!r}"] if flat else []
+        setup = cli.preset(SYSTEM, [f"detector={name}", *FAMILIES[name], *common, *on])
         experiment = setup.experiment
         t0 = time.perf_counter()
         data = experiment.prepare()
@@ -603,6 +613,10 @@ def family_study(directory: str | None = None, families=tuple(FAMILIES), pop_siz
         detector = experiment.detector.with_params(**tuned.params)
         out[name] = {**_family_scores(experiment, detector), "train": tuned.train_objectives,
                      "tune_s": time.perf_counter() - t0}
+        for value in flatline_ablation:
+            row = FLATLINE_ABLATION.format(family=name, value="off" if value is None else f"{float(value):g}")
+            out[row] = {**at_operating_point(experiment, detector.with_params(flatline=value)),
+                        "ablation": f"the tuned {name} design with flatline={value}, alpha re-chosen on training"}
     if literature:
         # each tuned family's literature design, and the classic PCA's whatever was tuned (the table's reference)
         for family in dict.fromkeys([*(f for f in families if f in LITERATURE_FAMILIES), "pca"]):
@@ -911,6 +925,19 @@ def export_csv(out_dir: str | Path, directory: str | None = None, variables: str
     return written
 
 
+def flatline_value(text: str) -> float | None:
+    """``--flatline``'s value: ``off`` (None) or a smoothing in (0, 1]; else one line naming the option."""
+    if str(text).strip().lower() == "off":
+        return None
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not 0.0 < value <= 1.0:
+        raise ConfigError(f"--flatline={text!r} is not allowed; allowed: off or a number in (0, 1]")
+    return value
+
+
 def main(argv=None) -> int:
     """``python -m mosd.systems.tep [--directory DIR] [--out DIR] | --table FILE [--time-column C] | --export DIR``."""
     parser = cli.report_parser("python -m mosd.systems.tep", "Tennessee Eastman: the per-fault PCA table (T², SPE, "
@@ -934,9 +961,11 @@ def main(argv=None) -> int:
                              "tuned one with one switched off, each at the protocol's operating point")
     parser.add_argument("--pop-size", type=int, default=20, help="--families: the optimiser's population")
     parser.add_argument("--n-gen", type=int, default=5, help="--families: the optimiser's generations")
-    parser.add_argument("--flatline", type=float, default=None, metavar="LAM",
-                        help="--families: every tuned family also alarms on the flat statistic (a tag whose "
-                             "increments collapse: a stuck valve) with this smoothing (detector.flatline)")
+    parser.add_argument("--seed", type=int, default=0, help="--families: the optimiser's seed (default 0)")
+    parser.add_argument("--flatline", action="append", default=None, metavar="LAM|off",
+                        help="--families, ablation only (repeat): also score each tuned design with the flat "
+                             "statistic's smoothing replaced by LAM, or off, alpha re-chosen on the training split "
+                             "(rows <family>_flatline_<LAM>; the tuned design's own is chosen in the box)")
     cli.design_options(parser, SYSTEM)
 
     def export_body(args):
@@ -965,8 +994,9 @@ def main(argv=None) -> int:
     def families_body(args):
         check_int("--pop-size", args.pop_size, 2, 10_000)
         check_int("--n-gen", args.n_gen, 1, 10_000)
+        ablation = tuple(flatline_value(v) for v in args.flatline or ())
         results = family_study(args.directory, tuple(args.family or FAMILIES), args.pop_size, args.n_gen,
-                               flatline=args.flatline)
+                               seed=args.seed, flatline_ablation=ablation)
         print(f"## Tennessee Eastman, monitor families at training FAR <= {100 * PROTOCOL_FAR:g} % "
               f"(min_mdr_far_le; tuned {args.pop_size} x {args.n_gen}): detection rates in % on rows 160-959 of "
               f"the test files, delays to the first run of {DELAY_RUN} alarms\n")
@@ -982,7 +1012,8 @@ def main(argv=None) -> int:
         return [cli.write_json(out / "tep_families.json", {"results": results, "metrics": family_metrics(results),
                                                             "pop_size": args.pop_size,
                                                             "n_gen": args.n_gen, "protocol_far": PROTOCOL_FAR,
-                                                            "flatline": args.flatline,
+                                                            "flatline": "tuned", "seed": args.seed,
+                                                            "flatline_ablation": list(ablation),
                                                             "delay_run_k": DELAY_RUN}),
                 families_figure(results, out / "tep_families.png")]
 
