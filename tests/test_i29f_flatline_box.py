@@ -96,7 +96,28 @@ def test_te_families_tune_lambda_f_and_keep_the_fixed_value_as_a_labelled_ablati
     assert written["flatline"] == "tuned" and written["flatline_ablation"] == [None]
     off = results["sfa_flatline_off"]
     assert "ablation" in off and "flatline" not in off["params"] and "ablation" not in results["sfa"]
-    assert results["sfa"]["fdr_idv21"] > 0.9 > 0.75 > off["fdr_idv21"]
+    # IDV(21), the stuck valve: seen on most rows within 90 minutes with the statistic, on fewer than three rows in
+    # four without it and by the literature designs (never flat)
+    assert results["sfa"]["fdr_idv21"] > 0.9 and results["sfa"]["delay_run_idv21"] < 90
+    assert max(off["fdr_idv21"], results["sfa_lit"]["fdr_idv21"], results["pca_lit"]["fdr_idv21"]) < 0.75
     code = tep.main(["--families", "--family", "sfa", "--flatline", "0", "--out", str(tmp_path)])
     err = capsys.readouterr().err.strip()
     assert code == 2 and "\n" not in err and "--flatline='0'" in err and "off or a number in (0, 1]" in err
+
+
+def test_a_te_run_s_study_names_its_protocol_keys_by_family():
+    """A sweep over ``detector=`` compares the families side by side: each run's study carries its design's
+    protocol keys also as ``family_fdr_<family>_idvN`` and ``family_far_<family>`` (fails on the old code)."""
+    from mosd.data.tep import ALL_FAULTS
+    from mosd.systems import tep
+
+    rng = np.random.default_rng(0)
+    labels = np.array([*ALL_FAULTS, 0])
+    decision = rng.random((len(labels), 800)) < np.where(labels > 0, 0.9, 0.01)[:, None]
+    protocol = tep.protocol(decision, labels)
+    data = {"fdr": {}, "far": {}, "faults": list(ALL_FAULTS), "train_faults": [], "protocol": {"tuned": protocol},
+            "family": "sfa"}
+    metrics = tep.Study(figures=False).metrics(data)
+    assert metrics["family_far_sfa"] == metrics["far"] == protocol["far"]
+    assert metrics["family_far_episodes_sfa"] == protocol["far_episodes"]
+    assert all(metrics[f"family_fdr_sfa_idv{n}"] == protocol[f"fdr_idv{n}"] for n in ALL_FAULTS)

@@ -233,6 +233,9 @@ class Study(base.Study):
       the first run of :data:`DELAY_RUN` consecutive alarms (not reported for a fault without one);
       ``D_faults_detected_{first_alarm,run3}`` (training faults with one) and
       ``D_delay_{first_alarm,run3}_min_median`` (their median).
+    * ``family_fdr_<family>_idvN``, ``family_far_<family>``, ``family_far_episodes_<family>`` and
+      ``family_mean_mdr_<family>``: the same protocol keys named by the tuned design's family (``detector=``), as
+      ``--families`` names them (:func:`family_metrics`), so a sweep's runs compare side by side.
     * ``ablation_R_{far,mdr,equal_far_alpha,equal_far_far,equal_far_mdr}`` for each row R of
       :data:`ABLATION`: the FAR and mean MDR over the training faults, and the α, FAR and MDR at the tuned
       design's FAR (α chosen on the test file, :func:`alpha_for_far`).
@@ -284,6 +287,8 @@ class Study(base.Study):
                 out.setdefault("figure", {})[name] = self._figure_data(experiment, source, detector, calibration)
         out["variables"] = {name: list(_study_source(data, literature=name == LIT).output_names)
                             for name in designs}
+        if TUNED in designs:  # the family's config name (detector=...): its module's
+            out["family"] = type(designs[TUNED]).__module__.rsplit(".", 1)[-1]
         if LIT in designs and TUNED in designs and type(designs[TUNED]) is PCADetector:
             source = _study_source(data, literature=True)
             far = out["far"][TUNED]["combined"]
@@ -407,6 +412,9 @@ class Study(base.Study):
                 metrics[f"ablation_{row}_{key}"] = scores[key]
         # the fair protocol's keys of the run's own (tuned) design, unprefixed (docs/systems/tep.md)
         metrics.update(data.get("protocol", {}).get(TUNED, {}))
+        if "family" in data and TUNED in data.get("protocol", {}):
+            # and named by its family, so that the runs of a sweep over detector=... sit side by side in a report
+            metrics.update(family_metrics({data["family"]: data["protocol"][TUNED]}))
         return metrics
 
     def write_figures(self, data: dict, out_dir: Path) -> list[Path]:
