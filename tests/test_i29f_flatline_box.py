@@ -11,6 +11,7 @@ import json
 import numpy as np
 import pandas as pd
 import pytest
+from scipy import stats
 
 from mosd.detectors.cva import CVADetector
 from mosd.detectors.latent import lam_floor
@@ -121,3 +122,29 @@ def test_a_te_run_s_study_names_its_protocol_keys_by_family():
     assert metrics["family_far_sfa"] == metrics["far"] == protocol["far"]
     assert metrics["family_far_episodes_sfa"] == protocol["far_episodes"]
     assert all(metrics[f"family_fdr_sfa_idv{n}"] == protocol[f"fdr_idv{n}"] for n in ALL_FAULTS)
+
+
+def test_sfa_drops_the_features_slower_than_the_held_back_runs_can_judge(tmp_path):
+    """``drop_unjudged``: features with ω/2 below λ's floor of the held-back runs leave every statistic; the rest are
+    scored as before, the theoretical limits count only what is kept, and the stream scores the population's bits."""
+    from tests.test_families import stream_equals_population
+
+    X = plant_rows(shift_at=10_000)
+    X[:, 0] += 3 * np.sin(2 * np.pi * np.arange(len(X)) / 300)      # a slow wave on tag a: its feature has ω ≈ 0.08
+    calibration = np.stack([X[:200], X[200:400]])
+    keep = SFADetector(n_slow=3, fit_runs=1, limits="empirical")
+    drop = keep.with_params(drop_unjudged=True)
+    fitted = drop.fitted(calibration)
+    omega = np.asarray(fitted["omega"])
+    d = int(np.count_nonzero(omega / 2 < lam_floor(200)))
+    assert fitted["dropped"] == d >= 1 and "dropped" not in keep.fitted(calibration)
+    s2, _, _ = drop._features(fitted, X[None, 400:], None)
+    kept, _ = drop.score(fitted, X[None, 400:], drop.design_values())
+    assert np.allclose(kept["t2"], s2[..., d:3].sum(-1)) and np.allclose(kept["t2e"], s2[..., 3:].sum(-1))
+    # χ² with M − d degrees of freedom instead of M
+    assert drop.limit(fitted, "t2", 0.01, drop.design_values()) == pytest.approx(stats.chi2.ppf(0.99, 3 - d))
+    assert keep.limit(keep.fitted(calibration), "t2", 0.01, keep.design_values()) == pytest.approx(
+        stats.chi2.ppf(0.99, 3))
+    stream_equals_population(drop.with_params(alpha=0.02, persistence=2), X, tmp_path)
+    # nothing held back: nothing dropped (no runs to judge by)
+    assert SFADetector(n_slow=3).with_params(drop_unjudged=True).fitted(calibration).get("dropped", 0) == 0

@@ -16,6 +16,14 @@ dynamics (faster or slower variation). Limits: χ² with M and m − M degrees o
 T²ₑ (s has identity covariance), and Shang et al.'s F-based limit for S² and S²ₑ
 (:func:`~mosd.detectors.pca.t2_limit` with M and m − M dimensions on the N differenced fit rows).
 ṡ_k needs the previous row: the deployed stage carries it (``prev_<i>``) as its state.
+
+``drop_unjudged``: a feature's lag-1 autocorrelation is ρ_j = 1 − ω_j/2 (Var(s_j) = 1, Var(ṡ_j) = ω_j), the memory
+(1 + ρ)/(1 − ρ) of an EWMA of weight ω_j/2. The slowest features can have memories of hundreds of rows (TE's
+slowest: about 950 rows), which held-back calibration runs of K rows see as one level per run: an empirical limit
+on them rests on the one run whose level is highest. With ``drop_unjudged`` the features slower than the base's
+λ floor allows, ω_j/2 < :func:`~mosd.detectors.latent.lam_floor` (K) (the same rule: a memory of at most a tenth of
+a held-back run), are left out of every statistic; the slow block is then features d+1 … M (d dropped, at least
+one kept), the fast block M+1 … m as before. Nothing is dropped without held-back runs (``fit_runs`` None).
 """
 from __future__ import annotations
 
@@ -36,11 +44,14 @@ class SFADetector(LatentDetector):
         "max_slow": Param(Interval(1, 10_000, integer=True), "Upper end of n_slow's range."),
         "n_slow": Param(Interval(1, "max_slow", integer=True), "Slow features M (at most m − 1: larger values are "
                         "lowered to it).", tunable=True),
+        "drop_unjudged": Param((False, True), "Leave out the features slower than the held-back calibration runs "
+                               "can judge (ω/2 below λ's floor; module docstring)."),
     }, STATISTICS)
 
     def __init__(self, n_slow: int = 10, alpha: float = 0.01, lam: float = 1.0, persistence: int = 1,
                  statistic: str = "combined", limits: str = "theoretical", fit_runs: int | None = None,
-                 max_slow: int = 30, persistence_max: int = 10, lam_min: float = 0.0, flatline: float | None = None):
+                 max_slow: int = 30, persistence_max: int = 10, lam_min: float = 0.0, flatline: float | None = None,
+                 drop_unjudged: bool = False):
         self._assign(locals())
         self._cache: dict = {}
 
@@ -77,8 +88,24 @@ class SFADetector(LatentDetector):
         fastest = float(np.max(dz.var(axis=0, ddof=1) / z.var(axis=0, ddof=1)))
         return int(np.clip(np.count_nonzero(np.asarray(fitted["omega"]) <= fastest), 1, m - 1))
 
+    def fitted(self, calibration_z: np.ndarray, design=None) -> dict:
+        """The base's model, with ``dropped``: how many of the slowest features ``drop_unjudged`` leaves out."""
+        fitted = super().fitted(calibration_z, design)
+        if not self.drop_unjudged:
+            return fitted
+        floor = self._remember(("lam_floor", id(calibration_z)), (calibration_z,),
+                               lambda: self.lam_bounds(calibration_z)[0])
+        return self._remember(("dropped", id(fitted)), (fitted,), lambda: {
+            **fitted, "dropped": int(np.count_nonzero(0.5 * np.asarray(fitted["omega"]) < floor))})
+
+    def _blocks(self, fitted, design) -> tuple[int, int]:
+        """(d, M'): the slow block is features d … M' − 1, the fast block M' … m − 1 (0-based, each non-empty)."""
+        m = len(fitted["omega"])
+        dropped = min(int(fitted.get("dropped", 0)), m - 2)
+        return dropped, max(int(min(int(design["n_slow"]), m - 1)), dropped + 1)
+
     def _slow(self, fitted, design) -> int:
-        return int(min(int(design["n_slow"]), len(fitted["omega"]) - 1))
+        return self._blocks(fitted, design)[1]
 
     def _features(self, fitted, X, carried):
         Z = (np.asarray(X, float) - fitted["mean"]) / fitted["scale"]
@@ -96,16 +123,16 @@ class SFADetector(LatentDetector):
                                             lambda: self._features(fitted, X, None))
         else:
             s2, ds2, after = self._features(fitted, X, carried)
-        M = self._slow(fitted, design)
-        return {"t2": s2[..., :M].sum(-1), "t2e": s2[..., M:].sum(-1), "s2": ds2[..., :M].sum(-1),
+        d, M = self._blocks(fitted, design)
+        return {"t2": s2[..., d:M].sum(-1), "t2e": s2[..., M:].sum(-1), "s2": ds2[..., d:M].sum(-1),
                 "s2e": ds2[..., M:].sum(-1)}, after
 
     def state(self, fitted, design):
         return lag_state(len(fitted["mean"]), 1, prefix="prev")
 
     def limit(self, fitted, name, alpha, design):
-        M, m = self._slow(fitted, design), len(fitted["omega"])
-        dims = M if name in ("t2", "s2") else m - M
+        (d, M), m = self._blocks(fitted, design), len(fitted["omega"])
+        dims = M - d if name in ("t2", "s2") else m - M
         if name.startswith("t2"):
             return float(special.chdtri(dims, alpha))
         return t2_limit(int(fitted["n"]), dims, alpha)

@@ -567,7 +567,8 @@ LITERATURE_FAMILIES = {
     # every one of our 20 on d00.dat's 500 rows, so the PCA's count is used)
     "kpca": {"n_components": 9, "width": 10},
     # Shang et al. (2015): M by their slowness rule (SFADetector.shang_slow_features, on d00.dat)
-    "sfa": {"n_slow": "shang"},
+    # (every feature kept, as published: not the preset's drop_unjudged)
+    "sfa": {"n_slow": "shang", "drop_unjudged": False},
     # the textbook charts (Montgomery, Introduction to Statistical Quality Control): EWMA λ = 0.2, CUSUM k = 0.5 σ
     "tag_ewma": {"smoothing": 0.2},
     "tag_cusum": {"allowance": 0.5},
