@@ -19,6 +19,18 @@ distribution (:func:`~mosd.detectors.pca.t2_limit` with n and pm − n dimension
 2000, eqs. 14-15); Q has none (Odiowei & Cao set every CVA limit by kernel density estimation), so
 its limit is empirical on the held-back calibration runs. Only p_k and z_k are needed to score row
 k: the deployed stage carries the last p rows (``past<j>_<i>``) as its state.
+
+``drop_unjudged`` (the same rule as :class:`~mosd.detectors.sfa.SFADetector`'s): the first canonical variates are
+the past's most predictable directions, and the most predictable are the slowest. A variate with lag-1
+autocorrelation ρ_i on the fit rows has the memory of an EWMA of weight 1 − ρ_i; TE's first three states have
+ρ 0.96-0.997 on ``d00.dat`` (memories of about 25-320 rows), which the 160-row held-back calibration runs see as one
+level per run (their mean of c_i² ranges 0.3-4.5 over the lead-ins): an empirical limit on T²ₛ then rests on the one
+run whose level is highest. With ``drop_unjudged`` the variates slower than the base's λ floor allows,
+1 − ρ_i < :func:`~mosd.detectors.latent.lam_floor` (K) (a memory of at most a tenth of a held-back run of K rows),
+are left out of T²ₛ and T²ᵣ (and out of their F limits' dimensions); they stay in the state-space model, so Q's
+one-step residual still uses them. Should every one of the n states be dropped, the state block is widened to the
+first kept variate (at least one kept state and one kept residual variate). Nothing is dropped without held-back
+runs (``fit_runs`` None).
 """
 from __future__ import annotations
 
@@ -51,12 +63,15 @@ class CVADetector(LatentDetector):
                         "at the fit only).", tunable=True),
         "n_states": Param(Interval(1, "max_states", integer=True), "State order n (at most pm − 1: larger "
                           "values are lowered to it).", tunable=True),
+        "drop_unjudged": Param((False, True), "Leave out of T²ₛ and T²ᵣ the canonical variates slower than the "
+                               "held-back calibration runs can judge (1 − ρ below λ's floor; module docstring)."),
     }, STATISTICS)
 
     def __init__(self, past: int = 2, future: int = 2, n_states: int = 25, alpha: float = 0.01, lam: float = 1.0,
                  persistence: int = 1, statistic: str = "combined", limits: str = "theoretical",
                  fit_runs: int | None = None, max_lags: int = 5, max_states: int = 100,
-                 persistence_max: int = 10, lam_min: float = 0.0, flatline: float | None = None):
+                 persistence_max: int = 10, lam_min: float = 0.0, flatline: float | None = None,
+                 drop_unjudged: bool = False):
         self._assign(locals())
         self._cache: dict = {}
 
@@ -93,8 +108,44 @@ class CVADetector(LatentDetector):
             C = current.T @ (past @ J.T) / (n - 1)                  # Cov(z_k, c_k), (m, pm)
         return {"mean": mean, "scale": scale, "J": J, "C": C, "correlations": correlations, "n": int(n), "past": p}
 
+    def fitted(self, calibration_z: np.ndarray, design=None) -> dict:
+        """The base's model, with ``unjudged`` (0/1 per canonical variate) under ``drop_unjudged``: the variates whose
+        lag-1 autocorrelation ρ on the fit rows leaves 1 − ρ below λ's floor of the held-back runs."""
+        fitted = super().fitted(calibration_z, design)
+        if not (self.drop_unjudged if design is None else design.get("drop_unjudged", self.drop_unjudged)):
+            return fitted
+        floor = self._remember(("lam_floor", id(calibration_z)), (calibration_z,),
+                               lambda: self.lam_bounds(calibration_z)[0])
+        fit, _ = self._split(calibration_z)
+        return self._remember(("unjudged", id(fitted)), (fitted, fit), lambda: {
+            **fitted, "unjudged": (1.0 - self.autocorrelation(fitted, fit) < floor).astype(np.int8)})
+
+    def autocorrelation(self, fitted, X: np.ndarray) -> np.ndarray:
+        """Lag-1 autocorrelation of each canonical variate (pm,) within the runs X (R, K, m): pairs of consecutive
+        scored rows of one run, about the variates' mean over the scored rows."""
+        c = self._variates(fitted, X, None)[0]
+        scored = np.all(np.isfinite(c), axis=-1)
+        mean = c[scored].mean(axis=0)
+        centred = c - mean
+        pairs = scored[:, 1:] & scored[:, :-1]
+        lagged_products = (centred[:, 1:] * centred[:, :-1])[pairs].sum(axis=0)
+        return lagged_products / (centred[scored] ** 2).sum(axis=0)
+
+    def _blocks(self, fitted, design) -> tuple[np.ndarray, np.ndarray, int]:
+        """(kept states, kept residual variates, n'): indices of the canonical variates in T²ₛ and T²ᵣ, and the
+        state order n' the model uses (n, or larger when every one of the first n variates is unjudged)."""
+        q = len(fitted["J"])
+        n = int(min(int(design["n_states"]), q - 1))
+        unjudged = np.asarray(fitted.get("unjudged", np.zeros(q)), bool).copy()
+        if np.count_nonzero(~unjudged) < 2:
+            # T²ₛ and T²ᵣ each need a variate: the last two in the canonical order (the past's least predictable)
+            unjudged[-2:] = False
+        kept = np.flatnonzero(~unjudged)
+        n = int(min(max(n, kept[0] + 1), kept[-1]))        # a kept state below n', a kept residual from n' on
+        return kept[kept < n], kept[kept >= n], n
+
     def _states(self, fitted, design) -> int:
-        return int(min(int(design["n_states"]), len(fitted["J"]) - 1))
+        return self._blocks(fitted, design)[2]
 
     def _variates(self, fitted, X, carried):
         """(c_k (R, K, pm), z_k (R, K, m), buffer after each row) of the rows X (R, K, m)."""
@@ -111,18 +162,22 @@ class CVADetector(LatentDetector):
                                          lambda: self._variates(fitted, X, None))
         else:
             c, z, after = self._variates(fitted, X, carried)
-        n = self._states(fitted, design)
+        states, rest, n = self._blocks(fitted, design)
         squares = c**2
         residual = z - project(c[..., :n], np.asarray(fitted["C"])[:, :n].T)
-        return {"t2s": squares[..., :n].sum(-1), "t2r": squares[..., n:].sum(-1), "q": (residual**2).sum(-1)}, after
+        if len(states) + len(rest) == squares.shape[-1]:       # nothing dropped: contiguous slices (the old bits)
+            return {"t2s": squares[..., :n].sum(-1), "t2r": squares[..., n:].sum(-1),
+                    "q": (residual**2).sum(-1)}, after
+        return {"t2s": squares[..., states].sum(-1), "t2r": squares[..., rest].sum(-1),
+                "q": (residual**2).sum(-1)}, after
 
     def state(self, fitted, design):
         return lag_state(len(fitted["mean"]), int(fitted["past"]), prefix="past")
 
     def limit(self, fitted, name, alpha, design):
-        n, q = self._states(fitted, design), len(fitted["J"])
+        states, rest, _ = self._blocks(fitted, design)
         if name == "t2s":
-            return t2_limit(int(fitted["n"]), n, alpha)
+            return t2_limit(int(fitted["n"]), len(states), alpha)
         if name == "t2r":
-            return t2_limit(int(fitted["n"]), q - n, alpha)
+            return t2_limit(int(fitted["n"]), len(rest), alpha)
         return None
