@@ -112,7 +112,9 @@ class CVADetector(LatentDetector):
         """The base's model, with ``unjudged`` (0/1 per canonical variate) under ``drop_unjudged``: the variates whose
         lag-1 autocorrelation ρ on the fit rows leaves 1 − ρ below λ's floor of the held-back runs."""
         fitted = super().fitted(calibration_z, design)
-        if not (self.drop_unjudged if design is None else design.get("drop_unjudged", self.drop_unjudged)):
+        held_back = self.fit_runs is not None and np.shape(calibration_z)[0] > self.fit_runs
+        if not held_back or not (self.drop_unjudged if design is None else design.get("drop_unjudged",
+                                                                                      self.drop_unjudged)):
             return fitted
         floor = self._remember(("lam_floor", id(calibration_z)), (calibration_z,),
                                lambda: self.lam_bounds(calibration_z)[0])
