@@ -23,7 +23,7 @@ k: the deployed stage carries the last p rows (``past<j>_<i>``) as its state.
 ``drop_unjudged`` (the same rule as :class:`~mosd.detectors.sfa.SFADetector`'s): the first canonical variates are
 the past's most predictable directions, and the most predictable are the slowest. A variate with lag-1
 autocorrelation ρ_i on the fit rows has the memory of an EWMA of weight 1 − ρ_i; TE's first three states have
-ρ 0.96-0.997 on ``d00.dat`` (memories of about 25-320 rows), which the 160-row held-back calibration runs see as one
+ρ 0.96-0.996 on ``d00.dat`` (memories of about 25-280 rows), which the 160-row held-back calibration runs see as one
 level per run (their mean of c_i² ranges 0.3-4.5 over the lead-ins): an empirical limit on T²ₛ then rests on the one
 run whose level is highest. With ``drop_unjudged`` the variates slower than the base's λ floor allows,
 1 − ρ_i < :func:`~mosd.detectors.latent.lam_floor` (K) (a memory of at most a tenth of a held-back run of K rows),
