@@ -30,8 +30,12 @@ from .wavelet import denoise_row, work_size
 
 _BLOCK = 128  # NumPy's pairwise-summation block (PW_BLOCKSIZE)
 
+#: a helper called only from compiled code: no CPython or C entry point to build (numba builds both for every
+#: function it compiles, called from Python or not: on an empty cache each cost the main command compile time)
+_helper = njit(cache=True, nogil=True, no_cpython_wrapper=True, no_cfunc_wrapper=True)
 
-@njit(cache=True, nogil=True)
+
+@_helper
 def _block_sum(a, start, n):
     """One leaf of NumPy's pairwise summation (n <= 128): eight accumulators, then the rest."""
     if n < 8:
@@ -61,8 +65,8 @@ def _block_sum(a, start, n):
     return res
 
 
-@njit(cache=True, nogil=True)
-def pairwise_sum(a, start, n):
+@_helper
+def _pairwise_sum(a, start, n):
     """NumPy's pairwise summation of a[start:start + n] (what ``np.add.reduce`` does on a contiguous float64 array).
 
     NumPy recurses: sum(a[:h]) + sum(a[h:]) with h = n//2 rounded down to a
@@ -98,19 +102,31 @@ def pairwise_sum(a, start, n):
     return values[0]
 
 
-@njit(cache=True, nogil=True)
-def mean_std(values):
+@_helper
+def _mean_std(values):
     """(np.mean(values), np.std(values, ddof=1)) of a contiguous 1-D array, bit for bit."""
     n = values.shape[0]
-    center = pairwise_sum(values, np.int64(0), n) / n  # an int64 start, not Literal[int](0): one compile
+    center = _pairwise_sum(values, np.int64(0), n) / n  # an int64 start, not Literal[int](0): one compile
     deviations = np.empty(n)
     for i in range(n):
         d = values[i] - center
         deviations[i] = d * d
-    return center, math.sqrt(pairwise_sum(deviations, np.int64(0), n) / (n - 1))
+    return center, math.sqrt(_pairwise_sum(deviations, np.int64(0), n) / (n - 1))
 
 
 @njit(cache=True, nogil=True)
+def pairwise_sum(a, start, n):
+    """:func:`_pairwise_sum` from Python (the tests' view)."""
+    return _pairwise_sum(a, start, n)
+
+
+@njit(cache=True, nogil=True)
+def mean_std(values):
+    """:func:`_mean_std` from Python: the deployed chart's Phase-I limit (``fit_statistic``)."""
+    return _mean_std(values)
+
+
+@_helper
 def _statistics(u, v, gain, f1, f2, order, combine_max, stat, y):
     """Smoothed-and-combined statistic of every run: u, v time-major (K, C) -> stat (C, K).
 
@@ -142,7 +158,7 @@ def _statistics(u, v, gain, f1, f2, order, combine_max, stat, y):
                 stat[c, k] = s
 
 
-@njit(cache=True, nogil=True)
+@_helper
 def _count(plotted, n_calibration, width, faulty, calibration, healthy_alarms, faulty_misses, p):
     """Candidate ``p``'s Phase-I limit, mean + K·sd over every calibration point (``Chart.fit_statistic``),
     and its per-run alarm counts on the training runs (rows ``n_calibration:`` of ``plotted``)."""
@@ -152,7 +168,7 @@ def _count(plotted, n_calibration, width, faulty, calibration, healthy_alarms, f
         base = c * n_points
         for k in range(n_points):
             calibration[base + k] = row[k]
-    center, scale = mean_std(calibration)
+    center, scale = _mean_std(calibration)
     limit = center + width * scale
     for r in range(healthy_alarms.shape[1]):
         row = plotted[n_calibration + r]
@@ -169,7 +185,7 @@ def _count(plotted, n_calibration, width, faulty, calibration, healthy_alarms, f
         faulty_misses[p, r] = misses
 
 
-@njit(cache=True, nogil=True)
+@_helper
 def _buffers(u, feedback, n_calibration):
     """Both kernels' outputs (zeroed counts (P, R_train)) and scratch: the statistic (C, K), the recursion's
     past values (4, C) and the calibration points."""
