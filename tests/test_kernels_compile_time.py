@@ -35,7 +35,7 @@ def test_the_charts_helpers_build_no_python_entry_point():
     callers use (``pairwise_sum``, ``mean_std``, ``ewma_recursion``) call the helpers and agree with NumPy."""
     from mosd.kernels import chart, ewma
 
-    helpers = (chart._block_sum, chart._pairwise_sum, chart._mean_std, chart._statistics, chart._count,
+    helpers = (chart._pairwise_sum, chart._mean_std, chart._statistics, chart._count,
                chart._buffers, ewma._ewma_recursion)
     for helper in helpers:
         assert helper.targetoptions.get("no_cpython_wrapper") and helper.targetoptions.get("no_cfunc_wrapper"), \
