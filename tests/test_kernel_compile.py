@@ -54,7 +54,7 @@ defined = lambda f: re.findall(r"^define [^@]*@\\W?(?:cfunc\\.)?_ZN\\w*?(_tria_l
 out["_linked_in"] = {name: defined(getattr(cubature, name).inspect_llvm(getattr(cubature, name).signatures[0]))
                      for name in ("cesckf", "_update_lanes")}
 out["_compile_cuts"] = {
-    "ewma_recursion": [str(s) for s in ewma._ewma_recursion.signatures],
+    "ewma_recursion": [str(s) for s in ewma.ewma_recursion.signatures],
     "epilogue_loops": len(re.findall(r"^vec\\.epilog\\.vector\\.body[\\w.]*:", fill_rows, re.M)),
     "vector_loops": len(re.findall(r"^vector\\.body[\\w.]*:", fill_rows, re.M))}
 print(json.dumps(out))

@@ -10,8 +10,9 @@ Two cuts, each checked on what numba compiled in a fresh process with an empty c
   further copies of all that (code LLVM optimised and generated for little);
 * the filter's ``_tria_lanes`` and ``_update_lanes`` are compiled once each and called by address,
   not linked into their callers' modules and compiled again there;
-* the chart's and the EWMA's helpers build no CPython or C entry point (numba builds both for every
-  function it compiles unless told not to, called from Python or not).
+* the chart's helpers build no CPython or C entry point (numba builds both for every function it
+  compiles unless told not to, called from Python or not); ``mean_std`` and ``ewma_recursion`` keep
+  theirs, as the main command calls them from Python too (one compile serves both).
 """
 import numpy as np
 
@@ -31,12 +32,11 @@ def test_ewma_population_unchanged_by_the_contiguous_scratch():
 
 
 def test_the_charts_helpers_build_no_python_entry_point():
-    """On the tuning's path only the kernels Python calls have a CPython wrapper; the entry points Python
-    callers use (``pairwise_sum``, ``mean_std``, ``ewma_recursion``) call the helpers and agree with NumPy."""
+    """On the tuning's path only the kernels Python calls have a CPython wrapper; ``pairwise_sum`` (the
+    tests' entry point) calls the helper and agrees with NumPy."""
     from mosd.kernels import chart, ewma
 
-    helpers = (chart._pairwise_sum, chart._mean_std, chart._statistics, chart._count,
-               chart._buffers, ewma._ewma_recursion)
+    helpers = (chart._pairwise_sum, chart._statistics, chart._count, chart._buffers)
     for helper in helpers:
         assert helper.targetoptions.get("no_cpython_wrapper") and helper.targetoptions.get("no_cfunc_wrapper"), \
             helper.py_func.__name__

@@ -97,9 +97,13 @@ def _pairwise_sum(a, start, n):
     return values[0]
 
 
-@_helper
-def _mean_std(values):
-    """(np.mean(values), np.std(values, ddof=1)) of a contiguous 1-D array, bit for bit."""
+@njit(cache=True, nogil=True)
+def mean_std(values):
+    """(np.mean(values), np.std(values, ddof=1)) of a contiguous 1-D array, bit for bit.
+
+    With a CPython entry point: the main command calls it from Python too (the deployed chart's Phase-I
+    limit, ``fit_statistic``), so one compile serves both.
+    """
     n = values.shape[0]
     center = _pairwise_sum(values, np.int64(0), n) / n  # an int64 start, not Literal[int](0): one compile
     deviations = np.empty(n)
@@ -113,12 +117,6 @@ def _mean_std(values):
 def pairwise_sum(a, start, n):
     """:func:`_pairwise_sum` from Python (the tests' view)."""
     return _pairwise_sum(a, start, n)
-
-
-@njit(cache=True, nogil=True)
-def mean_std(values):
-    """:func:`_mean_std` from Python: the deployed chart's Phase-I limit (``fit_statistic``)."""
-    return _mean_std(values)
 
 
 @_helper
@@ -163,7 +161,7 @@ def _count(plotted, n_calibration, width, faulty, calibration, healthy_alarms, f
         base = c * n_points
         for k in range(n_points):
             calibration[base + k] = row[k]
-    center, scale = _mean_std(calibration)
+    center, scale = mean_std(calibration)
     limit = center + width * scale
     for r in range(healthy_alarms.shape[1]):
         row = plotted[n_calibration + r]

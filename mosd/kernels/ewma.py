@@ -30,8 +30,8 @@ def ewma_step(x, gain, f1, f2, p1, p2, order):
     return y
 
 
-@njit(cache=True, nogil=True, no_cpython_wrapper=True, no_cfunc_wrapper=True)
-def _ewma_recursion(x, gain, feedback, past, out):
+@njit(cache=True, nogil=True)
+def ewma_recursion(x, gain, feedback, past, out):
     """The ``order``-fold EWMA recursion with its state: the one implementation of the charts' arithmetic.
 
     out[k, c] = gain·x[k, c], then += y_{k−lag, c}·feedback[lag−1] for lag = 1..order, in that order
@@ -48,9 +48,6 @@ def _ewma_recursion(x, gain, feedback, past, out):
         y_{−1}, y_{−2}, ... of every column on entry (zeros at a stream's start: adding 0·f changes
         no value); the last ``order`` outputs on return.
     out : float64 (K, C), may be a strided view
-
-    Called from compiled code only (no CPython entry point to build on the tuning's path, which calls it
-    from :func:`ewma_population`); Python calls :func:`ewma_recursion`.
     """
     n_points, n_columns = x.shape
     order = feedback.shape[0]
@@ -86,12 +83,6 @@ def _ewma_recursion(x, gain, feedback, past, out):
 
 
 @njit(cache=True, nogil=True)
-def ewma_recursion(x, gain, feedback, past, out):
-    """:func:`_ewma_recursion` from Python (the deployed chart, :func:`mosd.detectors.statistics.ewma_continue`)."""
-    _ewma_recursion(x, gain, feedback, past, out)
-
-
-@njit(cache=True, nogil=True)
 def ewma_population(columns, gain, feedback):
     """out[k, p, m] = gain[p]·columns[k, m] + Σ_lag out[k−lag, p, m]·feedback[p, lag−1], from a zero state.
 
@@ -117,7 +108,7 @@ def ewma_population(columns, gain, feedback):
         for lag in range(order):  # a loop: a slice assignment compiles numba's broadcasting code
             for c in range(n_columns):
                 past[lag, c] = 0.0
-        _ewma_recursion(columns, gain[p], feedback[p], past, smoothed)
+        ewma_recursion(columns, gain[p], feedback[p], past, smoothed)
         for k in range(n_points):
             for c in range(n_columns):
                 out[k, p, c] = smoothed[k, c]
