@@ -49,6 +49,10 @@ ewma_continue(x, 0.3, 2, np.zeros((2, 4)))  # the deployed chart: ewma_recursion
 if not cubature._fill_rows.signatures:
     cubature.warm_up()
 fill_rows = cubature._fill_rows.inspect_llvm(cubature._fill_rows.signatures[0])
+# the filter's two big helpers are called by address, not linked into (and compiled again inside) their callers
+defined = lambda f: re.findall(r"^define [^@]*@\\W?(?:cfunc\\.)?_ZN\\w*?(_tria_lanes|_update_lanes)", f, re.M)
+out["_linked_in"] = {name: defined(getattr(cubature, name).inspect_llvm(getattr(cubature, name).signatures[0]))
+                     for name in ("cesckf", "_update_lanes")}
 out["_compile_cuts"] = {
     "ewma_recursion": [str(s) for s in ewma.ewma_recursion.signatures],
     "epilogue_loops": len(re.findall(r"^vec\\.epilog\\.vector\\.body[\\w.]*:", fill_rows, re.M)),
@@ -64,7 +68,7 @@ def probe(tmp_path_factory):
     run = subprocess.run([sys.executable, "-c", _PROBE], capture_output=True, text=True, env=env, timeout=600)
     assert run.returncode == 0, run.stderr[-2000:]
     out = json.loads(run.stdout.strip().splitlines()[-1])
-    return out.pop("_compile_cuts"), out
+    return out.pop("_compile_cuts"), out, out.pop("_linked_in")
 
 
 @pytest.fixture(scope="module")
@@ -75,6 +79,11 @@ def compiled(probe):
 @pytest.fixture(scope="module")
 def compile_cuts(probe):
     return probe[0]
+
+
+@pytest.fixture(scope="module")
+def linked_in(probe):
+    return probe[2]
 
 
 @pytest.mark.slow
@@ -106,3 +115,11 @@ def test_lane_loops_compile_without_epilogue_loops_or_runtime_unrolling(compile_
     # held 3 vector bodies and 3 epilogue vector loops (the middle loop unrolled twice, plus its remainder)
     assert compile_cuts["epilogue_loops"] == 0
     assert compile_cuts["vector_loops"] == 1, compile_cuts["vector_loops"]
+
+
+@pytest.mark.slow
+def test_the_filters_big_helpers_are_called_not_compiled_again_inside_their_callers(linked_in):
+    # before: numba linked _update_lanes and _tria_lanes into cesckf's module and _tria_lanes into
+    # _update_lanes', where LLVM optimised and generated them again (3 compiles of _tria_lanes, 2 of _update_lanes)
+    assert linked_in["cesckf"] == [], linked_in
+    assert linked_in["_update_lanes"] == ["_update_lanes"], linked_in

@@ -30,47 +30,22 @@ from .wavelet import denoise_row, work_size
 
 _BLOCK = 128  # NumPy's pairwise-summation block (PW_BLOCKSIZE)
 
-
-@njit(cache=True, nogil=True)
-def _block_sum(a, start, n):
-    """One leaf of NumPy's pairwise summation (n <= 128): eight accumulators, then the rest."""
-    if n < 8:
-        res = 0.0
-        for i in range(start, start + n):
-            res += a[i]
-        return res
-    r0, r1, r2, r3 = a[start], a[start + 1], a[start + 2], a[start + 3]
-    r4, r5, r6, r7 = a[start + 4], a[start + 5], a[start + 6], a[start + 7]
-    i = 8
-    stop = n - n % 8
-    while i < stop:
-        b = start + i
-        r0 += a[b]
-        r1 += a[b + 1]
-        r2 += a[b + 2]
-        r3 += a[b + 3]
-        r4 += a[b + 4]
-        r5 += a[b + 5]
-        r6 += a[b + 6]
-        r7 += a[b + 7]
-        i += 8
-    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
-    while i < n:
-        res += a[start + i]
-        i += 1
-    return res
+#: a helper called only from compiled code: no CPython or C entry point to build (numba builds both for every
+#: function it compiles, called from Python or not: on an empty cache each cost the main command compile time)
+_helper = njit(cache=True, nogil=True, no_cpython_wrapper=True, no_cfunc_wrapper=True)
 
 
-@njit(cache=True, nogil=True)
-def pairwise_sum(a, start, n):
+@_helper
+def _pairwise_sum(a, start, n):
     """NumPy's pairwise summation of a[start:start + n] (what ``np.add.reduce`` does on a contiguous float64 array).
 
     NumPy recurses: sum(a[:h]) + sum(a[h:]) with h = n//2 rounded down to a
-    multiple of 8, down to blocks of at most 128. The recursion runs here on an
-    explicit stack (numba's on-disk cache mishandles recursive functions).
+    multiple of 8, down to blocks of at most 128, each summed with eight
+    accumulators, then the rest. The recursion runs here on an explicit stack
+    (numba's on-disk cache mishandles recursive functions), and the block's sum
+    is written once, in the loop, not as a function of its own (each compiled
+    function costs the cold cache its own optimisation and code generation).
     """
-    if n <= _BLOCK:
-        return _block_sum(a, start, n)
     starts = np.empty(128, np.int64)
     sizes = np.empty(128, np.int64)
     combine = np.zeros(128, np.bool_)
@@ -84,8 +59,32 @@ def pairwise_sum(a, start, n):
         if joining:
             depth -= 1
             values[depth - 1] = values[depth - 1] + values[depth]
-        elif m <= _BLOCK:
-            values[depth] = _block_sum(a, s, m)
+        elif m <= _BLOCK:  # a block: NumPy's eight accumulators, then the rest
+            if m < 8:
+                res = 0.0
+                for i in range(s, s + m):
+                    res += a[i]
+            else:
+                r0, r1, r2, r3 = a[s], a[s + 1], a[s + 2], a[s + 3]
+                r4, r5, r6, r7 = a[s + 4], a[s + 5], a[s + 6], a[s + 7]
+                i = 8
+                stop = m - m % 8
+                while i < stop:
+                    b = s + i
+                    r0 += a[b]
+                    r1 += a[b + 1]
+                    r2 += a[b + 2]
+                    r3 += a[b + 3]
+                    r4 += a[b + 4]
+                    r5 += a[b + 5]
+                    r6 += a[b + 6]
+                    r7 += a[b + 7]
+                    i += 8
+                res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+                while i < m:
+                    res += a[s + i]
+                    i += 1
+            values[depth] = res
             depth += 1
         else:
             half = m // 2
@@ -100,17 +99,27 @@ def pairwise_sum(a, start, n):
 
 @njit(cache=True, nogil=True)
 def mean_std(values):
-    """(np.mean(values), np.std(values, ddof=1)) of a contiguous 1-D array, bit for bit."""
+    """(np.mean(values), np.std(values, ddof=1)) of a contiguous 1-D array, bit for bit.
+
+    With a CPython entry point: the main command calls it from Python too (the deployed chart's Phase-I
+    limit, ``fit_statistic``), so one compile serves both.
+    """
     n = values.shape[0]
-    center = pairwise_sum(values, np.int64(0), n) / n  # an int64 start, not Literal[int](0): one compile
+    center = _pairwise_sum(values, np.int64(0), n) / n  # an int64 start, not Literal[int](0): one compile
     deviations = np.empty(n)
     for i in range(n):
         d = values[i] - center
         deviations[i] = d * d
-    return center, math.sqrt(pairwise_sum(deviations, np.int64(0), n) / (n - 1))
+    return center, math.sqrt(_pairwise_sum(deviations, np.int64(0), n) / (n - 1))
 
 
 @njit(cache=True, nogil=True)
+def pairwise_sum(a, start, n):
+    """:func:`_pairwise_sum` from Python (the tests' view)."""
+    return _pairwise_sum(a, start, n)
+
+
+@_helper
 def _statistics(u, v, gain, f1, f2, order, combine_max, stat, y):
     """Smoothed-and-combined statistic of every run: u, v time-major (K, C) -> stat (C, K).
 
@@ -142,7 +151,7 @@ def _statistics(u, v, gain, f1, f2, order, combine_max, stat, y):
                 stat[c, k] = s
 
 
-@njit(cache=True, nogil=True)
+@_helper
 def _count(plotted, n_calibration, width, faulty, calibration, healthy_alarms, faulty_misses, p):
     """Candidate ``p``'s Phase-I limit, mean + K·sd over every calibration point (``Chart.fit_statistic``),
     and its per-run alarm counts on the training runs (rows ``n_calibration:`` of ``plotted``)."""
@@ -169,7 +178,7 @@ def _count(plotted, n_calibration, width, faulty, calibration, healthy_alarms, f
         faulty_misses[p, r] = misses
 
 
-@njit(cache=True, nogil=True)
+@_helper
 def _buffers(u, feedback, n_calibration):
     """Both kernels' outputs (zeroed counts (P, R_train)) and scratch: the statistic (C, K), the recursion's
     past values (4, C) and the calibration points."""

@@ -29,7 +29,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from numba import njit, types
+from numba.core import cgutils
+from numba.core.errors import TypingError
+from numba.extending import intrinsic
 
 from . import configure_compiler
 
@@ -37,6 +40,55 @@ configure_compiler()  # before this module's first compile
 
 
 from .plants import TRANSITIONS, _inner, transition, transition_lanes, transition_points  # noqa: F401  (re-exported)
+
+# The filter's two big helpers are compiled once each, on their own, and CALLED through their address (an
+# argument), not linked into their callers as numba links a compiled callee: numba copies a callee's module
+# into every caller's and optimises and generates the copy again there, so _tria_lanes was compiled three
+# times (its own, inside _update_lanes, inside cesckf) and _update_lanes twice, about 2.5 s of the cold
+# cache's compile CPU. The argument types each is compiled for are fixed here; the call checks them.
+_F1, _F2, _F3, _I = types.float64[::1], types.float64[:, ::1], types.float64[:, :, ::1], types.int64
+_TRIA_TYPES = (_F3, _I, _I, _F3, _I, _F1, _F1, _F1, _F1, _F1)
+_UPDATE_TYPES = (_I, _I, _F3, _F3, _F2, _F2, _F2, _I, _F3, _F3, _F3, _F3, _F1, _F3, _F2, _F3, _F1, _F1, _F1, _F1, _F1,
+                 _I)
+
+
+def _call_at(expected):
+    """An intrinsic ``call(address, arguments)``: the compiled function (numba's calling convention, no
+    result) at ``address`` on the tuple ``arguments``, whose types must be ``expected``."""
+
+    @intrinsic
+    def call(typingctx, address, arguments):
+        if not isinstance(address, types.Integer) or tuple(getattr(arguments, "types", ())) != expected:
+            raise TypingError(f"a call by address takes {expected}, not {arguments}")
+
+        def codegen(context, builder, signature, args):
+            conv = context.call_conv
+            function_type = conv.get_function_type(types.none, expected)
+            callee = builder.inttoptr(args[0], function_type.as_pointer())
+            status, _ = conv.call_function(builder, callee, types.none, expected,
+                                           cgutils.unpack_tuple(builder, args[1], len(expected)))
+            with cgutils.if_unlikely(builder, status.is_error):
+                conv.return_status_propagate(builder, status)
+            return context.get_dummy_value()
+
+        return types.none(address, arguments), codegen
+
+    return call
+
+
+_call_tria = _call_at(_TRIA_TYPES)
+_call_update = _call_at(_UPDATE_TYPES)
+_ADDRESSES = {}
+
+
+def _address(dispatcher, argument_types) -> int:
+    """Where ``dispatcher``'s code for ``argument_types`` starts (compiled, or loaded from the cache, now)."""
+    key = (dispatcher.py_func.__name__, argument_types)
+    if key not in _ADDRESSES:
+        dispatcher.compile(argument_types)
+        compiled = dispatcher.overloads[argument_types]
+        _ADDRESSES[key] = compiled.library.get_pointer_to_function(compiled.fndesc.llvm_func_name)
+    return _ADDRESSES[key]
 
 
 @_inner
@@ -102,14 +154,14 @@ def _solve_columns(low, n, rhs, n_cols, out):
 
 @_inner
 def _update_lanes(n_ch, n_pts, centred_y, deviation, sr_t, xp, innov, nb, stack_y, syy, pxy, gain, acc, stack_yx,
-                  xf, stf, norm2, v0, vtv, alpha, scale):
+                  xf, stf, norm2, v0, vtv, alpha, scale, tria):
     """Eqs. 12–18 for lanes 0..nb on the first ``n_ch`` channels of ``centred_y`` (N, eq. 17) and ``sr_t``.
 
     ``sr_t`` is S_Rᵀ restricted to those channels' columns (all of its rows: the rows of any square
     root of R are a square root of that block of R); ``innov`` the innovations r_k of those channels.
     Gives S_yyᵀ in ``syy``, x̂_{k|k} in ``xf`` and S_{k|k}ᵀ in ``stf``. The same code serves every lane
     with all channels and, one lane at a time, a lane with missing channels (their columns left out):
-    one body to compile.
+    one body to compile. ``tria``: the address of :func:`_tria_lanes` (called, not linked in).
     """
     n_x = deviation.shape[1]
     n_sr = sr_t.shape[0]
@@ -119,7 +171,7 @@ def _update_lanes(n_ch, n_pts, centred_y, deviation, sr_t, xp, innov, nb, stack_
             for b in range(nb):
                 stack_y[i, c, b] = centred_y[i, c, b]
     _fill_rows(stack_y, n_pts, sr_t, nb)
-    _tria_lanes(stack_y, n_pts + n_sr, n_ch, syy, nb, norm2, v0, vtv, alpha, scale)
+    _call_tria(tria, (stack_y, n_pts + n_sr, n_ch, syy, nb, norm2, v0, vtv, alpha, scale))
     # eq. 14: P_xyᵀ = Nᵀ R; eq. 13: Kᵀ = S_yy⁻ᵀ (S_yy⁻¹ P_xyᵀ) by two triangular solves
     for a in range(n_ch):
         for j in range(n_x):
@@ -175,7 +227,7 @@ def _update_lanes(n_ch, n_pts, centred_y, deviation, sr_t, xp, innov, nb, stack_
                     acc[b] += sr_t[i, a] * gain[a, j, b]
             for b in range(nb):
                 stack_yx[n_pts + i, j, b] = acc[b]
-    _tria_lanes(stack_yx, n_pts + n_sr, n_x, stf, nb, norm2, v0, vtv, alpha, scale)
+    _call_tria(tria, (stack_yx, n_pts + n_sr, n_x, stf, nb, norm2, v0, vtv, alpha, scale))
 
 
 @_inner
@@ -207,7 +259,7 @@ LANES = 64
 @njit(cache=True, nogil=True, error_model="numpy")
 def cesckf(kind, params, outputs, y, u, x0, st0, eps, weights, sq_t, sr_t, first, stop,
            x_pred, x_filt, sqrt_cov_pred, sqrt_cov_filt, y_pred, innovation, innovation_cov, lanes,
-           resume, x_before, st_before, u_before):
+           resume, x_before, st_before, u_before, tria, update):
     """Filter replications ``first``..``stop`` (paper 000, eqs. 2–18); the compiled :meth:`CESCKF.filter`.
 
     Replications go ``lanes`` at a time, side by side: every array of the
@@ -245,6 +297,8 @@ def cesckf(kind, params, outputs, y, u, x0, st0, eps, weights, sq_t, sr_t, first
         FilterStart`): x̂_{−1|−1} = ``x_before`` (n_x,), S_{−1|−1}ᵀ = ``st_before`` (n_x, n_x) and the input
         u_{−1} = ``u_before`` (n_u,) are predicted through eqs. 3–5, 10–11 like any other step, so a
         series filtered in chunks is bit for bit the series filtered in one call.
+    tria, update : int
+        Where :func:`_tria_lanes` and :func:`_update_lanes` start (:func:`_address`): called, not linked in.
     """
     n_steps, n_y = y.shape[1], y.shape[2]
     n_u = u.shape[2]
@@ -331,7 +385,7 @@ def cesckf(kind, params, outputs, y, u, x0, st0, eps, weights, sq_t, sr_t, first
                         for b in range(nb):
                             stack_x[i, j, b] = s * (moved[i, j, b] - xp[j, b])
                 _fill_rows(stack_x, n_pts, sq_t, nb)
-                _tria_lanes(stack_x, n_pts + n_x, n_x, stp, nb, norm2, v0, vtv, alpha, scale)
+                _call_tria(tria, (stack_x, n_pts + n_x, n_x, stp, nb, norm2, v0, vtv, alpha, scale))
             _store_lanes(r0, k, nb, xp, stp, x_pred, sqrt_cov_pred)
 
             # eq. 8: points re-drawn from S_{k|k−1}; eq. 16: √w_i (X_i − x̂); eq. 9: Y_i = h(X_i); eq. 6: ŷ
@@ -366,8 +420,8 @@ def cesckf(kind, params, outputs, y, u, x0, st0, eps, weights, sq_t, sr_t, first
                 for b in range(nb):
                     innov[c, b] = y[r0 + b, k, c] - yp[c, b]
             # eqs. 12–18 over every channel
-            _update_lanes(n_y, n_pts, centred_y, deviation, sr_t, xp, innov, nb, stack_y, syy, pxy, gain, acc,
-                          stack_yx, xf, stf, norm2, v0, vtv, alpha, scale)
+            _call_update(update, (n_y, n_pts, centred_y, deviation, sr_t, xp, innov, nb, stack_y, syy, pxy, gain,
+                                  acc, stack_yx, xf, stf, norm2, v0, vtv, alpha, scale, tria))
             for b in range(nb):
                 for c in range(n_y):
                     y_pred[r0 + b, k, c] = yp[c, b]
@@ -408,8 +462,9 @@ def cesckf(kind, params, outputs, y, u, x0, st0, eps, weights, sq_t, sr_t, first
                     lane_innov[a, 0] = y[r0 + b, k, present[a]] - yp[present[a], b]
                 for j in range(n_x):
                     lane_xp[j, 0] = xp[j, b]
-                _update_lanes(n_present, n_pts, lane_centred_y, lane_deviation, lane_sr_t, lane_xp, lane_innov, one,
-                              stack_y, syy, pxy, gain, acc, stack_yx, lane_xf, lane_stf, norm2, v0, vtv, alpha, scale)
+                _call_update(update, (n_present, n_pts, lane_centred_y, lane_deviation, lane_sr_t, lane_xp, lane_innov,
+                                      one, stack_y, syy, pxy, gain, acc, stack_yx, lane_xf, lane_stf, norm2, v0, vtv,
+                                      alpha, scale, tria))
                 for i in range(n_x):
                     xf[i, b] = lane_xf[i, 0]
                     for j in range(n_x):
@@ -444,8 +499,11 @@ def filter_batch(kind, params, outputs, y, u, x0, st0, eps, weights, sq_t, sr_t,
         resume, before = False, (x0, st0, np.zeros(u.shape[2]))
     else:
         resume, before = True, tuple(np.ascontiguousarray(a, dtype=np.float64) for a in start)
+    sr_t = np.array(sr_t, dtype=np.float64, order="C")  # a writable C array: the type _update_lanes is compiled for
+    helpers = (_address(_tria_lanes, _TRIA_TYPES), _address(_update_lanes, _UPDATE_TYPES))
     _over_replications(lambda first, stop: cesckf(kind, params, outputs, y, u, x0, st0, eps, weights, sq_t, sr_t,
-                                                   first, stop, *outs, lanes, resume, *before), n_reps, threads)
+                                                   first, stop, *outs, lanes, resume, *before, *helpers), n_reps,
+                       threads)
     return outs
 
 
