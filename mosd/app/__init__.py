@@ -164,6 +164,15 @@ def _transient(text: str | None) -> None:
 
 
 def _main(argv: list[str], started: float) -> int:
+    from . import plots
+
+    try:
+        return _checked_and_run(argv, started)
+    finally:
+        plots.discard()  # a figure process started for a run that did not take it (an error, a sweep)
+
+
+def _checked_and_run(argv: list[str], started: float) -> int:
     from .config import with_debug_last
 
     argv = with_debug_last(argv)
@@ -173,6 +182,11 @@ def _main(argv: list[str], started: float) -> int:
     checking = not informational.intersection(a.split("=", 1)[0] for a in argv if a.startswith("-"))
     if checking:
         _transient(CHECKING)
+        if not {"-m", "--multirun"}.intersection(argv):
+            from . import plots
+
+            # a single run: matplotlib loads and warms up on the core that checking the command leaves idle
+            plots.start_early()
     try:
         from .preflight import preflight
 

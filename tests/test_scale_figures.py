@@ -1,0 +1,128 @@
+"""Issue 32, the fixed part of a run: the figures drawn on several processes, the figure process started
+before the command line is checked, and neither leaving a process or a half-written PNG behind."""
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mosd.app import plots
+
+pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="fork and /proc: Linux")
+
+
+def _jobs(folder: Path, points: int = 300):
+    rng = np.random.default_rng(3)
+    t = np.arange(points) * 0.01
+    mask = t >= t[points // 2]
+    F = np.column_stack([np.linspace(0, 0.2, 6), np.linspace(0.2, 0, 6)])
+    records = [{"generation": g, "n_eval": 10 * g, "archive_size": g, "hypervolume": 1.0, "best_accuracy": 0.9}
+               for g in (1, 2, 3)]
+    return [("pareto_front", dict(path=folder / "pareto.png", F=F, chosen=2, title="t")),
+            ("chart_trace", dict(path=folder / "chart.png", t=t, statistic=rng.random(points) + 60 * mask,
+                                 ucl=np.full(points, 2.0), fault_mask=mask, title="t")),
+            ("residual_trace", dict(path=folder / "residual.png", residual=rng.normal(size=points),
+                                    fault_mask=mask, dt=0.01, sigma=1.0, channel_name="y")),
+            ("optimisation_history", dict(path=folder / "history.png", records=records, title="t"))]
+
+
+def _children(pid: int) -> list[int]:
+    try:
+        return [int(c) for c in Path(f"/proc/{pid}/task/{pid}/children").read_text().split()]
+    except OSError:
+        return []
+
+
+def _alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
+
+
+def test_shares_balance_the_figures_and_keep_each_once():
+    jobs = _jobs(Path("x"))
+    two = plots.shares(jobs, 2)
+    assert sorted(i for part in two for i in part) == [0, 1, 2, 3]
+    # the chart (log-scale ticks) is the dearest: it is not drawn by the process that draws the history
+    assert {1, 2} in [set(part) for part in two] and {0, 3} in [set(part) for part in two]
+    assert plots.shares(jobs, 1) == [[0, 1, 2, 3]]
+    assert plots.shares(jobs, 16) == [[1], [3], [0], [2]]  # at most one process per figure
+    assert plots.shares(jobs[:1], 0) == [[0]]
+
+
+def test_figures_drawn_on_two_processes_are_the_files_one_process_draws(tmp_path):
+    serial, parallel = tmp_path / "serial", tmp_path / "parallel"
+    serial.mkdir(), parallel.mkdir()
+    paths = plots.draw_in_parallel(_jobs(parallel), 2)
+    assert paths == [parallel / n for n in ("pareto.png", "chart.png", "residual.png", "history.png")]
+    plots.draw(_jobs(serial))
+    for path in paths:
+        assert path.read_bytes() == (serial / path.name).read_bytes(), path.name
+    assert sorted(p.name for p in parallel.iterdir()) == sorted(p.name for p in serial.iterdir())
+    assert _children(os.getpid()) == []  # every fork waited for
+
+
+def test_an_error_in_a_fork_is_raised_after_every_fork_ended(tmp_path):
+    jobs = _jobs(tmp_path)
+    jobs[3] = ("optimisation_history", dict(path=tmp_path / "no_such_folder" / "history.png", records=[]))
+    # the history goes to a fork (shares: chart+residual here, pareto+history there)
+    with pytest.raises(RuntimeError, match="history|IndexError|FileNotFoundError|No such file"):
+        plots.draw_in_parallel(jobs, 2)
+    assert _children(os.getpid()) == []
+    assert {"chart.png", "residual.png", "pareto.png"} == {p.name for p in tmp_path.iterdir() if p.is_file()}
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no temporary PNG left
+
+
+def test_a_killed_figure_process_leaves_no_drawer_behind(tmp_path):
+    writer = plots.FigureWriter(drawers=4)
+    try:
+        time.sleep(0.5)
+        # long traces: the drawers are still at work when the figure process is killed
+        writer.submit(_jobs(tmp_path, points=400_000))
+        deadline = time.monotonic() + 60
+        while not _children(writer._proc.pid) and time.monotonic() < deadline:
+            time.sleep(0.01)
+        forks = _children(writer._proc.pid)
+        assert forks, "the figure process did not fork its drawers"
+        os.kill(writer._proc.pid, signal.SIGKILL)
+        writer._proc.wait()
+        deadline = time.monotonic() + 10
+        while any(_alive(pid) for pid in forks) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert not any(_alive(pid) for pid in forks)
+    finally:
+        writer.close(wait=False)
+
+
+PREFLIGHT_ERROR = """
+import sys
+from mosd.app import main, plots
+started = []
+real = plots.start_early
+def counting():
+    real()
+    started.append(plots._EARLY[-1]._proc)
+plots.start_early = counting
+code = main(sys.argv[1:])
+proc, = started
+print("CODE", code, "LEFT", len(plots._EARLY), "EXIT", proc.poll())
+"""
+
+
+def test_the_early_figure_process_ends_when_the_command_is_refused(tmp_path):
+    env = {k: v for k, v in os.environ.items() if not k.startswith("MOSD_")}
+    env.update(PYTHONPATH=str(Path(plots.__file__).resolve().parents[2]), MOSD_OUTPUTS=str(tmp_path / "out"))
+    done = subprocess.run([sys.executable, "-c", PREFLIGHT_ERROR, "+fault=offset_var", "optimizer=no_such"],
+                          cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr[-2000:]
+    line = done.stdout.strip().splitlines()[-1].split()
+    assert line[:4] == ["CODE", "2", "LEFT", "0"] and line[5] != "None", done.stdout  # killed, waited for
+    assert "optimizer" in done.stderr and not (tmp_path / "out").exists()
