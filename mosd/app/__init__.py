@@ -142,6 +142,9 @@ def exit_now(code: int) -> None:
         os._exit(code)
 
 
+#: Overrides that disable tracking: no tracking process is started ahead of such a run.
+TRACKING_OFF = {"tracking=none", "tracking.enabled=false", "tracking.enabled=False", "++tracking.enabled=false"}
+
 #: What a terminal shows while the command line is checked (erased before anything else is printed).
 CHECKING = "mosd: checking the configuration (composition, components, a one-replication dry run) ..."
 
@@ -164,12 +167,14 @@ def _transient(text: str | None) -> None:
 
 
 def _main(argv: list[str], started: float) -> int:
-    from . import plots
+    from . import channel, plots
 
     try:
         return _checked_and_run(argv, started)
     finally:
-        plots.discard()  # a figure process started for a run that did not take it (an error, a sweep)
+        # side processes started for a run that did not take them (an error, a sweep, tracking disabled)
+        plots.discard()
+        channel.discard()
 
 
 def _checked_and_run(argv: list[str], started: float) -> int:
@@ -183,10 +188,13 @@ def _checked_and_run(argv: list[str], started: float) -> int:
     if checking:
         _transient(CHECKING)
         if not {"-m", "--multirun"}.intersection(argv):
-            from . import plots
+            from . import channel, plots
 
-            # a single run: matplotlib loads and warms up on the core that checking the command leaves idle
+            # a single run: matplotlib (the figure process) and MLflow (the tracking process) load on the
+            # core that checking the command leaves idle; a run that does not use them ends them
             plots.start_early()
+            if not TRACKING_OFF.intersection(argv):
+                channel.start_early()
     try:
         from .preflight import preflight
 

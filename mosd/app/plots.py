@@ -313,6 +313,9 @@ def _warm_up(stop=None) -> None:
 #: Nice value of the warm-up thread (Linux: per thread): the run's own processes come first.
 WARM_UP_NICE = 10
 
+#: Seconds the figures wait for the warm-up to stop between two of its figures.
+WARM_UP_WAIT_S = 0.25
+
 
 def _warm_up_in_background(stop) -> None:
     """:func:`_warm_up` at a lower priority, in its own thread (see :func:`_serve`)."""
@@ -450,6 +453,10 @@ def _serve(drawers: int = 0) -> None:
 
     requests, replies = sys.stdin.buffer, os.fdopen(os.dup(1), "wb")
     os.dup2(2, 1)  # anything a library prints must not corrupt the reply channel
+    # matplotlib at the normal priority: every figure needs it (a starved import would hold them all back)
+    from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: F401
+    from matplotlib.figure import Figure  # noqa: F401
+
     # the warm-up runs while the run computes, at a lower priority (the run's processes are on the
     # critical path, the warm-up is not); the figures themselves are drawn by this thread at the
     # normal priority, once the warm-up has finished or stopped between two figures
@@ -462,9 +469,11 @@ def _serve(drawers: int = 0) -> None:
         except EOFError:  # the app closed the channel (or died): nothing more to draw
             break
         stop.set()
-        warm.join()
+        # a warm-up figure starved by a busy machine is not waited for: the figures are drawn here meanwhile,
+        # on this process alone (a fork of a process with a second thread at work could inherit its locks)
+        warm.join(WARM_UP_WAIT_S)
         try:
-            paths = draw_in_parallel(jobs, drawers or usable_cpus())
+            paths = draw_in_parallel(jobs, 1 if warm.is_alive() else drawers or usable_cpus())
             reply = {"ok": True, "paths": [str(p) for p in paths]}
         except Exception as exc:  # reported to the app, which draws in-process instead
             reply = {"ok": False, "error": f"{type(exc).__name__}: {' '.join(str(exc).split())}"}

@@ -175,6 +175,10 @@ def run(cfg, started: float | None = None, checked=None):
 
         with signals.deferred():  # a run that exists in MLflow is one this process can mark KILLED
             tracker = _start_tracking(cfg, hc, labels, n_jobs, run_dir, tuple(setup.experiment.detector.tunable))
+        if tracker is None or tracker.in_process:
+            from . import channel
+
+            channel.discard()  # a tracking process started ahead of this run, which does not use it
         position = int(hc.job.num) if multirun and under_joblib_launcher(hc) else 0
         progress = Progress(setup.n_gen, enabled=cfg.progress, position=position,
                             description=f"job {hc.job.num}" if multirun else "",
