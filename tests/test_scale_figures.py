@@ -102,27 +102,47 @@ def test_a_killed_figure_process_leaves_no_drawer_behind(tmp_path):
         writer.close(wait=False)
 
 
-PREFLIGHT_ERROR = """
+EARLY = """
 import sys
-from mosd.app import main, plots
-started = []
-real = plots.start_early
-def counting():
-    real()
-    started.append(plots._EARLY[-1]._proc)
-plots.start_early = counting
+from mosd.app import channel, main, plots
+started = {}
+def counting(module, key):
+    real = module.start_early
+    def start():
+        real()
+        started[key] = module._EARLY[-1]._proc
+    module.start_early = start
+counting(plots, "figures")
+counting(channel, "tracking")
 code = main(sys.argv[1:])
-proc, = started
-print("CODE", code, "LEFT", len(plots._EARLY), "EXIT", proc.poll())
+print("CODE", code, "LEFT", len(plots._EARLY) + len(channel._EARLY),
+      *(f"{key}={proc.poll()}" for key, proc in sorted(started.items())))
 """
 
 
-def test_the_early_figure_process_ends_when_the_command_is_refused(tmp_path):
+def _early(tmp_path: Path, *args: str) -> tuple[list[str], str]:
     env = {k: v for k, v in os.environ.items() if not k.startswith("MOSD_")}
     env.update(PYTHONPATH=str(Path(plots.__file__).resolve().parents[2]), MOSD_OUTPUTS=str(tmp_path / "out"))
-    done = subprocess.run([sys.executable, "-c", PREFLIGHT_ERROR, "+fault=offset_var", "optimizer=no_such"],
-                          cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120)
+    done = subprocess.run([sys.executable, "-c", EARLY, "+fault=offset_var", *args], cwd=tmp_path, env=env,
+                          capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr[-2000:]
-    line = done.stdout.strip().splitlines()[-1].split()
-    assert line[:4] == ["CODE", "2", "LEFT", "0"] and line[5] != "None", done.stdout  # killed, waited for
-    assert "optimizer" in done.stderr and not (tmp_path / "out").exists()
+    return done.stdout.strip().splitlines()[-1].split(), done.stderr
+
+
+def test_the_early_side_processes_end_when_the_command_is_refused(tmp_path):
+    line, stderr = _early(tmp_path, "optimizer=no_such")
+    # both started before preflight, both killed (SIGKILL: -9) and waited for; nothing written
+    assert line == ["CODE", "2", "LEFT", "0", "figures=-9", "tracking=-9"], line
+    assert "optimizer" in stderr and not (tmp_path / "out").exists()
+
+
+@pytest.mark.slow
+def test_a_run_takes_the_early_side_processes(tmp_path):
+    line, _ = _early(tmp_path, "debug=tiny")
+    # the run used both: the tracking process ended the MLflow run and left by itself (0), the figure
+    # process drew the PNGs and was closed (0)
+    assert line == ["CODE", "0", "LEFT", "0", "figures=0", "tracking=0"], line
+    run_dir = next((tmp_path / "out" / "runs").iterdir())
+    assert {"pareto.png", "chart.png", "history.png", "summary.json"} <= {p.name for p in run_dir.iterdir()}
+    line, _ = _early(tmp_path, "debug=tiny", "tracking=none")
+    assert line == ["CODE", "0", "LEFT", "0", "figures=0"], line  # tracking off: no tracking process started
