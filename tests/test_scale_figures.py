@@ -104,7 +104,9 @@ def test_a_killed_figure_process_leaves_no_drawer_behind(tmp_path):
 
 EARLY = """
 import sys
+import mosd.app
 from mosd.app import channel, main, plots
+mosd.app.spare_core = lambda: True  # whatever the machine's load: this test is about the processes
 started = {}
 def counting(module, key):
     real = module.start_early
@@ -146,3 +148,16 @@ def test_a_run_takes_the_early_side_processes(tmp_path):
     assert {"pareto.png", "chart.png", "history.png", "summary.json"} <= {p.name for p in run_dir.iterdir()}
     line, _ = _early(tmp_path, "debug=tiny", "tracking=none")
     assert line == ["CODE", "0", "LEFT", "0", "figures=0"], line  # tracking off: no tracking process started
+
+
+def test_the_side_processes_start_early_only_with_a_core_to_spare(monkeypatch):
+    import mosd.app
+
+    monkeypatch.setattr(plots, "usable_cpus", lambda: 2)
+    monkeypatch.setattr(os, "getloadavg", lambda: (0.4, 3.0, 3.0))
+    assert mosd.app.spare_core()
+    monkeypatch.setattr(os, "getloadavg", lambda: (1.2, 0.1, 0.1))  # a busy minute: no idle core
+    assert not mosd.app.spare_core()
+    monkeypatch.setattr(plots, "usable_cpus", lambda: 1)
+    monkeypatch.setattr(os, "getloadavg", lambda: (0.0, 0.0, 0.0))  # one core: the checks take it
+    assert not mosd.app.spare_core()

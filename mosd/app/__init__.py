@@ -34,6 +34,7 @@ Hydra and MLflow live here only, imported when needed, so ``import mosd.app`` is
 from __future__ import annotations
 
 import contextlib
+import os
 import sys
 import time
 from typing import Sequence
@@ -142,6 +143,23 @@ def exit_now(code: int) -> None:
         os._exit(code)
 
 
+def spare_core() -> bool:
+    """Whether the machine has a core the checks leave idle: the 1-minute load average under the CPUs less one.
+
+    The side processes are then started before the checks (their imports use that core
+    while the checks use another). On a busy machine there is no such core: started
+    there, their imports (3.6 s of CPU with MLflow) compete with the checks, and the
+    first line came 1.5–2 s later at load 5–7 on 2 cores (docs/SCALING.md), so they
+    start with the run instead.
+    """
+    from .plots import usable_cpus
+
+    try:
+        return os.getloadavg()[0] < usable_cpus() - 1
+    except (AttributeError, OSError):  # no load average (not Unix): the safe side
+        return False
+
+
 #: Overrides that disable tracking: no tracking process is started ahead of such a run.
 TRACKING_OFF = {"tracking=none", "tracking.enabled=false", "tracking.enabled=False", "++tracking.enabled=false"}
 
@@ -187,11 +205,12 @@ def _checked_and_run(argv: list[str], started: float) -> int:
     checking = not informational.intersection(a.split("=", 1)[0] for a in argv if a.startswith("-"))
     if checking:
         _transient(CHECKING)
-        if not {"-m", "--multirun"}.intersection(argv):
+        if not {"-m", "--multirun"}.intersection(argv) and spare_core():
             from . import channel, plots
 
-            # a single run: matplotlib (the figure process) and MLflow (the tracking process) load on the
-            # core that checking the command leaves idle; a run that does not use them ends them
+            # a single run on a machine with a core to spare: matplotlib (the figure process) and MLflow (the
+            # tracking process) load on the core that checking the command leaves idle; a run that does not
+            # use them ends them
             plots.start_early()
             if not TRACKING_OFF.intersection(argv):
                 channel.start_early()
