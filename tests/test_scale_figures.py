@@ -81,25 +81,40 @@ def test_an_error_in_a_fork_is_raised_after_every_fork_ended(tmp_path):
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no temporary PNG left
 
 
-def test_a_killed_figure_process_leaves_no_drawer_behind(tmp_path):
-    writer = plots.FigureWriter(drawers=4)
+DRAWING = """
+import sys
+from pathlib import Path
+import numpy as np
+from mosd.app import plots
+folder, points = Path(sys.argv[1]), 400_000
+t = np.arange(points) * 0.01
+mask = t >= t[points // 2]
+statistic = np.random.default_rng(0).random(points) + 60 * mask
+jobs = [("chart_trace", dict(path=folder / f"chart{i}.png", t=t, statistic=statistic, ucl=np.full(points, 2.0),
+                             fault_mask=mask)) for i in range(4)]
+plots.draw_in_parallel(jobs, 4)
+"""
+
+
+def test_a_killed_drawing_process_leaves_no_fork_behind(tmp_path):
+    env = dict(os.environ, PYTHONPATH=str(Path(plots.__file__).resolve().parents[2]))
+    proc = subprocess.Popen([sys.executable, "-c", DRAWING, str(tmp_path)], env=env)
     try:
-        time.sleep(0.5)
-        # long traces: the drawers are still at work when the figure process is killed
-        writer.submit(_jobs(tmp_path, points=400_000))
-        deadline = time.monotonic() + 60
-        while not _children(writer._proc.pid) and time.monotonic() < deadline:
+        deadline = time.monotonic() + 90
+        while len(_children(proc.pid)) < 3 and time.monotonic() < deadline and proc.poll() is None:
             time.sleep(0.01)
-        forks = _children(writer._proc.pid)
-        assert forks, "the figure process did not fork its drawers"
-        os.kill(writer._proc.pid, signal.SIGKILL)
-        writer._proc.wait()
+        forks = _children(proc.pid)
+        assert len(forks) == 3, "the drawing process did not fork its drawers"
+        proc.kill()  # as the app kills its figure process
+        proc.wait()
         deadline = time.monotonic() + 10
         while any(_alive(pid) for pid in forks) and time.monotonic() < deadline:
             time.sleep(0.05)
-        assert not any(_alive(pid) for pid in forks)
+        assert not any(_alive(pid) for pid in forks)  # each fork died with it: no PNG written later
     finally:
-        writer.close(wait=False)
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
 
 
 EARLY = """
@@ -151,13 +166,25 @@ def test_a_run_takes_the_early_side_processes(tmp_path):
 
 
 def test_the_side_processes_start_early_only_with_a_core_to_spare(monkeypatch):
+    import builtins
+    import io
+
     import mosd.app
 
+    state = {"runnable": 1}
+    real_open = builtins.open
+
+    def fake_open(path, *args, **kwargs):
+        if path == "/proc/loadavg":
+            return io.StringIO(f"7.00 6.00 5.00 {state['runnable']}/900 12345\n")
+        return real_open(path, *args, **kwargs)
+
+    monkeypatch.setattr(builtins, "open", fake_open)
     monkeypatch.setattr(plots, "usable_cpus", lambda: 2)
-    monkeypatch.setattr(os, "getloadavg", lambda: (0.4, 3.0, 3.0))
-    assert mosd.app.spare_core()
-    monkeypatch.setattr(os, "getloadavg", lambda: (1.2, 0.1, 0.1))  # a busy minute: no idle core
-    assert not mosd.app.spare_core()
-    monkeypatch.setattr(plots, "usable_cpus", lambda: 1)
-    monkeypatch.setattr(os, "getloadavg", lambda: (0.0, 0.0, 0.0))  # one core: the checks take it
+    # a minute of load 7 behind, but only this process runnable now: the other CPU is free
+    assert plots.free_cpus() == 1 and mosd.app.spare_core()
+    state["runnable"] = 3  # one more thread than CPUs: nothing free
+    assert plots.free_cpus() == -1 and not mosd.app.spare_core()
+    state["runnable"] = 1
+    monkeypatch.setattr(plots, "usable_cpus", lambda: 1)  # one CPU: the checks take it
     assert not mosd.app.spare_core()

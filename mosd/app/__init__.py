@@ -34,7 +34,6 @@ Hydra and MLflow live here only, imported when needed, so ``import mosd.app`` is
 from __future__ import annotations
 
 import contextlib
-import os
 import sys
 import time
 from typing import Sequence
@@ -144,20 +143,16 @@ def exit_now(code: int) -> None:
 
 
 def spare_core() -> bool:
-    """Whether the machine has a core the checks leave idle: the 1-minute load average under the CPUs less one.
+    """Whether a CPU is free beside this process's own (:func:`mosd.app.plots.free_cpus`) as the checks start.
 
-    The side processes are then started before the checks (their imports use that core
-    while the checks use another). On a busy machine there is no such core: started
-    there, their imports (3.6 s of CPU with MLflow) compete with the checks, and the
-    first line came 1.5–2 s later at load 5–7 on 2 cores (docs/SCALING.md), so they
-    start with the run instead.
+    The side processes are then started before the checks: their imports use that CPU
+    while the checks use this one. On a busy machine there is none: started there, their
+    imports (3.6 s of CPU with MLflow) compete with the checks and delay the first line
+    (docs/ARCHITECTURE.md), so they start with the run instead.
     """
-    from .plots import usable_cpus
+    from .plots import free_cpus
 
-    try:
-        return os.getloadavg()[0] < usable_cpus() - 1
-    except (AttributeError, OSError):  # no load average (not Unix): the safe side
-        return False
+    return free_cpus() >= 1
 
 
 #: Overrides that disable tracking: no tracking process is started ahead of such a run.

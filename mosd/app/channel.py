@@ -3,9 +3,10 @@
 A background *thread* does not hide MLflow's import (it competes for the GIL
 with the simulation), so a run talks to MLflow through a small side process
 (:class:`SideProcess`, ``python -c '...channel._serve()'``): started when the
-run starts, it imports MLflow and creates the run on the second core while the
-first one simulates, and at the end receives everything in a few batched
-requests. When MLflow is already imported (a sweep under the basic launcher,
+run starts (before the command line is checked when the machine has a core to
+spare: :func:`start_early`), it imports MLflow and creates the run on the second
+core while the first one checks or simulates, and at the end receives everything
+in a few batched requests. When MLflow is already imported (a sweep under the basic launcher,
 whose callback imported it) the same requests run in this process
 (:class:`InProcess`). Requests and replies are JSON lines; :class:`Handler`
 executes them with :class:`mosd.app.mlflow_client.MlflowStore`.

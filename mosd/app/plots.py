@@ -5,10 +5,12 @@ display, no global figure state); matplotlib is imported on first use. Each PNG
 is written under a temporary name and renamed: a run stopped mid-figure leaves
 no half-written file.
 
-:class:`FigureWriter` draws them in a side process: it starts with the run,
-imports matplotlib and loads its fonts on the second core while the run
-computes (0.3–0.7 s that were on the critical path), and draws the figures
-while the app writes the run's other files.
+:class:`FigureWriter` draws them in a side process: it starts with the run (before
+the command line is checked when the machine has a core to spare:
+:func:`start_early`), imports matplotlib and loads its fonts on the second core while
+the run computes (0.3–0.7 s that were on the critical path), and draws the figures
+while the app writes the run's other files, on one process per usable CPU (forks of
+itself, warm: :func:`draw_in_parallel`).
 """
 from __future__ import annotations
 
@@ -439,10 +441,35 @@ def usable_cpus() -> int:
         return os.cpu_count() or 1
 
 
+def free_cpus() -> int:
+    """The usable CPUs no runnable thread holds right now (negative: threads queue for them), this one's included.
+
+    Linux: the runnable threads of the whole machine at this instant (the fourth field of
+    ``/proc/loadavg``), which sees a busy machine at once where the 1-minute load average
+    lags a minute behind (and counts a run's own previous minute); elsewhere that average,
+    rounded up. What extra processes can use without taking time from other work: the figures
+    are drawn on more than one process (:func:`_serve`), and the side processes start before
+    the checks (:func:`mosd.app.spare_core`), only when it is at least one.
+    """
+    import math
+
+    try:
+        with open("/proc/loadavg") as fh:
+            runnable = int(fh.read().split()[3].split("/")[0])
+    except (OSError, ValueError, IndexError):
+        try:
+            runnable = math.ceil(os.getloadavg()[0]) + 1  # + this thread, which the average has not seen yet
+        except (AttributeError, OSError):
+            return 0
+    return usable_cpus() - runnable
+
+
 def _serve(drawers: int = 0) -> None:
     """Side-process main: warm up, then draw each pickled job list from stdin; pickled replies on stdout.
 
-    ``drawers``: processes that draw a job list (0: one per usable CPU), see :func:`draw_in_parallel`.
+    ``drawers``: processes that may draw a job list (0: one per usable CPU), see :func:`draw_in_parallel`;
+    no more than one plus the CPUs free (:func:`free_cpus`): on a busy machine a fork would only add
+    its copying (about 15 % more CPU for the four figures) to a queue of work.
     """
     import signal
 
@@ -453,10 +480,6 @@ def _serve(drawers: int = 0) -> None:
 
     requests, replies = sys.stdin.buffer, os.fdopen(os.dup(1), "wb")
     os.dup2(2, 1)  # anything a library prints must not corrupt the reply channel
-    # matplotlib at the normal priority: every figure needs it (a starved import would hold them all back)
-    from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: F401
-    from matplotlib.figure import Figure  # noqa: F401
-
     # the warm-up runs while the run computes, at a lower priority (the run's processes are on the
     # critical path, the warm-up is not); the figures themselves are drawn by this thread at the
     # normal priority, once the warm-up has finished or stopped between two figures
@@ -473,7 +496,9 @@ def _serve(drawers: int = 0) -> None:
         # on this process alone (a fork of a process with a second thread at work could inherit its locks)
         warm.join(WARM_UP_WAIT_S)
         try:
-            paths = draw_in_parallel(jobs, 1 if warm.is_alive() else drawers or usable_cpus())
+            # one drawer more than the free CPUs, the app's counted as free: it waits once its text files are written
+            free = free_cpus() + 1
+            paths = draw_in_parallel(jobs, 1 if warm.is_alive() else min(drawers or usable_cpus(), 1 + max(0, free)))
             reply = {"ok": True, "paths": [str(p) for p in paths]}
         except Exception as exc:  # reported to the app, which draws in-process instead
             reply = {"ok": False, "error": f"{type(exc).__name__}: {' '.join(str(exc).split())}"}
