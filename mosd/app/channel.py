@@ -129,8 +129,10 @@ def _serve() -> None:
     # MLflow now, before the first request: a process started ahead of its run (start_early) imports it
     # on the core that checking the command leaves idle; the import counts in the run's mlflow_import_s
     t0 = time.perf_counter()
-    import mlflow.tracking  # noqa: F401
-
+    try:
+        import mlflow.tracking  # noqa: F401
+    except Exception:  # the start request reports it (MlflowStore imports it again), as it always did
+        pass
     handler.imported_s = time.perf_counter() - t0
     for line in sys.stdin:
         if not line.strip():
@@ -250,8 +252,6 @@ class InProcess:
 
     def close(self, wait: bool = True) -> None:
         pass
-
-
 
 
 # ------------------------------------------------------------------------------------
