@@ -142,6 +142,22 @@ def exit_now(code: int) -> None:
         os._exit(code)
 
 
+def spare_core() -> bool:
+    """Whether a CPU is free beside this process's own (:func:`mosd.app.plots.free_cpus`) as the checks start.
+
+    The side processes are then started before the checks: their imports use that CPU
+    while the checks use this one. On a busy machine there is none: started there, their
+    imports (3.6 s of CPU with MLflow) compete with the checks and delay the first line
+    (docs/ARCHITECTURE.md), so they start with the run instead.
+    """
+    from .plots import free_cpus
+
+    return free_cpus() >= 1
+
+
+#: Overrides that disable tracking: no tracking process is started ahead of such a run.
+TRACKING_OFF = {"tracking=none", "tracking.enabled=false", "tracking.enabled=False", "++tracking.enabled=false"}
+
 #: What a terminal shows while the command line is checked (erased before anything else is printed).
 CHECKING = "mosd: checking the configuration (composition, components, a one-replication dry run) ..."
 
@@ -164,6 +180,17 @@ def _transient(text: str | None) -> None:
 
 
 def _main(argv: list[str], started: float) -> int:
+    from . import channel, plots
+
+    try:
+        return _checked_and_run(argv, started)
+    finally:
+        # side processes started for a run that did not take them (an error, a sweep, tracking disabled)
+        plots.discard()
+        channel.discard()
+
+
+def _checked_and_run(argv: list[str], started: float) -> int:
     from .config import with_debug_last
 
     argv = with_debug_last(argv)
@@ -173,6 +200,15 @@ def _main(argv: list[str], started: float) -> int:
     checking = not informational.intersection(a.split("=", 1)[0] for a in argv if a.startswith("-"))
     if checking:
         _transient(CHECKING)
+        if not {"-m", "--multirun"}.intersection(argv) and spare_core():
+            from . import channel, plots
+
+            # a single run on a machine with a core to spare: matplotlib (the figure process) and MLflow (the
+            # tracking process) load on the core that checking the command leaves idle; a run that does not
+            # use them ends them
+            plots.start_early()
+            if not TRACKING_OFF.intersection(argv):
+                channel.start_early()
     try:
         from .preflight import preflight
 

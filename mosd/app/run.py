@@ -128,7 +128,7 @@ def run(cfg, started: float | None = None, checked=None):
     from hydra.types import RunMode
     from omegaconf import OmegaConf
 
-    from .plots import FigureWriter
+    from . import plots
     from .progress import Progress
     from .mlflow_client import LOGGING_ERROR_TAG, flatten
     from .store import TrackingError
@@ -165,6 +165,7 @@ def run(cfg, started: float | None = None, checked=None):
             # nested joblib under the joblib launcher silently becomes threads: evaluate in-process
             log.info("joblib launcher: fitness evaluation runs in-process (optimizer.n_jobs=%d -> 1)", n_jobs)
             n_jobs = 1
+        share = None  # a job worker's share of the cores
         if job_worker:
             from ..optim.workers import pin_sweep_job
 
@@ -174,6 +175,10 @@ def run(cfg, started: float | None = None, checked=None):
 
         with signals.deferred():  # a run that exists in MLflow is one this process can mark KILLED
             tracker = _start_tracking(cfg, hc, labels, n_jobs, run_dir, tuple(setup.experiment.detector.tunable))
+        if tracker is None or tracker.in_process:
+            from . import channel
+
+            channel.discard()  # a tracking process started ahead of this run, which does not use it
         position = int(hc.job.num) if multirun and under_joblib_launcher(hc) else 0
         progress = Progress(setup.n_gen, enabled=cfg.progress, position=position,
                             description=f"job {hc.job.num}" if multirun else "",
@@ -183,8 +188,9 @@ def run(cfg, started: float | None = None, checked=None):
             # the summary's first line now, so that a user (or a log file) sees the run start; the
             # rest comes at the end (a sweep prints each job's summary whole: jobs may run at once)
             print(header_line(labels, setup), flush=True)
-        # started now: matplotlib loads on the other core while this process simulates
-        figures = FigureWriter()
+        # started before preflight for a single run (plots.start_early), else now: matplotlib loads on the
+        # other core while this process checks the command or simulates; a sweep's job draws on its share
+        figures = plots.take(drawers=share)
         result = setup.experiment.run(setup.algorithm, setup.termination, n_jobs=n_jobs, bounds=setup.bounds,
                                       choose=setup.choose, callback=progress, backend=setup.backend,
                                       dask_address=setup.dask_address)

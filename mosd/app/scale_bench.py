@@ -118,6 +118,51 @@ def time_tuning(setup, evaluator, n_jobs: int, n_gen: int, backend: str = "loky"
             "X": np.atleast_2d(result.X), "F": np.atleast_2d(result.F)}
 
 
+def thread_ceiling(setup, evaluator, n_threads: int, repeats: int = 15) -> float | None:
+    """The speed-up of the bare evaluation on ``n_threads`` threads: what the machine gives, before any optimiser.
+
+    One population of the set-up's size (uniform in the box, seed 0) is evaluated whole on one
+    thread, then cut into ``n_threads`` equal parts evaluated at once, one per thread, with nothing
+    between them: no optimiser step, no chunk hand-over. Fastest of ``repeats`` each. The ratio is
+    the most a threaded tuning of this workload can reach on this machine (cores shared with
+    another hardware thread, memory bandwidth and clock boost all enter it); None when the
+    workload does not evaluate on threads.
+    """
+    import threading
+
+    from ..optim.problem import TuningProblem
+
+    problem = TuningProblem(evaluator, bounds=setup.bounds, n_jobs=max(2, n_threads))
+    try:
+        if not problem.in_threads:
+            return None
+        fused = evaluator.fused()
+        pop = int(getattr(setup.algorithm, "pop_size", 100) or 100)
+        X = problem.round(np.random.default_rng(0).uniform(problem.xl, problem.xu, size=(pop, problem.n_var)))
+        parts = np.array_split(X, n_threads)
+        fused(X)  # compiled kernels loaded
+
+        def together():
+            helpers = [threading.Thread(target=fused, args=(part,)) for part in parts[1:]]
+            for helper in helpers:
+                helper.start()
+            fused(parts[0])
+            for helper in helpers:
+                helper.join()
+
+        def fastest(call) -> float:
+            best = np.inf
+            for _ in range(repeats):
+                t0 = time.perf_counter()
+                call()
+                best = min(best, time.perf_counter() - t0)
+            return best
+
+        return fastest(lambda: fused(X)) / fastest(together)
+    finally:
+        problem.close()
+
+
 def bench_workload(name: str, quick: bool = False, cpus: int | None = None) -> tuple[list, dict]:
     """Rows and JSON figures of one workload at every n_jobs and on Dask at the largest."""
     import importlib.util
@@ -165,6 +210,13 @@ def bench_workload(name: str, quick: bool = False, cpus: int | None = None) -> t
             figures[f"scale_speedup_{name}_{run['n_jobs']}"] = speedup
         figures[f"scale_identical_{name}"] = int(identical and figures.get(f"scale_identical_{name}", 1))
     figures[f"scale_serial_share_{name}"] = serial_share
+    if cpus > 1:
+        ceiling = thread_ceiling(setup, evaluator, 2, repeats=5 if quick else 15)
+        if ceiling is not None:
+            figures[f"scale_thread_ceiling_{name}_2"] = ceiling
+            rows.append((f"{name}: the bare evaluation on 2 threads vs 1 (the machine's ceiling)", ceiling,
+                         "one population in two halves at once, no optimiser, no hand-over: the most "
+                         "a 2-worker tuning of this workload can reach here"))
     figures[f"scale_wall_per_gen_ms_{name}_1"] = 1e3 * one["wall_per_gen_s"]
     rows.append((f"{name}: serial share of an n_jobs=1 generation", serial_share,
                  f"Amdahl's bound on the speed-up 1/share = {1 / max(serial_share, 1e-12):.0f}; load average "

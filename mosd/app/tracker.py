@@ -13,7 +13,8 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Iterable, Mapping
 
-from .channel import InProcess, SideProcess
+from . import channel
+from .channel import InProcess
 from .mlflow_client import MAX_TAG_LENGTH
 from .settings import TrackingSettings
 from .store import TrackingError
@@ -58,7 +59,7 @@ class RunTracker:
 
     def start(self) -> "RunTracker":
         """Create the run (in the side process this returns at once)."""
-        self._channel = InProcess() if self.in_process else SideProcess()
+        self._channel = InProcess() if self.in_process else channel.take()
         self._channel.send({"op": "start", "settings": asdict(self.settings), "run_name": self.run_name,
                             "tags": self.tags, "parent_run_id": self.parent_run_id})
         return self
