@@ -39,8 +39,12 @@ One class, two presets:
   10 % afterwards), which makes the long jumps instead (OSY's disconnected regions) and lets the
   archive leave a local front such as MW2's; once the archive is feasible and full, leaders and
   parents are drawn by crowding distance and truncation removes the most crowded members over the
-  whole archive (``constrained``). That spread and converged the constrained fronts (MW2, MW3, MW7,
-  CTP2, CTP3, issue 33). Unconstrained runs are unaffected.
+  whole archive (``constrained``). From half the planned run on, a constrained run refines the front it
+  found: 30 % of the offspring are an archive member (a third of them the ends of the front) with every
+  variable moved by a small polynomial step, and the mutation takes η 50 (``constrained_late_phase``,
+  ``constrained_refine``): the IGD gap to NSGA-II was convergence at the ends and kinks of the front, on
+  constraint boundaries. That spread and converged the constrained fronts (MW2, MW3, MW7, CTP2, CTP3,
+  issue 33). Unconstrained runs are unaffected.
 * ``MOPSO(**PAPER_PRESET)`` (``MOPSO.paper()``, ``optimizer=mopso_paper``) — the paper's
   pure swarm, paper 000's Table 2 literally (every evaluation a particle move): constriction
   w = 0.7298, c1 = c2 = 1.4962, velocities reflected at the bounds, roulette-wheel leaders,
@@ -131,22 +135,22 @@ FINE_MUTATION_ETA = 20.0
 #: steps of η = 3 that the fine mutation gives up from the first generation: 0.3 kept OSY's disconnected regions and
 #: MW2 off its local front, 0.1 afterwards the convergence of MW3 (issue 33, docs/MOPSO.md).
 CONSTRAINED_RESET = (0.3, 0.1)
-#: ``constrained_refine``'s default: the share of a constrained problem's archive offspring that are refinement children
-#: (:meth:`MOPSO._refined_children`) in the late phase (``constrained_late_phase``). Screened on seeds 1–5 at 0.1–0.4 from
-#: the first feasible point (issue 33, fifth change, docs/MOPSO.md): 0.3 met four IGD targets that 0.2 left CTP2 short of.
+#: ``constrained_refine``'s default: the share of a constrained problem's archive offspring that are refinement
+#: children (:meth:`MOPSO._refined_children`) in the late phase (``constrained_late_phase``). Screened at 0.2, 0.3 and
+#: 0.4 (issue 33, fifth change, docs/MOPSO.md): 0.3 met four IGD targets on seeds 1–5 that 0.2 left CTP2 short of.
 CONSTRAINED_REFINE = 0.3
 #: The refinement children's polynomial mutation index: steps of about 1 % of each variable's range (the mean of
 #: |δ| is 1 / (η + 2)), every variable at once — a local search around a member near the constraint boundary.
 REFINE_ETA = 100.0
 #: The share of the refinement children whose parent is an end of the front (the members with the smallest value of
 #: each objective, in turn) rather than a leader-rule draw: on MW3 the ends of the front were where the archive lay
-#: furthest from it (seeds 6, 7, 9 ended 0.13 short of f1 = 1), and the crowding tournament gives each end about 2 %
-#: of the draws (issue 33, fifth change, docs/MOPSO.md).
+#: furthest from it (on bad seeds it stopped at f1 0.87–0.96 of a front reaching 1), and the crowding tournament gives
+#: each end about 2 % of the draws (issue 33, fifth change, docs/MOPSO.md).
 REFINE_ENDS = 1.0 / 3.0
-#: ``constrained_late_phase``'s default: the share of the planned run after which a constrained run refines the front it
-#: found: refinement children (``constrained_refine``) and the polynomial mutation index :data:`LATE_FINE_ETA` for particles
-#: and archive offspring. From the first feasible point on, refinement cost OSY one of its disconnected regions on seed 1
-#: (docs/MOPSO.md).
+#: ``constrained_late_phase``'s default: the share of the planned run after which a constrained run refines the front
+#: it found: refinement children (``constrained_refine``) and the polynomial mutation index :data:`LATE_FINE_ETA` for
+#: particles and archive offspring. From the first feasible point on, refinement cost OSY one of its disconnected
+#: regions on seed 1 (docs/MOPSO.md).
 CONSTRAINED_LATE_PHASE = 0.5
 #: The mutation index of that late phase: steps of about 2 % of a variable's range, where η 20 makes 5 %.
 LATE_FINE_ETA = 50.0
@@ -868,7 +872,9 @@ class MOPSO(Algorithm):
         archive members does both, as NSGA-II's variation does; its children of a
         one-member archive are mutated copies of it. On a problem with constraints, the mutation takes
         η = 20 (``constrained_fine_mutation``, :meth:`_mutation_etas`) and a share ``constrained_reset``
-        of the children then gets one variable redrawn uniformly (:func:`uniform_reset`, :meth:`_reset_share`).
+        of the children then gets one variable redrawn uniformly (:func:`uniform_reset`, :meth:`_reset_share`);
+        in a constrained run's late phase the last round(``constrained_refine`` × n) children are refinement
+        children instead (:meth:`_refined_children`), which the redraw may hit as well.
         """
         refined = self._refined_count(n)
         children = self._varied_children(n - refined)
@@ -926,7 +932,8 @@ class MOPSO(Algorithm):
         round(``constrained_fine_mutation`` × n) rows take NSGA-II's :data:`FINE_MUTATION_ETA` from the
         first generation on (issue 33, docs/MOPSO.md: the fronts lie on constraint boundaries, where the
         long-tailed steps mostly leave the feasible region; the redraw of ``constrained_reset`` makes the long
-        jumps instead). A scalar when all rows share one, so that unconstrained runs are unchanged.
+        jumps instead); in a constrained run's late phase (``constrained_late_phase``) every row takes
+        :data:`LATE_FINE_ETA`. A scalar when all rows share one, so that unconstrained runs are unchanged.
         """
         if self._late_phase():
             return np.full(n, LATE_FINE_ETA)
@@ -945,8 +952,9 @@ class MOPSO(Algorithm):
         return self.constrained_reset[1] if archive.feasible and archive.filled else self.constrained_reset[0]
 
     def _late_phase(self) -> bool:
-        """Whether this generation is in a constrained run's late phase (``constrained_late_phase``): the generations
-        done, the initial swarm's not counted, reach that share of the planned ones (:meth:`_planned_generations`)."""
+        """Whether this generation is in a constrained run's late phase (``constrained_late_phase``): the
+        generations done, the initial swarm's not counted, reach that share of the planned ones
+        (:meth:`_planned_generations`)."""
         if self.constrained_late_phase is None or not self.constrained_problem:
             return False
         return (self.n_iter - 1) / max(1, self.planned_generations - 1) >= self.constrained_late_phase
