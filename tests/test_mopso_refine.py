@@ -15,17 +15,20 @@ from pymoo.problems import get_problem
 
 from mosd.optim import MOPSO
 from mosd.optim.benchmarks import make_problem, normalisation
-from mosd.optim.mopso import CONSTRAINED_REFINE, PAPER_PRESET, REFINE_ETA
+from mosd.optim.mopso import CONSTRAINED_LATE_PHASE, CONSTRAINED_REFINE, PAPER_PRESET, REFINE_ETA
 from mosd.validation import ConfigError
 
 
 def test_the_share_is_a_validated_parameter_and_the_paper_has_none():
     assert MOPSO().constrained_refine == CONSTRAINED_REFINE == 0.3
     assert MOPSO.paper().constrained_refine is None and PAPER_PRESET["constrained_refine"] is None
-    for bad in (1.5, -0.1, "some"):
-        with pytest.raises(ConfigError, match=r"^optimizer.constrained_refine=") as info:
-            MOPSO(constrained_refine=bad)
-        assert "\n" not in str(info.value)
+    assert MOPSO().constrained_late_phase == CONSTRAINED_LATE_PHASE == 0.5
+    assert MOPSO.paper().constrained_late_phase is None and PAPER_PRESET["constrained_late_phase"] is None
+    for key in ("constrained_refine", "constrained_late_phase"):
+        for bad in (1.5, -0.1, "some"):
+            with pytest.raises(ConfigError, match=rf"^optimizer.{key}=.*allowed") as info:
+                MOPSO(**{key: bad})
+            assert "\n" not in str(info.value)
 
 
 def test_refinement_children_are_small_steps_of_every_variable_around_feasible_members():
