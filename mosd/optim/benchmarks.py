@@ -247,7 +247,7 @@ ISSUE14_DEFAULT = dict(exploration=None, recombination=None, mutation_eta=20.0)
 EXPLORATION_DEFAULT = dict(recombination=None, mutation_eta=20.0)
 #: ``MOPSO()`` before issue 33 (Coello's infeasible rule, the grid rules on constrained fronts).
 BEFORE_ISSUE33 = dict(infeasible="least", constrained="grid", constrained_fine_mutation=None,
-                      constrained_reset=None)
+                      constrained_reset=None, constrained_refine=None, constrained_late_phase=None)
 #: The peers of issue 21 (the "best peer" of a problem is the best of these that ran on it).
 PEERS = (NSGA2_NAME, NSGA3_NAME, SMPSO_NAME)
 
@@ -374,6 +374,10 @@ ABLATIONS: dict[str, Callable[[], object]] = {
     "default, constrained_reset=None": lambda: MOPSO(constrained_reset=None),
     "default, constrained_fine_mutation=0.5": lambda: MOPSO(constrained_fine_mutation=0.5),
     "default, constrained_reset=0.1": lambda: MOPSO(constrained_reset=0.1),
+    "default, constrained_refine=None": lambda: MOPSO(constrained_refine=None),
+    "default, constrained_late_phase=None": lambda: MOPSO(constrained_late_phase=None),
+    "default, constrained_refine=None, constrained_late_phase=None":
+        lambda: MOPSO(constrained_refine=None, constrained_late_phase=None),
 }
 
 

@@ -39,8 +39,12 @@ One class, two presets:
   10 % afterwards), which makes the long jumps instead (OSY's disconnected regions) and lets the
   archive leave a local front such as MW2's; once the archive is feasible and full, leaders and
   parents are drawn by crowding distance and truncation removes the most crowded members over the
-  whole archive (``constrained``). That spread and converged the constrained fronts (MW2, MW3, MW7,
-  CTP2, CTP3, issue 33). Unconstrained runs are unaffected.
+  whole archive (``constrained``). From half the planned run on, a constrained run refines the front it
+  found: 30 % of the offspring are an archive member (a third of them the ends of the front) with every
+  variable moved by a small polynomial step, and the mutation takes η 50 (``constrained_late_phase``,
+  ``constrained_refine``): the IGD gap to NSGA-II was convergence at the ends and kinks of the front, on
+  constraint boundaries. That spread and converged the constrained fronts (MW2, MW3, MW7, CTP2, CTP3,
+  issue 33). Unconstrained runs are unaffected.
 * ``MOPSO(**PAPER_PRESET)`` (``MOPSO.paper()``, ``optimizer=mopso_paper``) — the paper's
   pure swarm, paper 000's Table 2 literally (every evaluation a particle move): constriction
   w = 0.7298, c1 = c2 = 1.4962, velocities reflected at the bounds, roulette-wheel leaders,
@@ -131,6 +135,25 @@ FINE_MUTATION_ETA = 20.0
 #: steps of η = 3 that the fine mutation gives up from the first generation: 0.3 kept OSY's disconnected regions and
 #: MW2 off its local front, 0.1 afterwards the convergence of MW3 (issue 33, docs/MOPSO.md).
 CONSTRAINED_RESET = (0.3, 0.1)
+#: ``constrained_refine``'s default: the share of a constrained problem's archive offspring that are refinement
+#: children (:meth:`MOPSO._refined_children`) in the late phase (``constrained_late_phase``). Screened at 0.2, 0.3 and
+#: 0.4 (issue 33, fifth change, docs/MOPSO.md): 0.3 met four IGD targets on seeds 1–5 that 0.2 left CTP2 short of.
+CONSTRAINED_REFINE = 0.3
+#: The refinement children's polynomial mutation index: steps of about 1 % of each variable's range (the mean of
+#: |δ| is 1 / (η + 2)), every variable at once — a local search around a member near the constraint boundary.
+REFINE_ETA = 100.0
+#: The share of the refinement children whose parent is an end of the front (the members with the smallest value of
+#: each objective, in turn) rather than a leader-rule draw: on MW3 the ends of the front were where the archive lay
+#: furthest from it (on bad seeds it stopped at f1 0.87–0.96 of a front reaching 1), and the crowding tournament gives
+#: each end about 2 % of the draws (issue 33, fifth change, docs/MOPSO.md).
+REFINE_ENDS = 1.0 / 3.0
+#: ``constrained_late_phase``'s default: the share of the planned run after which a constrained run refines the front
+#: it found: refinement children (``constrained_refine``) and the polynomial mutation index :data:`LATE_FINE_ETA` for
+#: particles and archive offspring. From the first feasible point on, refinement cost OSY one of its disconnected
+#: regions on seed 1 (docs/MOPSO.md).
+CONSTRAINED_LATE_PHASE = 0.5
+#: The mutation index of that late phase: steps of about 2 % of a variable's range, where η 20 makes 5 %.
+LATE_FINE_ETA = 50.0
 #: Exponent of Coello's mutation decay law (1 - t / (T p_m))^1.5 (see :meth:`MOPSO._coello_mutation`).
 MUTATION_DECAY_EXPONENT = 1.5
 
@@ -139,7 +162,8 @@ PAPER_PRESET = dict(archive_size=100, n_divisions=30, velocity="constriction", w
                     c2=None, max_velocity=None, boundary="reflect", leader="roulette",
                     personal_best="coin", removal="random", keep_extremes=False, mutation="coello",
                     mutation_rate=0.5, exploration=None, recombination=None, infeasible="least",
-                    constrained="grid", constrained_fine_mutation=None, constrained_reset=None)
+                    constrained="grid", constrained_fine_mutation=None, constrained_reset=None,
+                    constrained_refine=None, constrained_late_phase=None)
 
 
 def constriction_coefficients(phi: float = CONSTRICTION_PHI) -> tuple[float, float, float]:
@@ -581,6 +605,22 @@ class MOPSO(Algorithm):
         polynomial mutation's steps do not leave it; and with the fine mutation from the first generation
         the redraw is what still finds OSY's disconnected feasible regions while the archive fills
         (issue 33, docs/MOPSO.md). Default [0.3, 0.1] (21, then 7 of 70 offspring); None or 0: none.
+    constrained_refine : float in [0, 1] or None
+        On a problem with constraints, in the late phase (``constrained_late_phase``) and once the archive
+        holds a feasible point, this share of each generation's archive offspring are refinement children
+        instead of crossover children: an archive member (a third of them the ends of the front) with every
+        variable moved by a polynomial step of η = :data:`REFINE_ETA` (:meth:`_refined_children`). The IGD
+        gap to NSGA-II on MW3, MW7, CTP2 and CTP3 was convergence — archive points 0.01–0.04 off the front
+        at its ends and kinks, which lie on constraint boundaries, and CTP3's isolated front points reached
+        less closely — which crossover of distant members rarely refines (issue 33, fifth change,
+        docs/MOPSO.md). Default 0.3 (21 of 70 offspring); None or 0: none.
+    constrained_late_phase : float in [0, 1] or None
+        On a problem with constraints, the share of the planned generations after which the run refines the
+        front the first part found: the refinement children of ``constrained_refine``, and the mutated
+        particles and all archive offspring with the polynomial mutation index :data:`LATE_FINE_ETA`
+        instead of η 20 (the uniform redraw of ``constrained_reset`` goes on: stopping it left MW2 on its
+        local front on 2 seeds of 10) (issue 33, fifth change, docs/MOPSO.md). Default 0.5; None: no late
+        phase (and no refinement). Needs the run length (:meth:`_planned_generations`).
     horizon : int or None
         Run length in generations (the initial swarm included) that scheduled
         coefficients and Coello's mutation refer to. None: taken from the termination if
@@ -612,7 +652,8 @@ class MOPSO(Algorithm):
                  mutation_eta: float = 3.0, exploration: float | None = 0.5,
                  recombination: float | None = 0.7, infeasible: str = "diverse", constrained: str = "crowding",
                  constrained_fine_mutation: float | None = 1.0,
-                 constrained_reset=CONSTRAINED_RESET, horizon: int | None = None,
+                 constrained_reset=CONSTRAINED_RESET, constrained_refine: float | None = CONSTRAINED_REFINE,
+                 constrained_late_phase: float | None = CONSTRAINED_LATE_PHASE, horizon: int | None = None,
                  sampling: Sampling | None = None, output=None, **kwargs):
         # ArrayEvaluator unless the caller brings an evaluator (then the arrays are read back from the individuals)
         kwargs.setdefault("evaluator", ArrayEvaluator())
@@ -650,6 +691,11 @@ class MOPSO(Algorithm):
                                           check_in("optimizer.constrained_fine_mutation", constrained_fine_mutation,
                                                    Interval(0.0, 1.0)))
         self.constrained_reset = _reset_shares(constrained_reset)
+        self.constrained_refine = (None if constrained_refine is None else
+                                   check_in("optimizer.constrained_refine", constrained_refine, Interval(0.0, 1.0)))
+        self.constrained_late_phase = (None if constrained_late_phase is None else
+                                       check_in("optimizer.constrained_late_phase", constrained_late_phase,
+                                                Interval(0.0, 1.0)))
         self.horizon = None if horizon is None else check_int("optimizer.horizon", horizon, 1)
         if sampling is not None and not isinstance(sampling, Sampling):
             raise ConfigError(f"optimizer.sampling={sampling!r} is not allowed; allowed: a pymoo Sampling")
@@ -826,9 +872,14 @@ class MOPSO(Algorithm):
         archive members does both, as NSGA-II's variation does; its children of a
         one-member archive are mutated copies of it. On a problem with constraints, the mutation takes
         η = 20 (``constrained_fine_mutation``, :meth:`_mutation_etas`) and a share ``constrained_reset``
-        of the children then gets one variable redrawn uniformly (:func:`uniform_reset`, :meth:`_reset_share`).
+        of the children then gets one variable redrawn uniformly (:func:`uniform_reset`, :meth:`_reset_share`);
+        in a constrained run's late phase the last round(``constrained_refine`` × n) children are refinement
+        children instead (:meth:`_refined_children`), which the redraw may hit as well.
         """
-        children = self._varied_children(n)
+        refined = self._refined_count(n)
+        children = self._varied_children(n - refined)
+        if refined:
+            children = np.vstack([children, self._refined_children(refined)])
         share = self._reset_share()
         if share:
             problem = self.problem
@@ -838,10 +889,41 @@ class MOPSO(Algorithm):
     def _varied_children(self, n: int) -> np.ndarray:
         """Crossover and polynomial mutation of the archive offspring (:meth:`_archive_offspring`)."""
         archive, problem, rng = self.leader_archive, self.problem, self.random_state
+        if n == 0:
+            return np.empty((0, problem.n_var))
         pairs = archive.select_leaders(2 * n, rng, self.leader).reshape(n, 2)
         children = sbx_children(archive.X[pairs[:, 0]], archive.X[pairs[:, 1]], problem.xl, problem.xu, rng,
                                 CROSSOVER_PROBABILITY, CROSSOVER_ETA)
         return polynomial_mutation(children, problem.xl, problem.xu, self._mutation_etas(n), 1.0, rng)
+
+    def _refined_count(self, n: int) -> int:
+        """How many of ``n`` archive offspring are refinement children: round(``constrained_refine`` × n) in a
+        constrained run's late phase (``constrained_late_phase``) once the archive holds a feasible point, else 0
+        (so the infeasible start, the search of the first half and unconstrained runs are unchanged)."""
+        if not (self.constrained_refine and self._late_phase() and self.leader_archive.feasible):
+            return 0
+        return int(round(self.constrained_refine * n))
+
+    def _refined_children(self, n: int) -> np.ndarray:
+        """``n`` refinement children (``constrained_refine``): a local search around feasible archive members.
+
+        Each child is an archive member with every variable moved by pymoo's polynomial mutation step of
+        η = :data:`REFINE_ETA`, about 1 % of its range. A share :data:`REFINE_ENDS` of the members are the
+        ends of the front (the minimum of each objective in turn), the others are drawn by the leader rule
+        (on a full feasible archive NSGA-II's crowding tournament). Why (issue 33, fifth
+        change, docs/MOPSO.md): on MW3, MW7, CTP2 and CTP3 the final archive was spread as evenly as
+        NSGA-II's population but lay further from the front — near kinks and segment ends on constraint
+        boundaries (MW7's lower branch after f1 ≈ 0.9, CTP2's first segment next to the f1 = 0 end, CTP3's
+        isolated front points) — and a child of SBX between two distant members, or of a one-variable
+        mutation, lands near such a member too rarely to move it closer.
+        """
+        archive, problem, rng = self.leader_archive, self.problem, self.random_state
+        chosen = archive.select_leaders(n, rng, self.leader)
+        # the first round(REFINE_ENDS n) refine the ends of the front instead, the objectives' minima in turn
+        ends = int(round(REFINE_ENDS * n))
+        chosen[:ends] = np.argmin(archive.F, axis=0)[np.arange(ends) % archive.F.shape[1]]
+        return mut_pm(np.array(archive.X[chosen], dtype=float), problem.xl, problem.xu, np.full(n, REFINE_ETA),
+                      np.ones(n), at_least_once=False, random_state=rng)
 
     def _mutation_etas(self, n: int):
         """The polynomial mutation's distribution index for n rows (particles or archive offspring).
@@ -850,8 +932,11 @@ class MOPSO(Algorithm):
         round(``constrained_fine_mutation`` × n) rows take NSGA-II's :data:`FINE_MUTATION_ETA` from the
         first generation on (issue 33, docs/MOPSO.md: the fronts lie on constraint boundaries, where the
         long-tailed steps mostly leave the feasible region; the redraw of ``constrained_reset`` makes the long
-        jumps instead). A scalar when all rows share one, so that unconstrained runs are unchanged.
+        jumps instead); in a constrained run's late phase (``constrained_late_phase``) every row takes
+        :data:`LATE_FINE_ETA`. A scalar when all rows share one, so that unconstrained runs are unchanged.
         """
+        if self._late_phase():
+            return np.full(n, LATE_FINE_ETA)
         if not (self.constrained_fine_mutation and self.constrained_problem):
             return self.mutation_eta
         etas = np.full(n, float(self.mutation_eta))
@@ -865,6 +950,14 @@ class MOPSO(Algorithm):
             return 0.0
         archive = self.leader_archive
         return self.constrained_reset[1] if archive.feasible and archive.filled else self.constrained_reset[0]
+
+    def _late_phase(self) -> bool:
+        """Whether this generation is in a constrained run's late phase (``constrained_late_phase``): the
+        generations done, the initial swarm's not counted, reach that share of the planned ones
+        (:meth:`_planned_generations`)."""
+        if self.constrained_late_phase is None or not self.constrained_problem:
+            return False
+        return (self.n_iter - 1) / max(1, self.planned_generations - 1) >= self.constrained_late_phase
 
     def _exploring_share(self) -> float:
         """Share of the swarm that makes SMPSO's move (:func:`smpso_velocity`) this move.
