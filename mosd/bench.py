@@ -65,6 +65,8 @@ import time
 
 import numpy as np
 
+from .timing import best_of
+
 SECTIONS = ("candidates", "filter", "parallel", "main", "tuning", "zdt", "tep", "serve", "scale")
 DEFAULT_SECTIONS = ("candidates", "filter", "parallel", "tuning")
 #: what ``--json`` runs by default: every section that feeds a JSON key
@@ -207,16 +209,6 @@ def _naive_objectives(chart, phase1, train, mask, x):
     return np.mean(far), np.mean(mdr)
 
 
-def _best_of(fn, repeats: int) -> float:
-    """Shortest of ``repeats`` timings of fn() (the least disturbed by the rest of the machine)."""
-    best = math.inf
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t0)
-    return best
-
-
 def bench_candidates(quick: bool = False) -> tuple[list, dict]:
     from . import kernels
     from .denoisers import NoDenoiser
@@ -231,9 +223,9 @@ def bench_candidates(quick: bool = False) -> tuple[list, dict]:
     with kernels.disabled():
         reference = evaluator(X)
     repeats = 2 if quick else 5
-    compiled = _best_of(lambda: evaluator(X), repeats)
+    compiled = best_of(lambda: evaluator(X), repeats)
     with kernels.disabled():
-        vectorised = _best_of(lambda: evaluator(X), max(1, repeats // 2))
+        vectorised = best_of(lambda: evaluator(X), max(1, repeats // 2))
     n_naive = 2 if quick else 4
     t0 = time.perf_counter()
     naive_F = [_naive_objectives(chart, phase1, train, mask, x) for x in X[:n_naive]]
@@ -257,10 +249,10 @@ def bench_candidates(quick: bool = False) -> tuple[list, dict]:
     plain.denoiser = NoDenoiser()
     plain_evaluator = CandidateEvaluator(plain, plain.features(phase1), plain.features(train), mask)
     plain_F = plain_evaluator(X)
-    plain_compiled = _best_of(lambda: plain_evaluator(X), repeats)
+    plain_compiled = best_of(lambda: plain_evaluator(X), repeats)
     with kernels.disabled():
         plain_identical = bool(np.array_equal(plain_F, plain_evaluator(X)))
-        plain_vectorised = _best_of(lambda: plain_evaluator(X), max(1, repeats // 2))
+        plain_vectorised = best_of(lambda: plain_evaluator(X), max(1, repeats // 2))
     rows += [
         ("candidate evaluations/s, compiled, no denoiser (the app's default)", len(X) * n_seq / plain_compiled, ""),
         ("candidate evaluations/s, NumPy, no denoiser", len(X) * n_seq / plain_vectorised, ""),
@@ -328,9 +320,9 @@ def benchmark_entropy(n_particles: int = 500, repeats: int = 20, seed: int = 0) 
         return filt.cost(a1, b1, a2, b2, 0.4, 0.3, 0.5)
 
     one()  # load the compiled kernel outside the timing
-    compiled = _best_of(one, repeats)
+    compiled = best_of(one, repeats)
     with kernels.disabled():
-        reference = _best_of(one, max(1, repeats // 4))
+        reference = best_of(one, max(1, repeats // 4))
     return {"n_particles": n_particles, "compiled_per_s": 1.0 / compiled, "numpy_per_s": 1.0 / reference,
             "speedup_vs_numpy": reference / compiled}
 

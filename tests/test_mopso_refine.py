@@ -5,18 +5,16 @@ large and as evenly spread along the front as NSGA-II's, but further from it nea
 the front, which lie on constraint boundaries (docs/MOPSO.md). Refinement children, an archive member with
 every variable moved by a polynomial step of eta 100, are the local search there.
 """
-import warnings
 
 import numpy as np
 import pytest
-from pymoo.indicators.igd import IGD
 from pymoo.optimize import minimize
 from pymoo.problems import get_problem
 
 from mosd.optim import MOPSO
-from mosd.optim.benchmarks import make_problem, normalisation
 from mosd.optim.mopso import CONSTRAINED_LATE_PHASE, CONSTRAINED_REFINE, PAPER_PRESET, REFINE_ETA
 from mosd.validation import ConfigError
+from test_mopso_constrained import median_feasible_igd  # the same seeds-1-3 IGD median
 
 
 def test_the_share_is_a_validated_parameter_and_the_paper_has_none():
@@ -61,14 +59,6 @@ def test_ctp3s_isolated_front_points_are_reached_closer_in_the_late_phase():
     """CTP3's front is a dozen isolated points at the tips of feasible spikes: its IGD is the archive's
     distance to them. Seeds 1-3 at 10,000 evaluations: 0.0150-0.0156 without the late phase (the default of
     the fourth change), 0.0124-0.0155 with it (median 0.0126; NSGA-II 0.0118-0.0151)."""
-    problem, (_, _, true_front) = make_problem("ctp3"), normalisation("ctp3")
-    igd = {}
-    for name, kwargs in (("late phase", {}), ("without", dict(constrained_late_phase=None))):
-        values = []
-        for seed in (1, 2, 3):
-            with warnings.catch_warnings():
-                warnings.filterwarnings("ignore", "invalid value encountered in divide", RuntimeWarning)
-                result = minimize(problem, MOPSO(**kwargs), ("n_eval", 10_000), seed=seed)
-            values.append(IGD(true_front)(result.F[result.CV.reshape(-1) <= 0.0]))
-        igd[name] = np.median(values)
+    igd = {name: median_feasible_igd("ctp3", kwargs)
+           for name, kwargs in (("late phase", {}), ("without", dict(constrained_late_phase=None)))}
     assert igd["late phase"] < 0.9 * igd["without"], igd

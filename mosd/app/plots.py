@@ -434,7 +434,11 @@ def draw_in_parallel(jobs: Sequence[tuple[str, dict[str, Any]]], drawers: int) -
 
 
 def usable_cpus() -> int:
-    """The CPUs this process may run on."""
+    """The CPUs this process may run on.
+
+    :func:`mosd.optim.workers.available_cpus`'s arithmetic, not imported from there: importing ``mosd.optim``
+    loads pymoo, which neither the figure process nor the check before preflight (:func:`mosd.app.spare_core`)
+    needs."""
     try:
         return len(os.sched_getaffinity(0))
     except AttributeError:  # pragma: no cover - not on Linux

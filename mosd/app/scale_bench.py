@@ -37,6 +37,8 @@ import time
 
 import numpy as np
 
+from ..timing import best_of
+
 #: workload name -> (how the command builds it, what kind of evaluation path it exercises)
 WORKLOADS = {
     "threads": ((), "+fault=offset_var optimizer=mopso: fused chart, threads"),
@@ -150,15 +152,7 @@ def thread_ceiling(setup, evaluator, n_threads: int, repeats: int = 15) -> float
             for helper in helpers:
                 helper.join()
 
-        def fastest(call) -> float:
-            best = np.inf
-            for _ in range(repeats):
-                t0 = time.perf_counter()
-                call()
-                best = min(best, time.perf_counter() - t0)
-            return best
-
-        return fastest(lambda: fused(X)) / fastest(together)
+        return best_of(lambda: fused(X), repeats) / best_of(together, repeats)
     finally:
         problem.close()
 

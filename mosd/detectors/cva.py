@@ -116,8 +116,7 @@ class CVADetector(LatentDetector):
         if not held_back or not (self.drop_unjudged if design is None else design.get("drop_unjudged",
                                                                                       self.drop_unjudged)):
             return fitted
-        floor = self._remember(("lam_floor", id(calibration_z)), (calibration_z,),
-                               lambda: self.lam_bounds(calibration_z)[0])
+        floor = self.lam_floor_of(calibration_z)
         fit, _ = self._split(calibration_z)
         return self._remember(("unjudged", id(fitted)), (fitted, fit), lambda: {
             **fitted, "unjudged": (1.0 - self.autocorrelation(fitted, fit) < floor).astype(np.int8)})

@@ -272,6 +272,12 @@ class LatentDetector(Detector):
         rows = np.any(np.isfinite(held), axis=-1).sum(axis=-1)
         return min(lam_floor(int(rows.min())), 1.0), 1.0
 
+    def lam_floor_of(self, calibration_z: np.ndarray) -> float:
+        """The low end of :meth:`lam_bounds` on ``calibration_z``, once per calibration set: λ's and λ_f's floor, and
+        the shortest memory the held-back runs can judge (a family's ``drop_unjudged`` compares its features' with it)."""
+        return self._remember(("lam_floor", id(calibration_z)), (calibration_z,),
+                              lambda: self.lam_bounds(calibration_z)[0])
+
     def data_bounds(self, calibration_z: np.ndarray) -> dict[str, tuple[float, float]]:
         """The search box the calibration data ``calibration_z`` (R, K, m) allow: {parameter: (low, high)}.
 
@@ -341,8 +347,7 @@ class LatentDetector(Detector):
         fit, held = self._split(calibration_z)
         own, on_fit = self._scored(fitted, z, design), self._scored(fitted, fit, design)
         alpha, lam = float(design["alpha"]), float(design["lam"])
-        floor = self._remember(("lam_floor", id(calibration_z)), (calibration_z,),
-                               lambda: self.lam_bounds(calibration_z)[0])
+        floor = self.lam_floor_of(calibration_z)
         if lam < 1.0 and lam < floor * (1.0 - 1e-9):
             raise ConfigError(f"detector.lam={lam:.4g}: its EWMA memory (2 - lam)/lam is more than a tenth of a "
                               f"held-back calibration run, whose limits cannot judge it; allowed: lam >= {floor:.4g} "

@@ -93,8 +93,7 @@ class SFADetector(LatentDetector):
         fitted = super().fitted(calibration_z, design)
         if not self.drop_unjudged:
             return fitted
-        floor = self._remember(("lam_floor", id(calibration_z)), (calibration_z,),
-                               lambda: self.lam_bounds(calibration_z)[0])
+        floor = self.lam_floor_of(calibration_z)
         return self._remember(("dropped", id(fitted)), (fitted,), lambda: {
             **fitted, "dropped": int(np.count_nonzero(0.5 * np.asarray(fitted["omega"]) < floor))})
 
