@@ -213,7 +213,7 @@ def _checked_and_run(argv: list[str], started: float) -> int:
         from .preflight import preflight
 
         # the components of every job, built once: a job run in this process takes its own
-        checked = preflight(argv)
+        checked = preflight(argv, compile_ahead=checking)
     except (UsageError, ConfigError) as exc:
         from .settings import redacted
 

@@ -558,11 +558,14 @@ class Checked:
         return {"_setups": {}, "config": None}
 
 
-def preflight(argv: Sequence[str]) -> Checked:
+def preflight(argv: Sequence[str], compile_ahead: bool = False) -> Checked:
     """Compose and build every job of a command line; raise UsageError/ConfigError on a mistake.
 
     Returns the built components of every job (:class:`Checked`), so that a job
     run in this process does not build them again (:func:`mosd.app.run.run`).
+    ``compile_ahead``: a second process may compile the kernels the first job calls
+    last while its dry run compiles the first ones (:func:`mosd.app.compile_ahead.start_for`:
+    nothing on a warm cache or on one CPU).
     """
     checked = Checked()
     args = _args_parser().parse_args(list(argv))
@@ -599,6 +602,11 @@ def preflight(argv: Sequence[str]) -> Checked:
                     setup = build(cfg)
             except OmegaConfBaseException as exc:
                 raise UsageError(one_line(exc)) from None
+            if compile_ahead:
+                from .compile_ahead import start_for
+
+                start_for(setup.experiment)
+                compile_ahead = False
             check_job(cfg, setup, done, multirun=bool(args.multirun))
             checked.add(cfg, setup)
     if not (args.multirun or args.config_path or args.config_dir or args.config_name) and \

@@ -238,17 +238,25 @@ def alarm_counts_denoised(u, v, n_calibration, gains, feedback, widths, combine_
     return healthy_alarms, faulty_misses
 
 
-def warm_up(denoised: bool = False) -> None:
-    """Load (or compile) the kernel without a denoiser, and with ``denoised`` also the wavelet one
-    (db3, three levels, SURE: the paper's wavelet)."""
+def _warm_up_arguments():
     u = np.zeros((64, 3))
     faulty = np.zeros((2, 64), bool)
     # K as the tuning passes it: a column of the population (a strided view, numba's layout 'A'); a contiguous
     # array here would compile a signature the run never calls, and the run would compile its own
     widths = np.ones((2, 2))[:, 1]
-    alarm_counts(u, u, 1, np.ones(2), np.zeros((2, 2)), widths, False, faulty)
-    if not denoised:
-        return
+    return (u, u, 1, np.ones(2), np.zeros((2, 2)), widths, False, faulty)
+
+
+def warm_up(denoised: bool = False) -> None:
+    """Load (or compile) the kernel without a denoiser, and with ``denoised`` also the wavelet one
+    (:func:`warm_up_denoised`)."""
+    alarm_counts(*_warm_up_arguments())
+    if denoised:
+        warm_up_denoised()
+
+
+def warm_up_denoised() -> None:
+    """Load (or compile) the kernel with the wavelet denoiser (db3, three levels, SURE: the paper's wavelet)."""
     import pywt
 
     from .wavelet import RULE_SURE, SOURCE_COARSEST
@@ -256,7 +264,7 @@ def warm_up(denoised: bool = False) -> None:
     wavelet = pywt.Wavelet("db3")
     filters = [np.asarray(f, float) for f in (wavelet.dec_lo, wavelet.dec_hi, wavelet.rec_lo, wavelet.rec_hi)]
     args = (*filters, 3, False, SOURCE_COARSEST, RULE_SURE, np.zeros(3), False)
-    alarm_counts_denoised(u, u, 1, np.ones(2), np.zeros((2, 2)), widths, False, faulty, *args)
+    alarm_counts_denoised(*_warm_up_arguments(), *args)
 
 
 def warm_up_all() -> None:

@@ -500,11 +500,28 @@ def filter_batch(kind, params, outputs, y, u, x0, st0, eps, weights, sq_t, sr_t,
     else:
         resume, before = True, tuple(np.ascontiguousarray(a, dtype=np.float64) for a in start)
     sr_t = np.array(sr_t, dtype=np.float64, order="C")  # a writable C array: the type _update_lanes is compiled for
+    if len(_ADDRESSES) < 2:
+        # This process's first filter: cesckf's own code is loaded or compiled first, on no replication (its
+        # helpers are not called), and the helpers' after it: a second process may be compiling the helpers
+        # meanwhile (mosd.kernels.ahead), which then costs this one no wait.
+        cesckf(kind, params, outputs, y, u, x0, st0, eps, weights, sq_t, sr_t, 0, 0, *outs, lanes, resume, *before,
+               0, 0)
     helpers = (_address(_tria_lanes, _TRIA_TYPES), _address(_update_lanes, _UPDATE_TYPES))
     _over_replications(lambda first, stop: cesckf(kind, params, outputs, y, u, x0, st0, eps, weights, sq_t, sr_t,
                                                    first, stop, *outs, lanes, resume, *before, *helpers), n_reps,
                        threads)
     return outs
+
+
+def helper_dispatchers() -> tuple:
+    """The filter's helpers that :func:`cesckf` calls by address (what :mod:`mosd.kernels.ahead` can compile apart)."""
+    return _tria_lanes, _update_lanes
+
+
+def warm_up_helpers() -> None:
+    """Load (or compile) the filter's helpers alone, for the types :func:`cesckf` calls them with."""
+    _address(_tria_lanes, _TRIA_TYPES)
+    _address(_update_lanes, _UPDATE_TYPES)
 
 
 def _over_replications(run, n_reps, threads=None):

@@ -1,0 +1,78 @@
+"""Which compiled kernels a run's second core compiles ahead (:mod:`mosd.kernels.ahead`), asked of its components.
+
+A first run on an empty numba cache compiles its kernels where it first calls them, one after another: the
+plant's simulation, the filter, then the chart's candidate evaluation and the EWMA recursion (the main
+command). Preflight knows the run's components before its dry run calls any kernel, so :func:`start_for`
+hands the kernels the run needs last to a second process while this one compiles the ones it needs first.
+A part named here that the run does not call costs the other core's time only; one it misses is compiled
+where the run calls it, as before. Nothing starts on a warm cache, with the kernels off, or where this
+process may use one CPU only. A busy machine still gets it: no kernel is compiled twice (the run waits for a
+part the other process is compiling), so the two processes do the work one would have done, on two cores
+when the machine has them.
+"""
+from __future__ import annotations
+
+import logging
+
+log = logging.getLogger(__name__)
+
+
+def kernel_parts(experiment) -> tuple[str, ...]:
+    """The parts of :data:`mosd.kernels.ahead.PARTS` a run of ``experiment`` calls after its first kernels, in order.
+
+    What stays with the run: the plant's simulation and the estimator's own kernels (the filter's body, paper
+    001's IMM, paper 002's entropy filter), which its dry run needs first. What goes ahead: the cubature
+    filter's two helpers (the filter compiles its body first, :func:`mosd.kernels.cubature.filter_batch`), then
+    a chart's fused candidate evaluation (``chart``, or ``chart.denoised`` with the wavelet denoiser, then the
+    whole-series ``wavelet`` kernels of its test) and the EWMA recursion (``ewma``). These repeat the
+    components' own decisions to call a kernel: the plant's compiled transition
+    (:data:`mosd.kernels.plants.TRANSITIONS`), a cubature filter on it, :func:`mosd.detectors.fused.applies`.
+    """
+    from .. import kernels
+
+    if not kernels.enabled():
+        return ()
+    from ..denoisers.wavelet import WaveletDenoiser
+    from ..detectors.chart import Chart
+    from ..detectors.fused import applies
+    from ..estimators.cubature import _CubatureFilterBase
+    from ..kernels.plants import TRANSITIONS
+
+    parts = []
+    if getattr(experiment, "data", None) is None:  # simulated (a recorded table has no plant to filter)
+        pointwise = getattr(getattr(experiment, "model", None), "pointwise", None)
+        if (pointwise is not None and pointwise.transition in TRANSITIONS
+                and isinstance(getattr(experiment.estimator, "filter", None), _CubatureFilterBase)):
+            parts.append("cubature.helpers")
+    detector = experiment.detector
+    if isinstance(detector, Chart):
+        wavelet = isinstance(detector.denoiser, WaveletDenoiser)
+        if applies(detector, experiment.objectives):
+            parts.append("chart.denoised" if wavelet else "chart")
+        parts.append("ewma")
+        if wavelet:
+            parts.append("wavelet")
+    return tuple(parts)
+
+
+_MODULE_OF = {"cubature.helpers": "cubature", "chart.denoised": "chart"}
+
+
+def start_for(experiment):
+    """Start compiling the uncached parts of :func:`kernel_parts` in a second process; the handle, or None.
+
+    An optimisation only: whatever goes wrong is logged and the run compiles its kernels itself.
+    """
+    try:
+        from .. import kernels
+        from ..kernels import ahead
+        from .plots import usable_cpus
+
+        if usable_cpus() < 2:
+            return None
+
+        parts = [part for part in kernel_parts(experiment) if not kernels.cached(_MODULE_OF.get(part, part))]
+        return ahead.start(parts)
+    except Exception as exc:  # noqa: BLE001 - the dry run compiles and reports on its own
+        log.warning("kernels not compiled ahead: %s: %s", type(exc).__name__, exc)
+        return None

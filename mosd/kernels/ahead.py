@@ -1,0 +1,238 @@
+"""Kernels compiled ahead in a second process while this one goes on: a first run on an empty cache, on two cores.
+
+A process compiles each numba kernel where it first calls it, one after another: on an empty cache most of a
+first run's time (the filter, then the chart and the EWMA recursion of the main command). Which kernels a run
+calls is known before it calls any (the app asks its components), so :func:`start` hands the ones needed
+last to a second process, which compiles them on another core while this process compiles and runs the ones
+needed first. numba's on-disk cache is the hand-over: the second process saves each part as it is compiled
+(numba writes a cache entry under a temporary name and renames it, so a reader never sees half of one), and
+this process loads it from there where it first calls it.
+
+A kernel this process reaches while the second process still compiles it waits for it instead of compiling it
+too (:class:`Ahead`: each handed-over dispatcher's cache lookup waits for its part), so no kernel is compiled
+twice. If the second process fails on a part, dies or is stopped, every wait ends and this process compiles
+what is missing, as it would have without it: compiling ahead changes when a kernel is compiled, never what
+is computed.
+
+The parts (:data:`PARTS`) are whole modules (their ``warm_up``: the signatures a run calls) and, for the
+filter, its two helpers alone: :func:`mosd.kernels.cubature.filter_batch` compiles its own code before it asks
+for its helpers', so the filter's body compiles here while the helpers compile there.
+
+``python -m mosd.kernels.ahead PART...`` is the second process (it reports ``ready PART`` or ``failed PART``
+on stdout, one line each, and ends when its stdin closes: when the process that started it dies).
+"""
+from __future__ import annotations
+
+import atexit
+import importlib
+import os
+import subprocess
+import sys
+import threading
+from pathlib import Path
+from typing import Sequence
+
+
+def _filter_helpers():
+    from . import cubature
+
+    return cubature.helper_dispatchers()
+
+
+def _warm_up_filter_helpers() -> None:
+    from . import cubature
+
+    cubature.warm_up_helpers()
+
+
+#: Every part a second process can compile: name -> (module, its dispatchers here, how to compile it there).
+#: A module part hands over every dispatcher the module defines; ``cubature.helpers`` only the filter's helpers.
+PARTS = {
+    "cubature.helpers": ("cubature", _filter_helpers, _warm_up_filter_helpers),
+    **{name: (name, None, None) for name in ("ewma", "wavelet", "chart", "plants", "cubature", "imm", "entropy",
+                                             "projection")},
+    "chart.denoised": ("chart", None, lambda: importlib.import_module(f"{__package__}.chart").warm_up_denoised()),
+}
+
+
+def _dispatchers(part: str) -> list:
+    """The dispatchers of ``part`` in this process (numba's, with an on-disk cache)."""
+    module_name, chosen, _ = PARTS[part]
+    if chosen is not None:
+        return list(chosen())
+    module = importlib.import_module(f"{__package__}.{module_name}")
+    return [obj for obj in vars(module).values()
+            if getattr(obj, "__module__", None) == module.__name__ and hasattr(obj, "_cache")
+            and hasattr(obj, "overloads")]
+
+
+def _compile(part: str) -> None:
+    """Compile ``part`` into the on-disk cache (the second process's work)."""
+    module_name, _, warm = PARTS[part]
+    if warm is not None:
+        warm()
+    else:
+        importlib.import_module(f"{__package__}.{module_name}").warm_up()
+
+
+class _WaitingCache:
+    """A dispatcher's on-disk cache whose lookup first waits until the second process is done with the part."""
+
+    def __init__(self, cache, done: threading.Event):
+        self.inner = cache
+        self._done = done
+
+    def load_overload(self, sig, target_context):
+        self._done.wait()
+        return self.inner.load_overload(sig, target_context)
+
+    def __getattr__(self, name):
+        return getattr(self.inner, name)
+
+
+class Ahead:
+    """The second process compiling ``parts`` (in order), and this process's waits for them.
+
+    Built by :func:`start`. :meth:`wait` blocks until a part is in the cache or the
+    second process has given up on it; :meth:`close` (idempotent) ends the process
+    and every wait.
+    """
+
+    def __init__(self, parts: Sequence[str]):
+        unknown = [p for p in parts if p not in PARTS]
+        if unknown:
+            raise ValueError(f"parts {unknown} are not kernel parts; allowed: {', '.join(PARTS)}")
+        self.parts = tuple(parts)
+        self.ready: set[str] = set()
+        self.failed: dict[str, str] = {}
+        self._done = {part: threading.Event() for part in self.parts}
+        self._hooked: list[tuple[object, _WaitingCache]] = []
+        from . import enabled
+
+        if not enabled():
+            raise RuntimeError("kernels are off (MOSD_KERNELS=numpy or no numba): nothing to compile")
+        for part in self.parts:  # before the process starts: no lookup of a handed-over kernel escapes the wait
+            for dispatcher in _dispatchers(part):
+                hook = _WaitingCache(dispatcher._cache, self._done[part])
+                dispatcher._cache = hook
+                self._hooked.append((dispatcher, hook))
+        package_parent = str(Path(__file__).resolve().parents[2])  # the directory holding mosd/
+        try:
+            self._proc = subprocess.Popen(
+                [sys.executable, "-c", "import sys; sys.path.insert(0, sys.argv[1]); "
+                 "from mosd.kernels.ahead import main; sys.exit(main(sys.argv[2:]))", package_parent, *self.parts],
+                stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+        except OSError:
+            self._unhook()
+            raise
+        self._reader = threading.Thread(target=self._read, name="mosd-kernels-ahead", daemon=True)
+        self._reader.start()
+
+    def _read(self) -> None:
+        try:
+            for line in self._proc.stdout:
+                word, _, rest = line.strip().partition(" ")
+                part, _, why = rest.partition(" ")
+                if part in self._done:
+                    (self.ready.add(part) if word == "ready" else self.failed.setdefault(part, why or word))
+                    self._done[part].set()
+        except (OSError, ValueError):  # closed under us by close()
+            pass
+        for part, done in self._done.items():  # the process ended: what it did not report, this one compiles
+            if not done.is_set():
+                self.failed.setdefault(part, "the second process ended before it")
+                done.set()
+        self._unhook()
+
+    def _unhook(self) -> None:
+        for dispatcher, hook in self._hooked:
+            if getattr(dispatcher, "_cache", None) is hook:
+                dispatcher._cache = hook.inner
+        self._hooked = []
+
+    def wait(self, part: str, timeout: float | None = None) -> bool:
+        """Block until ``part`` is done (or ``timeout`` s have passed); whether it is in the cache now."""
+        self._done[part].wait(timeout)
+        return part in self.ready
+
+    @property
+    def running(self) -> bool:
+        return self._proc.poll() is None
+
+    def close(self) -> None:
+        """End the second process (whatever it was doing) and every wait."""
+        if self._proc.poll() is None:
+            try:
+                self._proc.kill()
+            except OSError:  # pragma: no cover - already gone
+                pass
+        for stream in (self._proc.stdin, self._proc.stdout):
+            try:
+                stream.close()
+            except (OSError, ValueError):
+                pass
+        self._proc.wait()
+        for done in self._done.values():
+            done.set()
+        self._unhook()
+
+
+_CURRENT: list[Ahead] = []
+
+
+def start(parts: Sequence[str]) -> Ahead | None:
+    """Compile ``parts`` (of :data:`PARTS`, in this order) in a second process from now on; None when none.
+
+    This process's lookups of those kernels wait for the second process (module
+    docstring). The process is ended when this one exits (and by :func:`close`).
+    """
+    close()
+    if not parts:
+        return None
+    ahead = Ahead(parts)
+    _CURRENT.append(ahead)
+    return ahead
+
+
+def close() -> None:
+    """End the second process :func:`start` started, if any (idempotent)."""
+    while _CURRENT:
+        _CURRENT.pop().close()
+
+
+atexit.register(close)
+
+
+def _exit_when_orphaned() -> None:
+    """End this (second) process when its stdin closes: the process that started it has ended."""
+    try:
+        while sys.stdin.buffer.read(65536):
+            pass
+    except (OSError, ValueError):
+        pass
+    os._exit(0)
+
+
+def compile_parts(parts: Sequence[str], report=print) -> int:
+    """Compile each part in order into the cache, reporting ``ready PART`` / ``failed PART why``; the failures."""
+    failed = 0
+    for part in parts:
+        try:
+            if part not in PARTS:
+                raise ValueError(f"not a kernel part (allowed: {', '.join(PARTS)})")
+            _compile(part)
+            report(f"ready {part}")
+        except Exception as exc:  # noqa: BLE001 - reported; the first process compiles this part itself
+            failed += 1
+            report(f"failed {part} {type(exc).__name__}: {' '.join(str(exc).split())}")
+    return failed
+
+
+def main(parts: Sequence[str]) -> int:
+    """The second process: :func:`compile_parts`, ended early when the first process ends."""
+    threading.Thread(target=_exit_when_orphaned, name="mosd-orphaned", daemon=True).start()
+    return 1 if compile_parts(parts, report=lambda line: print(line, flush=True)) else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

@@ -1,0 +1,114 @@
+"""Kernels compiled ahead on a second core (issue 31 item 5: the first result soon after install).
+
+What the second process is given, that the first process then loads those kernels from the cache instead of
+compiling them (waiting for a part still being compiled), and that a second process that fails or is stopped
+leaves the first to compile what is missing, with the same numbers.
+"""
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+from hydra import compose, initialize_config_dir
+
+from mosd.app.build import build
+from mosd.app.compile_ahead import kernel_parts
+from mosd.app.config import CONFIG_DIR
+
+PACKAGE_PARENT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def _experiment(*overrides):
+    with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
+        return build(compose("config", overrides=["tracking=none", *overrides])).experiment
+
+
+@pytest.mark.parametrize("overrides, parts", [
+    (("+fault=offset_var",), ("cubature.helpers", "chart", "ewma")),  # the README's main command
+    (("+experiment=paper000",), ("cubature.helpers", "chart.denoised", "ewma", "wavelet")),
+    (("+experiment=paper002",), ()),  # the entropy filter and a threshold: one kernel module, the run's own
+])
+def test_the_parts_a_run_hands_over_are_those_it_calls_after_its_first(overrides, parts):
+    assert kernel_parts(_experiment(*overrides)) == parts
+
+
+def test_no_parts_with_the_kernels_off():
+    from mosd import kernels
+
+    experiment = _experiment("+fault=offset_var")
+    with kernels.disabled():
+        assert kernel_parts(experiment) == ()
+
+
+_PROBE = """
+import json, sys
+import numpy as np
+from numba.core import event
+from mosd.kernels import ahead, ewma
+
+compiled = []
+class Listener(event.Listener):
+    def on_start(self, e):
+        compiled.append(e.data["dispatcher"].py_func.__module__ + "." + e.data["dispatcher"].py_func.__name__)
+    def on_end(self, e):
+        pass
+event.register("numba:compile", Listener())
+handle = ahead.start(["ewma"])
+if sys.argv[1] == "stopped":
+    ahead.close()  # the second process ended before it reported: this one compiles the part itself
+x = np.random.default_rng(0).normal(size=(40, 3))
+out = ewma.ewma_population(x, np.array([0.2, 0.7]), np.zeros((2, 2)))
+print(json.dumps({"compiled": compiled, "ready": sorted(handle.ready), "failed": sorted(handle.failed),
+                  "out": float(np.sum(out * np.arange(out.size).reshape(out.shape)))}))
+"""
+
+
+def _probe(tmp_path, mode):
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba"), PYTHONPATH=PACKAGE_PARENT)
+    env.pop("MOSD_KERNELS", None)
+    run = subprocess.run([sys.executable, "-c", _PROBE, mode], capture_output=True, text=True, env=env, timeout=300)
+    assert run.returncode == 0, run.stderr[-3000:]
+    return json.loads(run.stdout.strip().splitlines()[-1])
+
+
+def test_a_part_compiled_ahead_is_loaded_not_compiled_again(tmp_path):
+    """The first process reaches the EWMA kernel while the second still compiles it: it waits, then loads it."""
+    ahead = _probe(tmp_path / "a", "ahead")
+    assert ahead["ready"] == ["ewma"] and ahead["failed"] == []
+    assert not [name for name in ahead["compiled"] if name.startswith("mosd.kernels.ewma")], ahead["compiled"]
+    alone = _probe(tmp_path / "b", "stopped")
+    assert alone["ready"] == [] and alone["failed"] == ["ewma"]
+    assert "mosd.kernels.ewma.ewma_population" in alone["compiled"]  # compiled here after all
+    assert ahead["out"] == alone["out"]
+
+
+def test_a_part_that_fails_is_reported_and_left_to_the_run(capsys):
+    from mosd.kernels.ahead import compile_parts
+
+    lines = []
+    assert compile_parts(["ewma", "no_such_part"], report=lines.append) == 1
+    assert lines[0] == "ready ewma"
+    assert lines[1].startswith("failed no_such_part ValueError: not a kernel part (allowed: cubature.helpers, ")
+
+
+def test_the_second_process_ends_with_the_first(tmp_path):
+    """Killed first process: the second one sees its stdin close and exits at once, whatever it was compiling."""
+    script = ("import sys, time; from mosd.kernels import ahead; h = ahead.start(['cubature.helpers', 'chart']); "
+              "print(h._proc.pid, flush=True); time.sleep(60)")
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba"), PYTHONPATH=PACKAGE_PARENT)
+    first = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True, env=env)
+    try:
+        second = int(first.stdout.readline())
+        first.kill()
+        first.wait(timeout=30)
+        import time
+
+        deadline = time.monotonic() + 20
+        while time.monotonic() < deadline and os.path.exists(f"/proc/{second}") and \
+                open(f"/proc/{second}/stat").read().split()[2] != "Z":
+            time.sleep(0.1)
+        gone = not os.path.exists(f"/proc/{second}") or open(f"/proc/{second}/stat").read().split()[2] == "Z"
+        assert gone, "the second process outlived the first by 20 s"
+    finally:
+        first.kill()
