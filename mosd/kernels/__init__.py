@@ -29,7 +29,8 @@ check equality, not a tolerance); the last three are close, not identical:
 
 Compiled code is cached on disk (``cache=True``), so only the first run on a
 machine pays the compilation, and only for the kernels it calls (numba compiles a
-function when it is first called). ``python -m mosd.kernels`` compiles all seven
+function when it is first called); the app hands those a run calls last to a second
+process that compiles them meanwhile (:mod:`mosd.kernels.ahead`). ``python -m mosd.kernels`` compiles all seven
 modules ahead (a machine image, a cluster's shared cache); the set-up does not need it. The NumPy path is used when numba is missing, when
 ``MOSD_KERNELS=numpy`` is set, or inside :func:`disabled` (how the tests and
 ``python -m mosd.bench`` compare the two in one process).
