@@ -62,15 +62,16 @@ def test_the_test_stream_reads_back_in_pandas_as_the_pandas_writer_wrote_it(tmp_
 def test_the_main_command_imports_no_pandas(tmp_path):
     # the whole run in one interpreter (figures in their side process, as always): pandas used to be
     # imported in the files phase only to write the test stream
+    # nor PyWavelets (denoise=none) nor asyncio (no Dask scheduler named), imported at module level before
     code = ("import sys; from mosd.app import main; "
             "code = main(['+fault=offset_var', 'optimizer=mopso', 'tracking=none', 'debug=tiny']); "
-            "print('RESULT', code, 'pandas' in sys.modules)")
+            "print('RESULT', code, *(name in sys.modules for name in ('pandas', 'pywt', 'asyncio')))")
     env = {k: v for k, v in os.environ.items() if not k.startswith("MOSD_")}
     env.update(PYTHONPATH=PACKAGE_PARENT, MOSD_OUTPUTS=str(tmp_path / "out"))
     done = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, env=env, capture_output=True, text=True,
                           timeout=300)
     assert done.returncode == 0, done.stderr[-3000:]
-    assert done.stdout.splitlines()[-1] == "RESULT 0 False", done.stdout[-2000:]
+    assert done.stdout.splitlines()[-1] == "RESULT 0 False False False", done.stdout[-2000:]
     run_dir = next((tmp_path / "out" / "runs").glob("*"))
     assert json.loads((run_dir / "summary.json").read_text())["deployment"]["test_stream"] == STREAM_FILE
     stream = pd.read_parquet(run_dir / STREAM_FILE)
