@@ -22,10 +22,11 @@ from mosd.app.deploy import REFERENCE_ATTR, STREAM_FILE, Deployable, _stream, sa
 PACKAGE_PARENT = str(Path(mosd_package.__file__).resolve().parents[1])
 
 
-def _inputs(rows: int = 240):
+def _inputs(rows: int = 243):
+    # an odd row count (Arrow packs the alarm column into bits) and a strided column (a view of a 2-D array)
     rng = np.random.default_rng(7)
     points = np.repeat(np.arange(rows // 4 + 1), 4)[:rows]   # 0 on the first rows: off the points
-    columns = {"y_x_p": rng.normal(size=rows), "y_theta": rng.normal(size=rows), "u_i_q": rng.normal(size=rows)}
+    columns = {"y_x_p": rng.normal(size=rows), "y_theta": rng.normal(size=(rows, 2))[:, 1], "u_i_q": rng.normal(size=rows)}
     decision = rng.integers(0, 2, size=points.max())
     return points, columns, SimpleNamespace(t=np.arange(rows) * 0.01), decision
 
