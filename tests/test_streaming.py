@@ -257,7 +257,7 @@ def test_a_new_detector_in_one_module_is_deployed_without_the_app_knowing_it(tmp
         online=lambda model: None, residual_columns=lambda outputs: ()), monitor=monitor, model=None))
     found = deployable(setup, result)
     assert found.reason is None and found.pipeline is not None
-    assert np.array_equal(found.stream["decision"].to_numpy(), decided.decision[0])
+    assert np.array_equal(found.stream["decision"], decided.decision[0])
     assert np.array_equal(found.pipeline.update({"error": error[0]})["decision"], decided.decision[0])
 
 

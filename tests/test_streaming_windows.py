@@ -37,4 +37,4 @@ def test_pca_on_windows_streams_the_run_s_own_decisions(flatline):
     assert decided.decision[0].any() and not decided.decision[0].all()
     stream = found.pipeline.update({"residual_c": r[0, :, 0]})
     assert np.array_equal(stream["decision"] if "decision" in stream else stream["alarm"],
-                          found.stream["decision" if "decision" in stream else "alarm"].to_numpy())
+                          found.stream["decision" if "decision" in stream else "alarm"])

@@ -236,7 +236,7 @@ def run(cfg, started: float | None = None, checked=None):
 
         def while_figures_are_drawn(text_files: list[Path]) -> None:
             log_early(text_files)
-            # the deployable pipeline and its test stream are built (importing pandas: 0.76 s at load 7) while
+            # the deployable pipeline and its test stream are built (and pyarrow imported to write it) while
             # the figure process draws; they are written after the figures (below)
             found.append(deployable(setup, result))
 

@@ -28,12 +28,15 @@ from __future__ import annotations
 
 import functools
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pywt
 from numpy.lib.stride_tricks import sliding_window_view
 
 from ..validation import Component, Interval, Param, check_choice
+
+if TYPE_CHECKING:
+    import pywt
 
 #: Threshold selection rules of MATLAB's ``thselect``.
 THRESHOLD_RULES = ("rigrsure", "heursure", "sqtwolog", "minimaxi")
@@ -52,6 +55,13 @@ _MAD_TO_SIGMA = 0.6745
 # Elements of one chunk of sliding windows in causal mode: bounds memory at ~32 MB
 # per intermediate array while keeping each PyWavelets call large enough to be cheap.
 _CAUSAL_CHUNK_ELEMENTS = 1 << 22
+
+
+def _discrete_wavelets() -> list[str]:
+    """PyWavelets' discrete wavelets; pywt is imported where it is used: a run without this denoiser never loads it."""
+    import pywt
+
+    return pywt.wavelist(kind="discrete")
 
 
 def select_threshold(coefficients, rule: str = "rigrsure") -> np.ndarray:
@@ -206,7 +216,7 @@ class WaveletDenoiser(Component):
 
     config_group = "denoise"
     params = {
-        "wavelet": Param(lambda key, value, d: check_choice(key, value, pywt.wavelist(kind="discrete")),
+        "wavelet": Param(lambda key, value, d: check_choice(key, value, _discrete_wavelets()),
                          "A discrete wavelet known to PyWavelets (``pywt.wavelist(kind=\"discrete\")``); paper 000: "
                          "db3.", kind="str"),
         "level": Param(Interval(1, 12, integer=True), "Decomposition depth (paper 000: 3)."),
@@ -242,6 +252,8 @@ class WaveletDenoiser(Component):
 
     @functools.cached_property
     def _wavelet(self) -> pywt.Wavelet:
+        import pywt
+
         return pywt.Wavelet(self.wavelet)
 
     @property
@@ -332,6 +344,8 @@ class WaveletDenoiser(Component):
 
     def _denoise_rows_numpy(self, rows: np.ndarray) -> np.ndarray:
         """The reference: PyWavelets' wavedec, the threshold rule, wthresh, waverec."""
+        import pywt
+
         n = rows.shape[-1]
         coeffs = pywt.wavedec(rows, self._wavelet, mode="symmetric", level=self.level, axis=-1)
         details = coeffs[1:]  # coarsest first: cD_level, ..., cD_1

@@ -21,7 +21,6 @@ naming the install command.
 """
 from __future__ import annotations
 
-import asyncio
 import importlib.util
 import logging
 import socket
@@ -129,6 +128,8 @@ def check_scheduler(address: str, timeout: float = 5.0) -> None:
     probe.join(timeout + 1.0)  # the probe's own deadline is timeout; this bounds a probe stuck outside its loop
     identity, error = answer.get("identity"), answer.get("error")
     if identity is None:
+        import asyncio
+
         if error is None or isinstance(error, (TimeoutError, asyncio.TimeoutError)):
             what = f"no Dask handshake within {timeout:g} s"
         else:
@@ -145,6 +146,8 @@ def check_scheduler(address: str, timeout: float = 5.0) -> None:
 
 def _identify(address: str, timeout: float, answer: dict, connection_args: dict | None = None) -> None:
     """Dask's handshake and the ``identity`` call at ``address`` within ``timeout`` s; the reply or error into ``answer``."""
+    import asyncio  # here, not at the top: a run that names no Dask scheduler never loads it
+
     from distributed.comm import connect
 
     async def identify():
