@@ -77,6 +77,7 @@ def store_template() -> Path | None:
     directory = template_directory()
     if directory is None:
         return None
+    directory.mkdir(parents=True, exist_ok=True)
     import sqlite3
 
     import alembic
@@ -89,7 +90,6 @@ def store_template() -> Path | None:
     template = directory.resolve() / f"empty_{key}.db"
     if template.is_file() and sqlite_store_state(template).state == "ok":
         return template
-    directory.mkdir(parents=True, exist_ok=True)
     partial = template.with_name(f"{template.name}.partial-{os.getpid()}")
     partial.unlink(missing_ok=True)
     try:
