@@ -17,8 +17,8 @@ from pathlib import Path
 from typing import Any, Iterable, Mapping
 
 from .settings import TrackingSettings, redacted
-from .store import (LOCK_TIMEOUT_S, TrackingError, copy_atomically, prepare_sqlite_store, sqlite_path,
-                    sqlite_store_state, store_lock, template_directory)
+from .store import (LOCK_TIMEOUT_S, TrackingError, prepare_sqlite_store, sqlite_path, sqlite_store_state,
+                    store_lock, template_directory)
 
 #: MLflow's HTTP retries for a run (its defaults, 7 retries with backoff 2, block ~250 s on a dead server).
 HTTP_ENV_DEFAULTS = {"MLFLOW_HTTP_REQUEST_MAX_RETRIES": "2", "MLFLOW_HTTP_REQUEST_BACKOFF_FACTOR": "1",
@@ -114,7 +114,12 @@ def start_from_template(db: Path) -> bool:
         template = store_template()
         if template is None:
             return False
-        copy_atomically(template, db)
+        import shutil
+
+        from .atomic import write_atomically
+
+        with open(template, "rb") as source:  # whole or absent: a full disk leaves no half store
+            write_atomically(db, lambda out: shutil.copyfileobj(source, out), binary=True)
         return True
     except Exception as exc:  # only a shortcut: MLflow's own creation follows
         logging.getLogger(__name__).debug("no store template: %s", exc)

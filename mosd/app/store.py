@@ -139,20 +139,6 @@ def template_directory() -> Path | None:
     return Path(cache).expanduser() / "mosd" / "mlflow-stores"
 
 
-def copy_atomically(source: Path, target: Path) -> None:
-    """Copy ``source`` to ``target`` through a temporary file beside it: ``target`` is whole or absent."""
-    import shutil
-
-    target.parent.mkdir(parents=True, exist_ok=True)
-    partial = target.with_name(f"{target.name}.partial-{os.getpid()}")
-    try:
-        shutil.copyfile(source, partial)
-        os.replace(partial, target)
-    finally:
-        if partial.exists():
-            partial.unlink()
-
-
 def refusal(path: Path, state: StoreState) -> str:
     """The one line that refuses a damaged store, with what to do about it."""
     return (f"tracking store {path} is damaged ({state.detail}); allowed: a healthy MLflow store: move the file "
