@@ -97,19 +97,9 @@ class Handler:
 
 def _warm_model_logging() -> None:
     try:
-        import mlflow.models.signature  # noqa: F401
-        import mlflow.pyfunc  # noqa: F401
+        from .detector_model import warm_up
 
-        import scipy.signal  # noqa: F401  (the models' scoring: scipy.stats and the detectors, ~250 modules)
-
-        from .. import detectors  # noqa: F401
-        from .detector_model import _python_model_class
-
-        _python_model_class()
-        # the scan of every installed distribution's files that MLflow's requirement check starts with
-        from mlflow.utils.requirements_utils import _init_modules_to_packages_map
-
-        _init_modules_to_packages_map()
+        warm_up()
     except Exception:  # only a warm-up: the model request reports its own errors
         pass
 

@@ -69,6 +69,31 @@ def _python_model_class():
     return MosdDetector
 
 
+def warm_up() -> None:
+    """Import now what :func:`log_model` will need (~1.5 s), in a process that waits for the run to end.
+
+    The tracking side process (:mod:`mosd.app.channel`) calls it once it has created the run, so that
+    logging the model at the end of the run does not start with these imports: MLflow's pyfunc and
+    signature modules, the wrapper class, the scan of the installed distributions that MLflow's check of
+    the pip requirements starts with, GitPython (MLflow looks for a git checkout when it creates the logged
+    model) and mosd's stage modules a saved pipeline is built from. Not SciPy's signal processing: the
+    two-row example is scored on the NumPy path (:func:`_example_path`), which needs none of it.
+    """
+    import mlflow.models.signature  # noqa: F401
+    import mlflow.pyfunc  # noqa: F401
+    from mlflow.utils.requirements_utils import _init_modules_to_packages_map
+
+    from .. import detectors, estimators, faults, monitors, noise, plants  # noqa: F401
+    from . import model_state  # noqa: F401
+
+    _python_model_class()
+    _init_modules_to_packages_map()
+    try:
+        import git  # noqa: F401
+    except ImportError:  # MLflow logs without it
+        pass
+
+
 def load_fitted(path) -> OnlinePipeline:
     """The fitted pipeline saved at ``path`` (a ``pipeline.npz``, or a model file of mosd before it: see :mod:`.legacy_models`)."""
     path = Path(path)
@@ -92,8 +117,33 @@ def signature(fitted, example):
     return infer_signature(example, out, params=fitted.initial_state())
 
 
+def _example_path():
+    """Where :func:`log_model` scores its two-row example: the NumPy path unless numba is loaded already.
+
+    Logging scores the example twice (the signature's output columns, MLflow's check that the input example
+    serves). In the tracking side process nothing else needs numba: its import and the load of the compiled
+    filter from its cache cost ~1.3 s there, on the run's last wait, for two rows that the NumPy reference
+    path scores in ~0.02 s with the same columns and dtypes (values within ~1e-13, :mod:`mosd.kernels`; the
+    signature records only names and types). A process that has the kernels loaded (a sweep's jobs log
+    in-process) keeps them: :func:`mosd.kernels.disabled` is a process-wide switch, for one caller only.
+    """
+    import contextlib
+    import sys
+
+    if "numba" in sys.modules:
+        return contextlib.nullcontext()
+    from .. import kernels
+
+    return kernels.disabled()
+
+
 def log_model(state_file: str, tracking_uri: str, run_id: str) -> str:
     """Log ``state_file`` as the pyfunc model ``detector`` of ``run_id``; returns its ``models:/`` URI."""
+    with _example_path():
+        return _log_model(state_file, tracking_uri, run_id)
+
+
+def _log_model(state_file: str, tracking_uri: str, run_id: str) -> str:
     import mlflow
 
     import logging

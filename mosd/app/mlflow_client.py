@@ -17,7 +17,8 @@ from pathlib import Path
 from typing import Any, Iterable, Mapping
 
 from .settings import TrackingSettings, redacted
-from .store import LOCK_TIMEOUT_S, TrackingError, prepare_sqlite_store, sqlite_path, store_lock
+from .store import (LOCK_TIMEOUT_S, TrackingError, prepare_sqlite_store, sqlite_path, sqlite_store_state,
+                    store_lock, template_directory)
 
 #: MLflow's HTTP retries for a run (its defaults, 7 retries with backoff 2, block ~250 s on a dead server).
 HTTP_ENV_DEFAULTS = {"MLFLOW_HTTP_REQUEST_MAX_RETRIES": "2", "MLFLOW_HTTP_REQUEST_BACKOFF_FACTOR": "1",
@@ -62,6 +63,69 @@ def flatten(tree: Mapping[str, Any], prefix: str = "") -> dict[str, str]:
     return flat
 
 
+def store_template() -> Path | None:
+    """The empty sqlite store that MLflow makes on an empty database, built once per machine and version.
+
+    MLflow makes a new store by running every schema migration since its first release (~4 s of CPU: 135
+    migration scripts, 63 table rebuilds), each time. The result depends only on the versions of MLflow,
+    SQLAlchemy, alembic and SQLite, which name the file. MLflow's own function makes it
+    (``mlflow.store.db.utils._initialize_tables``: what ``SqlAlchemyStore`` runs on an empty database);
+    it holds no experiment: the Default one, whose artifact location depends on the working directory,
+    is added by MLflow when a store copied from it is first opened, as on a store it made.
+    None when templates are off (:func:`mosd.app.store.template_directory`).
+    """
+    directory = template_directory()
+    if directory is None:
+        return None
+    directory.mkdir(parents=True, exist_ok=True)
+    import sqlite3
+
+    import alembic
+    import mlflow
+    import mlflow.store.db.utils as db_utils
+    import sqlalchemy
+
+    key = (f"mlflow-{mlflow.__version__}_sqlalchemy-{sqlalchemy.__version__}_alembic-{alembic.__version__}"
+           f"_sqlite-{sqlite3.sqlite_version}")
+    template = directory.resolve() / f"empty_{key}.db"
+    if template.is_file() and sqlite_store_state(template).state == "ok":
+        return template
+    partial = template.with_name(f"{template.name}.partial-{os.getpid()}")
+    partial.unlink(missing_ok=True)
+    try:
+        engine = db_utils.create_sqlalchemy_engine_with_retry(f"sqlite:///{partial}")
+        try:
+            db_utils._initialize_tables(engine)
+        finally:
+            engine.dispose()
+        os.replace(partial, template)  # another process building it too: either whole file wins
+    finally:
+        partial.unlink(missing_ok=True)
+    return template
+
+
+def start_from_template(db: Path) -> bool:
+    """Make the new sqlite store ``db`` a copy of :func:`store_template` (under the store lock).
+
+    False when it could not (templates off, a read-only cache, MLflow's internals moved): MLflow then
+    creates the store itself, as it always did.
+    """
+    try:
+        template = store_template()
+        if template is None:
+            return False
+        import shutil
+
+        from .atomic import write_atomically
+
+        with open(template, "rb") as source:  # whole or absent: a full disk leaves no half store
+            write_atomically(db, lambda out: shutil.copyfileobj(source, out), binary=True)
+        return True
+    except Exception as exc:  # only a shortcut: MLflow's own creation follows
+        logging.getLogger(__name__).debug("no store template: %s", exc)
+        return False
+
+
 class MlflowStore:
     """The only object that talks to MLflow (imported on construction).
 
@@ -95,6 +159,8 @@ class MlflowStore:
                 raise TrackingError(f"the tracking store {db} stayed locked for {LOCK_TIMEOUT_S:g} s "
                                     f"(another process creating it?)")
             self.note = prepare_sqlite_store(db)
+            if not db.exists() or db.stat().st_size == 0:
+                start_from_template(db)
             self.client = MlflowClient(tracking_uri=settings.uri)
             self._experiment_id = self.experiment_id()
 

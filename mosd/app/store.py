@@ -124,6 +124,21 @@ def sqlite_store_state(path: str | os.PathLike) -> StoreState:
         con.close()
 
 
+def template_directory() -> Path | None:
+    """Where empty stores made by MLflow are kept for new stores to start from (None: not kept).
+
+    ``MOSD_STORE_TEMPLATES`` names the folder (``off``: none); default ``$XDG_CACHE_HOME/mosd/mlflow-stores``
+    (``~/.cache/mosd/mlflow-stores``).
+    """
+    chosen = os.environ.get("MOSD_STORE_TEMPLATES", "").strip()
+    if chosen.lower() in ("off", "0", "false", "none"):
+        return None
+    if chosen:
+        return Path(chosen).expanduser()
+    cache = os.environ.get("XDG_CACHE_HOME", "").strip() or os.path.join("~", ".cache")
+    return Path(cache).expanduser() / "mosd" / "mlflow-stores"
+
+
 def refusal(path: Path, state: StoreState) -> str:
     """The one line that refuses a damaged store, with what to do about it."""
     return (f"tracking store {path} is damaged ({state.detail}); allowed: a healthy MLflow store: move the file "
