@@ -356,3 +356,28 @@ def test_the_main_command_on_a_cold_cache_compiles_only_the_kernels_it_calls(tmp
     out = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=300)
     # denoise=none: the wavelet's chart kernel (and the wavelet) are left for a run that denoises
     assert set(out.stdout.split()) == {"ewma", "chart", "plants", "cubature"}, out.stdout
+
+
+def test_a_single_run_prints_its_results_before_its_files_and_mlflow(tmp_path):
+    """The results (chosen … delay) are printed as soon as the test is scored; where the files and the MLflow
+    run are, once they are. A sweep still prints each job's summary whole."""
+    from test_app import PACKAGE_PARENT
+
+    script = ("import sys\n"
+              "import mosd.app.run as run\n"
+              "written = run.write_run_files\n"
+              "def announced(*args, **kwargs):\n"
+              "    print('FILES START', flush=True)\n"
+              "    return written(*args, **kwargs)\n"
+              "run.write_run_files = announced\n"
+              "from mosd.app import main\n"
+              "sys.exit(main())\n")
+    env = {k: v for k, v in os.environ.items() if not k.startswith("MOSD_")}
+    env.update(PYTHONPATH=PACKAGE_PARENT, MOSD_OUTPUTS=str(tmp_path / "outputs"))
+    done = subprocess.run([sys.executable, "-c", script, "+fault=offset", "tracking=none", *SMALL, "budget.n_test=2",
+                           "budget.n_train=2", "budget.n_calibration=2"], cwd=tmp_path, env=env, capture_output=True,
+                          text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-3000:]
+    lines = [line.split()[0] for line in done.stdout.splitlines() if line.strip()]
+    assert lines.index("FAR") < lines.index("delay") < lines.index("FILES") < lines.index("wall") < lines.index("run")
+    assert lines[0] == "mosd" and lines.count("FAR") == 1

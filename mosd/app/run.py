@@ -42,7 +42,8 @@ from .report import logged_study_name, study_metric_tags
 from .settings import redacted
 from .signals import RECEIVED, Interrupted, name
 from .sweep import under_joblib_launcher
-from .summary import UndefinedResult, final_metrics, format_summary, header_line, undefined_metrics
+from .summary import (UndefinedResult, closing_lines, final_metrics, format_summary, header_line, result_lines,
+                      undefined_metrics)
 
 log = logging.getLogger("mosd.app")
 
@@ -212,6 +213,10 @@ def run(cfg, started: float | None = None, checked=None):
         if undefined:  # the last guard behind preflight: a NaN rate is no result, whatever the exit code said
             raise UndefinedResult(f"the run's metrics {', '.join(undefined)} are NaN (no points to score them on); "
                                   f"the run is not finished")
+        if not multirun:
+            # the results as soon as they exist; where the files and the MLflow run are, once they are
+            # (a sweep prints each job's summary whole: jobs may run at once)
+            print(result_lines(result, setup, metrics), flush=True)
         logged: list[tuple[str, float, int]] = []
         params: dict[str, str] = {}
         sent: list[Path] = []  # artifacts already handed to MLflow
@@ -305,7 +310,8 @@ def run(cfg, started: float | None = None, checked=None):
         timings["wall_s"] = time.perf_counter() - started
         summary_text = format_summary(labels, result, setup, metrics, timings, run_dir, tracking_line, study_metrics,
                                       header=multirun)
-        print(summary_text, flush=True)
+        print(summary_text if multirun else closing_lines(setup, timings, run_dir, tracking_line, study_metrics),
+              flush=True)
         to_log_file(summary_text if multirun else header_line(labels, setup) + "\n" + summary_text)
         if not_logged is not None:
             NOT_LOGGED.append(run_dir)

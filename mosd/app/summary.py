@@ -125,8 +125,18 @@ def header_line(labels: Mapping[str, str], setup: Setup) -> str:
 
 
 def format_summary(labels, result, setup: Setup, metrics, timings, run_dir, tracking_line, study=None,
-                    header: bool = True) -> str:
-    """The summary printed at the end of a run; ``header=False`` leaves out the first line (printed at the start)."""
+                   header: bool = True) -> str:
+    """The summary printed at the end of a run; ``header=False`` leaves out the first line (printed at the start).
+
+    :func:`result_lines`, then :func:`closing_lines`: a single run prints the first as soon as its test
+    is scored and the second when its files and its MLflow run are done.
+    """
+    return "\n".join([*([header_line(labels, setup)] if header else []), result_lines(result, setup, metrics),
+                      closing_lines(setup, timings, run_dir, tracking_line, study)])
+
+
+def result_lines(result, setup: Setup, metrics) -> str:
+    """The chosen design and its test results (``chosen`` … ``delay``)."""
     n_test = int(metrics["n_test"])
     params = "  ".join(f"{k} = {v}" if isinstance(v, int) else f"{k} = {v:.4f}" for k, v in result.params.items())
 
@@ -136,8 +146,7 @@ def format_summary(labels, result, setup: Setup, metrics, timings, run_dir, trac
     train = ", ".join(f"{k} {v:.4g}" for k, v in result.train_objectives.items())
     online = "online (causal detector)" if setup.experiment.detector.is_causal else \
         "NOT online: the detector uses future points (non-causal)"
-    lines = [
-        *([header_line(labels, setup)] if header else []),
+    return "\n".join([
         f"chosen    {params}   (training: {train}; archive of {len(result.archive_F)})",
         *(f"          on the search bound: {note}" for note in bound_notes(result.params, setup)),
         f"test      {n_test} fresh replications, mean ± 95 % CI half-width; {online}",
@@ -147,6 +156,12 @@ def format_summary(labels, result, setup: Setup, metrics, timings, run_dir, trac
         f"  detected  {pm('detection_rate')} of the runs",
         f"  delay     {pm('delay_s', 4)} s over detected runs; censored median "
         f"{metrics['delay_censored_median_s']:.4g} s (undetected runs beyond the horizon)",
+    ])
+
+
+def closing_lines(setup: Setup, timings, run_dir, tracking_line, study=None) -> str:
+    """Where the time went, the studies' lines, the run directory and the MLflow run (``wall time`` …)."""
+    lines = [
         "wall time " + f"{timings['wall_s']:.1f} s  (" + ", ".join(
             f"{k.removesuffix('_s')} {v:.1f}" for k, v in timings.items() if k != "wall_s") + ")",
         *(study_lines(type(setup.study).__name__, study) if study else []),
