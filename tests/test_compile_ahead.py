@@ -112,3 +112,20 @@ def test_the_second_process_ends_with_the_first(tmp_path):
         assert gone, "the second process outlived the first by 20 s"
     finally:
         first.kill()
+
+
+def test_the_side_processes_started_early_yield_to_the_compiling():
+    """Compiling ahead takes the core the early figure process was given: that process goes to nice 10."""
+    import os
+
+    from mosd.app import compile_ahead, plots
+
+    plots.start_early()
+    try:
+        (pid,) = plots.early_pids()
+        before = os.getpriority(os.PRIO_PROCESS, pid)
+        compile_ahead._side_processes_yield()
+        assert os.getpriority(os.PRIO_PROCESS, pid) == max(before, compile_ahead.SIDE_NICE) >= 10
+    finally:
+        plots.discard()
+    assert plots.early_pids() == []

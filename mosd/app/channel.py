@@ -267,6 +267,11 @@ def take() -> SideProcess:
     return _EARLY.pop() if _EARLY else SideProcess()
 
 
+def early_pids() -> list[int]:
+    """The process id of the tracking process :func:`start_early` started, while no run has taken it."""
+    return [side._proc.pid for side in _EARLY if getattr(side, "_proc", None) is not None]
+
+
 def discard() -> None:
     """Kill the side process :func:`start_early` started, if no run took it (it holds no run yet)."""
     while _EARLY:

@@ -72,7 +72,34 @@ def start_for(experiment):
             return None
 
         parts = [part for part in kernel_parts(experiment) if not kernels.cached(_MODULE_OF.get(part, part))]
-        return ahead.start(parts)
+        started = ahead.start(parts)
+        if started is not None:
+            _side_processes_yield()
+        return started
     except Exception as exc:  # noqa: BLE001 - the dry run compiles and reports on its own
         log.warning("kernels not compiled ahead: %s: %s", type(exc).__name__, exc)
         return None
+
+
+#: The nice value the figure and tracking processes started before the checks get while kernels compile ahead.
+SIDE_NICE = 10
+
+
+def _side_processes_yield() -> None:
+    """Lower the priority of the figure and tracking processes started before the checks (``mosd.app.spare_core``).
+
+    They were started on a core the checks would leave idle; compiling ahead now takes that core, and
+    three busy processes on two cores delay the run's first result by what the side processes' imports
+    take (MLflow's, matplotlib's: seconds of CPU). At nice 10 they import when a core is free; what they
+    do is needed only at the run's end. A nice value cannot be lowered again without privileges: they
+    stay at it, which costs nothing when the cores are free.
+    """
+    import os
+
+    from . import channel, plots
+
+    for pid in [*plots.early_pids(), *channel.early_pids()]:
+        try:
+            os.setpriority(os.PRIO_PROCESS, pid, max(SIDE_NICE, os.getpriority(os.PRIO_PROCESS, pid)))
+        except OSError:  # it ended meanwhile
+            pass

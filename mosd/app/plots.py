@@ -631,6 +631,11 @@ def take(drawers: int | None = None) -> FigureWriter:
     return _EARLY.pop() if _EARLY else FigureWriter(drawers)
 
 
+def early_pids() -> list[int]:
+    """The process id of the figure process :func:`start_early` started, while no run has taken it."""
+    return [writer._proc.pid for writer in _EARLY if writer._proc is not None]
+
+
 def discard() -> None:
     """End the figure process :func:`start_early` started, if no run took it (an error, a sweep)."""
     while _EARLY:
