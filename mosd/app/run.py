@@ -187,7 +187,7 @@ def run(cfg, started: float | None = None, checked=None):
         timings = {"startup_s": task_start - started}
         if not multirun:
             # the summary's first line now, so that a user (or a log file) sees the run start; the
-            # rest comes at the end (a sweep prints each job's summary whole: jobs may run at once)
+            # results come when the test is scored (a sweep prints each job's summary whole: jobs may run at once)
             print(header_line(labels, setup), flush=True)
         # started before preflight for a single run (plots.start_early), else now: matplotlib loads on the
         # other core while this process checks the command or simulates; a sweep's job draws on its share
