@@ -498,6 +498,24 @@ def test_six_concurrent_first_runs_give_six_finished_runs_and_a_healthy_store(tm
 # ---------------------------------------------------------------------------------------
 # 3. signals
 # ---------------------------------------------------------------------------------------
+def _text(data) -> str:
+    return data.decode(errors="replace") if isinstance(data, bytes) else (data or "")
+
+
+def _where_they_wait(pid: int) -> str:
+    """Each process of the tree (``pid`` and its descendants): command, state and each thread's kernel wait."""
+    lines = []
+    for p in sorted({pid, *_descendants(pid)}):
+        try:
+            command = Path(f"/proc/{p}/cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")[:160]
+            state = Path(f"/proc/{p}/stat").read_text().split()[2]
+            waits = sorted(f"{t.name}:{(t / 'wchan').read_text() or '-'}" for t in Path(f"/proc/{p}/task").iterdir())
+        except OSError:
+            continue
+        lines.append(f"  {p} {state} {command} | threads {', '.join(waits)[:400]}")
+    return "\n".join(lines)
+
+
 def _descendants(pid: int) -> set[int]:
     found, todo = set(), [pid]
     while todo:
@@ -732,7 +750,12 @@ def test_a_signal_during_a_sweep_kills_the_started_jobs_and_keeps_the_finished_o
             os.killpg(proc.pid, sig)  # Ctrl-C in a terminal signals the whole foreground process group
         else:
             proc.send_signal(sig)
-        out, err = proc.communicate(timeout=120)
+        try:
+            out, err = proc.communicate(timeout=120)
+        except subprocess.TimeoutExpired as exc:  # a hang: say which processes are left and where they wait
+            raise AssertionError(f"the sweep was still running 120 s after {signal.Signals(sig).name}:\n"
+                                 f"{_where_they_wait(proc.pid)}\nits output: {_text(exc.output)[-1500:]}\n"
+                                 f"its errors: {_text(exc.stderr)[-1500:]}") from None
     finally:  # a failed check must not leave a 100,000-generation sweep running beside the other tests
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
