@@ -145,13 +145,15 @@ def cached(name: str) -> bool:
     import glob
     import importlib
 
-    module = importlib.import_module(f"{__name__}.{name}")
-    for obj in vars(module).values():
-        cache = getattr(obj, "_cache", None)
-        path = getattr(cache, "_cache_path", None)
-        if path is not None and getattr(obj, "__module__", None) == module.__name__:
-            return bool(glob.glob(os.path.join(glob.escape(path), f"{name}.*.nbi")))
+    for dispatcher in cached_dispatchers(importlib.import_module(f"{__name__}.{name}")):
+        return bool(glob.glob(os.path.join(glob.escape(dispatcher._cache._cache_path), f"{name}.*.nbi")))
     return True  # nothing cached by numba in this module
+
+
+def cached_dispatchers(module) -> list:
+    """The numba dispatchers ``module`` defines that keep their code in the on-disk cache."""
+    return [obj for obj in vars(module).values() if getattr(obj, "__module__", None) == module.__name__
+            and getattr(getattr(obj, "_cache", None), "_cache_path", None) is not None]
 
 
 def compile_module(name: str) -> tuple[str, float]:

@@ -57,13 +57,12 @@ PARTS = {
 
 def _dispatchers(part: str) -> list:
     """The dispatchers of ``part`` in this process (numba's, with an on-disk cache)."""
+    from . import cached_dispatchers
+
     module_name, chosen, _ = PARTS[part]
     if chosen is not None:
         return list(chosen())
-    module = importlib.import_module(f"{__package__}.{module_name}")
-    return [obj for obj in vars(module).values()
-            if getattr(obj, "__module__", None) == module.__name__ and hasattr(obj, "_cache")
-            and hasattr(obj, "overloads")]
+    return cached_dispatchers(importlib.import_module(f"{__package__}.{module_name}"))
 
 
 def _compile(part: str) -> None:
@@ -93,9 +92,8 @@ class _WaitingCache:
 class Ahead:
     """The second process compiling ``parts`` (in order), and this process's waits for them.
 
-    Built by :func:`start`. :meth:`wait` blocks until a part is in the cache or the
-    second process has given up on it; :meth:`close` (idempotent) ends the process
-    and every wait.
+    Built by :func:`start`. ``ready`` and ``failed`` say what the second process did
+    with each part; :meth:`close` (idempotent) ends the process and every wait.
     """
 
     def __init__(self, parts: Sequence[str]):
@@ -149,15 +147,6 @@ class Ahead:
             if getattr(dispatcher, "_cache", None) is hook:
                 dispatcher._cache = hook.inner
         self._hooked = []
-
-    def wait(self, part: str, timeout: float | None = None) -> bool:
-        """Block until ``part`` is done (or ``timeout`` s have passed); whether it is in the cache now."""
-        self._done[part].wait(timeout)
-        return part in self.ready
-
-    @property
-    def running(self) -> bool:
-        return self._proc.poll() is None
 
     def close(self) -> None:
         """End the second process (whatever it was doing) and every wait."""
