@@ -30,18 +30,166 @@ from .atomic import write_atomically
 FIGURES = ("pareto_front", "pareto_pairs", "chart_trace", "residual_trace", "optimisation_history")
 
 
+#: Resolution of the PNGs (dots per inch). The figures are made at it too: the margins are measured with
+#: the renderer that draws them (and its cache of text sizes).
+DPI = 110
+
+#: Space (points) between a figure's outermost text and the canvas edge, and between neighbouring panels.
+EDGE_PT, GAP_PT = 4.0, 10.0
+
+
 def _figure(width: float = 6.4, height: float = 4.0):
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    fig = Figure(figsize=(width, height), layout="constrained")
+    # no layout engine: :func:`_arrange` sets the margins once, from what is known before drawing
+    # (constrained layout measured every tick label twice more than the draw: half of each figure's CPU)
+    fig = Figure(figsize=(width, height), dpi=DPI)
     FigureCanvasAgg(fig)
     return fig
 
 
 def _save(fig, path: str | Path) -> Path:
     # a temporary file and an atomic rename: the PNG is either complete or absent (a full disk)
-    return write_atomically(path, lambda out: fig.savefig(out, dpi=110, format="png"), binary=True)
+    return write_atomically(path, lambda out: fig.savefig(out, dpi=DPI, format="png"), binary=True)
+
+
+def _tick_labels(axis, probe, renderer) -> tuple[np.ndarray, str]:
+    """The tick labels ``axis`` will draw, as rows (place along the axis from 0 to 1, width, height in pixels).
+
+    The labels are the axis' own locators and formatters applied to its view limits, as
+    the draw applies them (major and minor: a log axis spanning less than a decade labels
+    its minor ticks), measured as one-line texts of the tick label size; no tick is made.
+    Also returns the formatter's offset text (``1e−5``, ``+1``), drawn beside the labels.
+    """
+    import matplotlib as mpl
+
+    forward = axis.get_transform().transform
+    lo, hi = forward(np.sort(axis.get_view_interval()))
+    tol = 1e-9 * abs(hi - lo)
+    probe.set_fontsize(mpl.rcParams[f"{axis.axis_name}tick.labelsize"])
+    rows, offset = [], ""
+    for locator, formatter in ((axis.get_major_locator(), axis.get_major_formatter()),
+                               (axis.get_minor_locator(), axis.get_minor_formatter())):
+        locs = np.asarray(locator(), float)
+        with np.errstate(all="ignore"):
+            where = forward(locs) if locs.size else locs
+        inside = (where >= min(lo, hi) - tol) & (where <= max(lo, hi) + tol)
+        for place, label in zip(where[inside], formatter.format_ticks(locs[inside])):
+            if label:
+                probe.set_text(label)
+                box = probe.get_window_extent(renderer)
+                rows.append(((place - lo) / (hi - lo) if hi != lo else 0.5, box.width, box.height))
+        if not offset and hasattr(formatter, "get_offset"):
+            offset = formatter.get_offset()
+    return np.array(rows, float).reshape(-1, 3), offset
+
+
+def _fit(text, room: float, renderer) -> None:
+    """Re-wrap ``text`` (a Text artist) onto shorter lines until it is at most ``room`` pixels wide."""
+    import textwrap
+
+    words = " ".join(text.get_text().split())
+    width = text.get_window_extent(renderer).width
+    chars = max(len(line) for line in text.get_text().split("\n"))
+    while width > room and chars > 10:
+        chars = int(chars * min(0.95, room / width))
+        text.set_text("\n".join(textwrap.wrap(words, width=chars, break_on_hyphens=False)))
+        width = text.get_window_extent(renderer).width
+
+
+def _arrange(fig, axes, legend=None, insets=()) -> None:
+    """Margins and spacing of a row of panels from what is known before drawing; no layout engine.
+
+    Each panel needs, in pixels: on the left its widest y tick label, the tick and the
+    y label; below, its x tick labels and x label (or offset text); above, its title (on
+    as many lines as it has), raised above a y offset text. The outer x tick labels and
+    titles wider than their panel overhang it on either side. The figure's suptitle and a
+    legend at the bottom of the figure (``legend``) take their own height. Titles or
+    suptitles wider than the canvas are re-wrapped. Panels are equally wide;
+    ``fig.subplots_adjust`` places them. ``insets``: axes inside a panel, whose titles
+    are only kept clear of their own offset text.
+    """
+    import matplotlib as mpl
+    from matplotlib.text import Text
+
+    renderer = fig.canvas.get_renderer()
+    points = fig.dpi / 72.0
+    width, height = fig.bbox.width, fig.bbox.height
+    edge, gap = EDGE_PT * points, GAP_PT * points
+    probe = Text(0, 0, "")
+    probe.set_figure(fig)
+    panels, raised = [], []
+    for ax in axes:
+        y_labels, y_offset = _tick_labels(ax.yaxis, probe, renderer)
+        x_labels, x_offset = _tick_labels(ax.xaxis, probe, renderer)
+        left = y_labels[:, 1].max(initial=0.0) + (mpl.rcParams["ytick.major.size"]
+                                                  + mpl.rcParams["ytick.major.pad"]) * points
+        if ax.yaxis.label.get_text():
+            left += ax.yaxis.labelpad * points + ax.yaxis.label.get_window_extent(renderer).width
+        below = x_labels[:, 2].max(initial=0.0) + (mpl.rcParams["xtick.major.size"]
+                                                   + mpl.rcParams["xtick.major.pad"]) * points
+        below += max(ax.xaxis.label.get_window_extent(renderer).height + ax.xaxis.labelpad * points
+                     if ax.xaxis.label.get_text() else 0.0, _offset_height(ax.xaxis, x_offset, probe, renderer))
+        lift = _offset_height(ax.yaxis, y_offset, probe, renderer)
+        raised.append((ax, lift))
+        above = 0.5 * y_labels[:, 2].max(initial=0.0)  # the top tick label is centred on the top edge
+        title = 0.0
+        if ax.title.get_text():
+            if ax.title.get_window_extent(renderer).width > width - 2 * edge:
+                _fit(ax.title, width - 2 * edge, renderer)
+            box = ax.title.get_window_extent(renderer)
+            above, title = max(above, lift + mpl.rcParams["axes.titlepad"] * points + box.height), box.width
+        panels.append(dict(left=left, below=max(below, 0.5 * y_labels[:, 2].max(initial=0.0)), above=above,
+                           title=title, x_labels=x_labels))
+    for inset in insets:
+        raised.append((inset, _offset_height(inset.yaxis, _tick_labels(inset.yaxis, probe, renderer)[1], probe,
+                                             renderer)))
+    top = max(p["above"] for p in panels) + edge
+    suptitle = fig._suptitle
+    if suptitle is not None and suptitle.get_text():
+        if suptitle.get_window_extent(renderer).width > width - 2 * edge:
+            _fit(suptitle, width - 2 * edge, renderer)
+        # the suptitle hangs by its top from its y (a fraction of the figure's height)
+        top += (1.0 - suptitle.get_position()[1]) * height + suptitle.get_window_extent(renderer).height
+    bottom = max(p["below"] for p in panels) + edge
+    if legend is not None:  # at the figure's bottom edge: the panels stand on it
+        bottom += legend.get_window_extent(renderer).y1
+
+    def overhang(panel: dict, wide: float) -> tuple[float, float]:
+        """Pixels a panel ``wide`` pixels wide has text beyond its left and right edges (title, x tick labels)."""
+        place, label = panel["x_labels"][:, 0], panel["x_labels"][:, 1]
+        title = max(0.0, 0.5 * (panel["title"] - wide))
+        return (max(title, *(0.5 * label - place * wide), 0.0),
+                max(title, *(0.5 * label - (1.0 - place) * wide), 0.0))
+
+    # the overhangs depend on the panels' width, which depends on the margins: a few rounds settle them
+    n = len(panels)
+    left = right = between = 0.0
+    for _ in range(4):
+        wide = (width - left - right - (n - 1) * between) / n
+        sides = [overhang(p, wide) for p in panels]
+        left = max(panels[0]["left"], sides[0][0]) + edge
+        right = sides[-1][1] + edge
+        between = max([0.0, *(max(b["left"], a_side[1] + b_side[0]) + gap
+                              for b, a_side, b_side in zip(panels[1:], sides, sides[1:]))])
+    wide = (width - left - right - (n - 1) * between) / n
+    fig.subplots_adjust(left=left / width, right=1.0 - right / width, bottom=bottom / height,
+                        top=1.0 - top / height, wspace=between / wide if n > 1 else None)
+    # the titles are made at a fixed height (``set_title(..., y=1.0)``): the draw skips matplotlib's search
+    # for it (which measures the y ticks once more); one above an offset text is raised here, once placed
+    for ax, lift in raised:
+        if lift and ax.title.get_text():
+            ax.title.set_y(1.0 + lift / max(ax.get_window_extent(renderer).height, 1.0))
+
+
+def _offset_height(axis, offset: str, probe, renderer) -> float:
+    """Pixels the offset text ``offset`` of ``axis`` takes beside its tick labels, its pad included (0: none)."""
+    if not offset:
+        return 0.0
+    probe.set_fontsize(axis.offsetText.get_fontsize())
+    probe.set_text(offset)
+    return probe.get_window_extent(renderer).height + axis.OFFSETTEXTPAD * axis.get_figure(root=True).dpi / 72.0
 
 
 def onsets(fault_mask: np.ndarray) -> np.ndarray:
@@ -63,7 +211,7 @@ def _finish_time_axes(ax, t: np.ndarray, fault_mask: np.ndarray, ylabel: str, ti
         ax.axvline(t[k], color="k", lw=1.0, ls=":", label="fault onset" if i == 0 else None)
     ax.set_xlabel("time (s)")
     ax.set_ylabel(ylabel)
-    ax.set_title(wrapped(title))
+    ax.set_title(wrapped(title), y=1.0)
     ax.grid(alpha=0.3)
     ax.legend(loc="upper left", fontsize=8)
 
@@ -120,23 +268,26 @@ def pareto_front(path: str | Path, F: np.ndarray, chosen: int | None = None, tit
 
     draw(ax)
     box = zoom_box(F) if F.shape[0] > 2 else None
+    insets = []
     if box is not None:
         ax.set_xlim(box[0], box[1])
         ax.set_ylim(box[2], box[3])
         inset = ax.inset_axes([0.62, 0.42, 0.35, 0.33])
         draw(inset, small=True)
-        inset.set_title("whole archive", fontsize=7)
+        inset.set_title("whole archive", fontsize=7, y=1.0)
         inset.tick_params(labelsize=6)
         inset.grid(alpha=0.3)
         inset.indicate_inset([box[0], box[2], box[1] - box[0], box[3] - box[2]], edgecolor="0.4")
+        insets.append(inset)
     names = {"far": "false-alarm rate FAR", "mdr": "missed-detection rate MDR"}
     ax.set_xlabel(names.get(labels[0], labels[0]))
     ax.set_ylabel(names.get(labels[1], labels[1]))
     ax.set_title((title or "Pareto front") + (" (zoom on the best trade-offs)" if box is not None else ""),
-                 fontsize=10)
+                 fontsize=10, y=1.0)
     ax.grid(alpha=0.3)
     # below the axes: inside, it can cover the chosen design's star (the best trade-off sits in a corner)
-    fig.legend(loc="outside lower center", ncols=2, fontsize=8)
+    legend = fig.legend(loc="lower center", ncols=2, fontsize=8)
+    _arrange(fig, [ax], legend=legend, insets=insets)
     return _save(fig, path)
 
 
@@ -174,6 +325,7 @@ def chart_trace(path: str | Path, t: np.ndarray, statistic: np.ndarray, ucl: np.
     _finish_time_axes(ax, t, fault_mask, "$l_k$" + (" (log scale)" if scale != "linear" else ""),
                       (title or "Chart on one test replication") + note)
     ax.title.set_fontsize(9)
+    _arrange(fig, [ax])
     return _save(fig, path)
 
 
@@ -203,6 +355,7 @@ def residual_trace(path: str | Path, residual: np.ndarray, fault_mask: np.ndarra
     if sigma is not None and np.isfinite(sigma):
         ax.axhspan(mean - sigma, mean + sigma, color="tab:green", alpha=0.15, label="Phase-I μ ± σ")
     _finish_time_axes(ax, t, fault_mask, "residual", title or "Residual on one test replication")
+    _arrange(fig, [ax])
     return _save(fig, path)
 
 
@@ -246,11 +399,12 @@ def optimisation_history(path: str | Path, records: Sequence[dict], title: str =
             ax.yaxis.set_major_locator(MaxNLocator(integer=True))
         ax.ticklabel_format(axis="y", useOffset=False)
         ax.set_xlabel("generation")
-        ax.set_title(label, fontsize=9)
+        ax.set_title(label, fontsize=9, y=1.0)
         ax.grid(alpha=0.3)
     n_eval = records[-1].get("n_eval") if records else None
     fig.suptitle(title or (f"Optimisation history: {len(gen)} generations"
                            + (f", {int(n_eval)} evaluations" if n_eval else "")), fontsize=10)
+    _arrange(fig, axes)
     return _save(fig, path)
 
 
@@ -273,6 +427,7 @@ def pareto_pairs(path: str | Path, F: np.ndarray, chosen: int | None = None, tit
         ax.grid(alpha=0.3)
     axes[0].legend(loc="best", fontsize=7)
     fig.suptitle(title or f"Archive over {d} objectives")
+    _arrange(fig, axes)
     return _save(fig, path)
 
 
@@ -305,11 +460,12 @@ def _warm_up(stop=None) -> None:
     ax = fig.add_subplot()
     ax.plot([0.01, 0.02], [1.0, 40.0], label="warm-up")
     ax.set_yscale("log")
-    ax.set_title("warm-up")
+    ax.set_title("warm-up", y=1.0)
     ax.set_xlabel("time (s)")
     ax.grid(alpha=0.3)
     ax.legend(loc="upper left", fontsize=8)
-    fig.savefig(io.BytesIO(), dpi=110, format="png")
+    _arrange(fig, [ax])
+    fig.savefig(io.BytesIO(), dpi=DPI, format="png")
 
 
 #: Nice value of the warm-up figure's thread (Linux: per thread): the run's own processes come first.
