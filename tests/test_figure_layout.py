@@ -173,3 +173,26 @@ def test_the_check_sees_a_clipped_or_crowded_layout(monkeypatch):
     fig.subplots_adjust(top=0.97, bottom=0.05)
     found = problems(fig, _drawn_texts(fig, monkeypatch, Text))
     assert any("outside the" in p for p in found), found
+
+
+def test_the_axis_labels_stand_where_matplotlib_would_place_them(monkeypatch):
+    # the layout places the axis labels itself (the draw's own search measures the ticks once more):
+    # the same place to a pixel, on a log chart and on the history's panels
+    from matplotlib.axis import Axis
+
+    def drawn_labels():
+        t, statistic, ucl, mask = _chart("log")
+        boxes = []
+        for name, kwargs in (("chart_trace", dict(t=t, statistic=statistic, ucl=ucl, fault_mask=mask)),
+                             ("optimisation_history", dict(records=_records(100)))):
+            fig, _ = _draw(monkeypatch, name, **kwargs)
+            renderer = fig.canvas.get_renderer()
+            boxes += [np.array(axis.label.get_window_extent(renderer).bounds) for ax in fig.axes
+                      for axis in (ax.xaxis, ax.yaxis)]
+        return np.array(boxes)
+
+    placed = drawn_labels()
+    with monkeypatch.context() as searched:
+        searched.setattr(Axis, "set_label_coords", lambda self, x, y, transform=None: None)
+        found = drawn_labels()
+    np.testing.assert_allclose(placed, found, atol=1.0)

@@ -123,12 +123,12 @@ def _arrange(fig, axes, legend=None, insets=()) -> None:
     for ax in axes:
         y_labels, y_offset = _tick_labels(ax.yaxis, probe, renderer)
         x_labels, x_offset = _tick_labels(ax.xaxis, probe, renderer)
-        left = y_labels[:, 1].max(initial=0.0) + (mpl.rcParams["ytick.major.size"]
-                                                  + mpl.rcParams["ytick.major.pad"]) * points
+        y_tick = (mpl.rcParams["ytick.major.size"] + mpl.rcParams["ytick.major.pad"]) * points
+        x_tick = (mpl.rcParams["xtick.major.size"] + mpl.rcParams["xtick.major.pad"]) * points
+        left = y_labels[:, 1].max(initial=0.0) + y_tick
         if ax.yaxis.label.get_text():
             left += ax.yaxis.labelpad * points + ax.yaxis.label.get_window_extent(renderer).width
-        below = x_labels[:, 2].max(initial=0.0) + (mpl.rcParams["xtick.major.size"]
-                                                   + mpl.rcParams["xtick.major.pad"]) * points
+        below = x_labels[:, 2].max(initial=0.0) + x_tick
         below += max(ax.xaxis.label.get_window_extent(renderer).height + ax.xaxis.labelpad * points
                      if ax.xaxis.label.get_text() else 0.0, _offset_height(ax.xaxis, x_offset, probe, renderer))
         lift = _offset_height(ax.yaxis, y_offset, probe, renderer)
@@ -141,7 +141,8 @@ def _arrange(fig, axes, legend=None, insets=()) -> None:
             box = ax.title.get_window_extent(renderer)
             above, title = max(above, lift + mpl.rcParams["axes.titlepad"] * points + box.height), box.width
         panels.append(dict(left=left, below=max(below, 0.5 * y_labels[:, 2].max(initial=0.0)), above=above,
-                           title=title, x_labels=x_labels))
+                           title=title, x_labels=x_labels, y_reach=y_labels[:, 1].max(initial=0.0) + y_tick,
+                           x_reach=x_labels[:, 2].max(initial=0.0) + x_tick))
     for inset in insets:
         raised.append((inset, _offset_height(inset.yaxis, _tick_labels(inset.yaxis, probe, renderer)[1], probe,
                                              renderer)))
@@ -176,11 +177,20 @@ def _arrange(fig, axes, legend=None, insets=()) -> None:
     wide = (width - left - right - (n - 1) * between) / n
     fig.subplots_adjust(left=left / width, right=1.0 - right / width, bottom=bottom / height,
                         top=1.0 - top / height, wspace=between / wide if n > 1 else None)
-    # the titles are made at a fixed height (``set_title(..., y=1.0)``): the draw skips matplotlib's search
-    # for it (which measures the y ticks once more); one above an offset text is raised here, once placed
+    # titles and axis labels are given their places here, once the panels are placed: the draw then skips
+    # matplotlib's search for them (each measures the ticks of the axis once more). A title is made at a
+    # fixed height (``set_title(..., y=1.0)``), raised above an offset text; an axis label stands its pad
+    # off the tick labels, as matplotlib places it (an inset's are empty: only the search is skipped)
     for ax, lift in raised:
         if lift and ax.title.get_text():
             ax.title.set_y(1.0 + lift / max(ax.get_window_extent(renderer).height, 1.0))
+    for ax, panel in zip(axes, panels):
+        box = ax.get_window_extent(renderer)
+        ax.yaxis.set_label_coords(-(panel["y_reach"] + ax.yaxis.labelpad * points) / max(box.width, 1.0), 0.5)
+        ax.xaxis.set_label_coords(0.5, -(panel["x_reach"] + ax.xaxis.labelpad * points) / max(box.height, 1.0))
+    for inset in insets:
+        inset.xaxis.set_label_coords(0.5, 0.0)
+        inset.yaxis.set_label_coords(0.0, 0.5)
 
 
 def _offset_height(axis, offset: str, probe, renderer) -> float:
