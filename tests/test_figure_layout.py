@@ -157,7 +157,7 @@ def test_the_history_keeps_its_three_panels_and_title_apart(monkeypatch, generat
     fig, drawn = _draw(monkeypatch, "optimisation_history", records=_records(generations), title=title)
     assert len(fig.axes) == 3
     assert problems(fig, drawn) == []
-    assert fig._suptitle.get_text().split() == title.split()
+    assert fig.get_suptitle().split() == title.split()
 
 
 def test_the_check_sees_a_clipped_or_crowded_layout(monkeypatch):

@@ -11,6 +11,15 @@ the command line is checked when the machine has a core to spare:
 the run computes (0.3–0.7 s that were on the critical path), and draws the figures
 while the app writes the run's other files, on one process per usable CPU (forks of
 itself, warm: :func:`draw_in_parallel`).
+
+The figures have no layout engine: :func:`_arrange` sets each figure's margins and
+panel spacing once, before the draw, from what is known then (the tick labels the
+axes' locators and formatters will print, the titles' lines, the axis labels, a
+legend below the axes), and places the titles and axis labels itself. Matplotlib's
+constrained layout measured every tick and text twice more than the draw (the layout
+runs on a draw without rendering and again on the real one): it was half of each
+figure's CPU (the four figures of the default command, warm: 2.4–2.6 s with it,
+1.2–1.3 s now, best of 3 on the project's 2-core machine at load 2).
 """
 from __future__ import annotations
 
@@ -98,15 +107,15 @@ def _fit(text, room: float, renderer) -> None:
         width = text.get_window_extent(renderer).width
 
 
-def _arrange(fig, axes, legend=None, insets=()) -> None:
+def _arrange(fig, axes, suptitle=None, legend=None, insets=()) -> None:
     """Margins and spacing of a row of panels from what is known before drawing; no layout engine.
 
     Each panel needs, in pixels: on the left its widest y tick label, the tick and the
     y label; below, its x tick labels and x label (or offset text); above, its title (on
     as many lines as it has), raised above a y offset text. The outer x tick labels and
-    titles wider than their panel overhang it on either side. The figure's suptitle and a
-    legend at the bottom of the figure (``legend``) take their own height. Titles or
-    suptitles wider than the canvas are re-wrapped. Panels are equally wide;
+    titles wider than their panel overhang it on either side. The figure's ``suptitle`` and
+    a ``legend`` at the bottom of the figure take their own height. Titles or suptitles
+    wider than the canvas are re-wrapped. Panels are equally wide;
     ``fig.subplots_adjust`` places them. ``insets``: axes inside a panel, whose titles
     are only kept clear of their own offset text.
     """
@@ -147,7 +156,6 @@ def _arrange(fig, axes, legend=None, insets=()) -> None:
         raised.append((inset, _offset_height(inset.yaxis, _tick_labels(inset.yaxis, probe, renderer)[1], probe,
                                              renderer)))
     top = max(p["above"] for p in panels) + edge
-    suptitle = fig._suptitle
     if suptitle is not None and suptitle.get_text():
         if suptitle.get_window_extent(renderer).width > width - 2 * edge:
             _fit(suptitle, width - 2 * edge, renderer)
@@ -412,9 +420,9 @@ def optimisation_history(path: str | Path, records: Sequence[dict], title: str =
         ax.set_title(label, fontsize=9, y=1.0)
         ax.grid(alpha=0.3)
     n_eval = records[-1].get("n_eval") if records else None
-    fig.suptitle(title or (f"Optimisation history: {len(gen)} generations"
-                           + (f", {int(n_eval)} evaluations" if n_eval else "")), fontsize=10)
-    _arrange(fig, axes)
+    suptitle = fig.suptitle(title or (f"Optimisation history: {len(gen)} generations"
+                                      + (f", {int(n_eval)} evaluations" if n_eval else "")), fontsize=10)
+    _arrange(fig, axes, suptitle=suptitle)
     return _save(fig, path)
 
 
@@ -436,8 +444,7 @@ def pareto_pairs(path: str | Path, F: np.ndarray, chosen: int | None = None, tit
         ax.set_ylabel(labels[j])
         ax.grid(alpha=0.3)
     axes[0].legend(loc="best", fontsize=7)
-    fig.suptitle(title or f"Archive over {d} objectives")
-    _arrange(fig, axes)
+    _arrange(fig, axes, suptitle=fig.suptitle(title or f"Archive over {d} objectives"))
     return _save(fig, path)
 
 
@@ -453,7 +460,7 @@ def _load_drawing() -> None:
 def _warm_up(stop=None) -> None:
     """Load what drawing needs before the figures arrive: matplotlib, its fonts, the Agg canvas, the PNG writer.
 
-    One small figure with the figures' parts (constrained layout, title, labels, log-scale ticks,
+    One small figure with the figures' parts (their layout, title, labels, log-scale ticks,
     legend, grid), saved as PNG into memory. Drawing each kind of figure once (the warm-up before
     issue 32's warm-start pass) cost 1.1–1.7 s of CPU and saved 0.1–0.3 s on the run's four figures
     (measured on the project's 2-core machine, load 3); at its nice value it was still running when
@@ -517,10 +524,10 @@ def draw(jobs: Sequence[tuple[str, dict[str, Any]]]) -> list[Path]:
     return out
 
 
-#: Relative drawing cost of each figure (seconds, warm, measured on the project's 2-core machine at load 4:
-#: the chart's log-scale ticks are the dearest): how :func:`shares` balances the drawing processes.
-FIGURE_COST = {"chart_trace": 1.15, "optimisation_history": 0.9, "pareto_pairs": 0.9, "pareto_front": 0.65,
-               "residual_trace": 0.5}
+#: Relative drawing cost of each figure (CPU seconds, warm, best of 3, measured on the project's 2-core machine
+#: at load 2: the chart's log-scale ticks are the dearest): how :func:`shares` balances the drawing processes.
+FIGURE_COST = {"chart_trace": 0.30, "optimisation_history": 0.26, "pareto_pairs": 0.25, "pareto_front": 0.22,
+               "residual_trace": 0.21}
 
 
 def shares(jobs: Sequence[tuple[str, dict[str, Any]]], drawers: int) -> list[list[int]]:
