@@ -15,11 +15,12 @@ itself, warm: :func:`draw_in_parallel`).
 The figures have no layout engine: :func:`_arrange` sets each figure's margins and
 panel spacing once, before the draw, from what is known then (the tick labels the
 axes' locators and formatters will print, the titles' lines, the axis labels, a
-legend below the axes), and places the titles and axis labels itself. Matplotlib's
-constrained layout measured every tick and text twice more than the draw (the layout
-runs on a draw without rendering and again on the real one): it was half of each
-figure's CPU (the four figures of the default command, warm: 2.4–2.6 s with it,
-1.2–1.3 s now, best of 3 on the project's 2-core machine at load 2).
+legend below the axes), and places the titles and axis labels itself (the draw then
+skips matplotlib's search for them, which measures an axis' ticks once more).
+Matplotlib's constrained layout measured every tick and text twice more than the draw
+(it runs on a draw without rendering and again on the real one): it was half of each
+figure's CPU. The four figures of the default command, warm, CPU seconds, best of 3
+on the project's 2-core machine at load 2–2.6: 1.6–2.1 with it, 0.8–1.0 now.
 """
 from __future__ import annotations
 
