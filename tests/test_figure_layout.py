@@ -83,6 +83,8 @@ def _chart(kind: str, points: int = 500):
     noise = rng.random(points)
     if kind == "log":         # a positive statistic 30 times above its limit after the fault
         return t, 0.01 + noise + 60 * mask, np.full(points, 2.0), mask
+    if kind == "decade":      # a log axis spanning about one decade: its minor ticks are labelled too
+        return t, 5.0 + noise + 55 * mask, np.full(points, 5.5), mask
     if kind == "symlog":      # a signed statistic rising far above its limit
         return t, rng.normal(size=points) - 500 * mask, np.full(points, 3.0), mask
     if kind == "small":       # tick labels 0.00025 ...
@@ -90,10 +92,10 @@ def _chart(kind: str, points: int = 500):
     return t, 1e-5 * noise, np.full(points, 1.1e-5), mask  # "tiny": the labels share an offset text 1e−5
 
 
-@pytest.mark.parametrize("kind", ["log", "symlog", "small", "tiny"])
+@pytest.mark.parametrize("kind", ["log", "decade", "symlog", "small", "tiny"])
 def test_the_chart_keeps_every_text_inside_and_apart(monkeypatch, kind):
     t, statistic, ucl, mask = _chart(kind)
-    assert plots.chart_scale(statistic, ucl) == {"log": "log", "symlog": "symlog"}.get(kind, "linear")
+    assert plots.chart_scale(statistic, ucl) == {"log": "log", "decade": "log", "symlog": "symlog"}.get(kind, "linear")
     fig, drawn = _draw(monkeypatch, "chart_trace", t=t, statistic=statistic, ucl=ucl, fault_mask=mask,
                        title=LONG if kind in ("log", "tiny") else "short")
     assert problems(fig, drawn) == []
@@ -104,6 +106,8 @@ def test_the_chart_keeps_every_text_inside_and_apart(monkeypatch, kind):
         assert any("10^{−5}" in s or "10^{-5}" in s or "e-5" in s or "e−5" in s for s in texts), texts
     if kind == "small":
         assert "0.00025" in texts, texts
+    if kind == "decade":
+        assert sum("times" in s for s in texts) >= 2, texts  # minor labels: 2×10^1, 3×10^1 ...
 
 
 def test_the_residual_keeps_a_long_title_inside(monkeypatch):
