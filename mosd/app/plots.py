@@ -183,7 +183,7 @@ def _arrange(fig, axes, suptitle=None, legend=None, insets=()) -> None:
         right = sides[-1][1] + edge
         between = max([0.0, *(max(b["left"], a_side[1] + b_side[0]) + gap
                               for b, a_side, b_side in zip(panels[1:], sides, sides[1:]))])
-    wide = (width - left - right - (n - 1) * between) / n
+    wide = max((width - left - right - (n - 1) * between) / n, 1.0)
     fig.subplots_adjust(left=left / width, right=1.0 - right / width, bottom=bottom / height,
                         top=1.0 - top / height, wspace=between / wide if n > 1 else None)
     # titles and axis labels are given their places here, once the panels are placed: the draw then skips
