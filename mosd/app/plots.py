@@ -708,13 +708,15 @@ class FigureWriter:
         package_parent = str(Path(__file__).resolve().parents[2])  # the directory holding mosd/
         self._stderr = tempfile.TemporaryFile()
         self._jobs: list[tuple[str, dict[str, Any]]] | None = None
+        #: the ``drawers`` it was started with (0: one per usable CPU): a kept writer serves a job asking the same
+        self.drawers = max(0, int(drawers or 0))
         #: why the last :meth:`result` drew in this process (None: the side process drew)
         self.fallback: str | None = None
         try:
             self._proc = subprocess.Popen(
                 [sys.executable, "-c", "import sys; sys.path.insert(0, sys.argv[1]); "
                  "from mosd.app.plots import _serve; _serve(int(sys.argv[2]))", package_parent,
-                 str(max(0, int(drawers or 0)))],
+                 str(self.drawers)],
                 stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self._stderr)
         except OSError as exc:
             self._proc, self.fallback = None, f"the figure process did not start: {exc}"
@@ -746,6 +748,10 @@ class FigureWriter:
             self.fallback = reply.get("error", "no reply")
             self._kill()
         return draw(jobs)
+
+    def alive(self) -> bool:
+        """Whether the side process is running and waiting for work (no job list of this writer is pending)."""
+        return self._proc is not None and self._jobs is None and self.fallback is None and self._proc.poll() is None
 
     def close(self, wait: bool = True) -> None:
         """End the side process (it draws nothing more); ``wait=False`` kills it at once."""
@@ -782,6 +788,8 @@ class FigureWriter:
 # a single run's figure process, started before the command line is checked
 # ------------------------------------------------------------------------------------
 _EARLY: list[FigureWriter] = []
+#: a sweep job's figure process, idle, kept for this process's next job (:func:`keep`)
+_KEPT: list[FigureWriter] = []
 
 
 def start_early() -> None:
@@ -797,12 +805,37 @@ def start_early() -> None:
 
 
 def take(drawers: int | None = None) -> FigureWriter:
-    """The figure process :func:`start_early` started (once), else a new :class:`FigureWriter`.
+    """The figure process :func:`start_early` started (once), else one :func:`keep` kept, else a new one.
 
-    ``drawers`` is for a new one (a sweep's job passes its share of the cores); the early one
+    ``drawers`` is for a kept or a new one (a sweep's job passes its share of the cores); the early one
     draws on every usable CPU (it is only started for a single run).
     """
-    return _EARLY.pop() if _EARLY else FigureWriter(drawers)
+    if _EARLY:
+        return _EARLY.pop()
+    wanted = max(0, int(drawers or 0))
+    while _KEPT:
+        writer = _KEPT.pop()
+        if writer.drawers == wanted and writer.alive():
+            return writer
+        writer.close(wait=False)
+    return FigureWriter(drawers)
+
+
+def keep(writer: FigureWriter) -> bool:
+    """Keep a sweep job's figure process, its drawing done, for the next job of this process; False: closed.
+
+    A sweep's jobs in one process (the basic launcher's, a joblib worker's) then share one
+    figure process: matplotlib's import and warm-up (1.0–1.4 s of CPU on the project's 2-core
+    machine) are paid once per process, not once per job. One that failed or died is closed.
+    The process ends when this one does (its request pipe closes), or with :func:`discard`.
+    """
+    if not writer.alive():
+        writer.close(wait=False)
+        return False
+    while _KEPT:
+        _KEPT.pop().close(wait=False)
+    _KEPT.append(writer)
+    return True
 
 
 def early_pids() -> list[int]:
@@ -811,6 +844,8 @@ def early_pids() -> list[int]:
 
 
 def discard() -> None:
-    """End the figure process :func:`start_early` started, if no run took it (an error, a sweep)."""
+    """End the figure process :func:`start_early` started, if no run took it (an error, a sweep), and a kept one."""
     while _EARLY:
         _EARLY.pop().close(wait=False)
+    while _KEPT:
+        _KEPT.pop().close(wait=False)

@@ -253,10 +253,14 @@ def run(cfg, started: float | None = None, checked=None):
         model_file, deployment = save_for_run(setup, result, run_dir, found[0] if found else None)
         files += [run_dir / STREAM_FILE] if deployment.stream is not None else []
         record_model(run_dir, deployment, model_file)
-        figures.close()
+        fallback = figures.fallback
+        # a sweep's next job in this process draws with this figure process, matplotlib loaded and warm
+        if not (multirun and plots.keep(figures)):
+            figures.close()
+        figures = None
         timings["files_s"] = time.perf_counter() - t0
-        if figures.fallback:
-            log.warning("figures drawn in-process: %s", figures.fallback)
+        if fallback:
+            log.warning("figures drawn in-process: %s", fallback)
         tracking_line, not_logged = "", None
         if tracker is not None:
             t0 = time.perf_counter()
