@@ -89,9 +89,6 @@ from pymoo.core.evaluator import Evaluator
 from pymoo.core.individual import Individual, calc_cv
 from pymoo.core.population import Population
 from pymoo.core.sampling import Sampling
-from pymoo.operators.crossover.sbx import cross_sbx
-from pymoo.operators.mutation.pm import mut_pm
-from pymoo.operators.repair.to_bound import set_to_bounds_if_outside
 from pymoo.operators.sampling.rnd import FloatRandomSampling
 from pymoo.termination.max_eval import MaximumFunctionCallTermination
 from pymoo.termination.max_gen import MaximumGenerationTermination
@@ -258,21 +255,81 @@ def apply_bounds(X: np.ndarray, V: np.ndarray, xl: np.ndarray, xu: np.ndarray,
         V = np.where(outside, 0.0, V)
     elif rule != "clip":
         raise ConfigError(f"optimizer.boundary={rule!r} is not allowed; allowed: {', '.join(BOUNDARY_RULES)}")
-    return set_to_bounds_if_outside(np.array(X, dtype=float), xl, xu), V
+    return to_bounds(np.array(X, dtype=float), xl, xu), V
+
+
+def to_bounds(X: np.ndarray, xl, xu) -> np.ndarray:
+    """X with coordinates below ``xl`` set to it, then those above ``xu`` set to that, in place (returned).
+
+    pymoo's ``set_to_bounds_if_outside`` and ``repair_clamp`` (lower bound first, then upper; a NaN stays):
+    the same values, without building (n, n_var) copies of the bounds.
+    """
+    np.copyto(X, xl, where=X < xl)
+    np.copyto(X, xu, where=X > xu)
+    return X
+
+
+def polynomial_steps(X: np.ndarray, xl: np.ndarray, xu: np.ndarray, etas: np.ndarray, prob: float,
+                     random_state: np.random.Generator) -> np.ndarray:
+    """Deb's polynomial mutation of each variable with probability ``prob``: pymoo's ``mut_pm``, on arrays.
+
+    The same arithmetic as ``mut_pm(X, xl, xu, etas, np.full(n, prob), at_least_once=False)`` of pymoo
+    0.6, expression for expression on the same elements (so the same floats), and its draws in its order:
+    one uniform per variable and row (mutated when below ``prob``), then one per mutated variable; variables
+    with ``xl == xu`` are never mutated. pymoo's function builds (n, n_var) copies of the bounds and of the
+    indices and indexes them with the mask about thirty times, which on a swarm of 100 cost more than the
+    mutation (issue 32); ``tests/test_mopso_serial.py`` compares the two on random inputs.
+
+    Parameters
+    ----------
+    X : ndarray, shape (n, n_var)
+    xl, xu : ndarray, shape (n_var,)
+    etas : ndarray, shape (n,)
+        Distribution index per row.
+    prob : float
+        Probability per variable.
+    random_state : numpy.random.Generator
+
+    Returns
+    -------
+    ndarray, shape (n, n_var)
+        A new array.
+    """
+    n, n_var = X.shape
+    mutate = random_state.random((n, n_var)) < prob
+    fixed = xl == xu
+    if fixed.any():
+        mutate[:, fixed] = False
+    out = np.array(X, dtype=float)
+    rows, columns = np.nonzero(mutate)  # row-major: the order of X[mutate]
+    x, low, high = out[rows, columns], xl[columns], xu[columns]
+    eta = etas[rows]
+    delta1 = (x - low) / (high - low)
+    delta2 = (high - x) / (high - low)
+    power = 1.0 / (eta + 1.0)
+    rand = random_state.random(x.shape)
+    with np.errstate(invalid="ignore"):
+        val = 2.0 * rand + (1.0 - 2.0 * rand) * (np.power(1.0 - delta1, (eta + 1.0)))
+        below = np.power(val, power) - 1.0
+        val = 2.0 * (1.0 - rand) + 2.0 * (rand - 0.5) * (np.power(1.0 - delta2, (eta + 1.0)))
+        above = 1.0 - (np.power(val, power))
+    y = x + np.where(rand <= 0.5, below, above) * (high - low)
+    out[rows, columns] = to_bounds(y, low, high)
+    return to_bounds(out, xl, xu)
 
 
 def polynomial_mutation(X: np.ndarray, xl: np.ndarray, xu: np.ndarray, eta, share: float,
                         random_state: np.random.Generator) -> np.ndarray:
     """pymoo's ``PolynomialMutation(prob=share, prob_var=1/n_var, eta=eta)`` on the rows of X, on arrays.
 
-    ``eta`` is one distribution index for every row or one per row (shape (n,)); ``mut_pm`` takes
+    ``eta`` is one distribution index for every row or one per row (shape (n,)); pymoo's ``mut_pm`` takes
     one per row either way, so the draws do not depend on it.
 
-    The arithmetic is pymoo's own function (``mut_pm``: Deb's polynomial mutation, each variable
-    with probability 1/n_var), and the draws are those of the operator's ``do`` in the same
-    order (``mut_pm``'s, then one uniform per row for the share), so the result is the
-    operator's bit for bit; what is left out is building a Population of Individuals around
-    the rows and reading them back, which cost more than the mutation itself.
+    The arithmetic is pymoo's ``mut_pm`` (Deb's polynomial mutation, each variable with probability
+    1/n_var), written on arrays in :func:`polynomial_steps`, and the draws are those of the operator's
+    ``do`` in the same order (``mut_pm``'s, then one uniform per row for the share), so the result is the
+    operator's bit for bit; what is left out is building a Population of Individuals around the rows and
+    reading them back, which cost more than the mutation itself.
 
     Returns
     -------
@@ -282,8 +339,7 @@ def polynomial_mutation(X: np.ndarray, xl: np.ndarray, xu: np.ndarray, eta, shar
     n, n_var = X.shape
     X = np.asarray(X, dtype=float)
     etas = np.array(np.broadcast_to(np.asarray(eta, dtype=float), (n,)))
-    mutated = mut_pm(X, xl, xu, etas, np.full(n, 1.0 / n_var), at_least_once=False,
-                     random_state=random_state)
+    mutated = polynomial_steps(X, xl, xu, etas, 1.0 / n_var, random_state)
     hit = random_state.random(size=n) <= share
     out = X.copy()
     out[hit] = mutated[hit]
@@ -320,11 +376,11 @@ def sbx_children(first: np.ndarray, second: np.ndarray, xl: np.ndarray, xu: np.n
                  random_state: np.random.Generator, probability: float = 0.9, eta: float = 15.0) -> np.ndarray:
     """One child per pair of pymoo's ``SBX(prob=probability, eta=eta, n_offsprings=1)``, on arrays.
 
-    pymoo's function ``cross_sbx`` does the crossover (each variable with probability 0.5, the
-    two children exchanged per variable with probability 0.5), and the draws are those of
-    ``Crossover.do`` and ``SBX._do`` in their order: which pairs cross, the exchange
-    probability's draw, ``cross_sbx``'s, which of the two children is kept, and for a pair
-    that does not cross, which parent is copied. The children are the operator's bit for bit.
+    pymoo's ``cross_sbx`` (each variable with probability 0.5, the two children exchanged per variable
+    with probability 0.5), written on arrays in :func:`sbx_pairs`, does the crossover, and the draws are
+    those of ``Crossover.do`` and ``SBX._do`` in their order: which pairs cross, the exchange
+    probability's draw, ``cross_sbx``'s, which of the two children is kept, and for a pair that does not
+    cross, which parent is copied. The children are the operator's bit for bit.
 
     Parameters
     ----------
@@ -341,8 +397,7 @@ def sbx_children(first: np.ndarray, second: np.ndarray, xl: np.ndarray, xu: np.n
     cross = random_state.random(n) < probability
     if np.any(cross):
         random_state.random((n, 1))  # SBX._do's draw against prob_exch = 1: never disables a pair
-        column = np.ones((n, 1))
-        Q = cross_sbx(X, xl, xu, eta * column, 0.5 * column, 0.5 * column, random_state=random_state)
+        Q = sbx_pairs(X, xl, xu, eta, random_state)
         second_child = random_state.random(size=n) < 0.5
         Q[0, second_child] = Q[1, second_child]
         children[cross] = Q[0, cross]
@@ -352,6 +407,59 @@ def sbx_children(first: np.ndarray, second: np.ndarray, xl: np.ndarray, xu: np.n
         # each, the draws ``integers(2, size=k)`` makes in one call (tests/test_mopso_arrays.py checks)
         children[copied] = X[random_state.integers(2, size=len(copied)), copied]
     return children
+
+
+def sbx_pairs(X: np.ndarray, xl: np.ndarray, xu: np.ndarray, eta: float,
+              random_state: np.random.Generator) -> np.ndarray:
+    """Both children of each pair of pymoo's ``cross_sbx`` (variables and exchange with probability 0.5), on arrays.
+
+    The same arithmetic as ``cross_sbx(X, xl, xu, eta * c, 0.5 * c, 0.5 * c)`` of pymoo 0.6 (``c`` a column
+    of ones), expression for expression on the same elements, and its draws in its order: one uniform per
+    variable and pair (crossed when below 0.5; never where the parents are within 1e-14 or ``xl == xu``), one
+    per crossed variable for the spread, one per crossed variable for the exchange. Without pymoo's (n, n_var)
+    copies of the bounds and parameters and its repeated mask indexing (issue 32); ``tests/test_mopso_serial.py``
+    compares the two on random inputs.
+
+    Parameters
+    ----------
+    X : ndarray, shape (2, n, n_var)
+        The parents of each pair.
+
+    Returns
+    -------
+    ndarray, shape (2, n, n_var)
+        The two children of each pair, a new array.
+    """
+    _, n, n_var = X.shape
+    cross = random_state.random((n, n_var)) < 0.5
+    cross[np.abs(X[0] - X[1]) <= 1.0e-14] = False
+    cross[:, xl == xu] = False
+    rows, columns = np.nonzero(cross)
+    p1, p2 = X[0, rows, columns], X[1, rows, columns]
+    smaller = p1 < p2
+    y1, y2 = np.where(smaller, p1, p2), np.where(smaller, p2, p1)
+    low, high = xl[columns], xu[columns]
+    etas = np.full(len(p1), float(eta))
+    rand = random_state.random(len(etas))
+
+    def spread(beta):
+        alpha = 2.0 - np.power(beta, -(etas + 1.0))
+        inside = np.power((rand * alpha), (1.0 / (etas + 1.0)))
+        outside = np.power((1.0 / (2.0 - rand * alpha)), (1.0 / (etas + 1.0)))
+        # pymoo leaves 0 where neither comparison holds (1 / alpha NaN)
+        return np.where(rand <= (1.0 / alpha), inside, np.where(rand > (1.0 / alpha), outside, 0.0))
+
+    delta = y2 - y1
+    c1 = 0.5 * ((y1 + y2) - spread(1.0 + (2.0 * (y1 - low) / delta)) * delta)
+    c2 = 0.5 * ((y1 + y2) + spread(1.0 + (2.0 * (high - y2) / delta)) * delta)
+    child1, child2 = np.where(smaller, c1, c2), np.where(smaller, c2, c1)
+    exchange = np.bitwise_xor(random_state.random(len(etas)) < 0.5, p1 > p2)
+    Q = np.array(X, dtype=float)
+    Q[0, rows, columns] = np.where(exchange, child2, child1)
+    Q[1, rows, columns] = np.where(exchange, child1, child2)
+    to_bounds(Q[0], xl, xu)
+    to_bounds(Q[1], xl, xu)
+    return Q
 
 
 def restart_pymoo_run(algorithm: Algorithm) -> None:
@@ -922,8 +1030,7 @@ class MOPSO(Algorithm):
         # the first round(REFINE_ENDS n) refine the ends of the front instead, the objectives' minima in turn
         ends = int(round(REFINE_ENDS * n))
         chosen[:ends] = np.argmin(archive.F, axis=0)[np.arange(ends) % archive.F.shape[1]]
-        return mut_pm(np.array(archive.X[chosen], dtype=float), problem.xl, problem.xu, np.full(n, REFINE_ETA),
-                      np.ones(n), at_least_once=False, random_state=rng)
+        return polynomial_steps(archive.X[chosen], problem.xl, problem.xu, np.full(n, REFINE_ETA), 1.0, rng)
 
     def _mutation_etas(self, n: int):
         """The polynomial mutation's distribution index for n rows (particles or archive offspring).
