@@ -222,7 +222,8 @@ class GridArchive:
         self._X, self._F, self._CV = np.empty((0, 0)), np.empty((0, 0)), np.empty(0)
         self.lower: np.ndarray | None = None
         self.upper: np.ndarray | None = None
-        self._cells: tuple[np.ndarray, np.ndarray] | None = None
+        self._cells: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
+        self._roulette: np.ndarray | None = None
         self._crowding: np.ndarray | None = None
 
     def __len__(self) -> int:
@@ -345,18 +346,38 @@ class GridArchive:
         integers is several times faster than on rows (``axis=0``), which remains for grids
         too large for 63 bits.
         """
-        if self._cells is not None:
-            return self._cells
+        if self._cells is None:
+            self._cells = self._grid_cells()
+        return self._cells[:2]
+
+    def _grid_cells(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`cells`, the members in cell order (a stable sort by label) and each cell's first position in it.
+
+        ``np.unique(codes, return_inverse=True, return_counts=True)`` sorts the codes and marks where they
+        change; so does this, once, with a stable sort that also gives the members' order by cell for
+        :meth:`select_leaders` (a stable sort by label is one by code: labels number the codes in order).
+        """
         coordinates = self.cell_coordinates()
-        n_obj = coordinates.shape[1]
+        n, n_obj = coordinates.shape
         if n_obj * np.log2(max(self.n_divisions, 2)) < 62:
             weights = self.n_divisions ** np.arange(n_obj - 1, -1, -1, dtype=np.int64)
-            _, labels, occupancy = np.unique(coordinates @ weights, return_inverse=True, return_counts=True)
+            codes = coordinates @ weights
+            by_cell = np.argsort(codes, kind="stable")
+            ordered = codes[by_cell]
+            starts = np.empty(n, dtype=bool)
+            starts[:1] = True
+            np.not_equal(ordered[1:], ordered[:-1], out=starts[1:])
+            labels = np.empty(n, dtype=np.intp)
+            labels[by_cell] = np.cumsum(starts) - 1
+            first = np.flatnonzero(starts)
+            occupancy = np.diff(first, append=n)
         else:
             _, labels, occupancy = np.unique(coordinates, axis=0, return_inverse=True, return_counts=True)
+            labels = labels.reshape(-1)
+            by_cell = np.argsort(labels, kind="stable")
+            first = np.cumsum(occupancy) - occupancy
         # kept until the members or the grid change (leaders are drawn twice per generation)
-        self._cells = (labels.reshape(-1), occupancy)
-        return self._cells
+        return labels, occupancy, by_cell, first
 
     def select_leaders(self, n: int, random_state: np.random.Generator,
                        rule: str = "roulette") -> np.ndarray:
@@ -394,10 +415,15 @@ class GridArchive:
             first, second = occupancy[labels[a]], occupancy[labels[b]]
             coin = random_state.random(n) < 0.5
             return np.where((first < second) | ((first == second) & coin), a, b)
-        fitness = LEADER_FITNESS_NUMERATOR / occupancy
-        chosen = random_state.choice(len(occupancy), size=n, p=fitness / fitness.sum())
-        by_cell = np.argsort(labels, kind="stable")
-        first = np.cumsum(occupancy) - occupancy
+        _, _, by_cell, first = self._cells
+        if self._roulette is None:
+            fitness = LEADER_FITNESS_NUMERATOR / occupancy
+            # Generator.choice(len(occupancy), size=n, p=fitness / fitness.sum())'s sampling: the normalised
+            # cumulative sum searched with n uniforms (tests/test_mopso_serial.py checks the draws are choice's)
+            cdf = np.cumsum(fitness / fitness.sum())
+            cdf /= cdf[-1]
+            self._roulette = cdf
+        chosen = self._roulette.searchsorted(random_state.random(n), side="right")
         offset = np.floor(random_state.random(n) * occupancy[chosen]).astype(int)
         return by_cell[first[chosen] + offset]
 
@@ -414,14 +440,14 @@ class GridArchive:
     def _set_members(self, members: Population, X: np.ndarray, F: np.ndarray, CV: np.ndarray) -> None:
         # X, F and CV are kept as arrays too: Population.get walks every individual
         self.members, self._X, self._F, self._CV = members, X, F, CV
-        self._cells = self._crowding = None
+        self._cells = self._roulette = self._crowding = None
 
     def _outside_grid(self) -> bool:
         return bool(np.any(self._F < self.lower) or np.any(self._F > self.upper))
 
     def _regrid(self) -> None:
         self.lower, self.upper = self._F.min(axis=0), self._F.max(axis=0)
-        self._cells = None
+        self._cells = self._roulette = None
 
     def _truncate(self, random_state: np.random.Generator) -> None:
         """Eq. 37 down to ``capacity`` members.

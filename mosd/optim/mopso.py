@@ -81,6 +81,7 @@ leaves the swarm dynamics (eq. 39) as they are.
 from __future__ import annotations
 
 import math
+import operator
 import warnings
 
 import numpy as np
@@ -303,15 +304,15 @@ def polynomial_steps(X: np.ndarray, xl: np.ndarray, xu: np.ndarray, etas: np.nda
     out = np.array(X, dtype=float)
     rows, columns = np.nonzero(mutate)  # row-major: the order of X[mutate]
     x, low, high = out[rows, columns], xl[columns], xu[columns]
-    eta = etas[rows]
+    exponent = etas[rows] + 1.0
     delta1 = (x - low) / (high - low)
     delta2 = (high - x) / (high - low)
-    power = 1.0 / (eta + 1.0)
+    power = 1.0 / exponent
     rand = random_state.random(x.shape)
     with np.errstate(invalid="ignore"):
-        val = 2.0 * rand + (1.0 - 2.0 * rand) * (np.power(1.0 - delta1, (eta + 1.0)))
+        val = 2.0 * rand + (1.0 - 2.0 * rand) * (np.power(1.0 - delta1, exponent))
         below = np.power(val, power) - 1.0
-        val = 2.0 * (1.0 - rand) + 2.0 * (rand - 0.5) * (np.power(1.0 - delta2, (eta + 1.0)))
+        val = 2.0 * (1.0 - rand) + 2.0 * (rand - 0.5) * (np.power(1.0 - delta2, exponent))
         above = 1.0 - (np.power(val, power))
     y = x + np.where(rand <= 0.5, below, above) * (high - low)
     out[rows, columns] = to_bounds(y, low, high)
@@ -439,27 +440,28 @@ def sbx_pairs(X: np.ndarray, xl: np.ndarray, xu: np.ndarray, eta: float,
     smaller = p1 < p2
     y1, y2 = np.where(smaller, p1, p2), np.where(smaller, p2, p1)
     low, high = xl[columns], xu[columns]
+    rand = random_state.random(len(p1))
+    # pymoo's η per crossed variable, and its exponents: the same floats for every use (computed once)
     etas = np.full(len(p1), float(eta))
-    rand = random_state.random(len(etas))
+    exponent, root = -(etas + 1.0), 1.0 / (etas + 1.0)
 
     def spread(beta):
-        alpha = 2.0 - np.power(beta, -(etas + 1.0))
-        inside = np.power((rand * alpha), (1.0 / (etas + 1.0)))
-        outside = np.power((1.0 / (2.0 - rand * alpha)), (1.0 / (etas + 1.0)))
+        alpha = 2.0 - np.power(beta, exponent)
+        threshold, scaled = 1.0 / alpha, rand * alpha
+        inside = np.power(scaled, root)
+        outside = np.power((1.0 / (2.0 - scaled)), root)
         # pymoo leaves 0 where neither comparison holds (1 / alpha NaN)
-        return np.where(rand <= (1.0 / alpha), inside, np.where(rand > (1.0 / alpha), outside, 0.0))
+        return np.where(rand <= threshold, inside, np.where(rand > threshold, outside, 0.0))
 
     delta = y2 - y1
     c1 = 0.5 * ((y1 + y2) - spread(1.0 + (2.0 * (y1 - low) / delta)) * delta)
     c2 = 0.5 * ((y1 + y2) + spread(1.0 + (2.0 * (high - y2) / delta)) * delta)
     child1, child2 = np.where(smaller, c1, c2), np.where(smaller, c2, c1)
-    exchange = np.bitwise_xor(random_state.random(len(etas)) < 0.5, p1 > p2)
+    exchange = np.bitwise_xor(random_state.random(len(p1)) < 0.5, p1 > p2)
     Q = np.array(X, dtype=float)
     Q[0, rows, columns] = np.where(exchange, child2, child1)
     Q[1, rows, columns] = np.where(exchange, child1, child2)
-    to_bounds(Q[0], xl, xu)
-    to_bounds(Q[1], xl, xu)
-    return Q
+    return to_bounds(Q, xl, xu)
 
 
 def restart_pymoo_run(algorithm: Algorithm) -> None:
@@ -502,7 +504,7 @@ def round_integers(X: np.ndarray, is_integer: np.ndarray | None, xl: np.ndarray,
 _ARRAY_KEYS = ("F", "G", "H")
 
 
-def new_population(X: np.ndarray) -> Population:
+def new_population(X: np.ndarray, generation: int | None = None) -> Population:
     """``Population.new("X", X)``: one fresh :class:`~pymoo.core.individual.Individual` per row, built directly.
 
     The individuals are pymoo's own class in the state its constructor leaves them in, X set
@@ -510,22 +512,37 @@ def new_population(X: np.ndarray) -> Population:
     that no individual holds a view of a caller's array, pymoo #455); what is skipped is the generic
     path: a new configuration dictionary per individual (one shared, never modified, as pymoo
     only reads it) and ``Individual.set``'s attribute lookup per key and individual, which
-    together cost more per generation than the swarm's whole move (issue 32).
+    together cost more per generation than the swarm's whole move (issue 32). With ``generation``,
+    each individual's data carry pymoo's ``n_gen`` and ``n_iter`` tags (what ``Algorithm.infill``
+    sets afterwards, one individual at a time).
     """
     template, create = Individual().__dict__, Individual.__new__
+    owned = np.array(X, dtype=float)
+    rows = list(owned)
     built = []
-    for row in np.array(X, dtype=float):
+    for row in rows:
         individual = create(Individual)
         state = individual.__dict__
         state.update(template)
-        state["_X"], state["data"], state["evaluated"] = row, {}, set()
+        state["_X"], state["evaluated"] = row, set()
+        state["data"] = {} if generation is None else {"n_gen": generation, "n_iter": generation}
         built.append(individual)
     individuals = np.empty(len(built), dtype=object)
     individuals[:] = built
     population = individuals.view(Population)
-    # read by ArrayEvaluator.eval: nothing here is evaluated yet
-    population._mosd_fresh = True
+    # read by ArrayEvaluator.eval: nothing here is evaluated yet, and the rows of ``owned`` are the individuals' X
+    # as long as each individual still holds its row (MOPSO.infill: and the tags are set)
+    population._mosd_fresh, population._mosd_rows, population._mosd_tags = True, (owned, rows), generation
     return population
+
+
+def _population_X(pop: Population) -> np.ndarray:
+    """The individuals' X as one new array: a copy of :func:`new_population`'s array while every individual still
+    holds its row of it (nothing replaced an X since), else read from the individuals."""
+    owned, rows = getattr(pop, "_mosd_rows", (None, None))
+    if rows is not None and len(rows) == len(pop) and all(map(operator.is_, [ind._X for ind in pop], rows)):
+        return owned.copy()
+    return np.array([individual._X for individual in pop])
 
 
 class ArrayEvaluator(Evaluator):
@@ -565,7 +582,7 @@ class ArrayEvaluator(Evaluator):
         return pop
 
     def _eval(self, problem, pop, evaluate_values_of, **kwargs):
-        X = np.array([individual._X for individual in pop])
+        X = _population_X(pop)
         out = problem.evaluate(X, return_values_of=evaluate_values_of, return_as_dictionary=True, **kwargs)
         keys = set(out.keys())
         # one copy per key (the problem may reuse its output buffers); each individual gets a row of it, the
@@ -581,9 +598,17 @@ class ArrayEvaluator(Evaluator):
                                           (len(pop),)), dtype=float).reshape(-1, 1)
             names.append("_CV")
             columns.append(list(CV))
-        for individual, *rows in zip(pop, *columns):
-            individual.__dict__.update(zip(names, rows))
-            individual.evaluated.update(keys)
+        if names == ["_F"]:
+            # an unconstrained problem's one array: a plain loop, without zip(names, rows) per individual
+            for individual, row in zip(pop, columns[0]):
+                state = individual.__dict__
+                state["_F"] = row
+                state["evaluated"].update(keys)
+        else:
+            for individual, *rows in zip(pop, *columns):
+                state = individual.__dict__
+                state.update(zip(names, rows))
+                state["evaluated"].update(keys)
         if others:
             pop.set(**others)
         self._arrays = (pop, X, owned["F"], CV if CV is not None else np.zeros((len(pop), 1)))
@@ -846,7 +871,7 @@ class MOPSO(Algorithm):
     def _initialize_infill(self):
         X = self.sampling.do(self.problem, self.pop_size, algorithm=self,
                              random_state=self.random_state).get("X")
-        return new_population(round_integers(X, self.is_integer, self.problem.xl, self.problem.xu))
+        return new_population(round_integers(X, self.is_integer, self.problem.xl, self.problem.xu), self.n_iter)
 
     def infill(self) -> Population | None:
         """pymoo's ``Algorithm.infill`` (initialise on the first call, then ``_infill``), tagging the infills'
@@ -858,7 +883,8 @@ class MOPSO(Algorithm):
             infills = self._initialize_infill()
         else:
             infills = self._infill()
-        if infills is not None:
+        if infills is not None and getattr(infills, "_mosd_tags", None) != self.n_iter:
+            # not tagged by new_population (an override of _infill may return any population)
             for individual in infills:
                 individual.data["n_gen"] = individual.data["n_iter"] = self.n_iter
         return infills
@@ -926,7 +952,7 @@ class MOPSO(Algorithm):
             X_new = np.vstack([X_new, self._archive_offspring(n_offspring)])
             velocity = np.vstack([velocity, np.zeros((n_offspring, problem.n_var))])
         self.particle_velocity = velocity
-        return new_population(round_integers(X_new, self.is_integer, problem.xl, problem.xu))
+        return new_population(round_integers(X_new, self.is_integer, problem.xl, problem.xu), self.n_iter)
 
     def _advance(self, infills=None, **kwargs):
         self.pop = infills
