@@ -202,6 +202,30 @@ def evaluated_arrays(population: Population, constrained: bool = True) -> tuple[
     return X, F, CV
 
 
+class _Merged:
+    """The members followed by the candidates of :meth:`GridArchive.update`, from which it keeps some.
+
+    ``candidates`` is a Population or a generation's arrays whose individuals are built on request
+    (:class:`mosd.optim.mopso.EvaluatedArrays`, anything with ``select(index) -> Population``): only the
+    candidates that enter the archive are then built (issue 32).
+    """
+
+    def __init__(self, members: Population, candidates):
+        self.members, self.candidates = members, candidates
+
+    def select(self, index: np.ndarray) -> Population:
+        """The members and candidates at ``index`` (ascending positions in members + candidates)."""
+        n_members = len(self.members)
+        split = int(np.searchsorted(index, n_members))
+        if isinstance(self.candidates, Population) or not hasattr(self.candidates, "select"):
+            if not isinstance(self.candidates, Population):
+                return Population.merge(self.members, self.candidates)[index]
+            chosen = self.candidates[index[split:] - n_members]
+        else:
+            chosen = self.candidates.select(index[split:] - n_members)
+        return np.concatenate((self.members[index[:split]], chosen)).view(Population)
+
+
 class GridArchive:
     """External archive of non-dominated solutions on an adaptive hypercube grid.
 
@@ -310,11 +334,7 @@ class GridArchive:
         evaluated : (X, F, CV), optional
             The candidates' arrays when the caller has them (:func:`evaluated_arrays`).
         """
-        if isinstance(candidates, Population):
-            # Population.merge's result (it also builds two empty populations to test its arguments' types)
-            merged = np.concatenate((self.members, candidates)).view(Population)
-        else:
-            merged = Population.merge(self.members, candidates)
+        merged = _Merged(self.members, candidates)
         X, F, CV = evaluated_arrays(candidates) if evaluated is None else evaluated
         if len(self.members):
             X, F = np.concatenate([self._X, X]), np.concatenate([self._F, F])
@@ -331,13 +351,13 @@ class GridArchive:
                     & (CV[:, None] == CV[None, :]))
             distinct = ~np.triu(same, k=1).any(axis=0)
             keep = distinct & ~dominance_matrix(F, CV).any(axis=0)
-        self._set_members(merged[keep], X[keep], F[keep], CV[keep])
+        self._set_members(merged.select(np.flatnonzero(keep)), X[keep], F[keep], CV[keep])
         if self.lower is None or self._outside_grid():
             self._regrid()
         if len(self.members) > self.capacity:
             self._truncate(random_state)
 
-    def _keep_least_infeasible(self, merged: Population, X: np.ndarray, F: np.ndarray, CV: np.ndarray,
+    def _keep_least_infeasible(self, merged: _Merged, X: np.ndarray, F: np.ndarray, CV: np.ndarray,
                                distinct: np.ndarray) -> None:
         """Members while nothing is feasible: the ⌈:data:`INFEASIBLE_SHARE` × capacity⌉ least infeasible points.
 
@@ -361,7 +381,7 @@ class GridArchive:
                 crowding = np.partition(D, 1, axis=1)[:, :2].sum(axis=1)
             index = index[np.lexsort((-crowding, CV[index]))[:bound]]
             index.sort()
-        self._set_members(merged[index], X[index], F[index], CV[index])
+        self._set_members(merged.select(index), X[index], F[index], CV[index])
         self._regrid()
 
     def cell_coordinates(self, F: np.ndarray | None = None) -> np.ndarray:

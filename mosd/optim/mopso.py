@@ -614,6 +614,69 @@ class ArrayEvaluator(Evaluator):
         self._arrays = (pop, X, owned["F"], CV if CV is not None else np.zeros((len(pop), 1)))
 
 
+class EvaluatedArrays:
+    """One generation's evaluated candidates as arrays, whose pymoo individuals are built when something asks.
+
+    What :meth:`MOPSO.next` hands to ``advance`` instead of a Population: the swarm reads the arrays,
+    :meth:`GridArchive.update` asks for the individuals of the candidates it keeps (:meth:`select`), and
+    ``algorithm.pop``/``off`` (``res.pop``, ``res.history``, callbacks) for all of them (:meth:`population`).
+    Each individual is built once, on first request, exactly as :func:`new_population` and
+    :class:`ArrayEvaluator` build it (X a row of a copy taken before the evaluation, F/G/H rows of copies of the
+    problem's output, CV where the problem has constraints, ``evaluated``, the ``n_gen``/``n_iter`` tags), so
+    the archive's members and ``pop`` share the same objects as before. Building and freeing a hundred
+    individuals a generation that nothing reads was the largest part of the optimiser's own time (issue 32).
+    """
+
+    def __init__(self, X: np.ndarray, out: dict, CV: np.ndarray | None, generation: int, config: dict):
+        self.X = X
+        self.keys = set(out.keys())
+        self.outputs = {key: np.array(value, copy=True) for key, value in out.items() if value is not None}
+        self.CV = CV
+        self.generation = generation
+        self.config = config
+        self.individuals = np.full(len(X), None, dtype=object)
+        self._population: Population | None = None
+
+    def __len__(self) -> int:
+        return len(self.X)
+
+    def select(self, index: np.ndarray) -> Population:
+        """The individuals of rows ``index`` (int array), built where not yet."""
+        individuals = self.individuals
+        missing = [int(i) for i in index if individuals[i] is None]
+        if missing:
+            self._build(missing)
+        return individuals[index].view(Population)
+
+    def population(self) -> Population:
+        """All the individuals, in row order (the same Population object on every call)."""
+        if self._population is None:
+            self._population = self.select(np.arange(len(self.X)))
+        return self._population
+
+    def _build(self, rows: list[int]) -> None:
+        template, create = Individual().__dict__, Individual.__new__
+        template["config"] = self.config
+        arrays = {"_" + key: value for key, value in self.outputs.items() if key in _ARRAY_KEYS}
+        if self.CV is not None:
+            arrays["_CV"] = self.CV
+        others = {key: value for key, value in self.outputs.items() if key not in _ARRAY_KEYS}
+        tags = self.generation
+        for i in rows:
+            individual = create(Individual)
+            state = individual.__dict__
+            state.update(template)
+            state["_X"], state["evaluated"], state["data"] = self.X[i], set(self.keys), {"n_gen": tags, "n_iter": tags}
+            for name, values in arrays.items():
+                state[name] = values[i]
+            for key, values in others.items():
+                # Population.set's copy of a view (pymoo #455)
+                value = values[i]
+                individual.set(key, value.copy() if isinstance(value, np.ndarray) and not value.flags["OWNDATA"]
+                               else value)
+            self.individuals[i] = individual
+
+
 class MOPSO(Algorithm):
     """Grid-archive multi-objective PSO of Coello et al. 2004 as used by paper 000.
 
@@ -868,10 +931,74 @@ class MOPSO(Algorithm):
         self.planned_generations = self._planned_generations()
         restart_pymoo_run(self)
 
-    def _initialize_infill(self):
+    # pymoo keeps the current and the last evaluated population in ``pop`` and ``off``; :meth:`next` stores the
+    # generation's arrays there (EvaluatedArrays) and the individuals are built when one of them is read
+    @property
+    def pop(self) -> Population | None:
+        pop = self.__dict__.get("_pop")
+        return pop.population() if isinstance(pop, EvaluatedArrays) else pop
+
+    @pop.setter
+    def pop(self, value) -> None:
+        self.__dict__["_pop"] = value
+
+    @property
+    def off(self) -> Population | None:
+        off = self.__dict__.get("_off")
+        return off.population() if isinstance(off, EvaluatedArrays) else off
+
+    @off.setter
+    def off(self, value) -> None:
+        self.__dict__["_off"] = value
+
+    def next(self) -> None:
+        """pymoo's ``Algorithm.next`` (infill, evaluate, advance) on arrays, when MOPSO's own evaluator evaluates.
+
+        The positions of the move (or the initial sampling), one ``problem.evaluate`` of them as
+        :class:`ArrayEvaluator` makes it (counted in ``evaluator.n_eval``), then pymoo's ``advance`` with an
+        :class:`EvaluatedArrays`: the same draws and arithmetic as the Population path, without building the
+        individuals nothing reads (issue 32). Another evaluator, an evaluator callback or pymoo's ``archive``
+        take pymoo's own ``next``, and so does a subclass that overrides a hook of the Population path
+        (``infill``, ``_infill``, ``_initialize_infill``); ``ask``/``tell`` keep returning and taking Populations.
+        """
+        evaluator, cls = self.evaluator, type(self)
+        if (type(evaluator) is not ArrayEvaluator or evaluator.callback is not None or self.archive is not None
+                or cls.infill is not MOPSO.infill or cls._infill is not MOPSO._infill
+                or cls._initialize_infill is not MOPSO._initialize_infill):
+            return super().next()
+        if self.problem is None:
+            raise Exception("Please call `setup(problem)` before calling next().")
+        if not self.is_initialized:
+            self._initialize()
+            X = self._initial_positions()
+        else:
+            X = self._moved_positions()
+        self.advance(infills=self._evaluate_positions(X))
+
+    def _evaluate_positions(self, X: np.ndarray) -> EvaluatedArrays:
+        """``X`` evaluated as :meth:`ArrayEvaluator.eval` evaluates :func:`new_population`'s individuals."""
+        evaluator, problem = self.evaluator, self.problem
+        config = Individual.default_config()
+        owned = np.array(X, dtype=float)  # the individuals' rows: not the array the problem gets
+        X = owned.copy()
+        out = problem.evaluate(X, return_values_of=evaluator.evaluate_values_of, return_as_dictionary=True,
+                               algorithm=self)
+        CV = None
+        if problem.has_constraints() and len(X):
+            CV = np.array(np.broadcast_to(calc_cv(G=out.get("G"), H=out.get("H"), config=config), (len(X),)),
+                          dtype=float).reshape(-1, 1)
+        evaluator.n_eval += len(X)
+        evaluated = EvaluatedArrays(owned, out, CV, self.n_iter, config)
+        evaluated.swarm = (X, evaluated.outputs["F"], CV if CV is not None else np.zeros((len(X), 1)))
+        return evaluated
+
+    def _initial_positions(self) -> np.ndarray:
         X = self.sampling.do(self.problem, self.pop_size, algorithm=self,
                              random_state=self.random_state).get("X")
-        return new_population(round_integers(X, self.is_integer, self.problem.xl, self.problem.xu), self.n_iter)
+        return round_integers(X, self.is_integer, self.problem.xl, self.problem.xu)
+
+    def _initialize_infill(self):
+        return new_population(self._initial_positions(), self.n_iter)
 
     def infill(self) -> Population | None:
         """pymoo's ``Algorithm.infill`` (initialise on the first call, then ``_infill``), tagging the infills'
@@ -889,8 +1016,11 @@ class MOPSO(Algorithm):
                 individual.data["n_gen"] = individual.data["n_iter"] = self.n_iter
         return infills
 
-    def _evaluated(self, infills: Population) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """X, F, CV of the evaluated infills: :class:`ArrayEvaluator`'s arrays, else read from the individuals."""
+    def _evaluated(self, infills) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """X, F, CV of the evaluated infills: :class:`EvaluatedArrays`' or :class:`ArrayEvaluator`'s arrays, else
+        read from the individuals."""
+        if isinstance(infills, EvaluatedArrays):
+            return infills.swarm
         last = getattr(self.evaluator, "last", None)
         if last is not None and last[0] is infills:
             # read once: res.history's copies of the algorithm need not carry them
@@ -907,7 +1037,11 @@ class MOPSO(Algorithm):
         self.leader_archive.update(infills, self.random_state, evaluated)
 
     def _infill(self):
-        """One move of the swarm, eqs. 38–39.
+        """One move of the swarm (:meth:`_moved_positions`) as a Population."""
+        return new_population(self._moved_positions(), self.n_iter)
+
+    def _moved_positions(self) -> np.ndarray:
+        """One move of the swarm, eqs. 38–39: the new positions, the archive offspring in the last slots.
 
         Paper 000 prints eq. 38 (x_{p+1} = x_p + v_p) before eq. 39 (the new velocity);
         taken literally with v_0 = 0 the first generation would re-evaluate the initial
@@ -952,7 +1086,7 @@ class MOPSO(Algorithm):
             X_new = np.vstack([X_new, self._archive_offspring(n_offspring)])
             velocity = np.vstack([velocity, np.zeros((n_offspring, problem.n_var))])
         self.particle_velocity = velocity
-        return new_population(round_integers(X_new, self.is_integer, problem.xl, problem.xu), self.n_iter)
+        return round_integers(X_new, self.is_integer, problem.xl, problem.xu)
 
     def _advance(self, infills=None, **kwargs):
         self.pop = infills
