@@ -9,6 +9,8 @@ Pareto dominance the archive and the swarm's personal bests use.
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numba import njit
 from pymoo.core.population import Population
@@ -351,6 +353,10 @@ class GridArchive:
                     & (CV[:, None] == CV[None, :]))
             distinct = ~np.triu(same, k=1).any(axis=0)
             keep = distinct & ~dominance_matrix(F, CV).any(axis=0)
+        n_members = len(self._CV)
+        if n_members and self.lower is not None and keep[:n_members].all() and not keep[n_members:].any():
+            # nothing entered and nothing left: members, grid and cells stay as they are
+            return
         self._set_members(merged.select(np.flatnonzero(keep)), X[keep], F[keep], CV[keep])
         if self.lower is None or self._outside_grid():
             self._regrid()
@@ -392,10 +398,20 @@ class GridArchive:
         interval, and an objective with zero spread puts every point in interval 0.
         """
         F = self.F if F is None else np.asarray(F, dtype=float)
-        width = (self.upper - self.lower) / self.n_divisions
-        safe = np.where(width > 0, width, 1.0)
-        scaled = np.where(width > 0, (F - self.lower) / safe, 0.0)
-        return np.clip(np.floor(scaled), 0, self.n_divisions - 1).astype(int)
+        lower, upper, spread, safe = self._scale()
+        scaled = np.where(spread, (F - lower) / safe, 0.0)
+        # np.clip(floor, 0, n_divisions - 1) as two ufuncs (np.clip's Python wrapper costs more than the work here)
+        return np.minimum(np.maximum(np.floor(scaled), 0), self.n_divisions - 1).astype(int)
+
+    def _scale(self):
+        """The grid's bounds, which objectives have a spread (h_j > 0) and h_j where it is (1 elsewhere); kept
+        while ``lower`` and ``upper`` are the same arrays (they are replaced, never changed in place, by a regrid)."""
+        cached = self.__dict__.get("_scale_cache")
+        if cached is None or cached[0] is not self.lower or cached[1] is not self.upper:
+            width = (self.upper - self.lower) / self.n_divisions
+            cached = (self.lower, self.upper, width > 0, np.where(width > 0, width, 1.0))
+            self.__dict__["_scale_cache"] = cached
+        return cached
 
     def cells(self) -> tuple[np.ndarray, np.ndarray]:
         """Cell label of each member (0 … n_cells − 1) and the occupancy of each cell.
@@ -419,9 +435,11 @@ class GridArchive:
         """
         coordinates = self.cell_coordinates()
         n, n_obj = coordinates.shape
-        if n_obj * np.log2(max(self.n_divisions, 2)) < 62:
-            weights = self.n_divisions ** np.arange(n_obj - 1, -1, -1, dtype=np.int64)
-            codes = coordinates @ weights
+        if n_obj * math.log2(max(self.n_divisions, 2)) < 62:
+            codes = coordinates[:, 0].astype(np.int64)
+            for j in range(1, n_obj):
+                # Horner's scheme: the integer with these digits in base n_divisions, first objective most significant
+                codes = codes * self.n_divisions + coordinates[:, j]
             by_cell = np.argsort(codes, kind="stable")
             ordered = codes[by_cell]
             starts = np.empty(n, dtype=bool)
@@ -430,7 +448,9 @@ class GridArchive:
             labels = np.empty(n, dtype=np.intp)
             labels[by_cell] = np.cumsum(starts) - 1
             first = np.flatnonzero(starts)
-            occupancy = np.diff(first, append=n)
+            ends = np.empty(len(first) + 1, dtype=np.intp)
+            ends[:-1], ends[-1] = first, n
+            occupancy = ends[1:] - first
         else:
             _, labels, occupancy = np.unique(coordinates, axis=0, return_inverse=True, return_counts=True)
             labels = labels.reshape(-1)
