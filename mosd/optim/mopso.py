@@ -339,7 +339,10 @@ def polynomial_mutation(X: np.ndarray, xl: np.ndarray, xu: np.ndarray, eta, shar
     """
     n, n_var = X.shape
     X = np.asarray(X, dtype=float)
-    etas = np.array(np.broadcast_to(np.asarray(eta, dtype=float), (n,)))
+    if np.ndim(eta) == 0:
+        etas = np.full(n, float(eta))
+    else:
+        etas = np.array(np.broadcast_to(np.asarray(eta, dtype=float), (n,)))
     mutated = polynomial_steps(X, xl, xu, etas, 1.0 / n_var, random_state)
     hit = random_state.random(size=n) <= share
     out = X.copy()
@@ -392,11 +395,11 @@ def sbx_children(first: np.ndarray, second: np.ndarray, xl: np.ndarray, xu: np.n
     -------
     ndarray, shape (n, n_var)
     """
-    X = np.stack([first, second]).astype(float)
+    X = np.array((first, second), dtype=float)
     n = X.shape[1]
     children = np.empty_like(X[0])
     cross = random_state.random(n) < probability
-    if np.any(cross):
+    if cross.any():
         random_state.random((n, 1))  # SBX._do's draw against prob_exch = 1: never disables a pair
         Q = sbx_pairs(X, xl, xu, eta, random_state)
         second_child = random_state.random(size=n) < 0.5
@@ -440,7 +443,10 @@ def sbx_pairs(X: np.ndarray, xl: np.ndarray, xu: np.ndarray, eta: float,
     smaller = p1 < p2
     y1, y2 = np.where(smaller, p1, p2), np.where(smaller, p2, p1)
     low, high = xl[columns], xu[columns]
-    rand = random_state.random(len(p1))
+    # cross_sbx's two draws of one uniform per crossed variable (the spread, then the exchange) in one call: a
+    # Generator's doubles come one 64-bit output each, so random(2k) is random(k) followed by random(k)
+    draws = random_state.random(2 * len(p1))
+    rand, exchange_draws = draws[:len(p1)], draws[len(p1):]
     # pymoo's η per crossed variable, and its exponents: the same floats for every use (computed once)
     etas = np.full(len(p1), float(eta))
     exponent, root = -(etas + 1.0), 1.0 / (etas + 1.0)
@@ -457,7 +463,7 @@ def sbx_pairs(X: np.ndarray, xl: np.ndarray, xu: np.ndarray, eta: float,
     c1 = 0.5 * ((y1 + y2) - spread(1.0 + (2.0 * (y1 - low) / delta)) * delta)
     c2 = 0.5 * ((y1 + y2) + spread(1.0 + (2.0 * (high - y2) / delta)) * delta)
     child1, child2 = np.where(smaller, c1, c2), np.where(smaller, c2, c1)
-    exchange = np.bitwise_xor(random_state.random(len(p1)) < 0.5, p1 > p2)
+    exchange = np.bitwise_xor(exchange_draws < 0.5, p1 > p2)
     Q = np.array(X, dtype=float)
     Q[0, rows, columns] = np.where(exchange, child2, child1)
     Q[1, rows, columns] = np.where(exchange, child1, child2)
