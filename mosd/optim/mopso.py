@@ -53,9 +53,14 @@ One class, two presets:
 
 The archive (grid, eq. 37, leader choice) and the constrained dominance live in
 :mod:`mosd.optim.archive`; this module keeps the swarm. The swarm's state is arrays; pymoo's
-individuals are built only where its API needs them (:func:`new_population`, evaluated by
-:class:`ArrayEvaluator`, which hands X, F and CV back as arrays): per-candidate ``Individual``
-and ``Population`` bookkeeping was most of the optimiser's own time per generation (issue 32).
+individuals are built only where its API needs them: :meth:`MOPSO.next` runs a generation on arrays
+and hands pymoo's ``advance`` an :class:`EvaluatedArrays`, whose individuals are built when the archive
+keeps a candidate or something reads ``pop`` (``res.pop``, ``res.history``, callbacks); ``ask``/``tell``
+and other evaluators get Populations (:func:`new_population`, evaluated by :class:`ArrayEvaluator`, which
+hands X, F and CV back as arrays). Per-candidate ``Individual`` and ``Population`` bookkeeping, and
+pymoo's operator functions' per-call overhead on a swarm of 100 (:func:`polynomial_steps`,
+:func:`sbx_pairs` do their arithmetic and draws on arrays), were most of the optimiser's own time per
+generation (issue 32).
 
 Where the paper and Coello 2004 leave a detail open, the choice is documented at the
 place that implements it:
@@ -633,11 +638,15 @@ class EvaluatedArrays:
     individuals a generation that nothing reads was the largest part of the optimiser's own time (issue 32).
     """
 
-    def __init__(self, X: np.ndarray, out: dict, CV: np.ndarray | None, generation: int, config: dict):
+    def __init__(self, X: np.ndarray, out: dict, CV: np.ndarray | None, generation: int, config: dict,
+                 evaluated_X: np.ndarray | None = None):
         self.X = X
         self.keys = set(out.keys())
         self.outputs = {key: np.array(value, copy=True) for key, value in out.items() if value is not None}
         self.CV = CV
+        #: X (the array the problem evaluated), F, CV (n, 1; zeros without constraints): what the swarm reads
+        self.swarm = (X if evaluated_X is None else evaluated_X, self.outputs.get("F"),
+                      CV if CV is not None else np.zeros((len(X), 1)))
         self.generation = generation
         self.config = config
         self.individuals = np.full(len(X), None, dtype=object)
@@ -994,9 +1003,7 @@ class MOPSO(Algorithm):
             CV = np.array(np.broadcast_to(calc_cv(G=out.get("G"), H=out.get("H"), config=config), (len(X),)),
                           dtype=float).reshape(-1, 1)
         evaluator.n_eval += len(X)
-        evaluated = EvaluatedArrays(owned, out, CV, self.n_iter, config)
-        evaluated.swarm = (X, evaluated.outputs["F"], CV if CV is not None else np.zeros((len(X), 1)))
-        return evaluated
+        return EvaluatedArrays(owned, out, CV, self.n_iter, config, evaluated_X=X)
 
     def _initial_positions(self) -> np.ndarray:
         X = self.sampling.do(self.problem, self.pop_size, algorithm=self,
