@@ -1006,8 +1006,16 @@ class MOPSO(Algorithm):
         return EvaluatedArrays(owned, out, CV, self.n_iter, config, evaluated_X=X)
 
     def _initial_positions(self) -> np.ndarray:
-        X = self.sampling.do(self.problem, self.pop_size, algorithm=self,
-                             random_state=self.random_state).get("X")
+        sampling = self.sampling
+        if type(sampling).do is Sampling.do:
+            # Sampling.do is _do's array wrapped in Population.new("X", ·), which .get("X") reads back row by row
+            X = sampling._do(self.problem, self.pop_size, algorithm=self, random_state=self.random_state)
+            if isinstance(X, np.ndarray) and X.dtype == float and X.ndim == 2:
+                X = X.copy()
+            else:
+                X = Population.new("X", X).get("X")
+        else:
+            X = sampling.do(self.problem, self.pop_size, algorithm=self, random_state=self.random_state).get("X")
         return round_integers(X, self.is_integer, self.problem.xl, self.problem.xu)
 
     def _initialize_infill(self):
