@@ -657,11 +657,12 @@ class EvaluatedArrays:
 
     def select(self, index: np.ndarray) -> Population:
         """The individuals of rows ``index`` (int array), built where not yet."""
-        individuals = self.individuals
-        missing = [int(i) for i in index if individuals[i] is None]
-        if missing:
-            self._build(missing)
-        return individuals[index].view(Population)
+        chosen = self.individuals[index]
+        missing = index[np.equal(chosen, None)]
+        if len(missing):
+            self._build(missing.tolist())
+            chosen = self.individuals[index]
+        return chosen.view(Population)
 
     def population(self) -> Population:
         """All the individuals, in row order (the same Population object on every call)."""
@@ -672,24 +673,29 @@ class EvaluatedArrays:
     def _build(self, rows: list[int]) -> None:
         template, create = Individual().__dict__, Individual.__new__
         template["config"] = self.config
-        arrays = {"_" + key: value for key, value in self.outputs.items() if key in _ARRAY_KEYS}
+        columns = [("_" + key, value) for key, value in self.outputs.items() if key in _ARRAY_KEYS]
         if self.CV is not None:
-            arrays["_CV"] = self.CV
-        others = {key: value for key, value in self.outputs.items() if key not in _ARRAY_KEYS}
-        tags = self.generation
+            columns.append(("_CV", self.CV))
+        X, keys, tag = self.X, self.keys, self.generation
+        built = []
         for i in rows:
             individual = create(Individual)
             state = individual.__dict__
             state.update(template)
-            state["_X"], state["evaluated"], state["data"] = self.X[i], set(self.keys), {"n_gen": tags, "n_iter": tags}
-            for name, values in arrays.items():
+            state["_X"], state["evaluated"], state["data"] = X[i], set(keys), {"n_gen": tag, "n_iter": tag}
+            for name, values in columns:
                 state[name] = values[i]
-            for key, values in others.items():
+            built.append(individual)
+        others = {key: value for key, value in self.outputs.items() if key not in _ARRAY_KEYS}
+        for key, values in others.items():
+            for i, individual in zip(rows, built):
                 # Population.set's copy of a view (pymoo #455)
                 value = values[i]
                 individual.set(key, value.copy() if isinstance(value, np.ndarray) and not value.flags["OWNDATA"]
                                else value)
-            self.individuals[i] = individual
+        individuals = np.empty(len(built), dtype=object)
+        individuals[:] = built
+        self.individuals[rows] = individuals
 
 
 class MOPSO(Algorithm):
