@@ -9,6 +9,8 @@ Pareto dominance the archive and the swarm's personal bests use.
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numba import njit
 from pymoo.core.population import Population
@@ -88,6 +90,36 @@ def _dominates(Fa, CVa, Fb, CVb):
     return ((feasible_a & ~feasible_b)
             | (feasible_a & feasible_b & pareto)
             | (~feasible_a & ~feasible_b & (CVa < CVb)))
+
+
+def _front_of_two(F: np.ndarray, CV: np.ndarray) -> np.ndarray | None:
+    """The members :meth:`GridArchive.update` keeps from feasible points in two objectives, by one sort.
+
+    The same mask as ``distinct & ~dominance_matrix(F, CV).any(axis=0)`` there (a point enters unless an earlier
+    point equals it in F and CV or a point dominates it), where every point is feasible, so dominance is Pareto
+    dominance: after a stable sort by f1, then f2, then CV, a point is dominated exactly when a point of smaller
+    f1 has an f2 no larger (the running minimum of f2 before its run of equal f1) or a point of its run has a
+    smaller f2 (the run's first), and equals an earlier point exactly when it equals its predecessor in the sort.
+    O(n log n) instead of the (n, n) comparisons, which on a swarm of 100 were the archive's main cost (issue 32);
+    ``tests/test_mopso_serial.py`` compares the two on ties, signed zeros and infinities. None (use the matrices)
+    when F holds a NaN, whose comparisons are all false.
+    """
+    n = len(CV)
+    if n == 0 or np.isnan(F).any():
+        return None
+    order = np.lexsort((CV, F[:, 1], F[:, 0]))
+    f1, f2, cv = F[order, 0], F[order, 1], CV[order]
+    same_f1 = f1[1:] == f1[:-1]
+    index = np.arange(n)
+    run_start = np.maximum.accumulate(np.where(np.concatenate(([True], ~same_f1)), index, 0))
+    running_min = np.minimum.accumulate(f2)
+    before = running_min[np.maximum(run_start - 1, 0)]
+    dominated = ((run_start > 0) & (before <= f2)) | (f2[run_start] < f2)
+    repeated = np.zeros(n, dtype=bool)
+    repeated[1:] = same_f1 & (f2[1:] == f2[:-1]) & (cv[1:] == cv[:-1])
+    keep = np.empty(n, dtype=bool)
+    keep[order] = ~(dominated | repeated)
+    return keep
 
 
 def eq37_removal_counts(occupancy, capacity: int, tie_break=None, removable=None,
@@ -172,6 +204,30 @@ def evaluated_arrays(population: Population, constrained: bool = True) -> tuple[
     return X, F, CV
 
 
+class _Merged:
+    """The members followed by the candidates of :meth:`GridArchive.update`, from which it keeps some.
+
+    ``candidates`` is a Population or a generation's arrays whose individuals are built on request
+    (:class:`mosd.optim.mopso.EvaluatedArrays`, anything with ``select(index) -> Population``): only the
+    candidates that enter the archive are then built (issue 32).
+    """
+
+    def __init__(self, members: Population, candidates):
+        self.members, self.candidates = members, candidates
+
+    def select(self, index: np.ndarray) -> Population:
+        """The members and candidates at ``index`` (ascending positions in members + candidates)."""
+        n_members = len(self.members)
+        split = int(np.searchsorted(index, n_members))
+        if isinstance(self.candidates, Population) or not hasattr(self.candidates, "select"):
+            if not isinstance(self.candidates, Population):
+                return Population.merge(self.members, self.candidates)[index]
+            chosen = self.candidates[index[split:] - n_members]
+        else:
+            chosen = self.candidates.select(index[split:] - n_members)
+        return np.concatenate((self.members[index[:split]], chosen)).view(Population)
+
+
 class GridArchive:
     """External archive of non-dominated solutions on an adaptive hypercube grid.
 
@@ -222,7 +278,8 @@ class GridArchive:
         self._X, self._F, self._CV = np.empty((0, 0)), np.empty((0, 0)), np.empty(0)
         self.lower: np.ndarray | None = None
         self.upper: np.ndarray | None = None
-        self._cells: tuple[np.ndarray, np.ndarray] | None = None
+        self._cells: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
+        self._roulette: np.ndarray | None = None
         self._crowding: np.ndarray | None = None
 
     def __len__(self) -> int:
@@ -279,24 +336,34 @@ class GridArchive:
         evaluated : (X, F, CV), optional
             The candidates' arrays when the caller has them (:func:`evaluated_arrays`).
         """
-        merged = Population.merge(self.members, candidates)
+        merged = _Merged(self.members, candidates)
         X, F, CV = evaluated_arrays(candidates) if evaluated is None else evaluated
         if len(self.members):
             X, F = np.concatenate([self._X, X]), np.concatenate([self._F, F])
         CV = np.concatenate([self._CV, CV.reshape(-1)])
-        same = _all_objectives(np.equal, F[:, None, :], F[None, :, :], np.logical_and) & (CV[:, None] == CV[None, :])
-        distinct = ~np.triu(same, k=1).any(axis=0)
-        if self.infeasible == "diverse" and not np.any(CV <= 0.0):
-            self._keep_least_infeasible(merged, X, F, CV, distinct)
+        feasible = CV <= 0.0
+        if self.infeasible == "diverse" and not feasible.any():
+            same = (_all_objectives(np.equal, F[:, None, :], F[None, :, :], np.logical_and)
+                    & (CV[:, None] == CV[None, :]))
+            self._keep_least_infeasible(merged, X, F, CV, ~np.triu(same, k=1).any(axis=0))
             return
-        keep = distinct & ~dominance_matrix(F, CV).any(axis=0)
-        self._set_members(merged[keep], X[keep], F[keep], CV[keep])
+        keep = _front_of_two(F, CV) if F.shape[1] == 2 and feasible.all() else None
+        if keep is None:
+            same = (_all_objectives(np.equal, F[:, None, :], F[None, :, :], np.logical_and)
+                    & (CV[:, None] == CV[None, :]))
+            distinct = ~np.triu(same, k=1).any(axis=0)
+            keep = distinct & ~dominance_matrix(F, CV).any(axis=0)
+        n_members = len(self._CV)
+        if n_members and self.lower is not None and keep[:n_members].all() and not keep[n_members:].any():
+            # nothing entered and nothing left: members, grid and cells stay as they are
+            return
+        self._set_members(merged.select(np.flatnonzero(keep)), X[keep], F[keep], CV[keep])
         if self.lower is None or self._outside_grid():
             self._regrid()
         if len(self.members) > self.capacity:
             self._truncate(random_state)
 
-    def _keep_least_infeasible(self, merged: Population, X: np.ndarray, F: np.ndarray, CV: np.ndarray,
+    def _keep_least_infeasible(self, merged: _Merged, X: np.ndarray, F: np.ndarray, CV: np.ndarray,
                                distinct: np.ndarray) -> None:
         """Members while nothing is feasible: the ⌈:data:`INFEASIBLE_SHARE` × capacity⌉ least infeasible points.
 
@@ -320,7 +387,7 @@ class GridArchive:
                 crowding = np.partition(D, 1, axis=1)[:, :2].sum(axis=1)
             index = index[np.lexsort((-crowding, CV[index]))[:bound]]
             index.sort()
-        self._set_members(merged[index], X[index], F[index], CV[index])
+        self._set_members(merged.select(index), X[index], F[index], CV[index])
         self._regrid()
 
     def cell_coordinates(self, F: np.ndarray | None = None) -> np.ndarray:
@@ -331,10 +398,20 @@ class GridArchive:
         interval, and an objective with zero spread puts every point in interval 0.
         """
         F = self.F if F is None else np.asarray(F, dtype=float)
-        width = (self.upper - self.lower) / self.n_divisions
-        safe = np.where(width > 0, width, 1.0)
-        scaled = np.where(width > 0, (F - self.lower) / safe, 0.0)
-        return np.clip(np.floor(scaled), 0, self.n_divisions - 1).astype(int)
+        lower, upper, spread, safe = self._scale()
+        scaled = np.where(spread, (F - lower) / safe, 0.0)
+        # np.clip(floor, 0, n_divisions - 1) as two ufuncs (np.clip's Python wrapper costs more than the work here)
+        return np.minimum(np.maximum(np.floor(scaled), 0), self.n_divisions - 1).astype(int)
+
+    def _scale(self):
+        """The grid's bounds, which objectives have a spread (h_j > 0) and h_j where it is (1 elsewhere); kept
+        while ``lower`` and ``upper`` are the same arrays (they are replaced, never changed in place, by a regrid)."""
+        cached = self.__dict__.get("_scale_cache")
+        if cached is None or cached[0] is not self.lower or cached[1] is not self.upper:
+            width = (self.upper - self.lower) / self.n_divisions
+            cached = (self.lower, self.upper, width > 0, np.where(width > 0, width, 1.0))
+            self.__dict__["_scale_cache"] = cached
+        return cached
 
     def cells(self) -> tuple[np.ndarray, np.ndarray]:
         """Cell label of each member (0 … n_cells − 1) and the occupancy of each cell.
@@ -345,18 +422,42 @@ class GridArchive:
         integers is several times faster than on rows (``axis=0``), which remains for grids
         too large for 63 bits.
         """
-        if self._cells is not None:
-            return self._cells
+        if self._cells is None:
+            self._cells = self._grid_cells()
+        return self._cells[:2]
+
+    def _grid_cells(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`cells`, the members in cell order (a stable sort by label) and each cell's first position in it.
+
+        ``np.unique(codes, return_inverse=True, return_counts=True)`` sorts the codes and marks where they
+        change; so does this, once, with a stable sort that also gives the members' order by cell for
+        :meth:`select_leaders` (a stable sort by label is one by code: labels number the codes in order).
+        """
         coordinates = self.cell_coordinates()
-        n_obj = coordinates.shape[1]
-        if n_obj * np.log2(max(self.n_divisions, 2)) < 62:
-            weights = self.n_divisions ** np.arange(n_obj - 1, -1, -1, dtype=np.int64)
-            _, labels, occupancy = np.unique(coordinates @ weights, return_inverse=True, return_counts=True)
+        n, n_obj = coordinates.shape
+        if n_obj * math.log2(max(self.n_divisions, 2)) < 62:
+            codes = coordinates[:, 0].astype(np.int64)
+            for j in range(1, n_obj):
+                # Horner's scheme: the integer with these digits in base n_divisions, first objective most significant
+                codes = codes * self.n_divisions + coordinates[:, j]
+            by_cell = np.argsort(codes, kind="stable")
+            ordered = codes[by_cell]
+            starts = np.empty(n, dtype=bool)
+            starts[:1] = True
+            np.not_equal(ordered[1:], ordered[:-1], out=starts[1:])
+            labels = np.empty(n, dtype=np.intp)
+            labels[by_cell] = np.cumsum(starts) - 1
+            first = np.flatnonzero(starts)
+            ends = np.empty(len(first) + 1, dtype=np.intp)
+            ends[:-1], ends[-1] = first, n
+            occupancy = ends[1:] - first
         else:
             _, labels, occupancy = np.unique(coordinates, axis=0, return_inverse=True, return_counts=True)
+            labels = labels.reshape(-1)
+            by_cell = np.argsort(labels, kind="stable")
+            first = np.cumsum(occupancy) - occupancy
         # kept until the members or the grid change (leaders are drawn twice per generation)
-        self._cells = (labels.reshape(-1), occupancy)
-        return self._cells
+        return labels, occupancy, by_cell, first
 
     def select_leaders(self, n: int, random_state: np.random.Generator,
                        rule: str = "roulette") -> np.ndarray:
@@ -394,10 +495,15 @@ class GridArchive:
             first, second = occupancy[labels[a]], occupancy[labels[b]]
             coin = random_state.random(n) < 0.5
             return np.where((first < second) | ((first == second) & coin), a, b)
-        fitness = LEADER_FITNESS_NUMERATOR / occupancy
-        chosen = random_state.choice(len(occupancy), size=n, p=fitness / fitness.sum())
-        by_cell = np.argsort(labels, kind="stable")
-        first = np.cumsum(occupancy) - occupancy
+        _, _, by_cell, first = self._cells
+        if self._roulette is None:
+            fitness = LEADER_FITNESS_NUMERATOR / occupancy
+            # Generator.choice(len(occupancy), size=n, p=fitness / fitness.sum())'s sampling: the normalised
+            # cumulative sum searched with n uniforms (tests/test_mopso_serial.py checks the draws are choice's)
+            cdf = np.cumsum(fitness / fitness.sum())
+            cdf /= cdf[-1]
+            self._roulette = cdf
+        chosen = self._roulette.searchsorted(random_state.random(n), side="right")
         offset = np.floor(random_state.random(n) * occupancy[chosen]).astype(int)
         return by_cell[first[chosen] + offset]
 
@@ -414,14 +520,14 @@ class GridArchive:
     def _set_members(self, members: Population, X: np.ndarray, F: np.ndarray, CV: np.ndarray) -> None:
         # X, F and CV are kept as arrays too: Population.get walks every individual
         self.members, self._X, self._F, self._CV = members, X, F, CV
-        self._cells = self._crowding = None
+        self._cells = self._roulette = self._crowding = None
 
     def _outside_grid(self) -> bool:
         return bool(np.any(self._F < self.lower) or np.any(self._F > self.upper))
 
     def _regrid(self) -> None:
         self.lower, self.upper = self._F.min(axis=0), self._F.max(axis=0)
-        self._cells = None
+        self._cells = self._roulette = None
 
     def _truncate(self, random_state: np.random.Generator) -> None:
         """Eq. 37 down to ``capacity`` members.
@@ -474,8 +580,19 @@ class GridArchive:
         D += 1e-12 * random_state.random(D.shape)
         np.fill_diagonal(D, np.inf)
         alive = np.ones(len(D), dtype=bool)
-        neighbours = np.argpartition(D, 1, axis=1)[:, :2]
-        crowding = np.take_along_axis(D, neighbours, axis=1).sum(axis=1)
+        # each member's two nearest (as np.argpartition(D, 1, axis=1)[:, :2], which took most of this method's time:
+        # with the jitter, distances within a row tie with probability 0, and a tie would change which index is kept,
+        # never a crowding value) and their distances, summed nearest first as before
+        rows = np.arange(len(D))
+        nearest = D.argmin(axis=1)
+        nearest_distance = D[rows, nearest]
+        D[rows, nearest] = np.inf
+        second = D.argmin(axis=1)
+        crowding = nearest_distance + D[rows, second]
+        D[rows, nearest] = nearest_distance
+        # laid out as argpartition's slice was (a non-contiguous view), the layout _drop_crowded is compiled for
+        neighbours = np.empty((len(D), 3), dtype=np.intp)[:, :2]
+        neighbours[:, 0], neighbours[:, 1] = nearest, second
         nearest_cells = np.full(len(occupancy), np.inf)
         np.minimum.at(nearest_cells, labels[~protected], crowding[~protected])
         remove = eq37_removal_counts(occupancy, self.capacity, tie_break=-nearest_cells,

@@ -53,9 +53,14 @@ One class, two presets:
 
 The archive (grid, eq. 37, leader choice) and the constrained dominance live in
 :mod:`mosd.optim.archive`; this module keeps the swarm. The swarm's state is arrays; pymoo's
-individuals are built only where its API needs them (:func:`new_population`, evaluated by
-:class:`ArrayEvaluator`, which hands X, F and CV back as arrays): per-candidate ``Individual``
-and ``Population`` bookkeeping was most of the optimiser's own time per generation (issue 32).
+individuals are built only where its API needs them: :meth:`MOPSO.next` runs a generation on arrays
+and hands pymoo's ``advance`` an :class:`EvaluatedArrays`, whose individuals are built when the archive
+keeps a candidate or something reads ``pop`` (``res.pop``, ``res.history``, callbacks); ``ask``/``tell``
+and other evaluators get Populations (:func:`new_population`, evaluated by :class:`ArrayEvaluator`, which
+hands X, F and CV back as arrays). Per-candidate ``Individual`` and ``Population`` bookkeeping, and
+pymoo's operator functions' per-call overhead on a swarm of 100 (:func:`polynomial_steps`,
+:func:`sbx_pairs` do their arithmetic and draws on arrays), were most of the optimiser's own time per
+generation (issue 32).
 
 Where the paper and Coello 2004 leave a detail open, the choice is documented at the
 place that implements it:
@@ -81,6 +86,7 @@ leaves the swarm dynamics (eq. 39) as they are.
 from __future__ import annotations
 
 import math
+import operator
 import warnings
 
 import numpy as np
@@ -89,9 +95,6 @@ from pymoo.core.evaluator import Evaluator
 from pymoo.core.individual import Individual, calc_cv
 from pymoo.core.population import Population
 from pymoo.core.sampling import Sampling
-from pymoo.operators.crossover.sbx import cross_sbx
-from pymoo.operators.mutation.pm import mut_pm
-from pymoo.operators.repair.to_bound import set_to_bounds_if_outside
 from pymoo.operators.sampling.rnd import FloatRandomSampling
 from pymoo.termination.max_eval import MaximumFunctionCallTermination
 from pymoo.termination.max_gen import MaximumGenerationTermination
@@ -258,21 +261,81 @@ def apply_bounds(X: np.ndarray, V: np.ndarray, xl: np.ndarray, xu: np.ndarray,
         V = np.where(outside, 0.0, V)
     elif rule != "clip":
         raise ConfigError(f"optimizer.boundary={rule!r} is not allowed; allowed: {', '.join(BOUNDARY_RULES)}")
-    return set_to_bounds_if_outside(np.array(X, dtype=float), xl, xu), V
+    return to_bounds(np.array(X, dtype=float), xl, xu), V
+
+
+def to_bounds(X: np.ndarray, xl, xu) -> np.ndarray:
+    """X with coordinates below ``xl`` set to it, then those above ``xu`` set to that, in place (returned).
+
+    pymoo's ``set_to_bounds_if_outside`` and ``repair_clamp`` (lower bound first, then upper; a NaN stays):
+    the same values, without building (n, n_var) copies of the bounds.
+    """
+    np.copyto(X, xl, where=X < xl)
+    np.copyto(X, xu, where=X > xu)
+    return X
+
+
+def polynomial_steps(X: np.ndarray, xl: np.ndarray, xu: np.ndarray, etas: np.ndarray, prob: float,
+                     random_state: np.random.Generator) -> np.ndarray:
+    """Deb's polynomial mutation of each variable with probability ``prob``: pymoo's ``mut_pm``, on arrays.
+
+    The same arithmetic as ``mut_pm(X, xl, xu, etas, np.full(n, prob), at_least_once=False)`` of pymoo
+    0.6, expression for expression on the same elements (so the same floats), and its draws in its order:
+    one uniform per variable and row (mutated when below ``prob``), then one per mutated variable; variables
+    with ``xl == xu`` are never mutated. pymoo's function builds (n, n_var) copies of the bounds and of the
+    indices and indexes them with the mask about thirty times, which on a swarm of 100 cost more than the
+    mutation (issue 32); ``tests/test_mopso_serial.py`` compares the two on random inputs.
+
+    Parameters
+    ----------
+    X : ndarray, shape (n, n_var)
+    xl, xu : ndarray, shape (n_var,)
+    etas : ndarray, shape (n,)
+        Distribution index per row.
+    prob : float
+        Probability per variable.
+    random_state : numpy.random.Generator
+
+    Returns
+    -------
+    ndarray, shape (n, n_var)
+        A new array.
+    """
+    n, n_var = X.shape
+    mutate = random_state.random((n, n_var)) < prob
+    fixed = xl == xu
+    if fixed.any():
+        mutate[:, fixed] = False
+    out = np.array(X, dtype=float)
+    rows, columns = np.nonzero(mutate)  # row-major: the order of X[mutate]
+    x, low, high = out[rows, columns], xl[columns], xu[columns]
+    exponent = etas[rows] + 1.0
+    delta1 = (x - low) / (high - low)
+    delta2 = (high - x) / (high - low)
+    power = 1.0 / exponent
+    rand = random_state.random(x.shape)
+    with np.errstate(invalid="ignore"):
+        val = 2.0 * rand + (1.0 - 2.0 * rand) * (np.power(1.0 - delta1, exponent))
+        below = np.power(val, power) - 1.0
+        val = 2.0 * (1.0 - rand) + 2.0 * (rand - 0.5) * (np.power(1.0 - delta2, exponent))
+        above = 1.0 - (np.power(val, power))
+    y = x + np.where(rand <= 0.5, below, above) * (high - low)
+    out[rows, columns] = to_bounds(y, low, high)
+    return to_bounds(out, xl, xu)
 
 
 def polynomial_mutation(X: np.ndarray, xl: np.ndarray, xu: np.ndarray, eta, share: float,
                         random_state: np.random.Generator) -> np.ndarray:
     """pymoo's ``PolynomialMutation(prob=share, prob_var=1/n_var, eta=eta)`` on the rows of X, on arrays.
 
-    ``eta`` is one distribution index for every row or one per row (shape (n,)); ``mut_pm`` takes
+    ``eta`` is one distribution index for every row or one per row (shape (n,)); pymoo's ``mut_pm`` takes
     one per row either way, so the draws do not depend on it.
 
-    The arithmetic is pymoo's own function (``mut_pm``: Deb's polynomial mutation, each variable
-    with probability 1/n_var), and the draws are those of the operator's ``do`` in the same
-    order (``mut_pm``'s, then one uniform per row for the share), so the result is the
-    operator's bit for bit; what is left out is building a Population of Individuals around
-    the rows and reading them back, which cost more than the mutation itself.
+    The arithmetic is pymoo's ``mut_pm`` (Deb's polynomial mutation, each variable with probability
+    1/n_var), written on arrays in :func:`polynomial_steps`, and the draws are those of the operator's
+    ``do`` in the same order (``mut_pm``'s, then one uniform per row for the share), so the result is the
+    operator's bit for bit; what is left out is building a Population of Individuals around the rows and
+    reading them back, which cost more than the mutation itself.
 
     Returns
     -------
@@ -281,9 +344,11 @@ def polynomial_mutation(X: np.ndarray, xl: np.ndarray, xu: np.ndarray, eta, shar
     """
     n, n_var = X.shape
     X = np.asarray(X, dtype=float)
-    etas = np.array(np.broadcast_to(np.asarray(eta, dtype=float), (n,)))
-    mutated = mut_pm(X, xl, xu, etas, np.full(n, 1.0 / n_var), at_least_once=False,
-                     random_state=random_state)
+    if np.ndim(eta) == 0:
+        etas = np.full(n, float(eta))
+    else:
+        etas = np.array(np.broadcast_to(np.asarray(eta, dtype=float), (n,)))
+    mutated = polynomial_steps(X, xl, xu, etas, 1.0 / n_var, random_state)
     hit = random_state.random(size=n) <= share
     out = X.copy()
     out[hit] = mutated[hit]
@@ -320,11 +385,11 @@ def sbx_children(first: np.ndarray, second: np.ndarray, xl: np.ndarray, xu: np.n
                  random_state: np.random.Generator, probability: float = 0.9, eta: float = 15.0) -> np.ndarray:
     """One child per pair of pymoo's ``SBX(prob=probability, eta=eta, n_offsprings=1)``, on arrays.
 
-    pymoo's function ``cross_sbx`` does the crossover (each variable with probability 0.5, the
-    two children exchanged per variable with probability 0.5), and the draws are those of
-    ``Crossover.do`` and ``SBX._do`` in their order: which pairs cross, the exchange
-    probability's draw, ``cross_sbx``'s, which of the two children is kept, and for a pair
-    that does not cross, which parent is copied. The children are the operator's bit for bit.
+    pymoo's ``cross_sbx`` (each variable with probability 0.5, the two children exchanged per variable
+    with probability 0.5), written on arrays in :func:`sbx_pairs`, does the crossover, and the draws are
+    those of ``Crossover.do`` and ``SBX._do`` in their order: which pairs cross, the exchange
+    probability's draw, ``cross_sbx``'s, which of the two children is kept, and for a pair that does not
+    cross, which parent is copied. The children are the operator's bit for bit.
 
     Parameters
     ----------
@@ -335,14 +400,13 @@ def sbx_children(first: np.ndarray, second: np.ndarray, xl: np.ndarray, xu: np.n
     -------
     ndarray, shape (n, n_var)
     """
-    X = np.stack([first, second]).astype(float)
+    X = np.array((first, second), dtype=float)
     n = X.shape[1]
     children = np.empty_like(X[0])
     cross = random_state.random(n) < probability
-    if np.any(cross):
+    if cross.any():
         random_state.random((n, 1))  # SBX._do's draw against prob_exch = 1: never disables a pair
-        column = np.ones((n, 1))
-        Q = cross_sbx(X, xl, xu, eta * column, 0.5 * column, 0.5 * column, random_state=random_state)
+        Q = sbx_pairs(X, xl, xu, eta, random_state)
         second_child = random_state.random(size=n) < 0.5
         Q[0, second_child] = Q[1, second_child]
         children[cross] = Q[0, cross]
@@ -352,6 +416,63 @@ def sbx_children(first: np.ndarray, second: np.ndarray, xl: np.ndarray, xu: np.n
         # each, the draws ``integers(2, size=k)`` makes in one call (tests/test_mopso_arrays.py checks)
         children[copied] = X[random_state.integers(2, size=len(copied)), copied]
     return children
+
+
+def sbx_pairs(X: np.ndarray, xl: np.ndarray, xu: np.ndarray, eta: float,
+              random_state: np.random.Generator) -> np.ndarray:
+    """Both children of each pair of pymoo's ``cross_sbx`` (variables and exchange with probability 0.5), on arrays.
+
+    The same arithmetic as ``cross_sbx(X, xl, xu, eta * c, 0.5 * c, 0.5 * c)`` of pymoo 0.6 (``c`` a column
+    of ones), expression for expression on the same elements, and its draws in its order: one uniform per
+    variable and pair (crossed when below 0.5; never where the parents are within 1e-14 or ``xl == xu``), one
+    per crossed variable for the spread, one per crossed variable for the exchange. Without pymoo's (n, n_var)
+    copies of the bounds and parameters and its repeated mask indexing (issue 32); ``tests/test_mopso_serial.py``
+    compares the two on random inputs.
+
+    Parameters
+    ----------
+    X : ndarray, shape (2, n, n_var)
+        The parents of each pair.
+
+    Returns
+    -------
+    ndarray, shape (2, n, n_var)
+        The two children of each pair, a new array.
+    """
+    _, n, n_var = X.shape
+    cross = random_state.random((n, n_var)) < 0.5
+    cross[np.abs(X[0] - X[1]) <= 1.0e-14] = False
+    cross[:, xl == xu] = False
+    rows, columns = np.nonzero(cross)
+    p1, p2 = X[0, rows, columns], X[1, rows, columns]
+    smaller = p1 < p2
+    y1, y2 = np.where(smaller, p1, p2), np.where(smaller, p2, p1)
+    low, high = xl[columns], xu[columns]
+    # cross_sbx's two draws of one uniform per crossed variable (the spread, then the exchange) in one call: a
+    # Generator's doubles come one 64-bit output each, so random(2k) is random(k) followed by random(k)
+    draws = random_state.random(2 * len(p1))
+    rand, exchange_draws = draws[:len(p1)], draws[len(p1):]
+    # pymoo's η per crossed variable, and its exponents: the same floats for every use (computed once)
+    etas = np.full(len(p1), float(eta))
+    exponent, root = -(etas + 1.0), 1.0 / (etas + 1.0)
+
+    def spread(beta):
+        alpha = 2.0 - np.power(beta, exponent)
+        threshold, scaled = 1.0 / alpha, rand * alpha
+        inside = np.power(scaled, root)
+        outside = np.power((1.0 / (2.0 - scaled)), root)
+        # pymoo leaves 0 where neither comparison holds (1 / alpha NaN)
+        return np.where(rand <= threshold, inside, np.where(rand > threshold, outside, 0.0))
+
+    delta = y2 - y1
+    c1 = 0.5 * ((y1 + y2) - spread(1.0 + (2.0 * (y1 - low) / delta)) * delta)
+    c2 = 0.5 * ((y1 + y2) + spread(1.0 + (2.0 * (high - y2) / delta)) * delta)
+    child1, child2 = np.where(smaller, c1, c2), np.where(smaller, c2, c1)
+    exchange = np.bitwise_xor(exchange_draws < 0.5, p1 > p2)
+    Q = np.array(X, dtype=float)
+    Q[0, rows, columns] = np.where(exchange, child2, child1)
+    Q[1, rows, columns] = np.where(exchange, child1, child2)
+    return to_bounds(Q, xl, xu)
 
 
 def restart_pymoo_run(algorithm: Algorithm) -> None:
@@ -394,7 +515,7 @@ def round_integers(X: np.ndarray, is_integer: np.ndarray | None, xl: np.ndarray,
 _ARRAY_KEYS = ("F", "G", "H")
 
 
-def new_population(X: np.ndarray) -> Population:
+def new_population(X: np.ndarray, generation: int | None = None) -> Population:
     """``Population.new("X", X)``: one fresh :class:`~pymoo.core.individual.Individual` per row, built directly.
 
     The individuals are pymoo's own class in the state its constructor leaves them in, X set
@@ -402,22 +523,37 @@ def new_population(X: np.ndarray) -> Population:
     that no individual holds a view of a caller's array, pymoo #455); what is skipped is the generic
     path: a new configuration dictionary per individual (one shared, never modified, as pymoo
     only reads it) and ``Individual.set``'s attribute lookup per key and individual, which
-    together cost more per generation than the swarm's whole move (issue 32).
+    together cost more per generation than the swarm's whole move (issue 32). With ``generation``,
+    each individual's data carry pymoo's ``n_gen`` and ``n_iter`` tags (what ``Algorithm.infill``
+    sets afterwards, one individual at a time).
     """
     template, create = Individual().__dict__, Individual.__new__
+    owned = np.array(X, dtype=float)
+    rows = list(owned)
     built = []
-    for row in np.array(X, dtype=float):
+    for row in rows:
         individual = create(Individual)
         state = individual.__dict__
         state.update(template)
-        state["_X"], state["data"], state["evaluated"] = row, {}, set()
+        state["_X"], state["evaluated"] = row, set()
+        state["data"] = {} if generation is None else {"n_gen": generation, "n_iter": generation}
         built.append(individual)
     individuals = np.empty(len(built), dtype=object)
     individuals[:] = built
     population = individuals.view(Population)
-    # read by ArrayEvaluator.eval: nothing here is evaluated yet
-    population._mosd_fresh = True
+    # read by ArrayEvaluator.eval: nothing here is evaluated yet, and the rows of ``owned`` are the individuals' X
+    # as long as each individual still holds its row (MOPSO.infill: and the tags are set)
+    population._mosd_fresh, population._mosd_rows, population._mosd_tags = True, (owned, rows), generation
     return population
+
+
+def _population_X(pop: Population) -> np.ndarray:
+    """The individuals' X as one new array: a copy of :func:`new_population`'s array while every individual still
+    holds its row of it (nothing replaced an X since), else read from the individuals."""
+    owned, rows = getattr(pop, "_mosd_rows", (None, None))
+    if rows is not None and len(rows) == len(pop) and all(map(operator.is_, [ind._X for ind in pop], rows)):
+        return owned.copy()
+    return np.array([individual._X for individual in pop])
 
 
 class ArrayEvaluator(Evaluator):
@@ -457,7 +593,7 @@ class ArrayEvaluator(Evaluator):
         return pop
 
     def _eval(self, problem, pop, evaluate_values_of, **kwargs):
-        X = np.array([individual._X for individual in pop])
+        X = _population_X(pop)
         out = problem.evaluate(X, return_values_of=evaluate_values_of, return_as_dictionary=True, **kwargs)
         keys = set(out.keys())
         # one copy per key (the problem may reuse its output buffers); each individual gets a row of it, the
@@ -473,12 +609,93 @@ class ArrayEvaluator(Evaluator):
                                           (len(pop),)), dtype=float).reshape(-1, 1)
             names.append("_CV")
             columns.append(list(CV))
-        for individual, *rows in zip(pop, *columns):
-            individual.__dict__.update(zip(names, rows))
-            individual.evaluated.update(keys)
+        if names == ["_F"]:
+            # an unconstrained problem's one array: a plain loop, without zip(names, rows) per individual
+            for individual, row in zip(pop, columns[0]):
+                state = individual.__dict__
+                state["_F"] = row
+                state["evaluated"].update(keys)
+        else:
+            for individual, *rows in zip(pop, *columns):
+                state = individual.__dict__
+                state.update(zip(names, rows))
+                state["evaluated"].update(keys)
         if others:
             pop.set(**others)
         self._arrays = (pop, X, owned["F"], CV if CV is not None else np.zeros((len(pop), 1)))
+
+
+class EvaluatedArrays:
+    """One generation's evaluated candidates as arrays, whose pymoo individuals are built when something asks.
+
+    What :meth:`MOPSO.next` hands to ``advance`` instead of a Population: the swarm reads the arrays,
+    :meth:`GridArchive.update` asks for the individuals of the candidates it keeps (:meth:`select`), and
+    ``algorithm.pop``/``off`` (``res.pop``, ``res.history``, callbacks) for all of them (:meth:`population`).
+    Each individual is built once, on first request, exactly as :func:`new_population` and
+    :class:`ArrayEvaluator` build it (X a row of a copy taken before the evaluation, F/G/H rows of copies of the
+    problem's output, CV where the problem has constraints, ``evaluated``, the ``n_gen``/``n_iter`` tags), so
+    the archive's members and ``pop`` share the same objects as before. Building and freeing a hundred
+    individuals a generation that nothing reads was the largest part of the optimiser's own time (issue 32).
+    """
+
+    def __init__(self, X: np.ndarray, out: dict, CV: np.ndarray | None, generation: int, config: dict,
+                 evaluated_X: np.ndarray | None = None):
+        self.X = X
+        self.keys = set(out.keys())
+        self.outputs = {key: np.array(value, copy=True) for key, value in out.items() if value is not None}
+        self.CV = CV
+        #: X (the array the problem evaluated), F, CV (n, 1; zeros without constraints): what the swarm reads
+        self.swarm = (X if evaluated_X is None else evaluated_X, self.outputs.get("F"),
+                      CV if CV is not None else np.zeros((len(X), 1)))
+        self.generation = generation
+        self.config = config
+        self.individuals = np.full(len(X), None, dtype=object)
+        self._population: Population | None = None
+
+    def __len__(self) -> int:
+        return len(self.X)
+
+    def select(self, index: np.ndarray) -> Population:
+        """The individuals of rows ``index`` (int array), built where not yet."""
+        chosen = self.individuals[index]
+        missing = index[np.equal(chosen, None)]
+        if len(missing):
+            self._build(missing.tolist())
+            chosen = self.individuals[index]
+        return chosen.view(Population)
+
+    def population(self) -> Population:
+        """All the individuals, in row order (the same Population object on every call)."""
+        if self._population is None:
+            self._population = self.select(np.arange(len(self.X)))
+        return self._population
+
+    def _build(self, rows: list[int]) -> None:
+        template, create = Individual().__dict__, Individual.__new__
+        template["config"] = self.config
+        columns = [("_" + key, value) for key, value in self.outputs.items() if key in _ARRAY_KEYS]
+        if self.CV is not None:
+            columns.append(("_CV", self.CV))
+        X, keys, tag = self.X, self.keys, self.generation
+        built = []
+        for i in rows:
+            individual = create(Individual)
+            state = individual.__dict__
+            state.update(template)
+            state["_X"], state["evaluated"], state["data"] = X[i], set(keys), {"n_gen": tag, "n_iter": tag}
+            for name, values in columns:
+                state[name] = values[i]
+            built.append(individual)
+        others = {key: value for key, value in self.outputs.items() if key not in _ARRAY_KEYS}
+        for key, values in others.items():
+            for i, individual in zip(rows, built):
+                # Population.set's copy of a view (pymoo #455)
+                value = values[i]
+                individual.set(key, value.copy() if isinstance(value, np.ndarray) and not value.flags["OWNDATA"]
+                               else value)
+        individuals = np.empty(len(built), dtype=object)
+        individuals[:] = built
+        self.individuals[rows] = individuals
 
 
 class MOPSO(Algorithm):
@@ -735,10 +952,80 @@ class MOPSO(Algorithm):
         self.planned_generations = self._planned_generations()
         restart_pymoo_run(self)
 
+    # pymoo keeps the current and the last evaluated population in ``pop`` and ``off``; :meth:`next` stores the
+    # generation's arrays there (EvaluatedArrays) and the individuals are built when one of them is read
+    @property
+    def pop(self) -> Population | None:
+        pop = self.__dict__.get("_pop")
+        return pop.population() if isinstance(pop, EvaluatedArrays) else pop
+
+    @pop.setter
+    def pop(self, value) -> None:
+        self.__dict__["_pop"] = value
+
+    @property
+    def off(self) -> Population | None:
+        off = self.__dict__.get("_off")
+        return off.population() if isinstance(off, EvaluatedArrays) else off
+
+    @off.setter
+    def off(self, value) -> None:
+        self.__dict__["_off"] = value
+
+    def next(self) -> None:
+        """pymoo's ``Algorithm.next`` (infill, evaluate, advance) on arrays, when MOPSO's own evaluator evaluates.
+
+        The positions of the move (or the initial sampling), one ``problem.evaluate`` of them as
+        :class:`ArrayEvaluator` makes it (counted in ``evaluator.n_eval``), then pymoo's ``advance`` with an
+        :class:`EvaluatedArrays`: the same draws and arithmetic as the Population path, without building the
+        individuals nothing reads (issue 32). Another evaluator, an evaluator callback or pymoo's ``archive``
+        take pymoo's own ``next``, and so does a subclass that overrides a hook of the Population path
+        (``infill``, ``_infill``, ``_initialize_infill``); ``ask``/``tell`` keep returning and taking Populations.
+        """
+        evaluator, cls = self.evaluator, type(self)
+        if (type(evaluator) is not ArrayEvaluator or evaluator.callback is not None or self.archive is not None
+                or cls.infill is not MOPSO.infill or cls._infill is not MOPSO._infill
+                or cls._initialize_infill is not MOPSO._initialize_infill):
+            return super().next()
+        if self.problem is None:
+            raise Exception("Please call `setup(problem)` before calling next().")
+        if not self.is_initialized:
+            self._initialize()
+            X = self._initial_positions()
+        else:
+            X = self._moved_positions()
+        self.advance(infills=self._evaluate_positions(X))
+
+    def _evaluate_positions(self, X: np.ndarray) -> EvaluatedArrays:
+        """``X`` evaluated as :meth:`ArrayEvaluator.eval` evaluates :func:`new_population`'s individuals."""
+        evaluator, problem = self.evaluator, self.problem
+        config = Individual.default_config()
+        owned = np.array(X, dtype=float)  # the individuals' rows: not the array the problem gets
+        X = owned.copy()
+        out = problem.evaluate(X, return_values_of=evaluator.evaluate_values_of, return_as_dictionary=True,
+                               algorithm=self)
+        CV = None
+        if problem.has_constraints() and len(X):
+            CV = np.array(np.broadcast_to(calc_cv(G=out.get("G"), H=out.get("H"), config=config), (len(X),)),
+                          dtype=float).reshape(-1, 1)
+        evaluator.n_eval += len(X)
+        return EvaluatedArrays(owned, out, CV, self.n_iter, config, evaluated_X=X)
+
+    def _initial_positions(self) -> np.ndarray:
+        sampling = self.sampling
+        if type(sampling).do is Sampling.do:
+            # Sampling.do is _do's array wrapped in Population.new("X", ·), which .get("X") reads back row by row
+            X = sampling._do(self.problem, self.pop_size, algorithm=self, random_state=self.random_state)
+            if isinstance(X, np.ndarray) and X.dtype == float and X.ndim == 2:
+                X = X.copy()
+            else:
+                X = Population.new("X", X).get("X")
+        else:
+            X = sampling.do(self.problem, self.pop_size, algorithm=self, random_state=self.random_state).get("X")
+        return round_integers(X, self.is_integer, self.problem.xl, self.problem.xu)
+
     def _initialize_infill(self):
-        X = self.sampling.do(self.problem, self.pop_size, algorithm=self,
-                             random_state=self.random_state).get("X")
-        return new_population(round_integers(X, self.is_integer, self.problem.xl, self.problem.xu))
+        return new_population(self._initial_positions(), self.n_iter)
 
     def infill(self) -> Population | None:
         """pymoo's ``Algorithm.infill`` (initialise on the first call, then ``_infill``), tagging the infills'
@@ -750,13 +1037,17 @@ class MOPSO(Algorithm):
             infills = self._initialize_infill()
         else:
             infills = self._infill()
-        if infills is not None:
+        if infills is not None and getattr(infills, "_mosd_tags", None) != self.n_iter:
+            # not tagged by new_population (an override of _infill may return any population)
             for individual in infills:
                 individual.data["n_gen"] = individual.data["n_iter"] = self.n_iter
         return infills
 
-    def _evaluated(self, infills: Population) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """X, F, CV of the evaluated infills: :class:`ArrayEvaluator`'s arrays, else read from the individuals."""
+    def _evaluated(self, infills) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """X, F, CV of the evaluated infills: :class:`EvaluatedArrays`' or :class:`ArrayEvaluator`'s arrays, else
+        read from the individuals."""
+        if isinstance(infills, EvaluatedArrays):
+            return infills.swarm
         last = getattr(self.evaluator, "last", None)
         if last is not None and last[0] is infills:
             # read once: res.history's copies of the algorithm need not carry them
@@ -773,7 +1064,11 @@ class MOPSO(Algorithm):
         self.leader_archive.update(infills, self.random_state, evaluated)
 
     def _infill(self):
-        """One move of the swarm, eqs. 38–39.
+        """One move of the swarm (:meth:`_moved_positions`) as a Population."""
+        return new_population(self._moved_positions(), self.n_iter)
+
+    def _moved_positions(self) -> np.ndarray:
+        """One move of the swarm, eqs. 38–39: the new positions, the archive offspring in the last slots.
 
         Paper 000 prints eq. 38 (x_{p+1} = x_p + v_p) before eq. 39 (the new velocity);
         taken literally with v_0 = 0 the first generation would re-evaluate the initial
@@ -818,7 +1113,7 @@ class MOPSO(Algorithm):
             X_new = np.vstack([X_new, self._archive_offspring(n_offspring)])
             velocity = np.vstack([velocity, np.zeros((n_offspring, problem.n_var))])
         self.particle_velocity = velocity
-        return new_population(round_integers(X_new, self.is_integer, problem.xl, problem.xu))
+        return round_integers(X_new, self.is_integer, problem.xl, problem.xu)
 
     def _advance(self, infills=None, **kwargs):
         self.pop = infills
@@ -922,8 +1217,7 @@ class MOPSO(Algorithm):
         # the first round(REFINE_ENDS n) refine the ends of the front instead, the objectives' minima in turn
         ends = int(round(REFINE_ENDS * n))
         chosen[:ends] = np.argmin(archive.F, axis=0)[np.arange(ends) % archive.F.shape[1]]
-        return mut_pm(np.array(archive.X[chosen], dtype=float), problem.xl, problem.xu, np.full(n, REFINE_ETA),
-                      np.ones(n), at_least_once=False, random_state=rng)
+        return polynomial_steps(archive.X[chosen], problem.xl, problem.xu, np.full(n, REFINE_ETA), 1.0, rng)
 
     def _mutation_etas(self, n: int):
         """The polynomial mutation's distribution index for n rows (particles or archive offspring).
