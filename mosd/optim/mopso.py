@@ -60,7 +60,8 @@ and other evaluators get Populations (:func:`new_population`, evaluated by :clas
 hands X, F and CV back as arrays). Per-candidate ``Individual`` and ``Population`` bookkeeping, and
 pymoo's operator functions' per-call overhead on a swarm of 100 (:func:`polynomial_steps`,
 :func:`sbx_pairs` do their arithmetic and draws on arrays), were most of the optimiser's own time per
-generation (issue 32).
+generation (issue 32): on the project's 2-core machine the main command's (swarm of 100) fell from 2.6–2.8 ms to
+1.2–1.3 ms a generation, measured side by side with the code before at load average about 1.
 
 Where the paper and Coello 2004 leave a detail open, the choice is documented at the
 place that implements it:
