@@ -135,24 +135,27 @@ def _arrange(fig, axes, suptitle=None, legend=None, insets=()) -> None:
         x_labels, x_offset = _tick_labels(ax.xaxis, probe, renderer)
         y_tick = (mpl.rcParams["ytick.major.size"] + mpl.rcParams["ytick.major.pad"]) * points
         x_tick = (mpl.rcParams["xtick.major.size"] + mpl.rcParams["xtick.major.pad"]) * points
-        left = y_labels[:, 1].max(initial=0.0) + y_tick
+        # how far the tick labels reach out from the axes, and half the tallest y tick label (centred on its tick)
+        y_reach = y_labels[:, 1].max(initial=0.0) + y_tick
+        x_reach = x_labels[:, 2].max(initial=0.0) + x_tick
+        half_label = 0.5 * y_labels[:, 2].max(initial=0.0)
+        left = y_reach
         if ax.yaxis.label.get_text():
             left += ax.yaxis.labelpad * points + ax.yaxis.label.get_window_extent(renderer).width
-        below = x_labels[:, 2].max(initial=0.0) + x_tick
-        below += max(ax.xaxis.label.get_window_extent(renderer).height + ax.xaxis.labelpad * points
-                     if ax.xaxis.label.get_text() else 0.0, _offset_height(ax.xaxis, x_offset, probe, renderer))
+        x_label = (ax.xaxis.label.get_window_extent(renderer).height + ax.xaxis.labelpad * points
+                   if ax.xaxis.label.get_text() else 0.0)
+        below = x_reach + max(x_label, _offset_height(ax.xaxis, x_offset, probe, renderer))
         lift = _offset_height(ax.yaxis, y_offset, probe, renderer)
         raised.append((ax, lift))
-        above = 0.5 * y_labels[:, 2].max(initial=0.0)  # the top tick label is centred on the top edge
+        above = half_label  # the top tick label is centred on the top edge
         title = 0.0
         if ax.title.get_text():
             if ax.title.get_window_extent(renderer).width > width - 2 * edge:
                 _fit(ax.title, width - 2 * edge, renderer)
             box = ax.title.get_window_extent(renderer)
             above, title = max(above, lift + mpl.rcParams["axes.titlepad"] * points + box.height), box.width
-        panels.append(dict(left=left, below=max(below, 0.5 * y_labels[:, 2].max(initial=0.0)), above=above,
-                           title=title, x_labels=x_labels, y_reach=y_labels[:, 1].max(initial=0.0) + y_tick,
-                           x_reach=x_labels[:, 2].max(initial=0.0) + x_tick))
+        panels.append(dict(left=left, below=max(below, half_label), above=above, title=title, x_labels=x_labels,
+                           y_reach=y_reach, x_reach=x_reach))
     for inset in insets:
         raised.append((inset, _offset_height(inset.yaxis, _tick_labels(inset.yaxis, probe, renderer)[1], probe,
                                              renderer)))

@@ -92,6 +92,12 @@ def _dominates(Fa, CVa, Fb, CVb):
             | (~feasible_a & ~feasible_b & (CVa < CVb)))
 
 
+def _first_of_equals(F: np.ndarray, CV: np.ndarray) -> np.ndarray:
+    """Points that no earlier point equals in F and CV (the first of each group of equal points)."""
+    same = _all_objectives(np.equal, F[:, None, :], F[None, :, :], np.logical_and) & (CV[:, None] == CV[None, :])
+    return ~np.triu(same, k=1).any(axis=0)
+
+
 def _front_of_two(F: np.ndarray, CV: np.ndarray) -> np.ndarray | None:
     """The members :meth:`GridArchive.update` keeps from feasible points in two objectives, by one sort.
 
@@ -219,12 +225,12 @@ class _Merged:
         """The members and candidates at ``index`` (ascending positions in members + candidates)."""
         n_members = len(self.members)
         split = int(np.searchsorted(index, n_members))
-        if isinstance(self.candidates, Population) or not hasattr(self.candidates, "select"):
-            if not isinstance(self.candidates, Population):
-                return Population.merge(self.members, self.candidates)[index]
+        if isinstance(self.candidates, Population):
             chosen = self.candidates[index[split:] - n_members]
-        else:
+        elif hasattr(self.candidates, "select"):
             chosen = self.candidates.select(index[split:] - n_members)
+        else:  # an individual, a list of them: pymoo's merge makes a Population of them
+            return Population.merge(self.members, self.candidates)[index]
         return np.concatenate((self.members[index[:split]], chosen)).view(Population)
 
 
@@ -343,16 +349,11 @@ class GridArchive:
         CV = np.concatenate([self._CV, CV.reshape(-1)])
         feasible = CV <= 0.0
         if self.infeasible == "diverse" and not feasible.any():
-            same = (_all_objectives(np.equal, F[:, None, :], F[None, :, :], np.logical_and)
-                    & (CV[:, None] == CV[None, :]))
-            self._keep_least_infeasible(merged, X, F, CV, ~np.triu(same, k=1).any(axis=0))
+            self._keep_least_infeasible(merged, X, F, CV, _first_of_equals(F, CV))
             return
         keep = _front_of_two(F, CV) if F.shape[1] == 2 and feasible.all() else None
         if keep is None:
-            same = (_all_objectives(np.equal, F[:, None, :], F[None, :, :], np.logical_and)
-                    & (CV[:, None] == CV[None, :]))
-            distinct = ~np.triu(same, k=1).any(axis=0)
-            keep = distinct & ~dominance_matrix(F, CV).any(axis=0)
+            keep = _first_of_equals(F, CV) & ~dominance_matrix(F, CV).any(axis=0)
         n_members = len(self._CV)
         if n_members and self.lower is not None and keep[:n_members].all() and not keep[n_members:].any():
             # nothing entered and nothing left: members, grid and cells stay as they are

@@ -539,13 +539,28 @@ def new_population(X: np.ndarray, generation: int | None = None) -> Population:
         state["_X"], state["evaluated"] = row, set()
         state["data"] = {} if generation is None else {"n_gen": generation, "n_iter": generation}
         built.append(individual)
-    individuals = np.empty(len(built), dtype=object)
-    individuals[:] = built
-    population = individuals.view(Population)
+    population = _object_array(built).view(Population)
     # read by ArrayEvaluator.eval: nothing here is evaluated yet, and the rows of ``owned`` are the individuals' X
     # as long as each individual still holds its row (MOPSO.infill: and the tags are set)
     population._mosd_fresh, population._mosd_rows, population._mosd_tags = True, (owned, rows), generation
     return population
+
+
+def _object_array(items: list) -> np.ndarray:
+    """``items`` as a 1-d object array (``np.array`` would look into the individuals for a shape)."""
+    array = np.empty(len(items), dtype=object)
+    array[:] = items
+    return array
+
+
+def _constraint_violation(out: dict, n: int, config: dict) -> np.ndarray:
+    """CV (n, 1) of a problem's output, as ``Individual.CV`` computes it for each row.
+
+    pymoo's ``calc_cv`` on the whole G and H arrays loops over the rows with the function ``Individual.CV``
+    calls; a problem with constraints but none set gives a scalar, broadcast to every row.
+    """
+    return np.array(np.broadcast_to(calc_cv(G=out.get("G"), H=out.get("H"), config=config), (n,)),
+                    dtype=float).reshape(-1, 1)
 
 
 def _population_X(pop: Population) -> np.ndarray:
@@ -605,22 +620,13 @@ class ArrayEvaluator(Evaluator):
         others = {key: value for key, value in owned.items() if key not in _ARRAY_KEYS}
         CV = None
         if problem.has_constraints() and len(pop):
-            # pymoo's calc_cv on the whole arrays loops over the rows with the function Individual.CV calls
-            CV = np.array(np.broadcast_to(calc_cv(G=out.get("G"), H=out.get("H"), config=pop[0].config),
-                                          (len(pop),)), dtype=float).reshape(-1, 1)
+            CV = _constraint_violation(out, len(pop), pop[0].config)
             names.append("_CV")
             columns.append(list(CV))
-        if names == ["_F"]:
-            # an unconstrained problem's one array: a plain loop, without zip(names, rows) per individual
-            for individual, row in zip(pop, columns[0]):
-                state = individual.__dict__
-                state["_F"] = row
-                state["evaluated"].update(keys)
-        else:
-            for individual, *rows in zip(pop, *columns):
-                state = individual.__dict__
-                state.update(zip(names, rows))
-                state["evaluated"].update(keys)
+        for individual, *rows in zip(pop, *columns):
+            state = individual.__dict__
+            state.update(zip(names, rows))
+            state["evaluated"].update(keys)
         if others:
             pop.set(**others)
         self._arrays = (pop, X, owned["F"], CV if CV is not None else np.zeros((len(pop), 1)))
@@ -694,9 +700,7 @@ class EvaluatedArrays:
                 value = values[i]
                 individual.set(key, value.copy() if isinstance(value, np.ndarray) and not value.flags["OWNDATA"]
                                else value)
-        individuals = np.empty(len(built), dtype=object)
-        individuals[:] = built
-        self.individuals[rows] = individuals
+        self.individuals[rows] = _object_array(built)
 
 
 class MOPSO(Algorithm):
@@ -1007,8 +1011,7 @@ class MOPSO(Algorithm):
                                algorithm=self)
         CV = None
         if problem.has_constraints() and len(X):
-            CV = np.array(np.broadcast_to(calc_cv(G=out.get("G"), H=out.get("H"), config=config), (len(X),)),
-                          dtype=float).reshape(-1, 1)
+            CV = _constraint_violation(out, len(X), config)
         evaluator.n_eval += len(X)
         return EvaluatedArrays(owned, out, CV, self.n_iter, config, evaluated_X=X)
 
