@@ -25,8 +25,10 @@ threads compute in parallel with no process to start, no evaluator to copy and
 no pipe per generation. Otherwise they are processes of a persistent loky
 pool. Each worker pins BLAS/OpenMP to one thread, loads the cached
 evaluator once (from a file the main process writes at the first pooled
-generation) and keeps it between generations; each generation ships only the
-candidate vectors. The pool can be started early (:func:`worker_pool` with
+generation) and keeps it between generations, serving the problem's
+generations on a socket of its own (:mod:`mosd.optim.pipes`): a generation
+writes each worker its candidate vectors and reads its objectives, from the
+main thread, with no pool task and no thread hand-over. The pool can be started early (:func:`worker_pool` with
 ``warm=True``) so that process start-up and loading the compiled kernels
 overlap with the simulation. ``n_jobs=1`` evaluates in-process. Results do not
 depend on ``n_jobs`` because each candidate's evaluation is independent of the
@@ -132,13 +134,14 @@ def _warm_up(delay: float) -> int:
     return os.getpid()
 
 
-def _evaluate_chunk(path: str, X: np.ndarray) -> tuple[np.ndarray, float]:
-    """A pool task: the worker's resident evaluator on one chunk; the objectives and the seconds they took."""
+def _resident_evaluation(path: str):
+    """A worker's handler for :class:`~mosd.optim.pipes.WorkerPipes`: chunk -> (objectives, seconds taken),
+    with the evaluator loaded from ``path`` once and kept while the path is the same."""
     if _WORKER_CACHE["path"] != path:
         _pin_threads()
         with open(path, "rb") as fh:
             _WORKER_CACHE.update(path=path, evaluator=pickle.load(fh))
-    return timed_call(_WORKER_CACHE["evaluator"], X)
+    return functools.partial(timed_call, _WORKER_CACHE["evaluator"])
 
 
 def timed_call(evaluator, X: np.ndarray) -> tuple[np.ndarray, float]:
@@ -198,9 +201,9 @@ def worker_pool(n_jobs: int, warm: bool = False):
 _THREADS: dict = {"pool": None, "size": 0}
 #: chunks per thread in a threaded evaluation (see TuningProblem._evaluate_in_threads)
 _CHUNKS_PER_THREAD = 2
-#: what one chunk costs beyond its work: a loky round trip (pickle, pipe, wake-up) and a thread hand-over,
-#: measured on the project's 2-core machine (python -m mosd.bench --only scale, dispatch and gather)
-PROCESS_CHUNK_OVERHEAD_S = 1e-3
+#: what one chunk costs beyond its work: a round trip on a worker's socket (pickle, write, wake-up, read;
+#: 0.15-0.2 ms on the project's 2-core machine, against 0.5-0.6 ms for a loky task) and a thread hand-over
+PROCESS_CHUNK_OVERHEAD_S = 1e-4
 THREAD_CHUNK_OVERHEAD_S = 5e-5
 #: a chunk carries at least this many times its overhead in work (else the population is split fewer ways)
 CHUNK_WORK_FACTOR = 10.0
@@ -275,8 +278,10 @@ class TuningProblem(Problem):
         #: True for the integer parameters (rounded before every evaluation)
         self.is_integer = np.array([tunable[name].integer for name in self.names], bool)
         super().__init__(n_var=len(self.names), n_obj=len(evaluator.objectives), xl=np.array(xl), xu=np.array(xu),
-                         exclude_from_serialization=["evaluator", "_payload", "_dask", "in_threads", "clock"])
+                         exclude_from_serialization=["evaluator", "_payload", "_pipes", "_dask", "in_threads",
+                                                     "clock"])
         self._payload: str | None = None
+        self._pipes = None  # the WorkerPipes of the process path, opened at the first split population
         self._dask = None  # the DaskEvaluation of backend="dask", started on first use
         #: where the evaluation time went (:class:`EvaluationClock`), summed over this problem's populations
         self.clock = EvaluationClock()
@@ -356,23 +361,41 @@ class TuningProblem(Problem):
         return int(max(1, min(most, worth)))
 
     def _evaluate_in_processes(self, X: np.ndarray) -> tuple[np.ndarray, float]:
-        """The first chunk in this process, the others on the loky pool's workers (their evaluator resident)."""
+        """The first chunk in this process, the others on the pool's workers (their evaluator resident).
+
+        Each worker is reached by a pipe of its own (:class:`~mosd.optim.pipes.WorkerPipes`), written and
+        read from this thread: a generation costs no pool task and no thread hand-over.
+        """
         chunks = np.array_split(X, self.n_chunks(X.shape[0], PROCESS_CHUNK_OVERHEAD_S, self.n_jobs))
         if len(chunks) == 1:
             return timed_call(self.evaluator, X)
-        if self._payload is None:
-            fd, self._payload = tempfile.mkstemp(prefix="mosd-evaluator-", suffix=".pkl")
-            with os.fdopen(fd, "wb") as fh:
-                pickle.dump(self.evaluator, fh, protocol=pickle.HIGHEST_PROTOCOL)
-        executor = worker_pool(self.n_jobs)
-        futures = [executor.submit(_evaluate_chunk, self._payload, chunk) for chunk in chunks[1:]]
-        first, compute = timed_call(self.evaluator, chunks[0])
+        pipes = self._worker_pipes()
+        others = range(len(chunks) - 1)
+        for index in others:
+            pipes.send(index, chunks[index + 1])
+        try:
+            first, compute = timed_call(self.evaluator, chunks[0])
+        finally:  # the answers are read whatever happened here, so that the pipes stay in step
+            answers = pipes.receive(others)
         parts = [first]
-        for future in futures:
-            F, seconds = future.result()
+        for index in others:
+            F, seconds = answers[index]
             parts.append(F)
             compute += seconds
         return np.concatenate(parts, axis=0), compute
+
+    def _worker_pipes(self):
+        """The pipes to the pool's ``n_jobs − 1`` workers, each holding this problem's evaluator (opened once)."""
+        if self._pipes is None or self._pipes.closed:
+            from .pipes import WorkerPipes
+
+            if self._payload is None:
+                fd, self._payload = tempfile.mkstemp(prefix="mosd-evaluator-", suffix=".pkl")
+                with os.fdopen(fd, "wb") as fh:
+                    pickle.dump(self.evaluator, fh, protocol=pickle.HIGHEST_PROTOCOL)
+            self._pipes = WorkerPipes(worker_pool(self.n_jobs), max(1, self.n_jobs - 1), _resident_evaluation,
+                                      self._payload)
+        return self._pipes
 
     def _evaluate_in_threads(self, X: np.ndarray) -> tuple[np.ndarray, float]:
         """The population in small chunks that this thread and ``n_jobs − 1`` pool threads take in turn.
@@ -410,6 +433,9 @@ class TuningProblem(Problem):
         dask, self._dask = self._dask, None
         if dask is not None:
             dask.close()
+        pipes, self._pipes = self._pipes, None
+        if pipes is not None:
+            pipes.close()  # the workers' tasks end: the pool is free for its next user
         if self._payload is not None:
             try:
                 os.remove(self._payload)
