@@ -124,15 +124,14 @@ def thread_ceiling(setup, evaluator, n_threads: int, repeats: int = 15) -> float
     """The speed-up of the bare evaluation on ``n_threads`` threads: what the machine gives, before any optimiser.
 
     One population of the set-up's size (uniform in the box, seed 0) is evaluated whole on one
-    thread, then cut into ``n_threads`` equal parts evaluated at once, one per thread, with nothing
-    between them: no optimiser step, no chunk hand-over. Fastest of ``repeats`` each. The ratio is
+    thread, then cut into ``n_threads`` equal parts evaluated at once, one per thread (this one and
+    the tuning's own pool threads, already started), with nothing between them: no optimiser step, no
+    slicing beyond the parts. Fastest of ``repeats`` each. The ratio is
     the most a threaded tuning of this workload can reach on this machine (cores shared with
     another hardware thread, memory bandwidth and clock boost all enter it); None when the
     workload does not evaluate on threads.
     """
-    import threading
-
-    from ..optim.problem import TuningProblem
+    from ..optim.problem import TuningProblem, _thread_pool
 
     problem = TuningProblem(evaluator, bounds=setup.bounds, n_jobs=max(2, n_threads))
     try:
@@ -144,13 +143,13 @@ def thread_ceiling(setup, evaluator, n_threads: int, repeats: int = 15) -> float
         parts = np.array_split(X, n_threads)
         fused(X)  # compiled kernels loaded
 
+        pool = _thread_pool(n_threads - 1)
+
         def together():
-            helpers = [threading.Thread(target=fused, args=(part,)) for part in parts[1:]]
-            for helper in helpers:
-                helper.start()
+            helpers = [pool.submit(fused, part) for part in parts[1:]]
             fused(parts[0])
             for helper in helpers:
-                helper.join()
+                helper.result()
 
         return best_of(lambda: fused(X), repeats) / best_of(together, repeats)
     finally:
@@ -204,13 +203,14 @@ def bench_workload(name: str, quick: bool = False, cpus: int | None = None) -> t
             figures[f"scale_speedup_{name}_{run['n_jobs']}"] = speedup
         figures[f"scale_identical_{name}"] = int(identical and figures.get(f"scale_identical_{name}", 1))
     figures[f"scale_serial_share_{name}"] = serial_share
-    if cpus > 1:
-        ceiling = thread_ceiling(setup, evaluator, 2, repeats=5 if quick else 15)
-        if ceiling is not None:
-            figures[f"scale_thread_ceiling_{name}_2"] = ceiling
-            rows.append((f"{name}: the bare evaluation on 2 threads vs 1 (the machine's ceiling)", ceiling,
-                         "one population in two halves at once, no optimiser, no hand-over: the most "
-                         "a 2-worker tuning of this workload can reach here"))
+    for n_threads in (sorted({2, cpus}) if cpus > 1 else []):
+        ceiling = thread_ceiling(setup, evaluator, n_threads, repeats=5 if quick else 15)
+        if ceiling is None:
+            break
+        figures[f"scale_thread_ceiling_{name}_{n_threads}"] = ceiling
+        rows.append((f"{name}: the bare evaluation on {n_threads} threads vs 1 (the machine's ceiling)", ceiling,
+                     f"one population in {n_threads} parts at once, no optimiser: the most a "
+                     f"{n_threads}-worker tuning of this workload can reach here"))
     figures[f"scale_wall_per_gen_ms_{name}_1"] = 1e3 * one["wall_per_gen_s"]
     rows.append((f"{name}: serial share of an n_jobs=1 generation", serial_share,
                  f"Amdahl's bound on the speed-up 1/share = {1 / max(serial_share, 1e-12):.0f}; load average "
