@@ -11,7 +11,9 @@ One generation-heavy tuning per kind of evaluation path, each built as the comma
   the files the row says so);
 * ``threads_n200`` — the main command with 20 times its training runs (``budget.n_train=200
   budget.n_calibration=50``, issue 32's larger workload): the same optimiser step against an
-  evaluation 20 times longer, so its serial share is what a study with statistical power sees.
+  evaluation 20 times longer, so its serial share is what a study with statistical power sees;
+* ``paper002_n4000``, ``paper001_n2000`` — the process path at ten times the presets' training
+  runs (issue 32's larger workloads), by name only (their simulation takes minutes on 2 cores).
 
 Each runs the optimiser of its set-up for a fixed number of generations at n_jobs = 1, 2, 4, …
 up to the machine's CPUs, then on a local Dask cluster of the largest n (the fastest of two
@@ -46,10 +48,16 @@ WORKLOADS = {
     "paper002": (("paper002",), "+experiment=paper002: entropy filter, processes"),
     "tep": (("tep",), "+experiment=tep: recorded TE data, PCA, processes"),
     "threads_n200": ((), "the main command at budget.n_train=200 budget.n_calibration=50 (issue 32's 20x budget)"),
+    "paper002_n4000": (("paper002",), "+experiment=paper002 budget.n_train=4000 (issue 32's 10x budget), processes"),
+    "paper001_n2000": (("paper001",), "+experiment=paper001 budget.n_train=2000 (issue 32's 10x budget), processes"),
 }
+#: the workloads ``--only scale`` runs (the 10x paper budgets take minutes to simulate on 2 cores: by name only,
+#: ``bench_workload("paper002_n4000")``, as the 16-core measurement in docs/SCALING.md does)
+DEFAULT_WORKLOADS = ("threads", "paper001", "paper002", "tep", "threads_n200")
 #: overrides of a workload built from the main command (``threads_n200``: the evaluation per generation grows with
 #: the training runs, the optimiser's own step does not, so its serial share falls: docs/SCALING.md)
-OVERRIDES = {"threads_n200": ("budget.n_train=200", "budget.n_calibration=50")}
+OVERRIDES = {"threads_n200": ("budget.n_train=200", "budget.n_calibration=50"),
+             "paper002_n4000": ("budget.n_train=4000",), "paper001_n2000": ("budget.n_train=2000",)}
 #: generations timed per workload (the swarm is the set-up's own), and tunings per n_jobs of which the
 #: fastest is reported (the one the rest of the machine disturbed least), on the same pool or cluster
 N_GEN, N_GEN_QUICK = 10, 5
@@ -74,7 +82,7 @@ def build_setup(preset: tuple[str, ...], overrides: tuple[str, ...] = ()):
     from .presets import preset_setup
 
     if preset:
-        return preset_setup(preset[0])
+        return preset_setup(preset[0], overrides)
     from hydra import compose, initialize_config_dir
 
     from .build import build
@@ -256,7 +264,7 @@ def bench_scale(quick: bool = False) -> tuple[list, dict]:
     """Every workload of :data:`WORKLOADS`, then the sweep; the load average beside them."""
     rows: list = [("load average (1 min) at the start", load_average(), f"{os.cpu_count()} CPUs")]
     figures: dict = {}
-    for name in WORKLOADS:
+    for name in DEFAULT_WORKLOADS:
         more, found = bench_workload(name, quick)
         rows += more
         figures.update(found)
