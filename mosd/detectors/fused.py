@@ -1,19 +1,25 @@
 """The fused candidate evaluation of a mean–variance chart: when the compiled kernel replaces the NumPy path.
 
-The arithmetic is :func:`mosd.kernels.chart.alarm_counts` (one compiled loop per candidate that
-keeps one candidate's (R, K) statistic and returns per-run alarm counts); this module decides
-whether it reproduces a detector, its denoiser, its limit rule and the objectives exactly, and
-turns its counts into the objectives. It lives with the detectors because it knows them; the
-kernels know no component.
+The arithmetic is :func:`mosd.kernels.chart.alarm_counts` (one compiled loop over blocks of
+candidates that returns per-run alarm counts); this module decides whether it reproduces a
+detector, its denoiser, its limit rule and the objectives exactly, and turns its counts into the
+objectives. It lives with the detectors because it knows them; the kernels know no component.
+
+An evaluation is three steps, so that a threaded caller runs the Python parts once per
+population and only the compiled part per chunk (:class:`FusedChartEvaluation`): ``plan``
+(validation, coefficients), ``counts_of`` (the kernel on a slice of the plan's rows, the GIL
+released) and ``objectives`` (FAR and MDR from the counts).
 """
 from __future__ import annotations
+
+from typing import NamedTuple
 
 import numpy as np
 
 from .. import kernels
 from ..denoisers.base import NoDenoiser
 from ..denoisers.wavelet import WaveletDenoiser
-from ..kernels.wavelet import plan
+from ..kernels.wavelet import plan as kernel_plan
 from ..validation import check_in
 from .chart import Chart
 from .mean_variance import _MeanVarianceChart
@@ -22,21 +28,42 @@ from .statistics import ewma_coefficients
 _FUSED_OBJECTIVES = ("far", "mdr")
 
 
+class EvaluationPlan(NamedTuple):
+    """A population's validated designs as the kernel takes them (:meth:`FusedChartEvaluation.plan`): each
+    candidate's recursion gain (P,) and feedback (P, order), and its width K (P,), every array contiguous."""
+
+    gains: np.ndarray
+    feedback: np.ndarray
+    widths: np.ndarray
+
+    def __len__(self) -> int:
+        return self.gains.shape[0]
+
+
 class FusedChartEvaluation:
     """Objectives (P, n_obj) of a population of chart designs through :func:`alarm_counts`.
 
     Built by :func:`fused_evaluation`, which returns None unless the detector,
     its denoiser, the limit rule and the objectives are exactly what the kernel
     reproduces; the caller then keeps the reference path.
+
+    ``evaluation(X)`` is ``evaluation.objectives(*evaluation.counts_of(evaluation.plan(X), 0, len(X)))``; a
+    threaded caller plans once, runs :meth:`counts_of` on slices of the plan in its threads (each releases
+    the GIL for all its work) and joins the counts for :meth:`objectives`. A candidate's counts do not depend
+    on the slice it is in, so every split gives the same objectives, bit for bit.
     """
 
     def __init__(self, detector, calibration_features, features, fault_mask, objectives, wavelet_plan):
+        from ..kernels import chart
+
         self.detector = detector
-        self.objectives = tuple(objectives)
+        #: the objectives' names, in their columns' order (FAR and/or MDR)
+        self.objective_names = tuple(objectives)
         n_calibration = calibration_features.shape[0]
         both = np.concatenate([calibration_features, features], axis=0)  # (C, 2, K), as Chart.population stacks them
-        self.u = np.ascontiguousarray(both[:, 0, :].T)
-        self.v = np.ascontiguousarray(both[:, 1, :].T)
+        # run-major (C, K): the kernel reads each run's points in time order, once per block of candidates
+        self.u = np.ascontiguousarray(both[:, 0, :])
+        self.v = np.ascontiguousarray(both[:, 1, :])
         self.n_calibration = n_calibration
         n_points = both.shape[-1]
         self.faulty = np.ascontiguousarray(np.broadcast_to(np.asarray(fault_mask, bool), (features.shape[0], n_points)))
@@ -44,24 +71,31 @@ class FusedChartEvaluation:
         self.n_healthy = (~self.faulty).sum(axis=-1)
         self.denoise = wavelet_plan is not None
         self.wavelet_arguments = wavelet_plan.arguments(n_points) if self.denoise else ()
+        self.combine_max = detector.combine == "max"
+        self._kernel = chart.alarm_counts_denoised if self.denoise else chart.alarm_counts
 
-    def counts(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Per-run (healthy alarms, target-fault misses), each (P, R_train)."""
+    def plan(self, X: np.ndarray) -> EvaluationPlan:
+        """Every row of X validated (a bad design raises ``ConfigError`` naming its key) and turned into the
+        kernel's coefficients: the Python part of an evaluation, done once per population."""
         params = _validated(self.detector, X)
         gains, feedback = ewma_coefficients(params["lam"], self.detector.order)
-        widths = np.asarray(params["K"], float)
-        from ..kernels import chart
+        return EvaluationPlan(np.ascontiguousarray(gains, float), np.ascontiguousarray(feedback, float),
+                              np.ascontiguousarray(params["K"], float))
 
-        kernel = chart.alarm_counts_denoised if self.denoise else chart.alarm_counts
-        return kernel(self.u, self.v, self.n_calibration, gains, feedback, widths, self.detector.combine == "max",
-                      self.faulty, *self.wavelet_arguments)
+    def counts_of(self, plan: EvaluationPlan, start: int, stop: int) -> tuple[np.ndarray, np.ndarray]:
+        """Per-run (healthy alarms, target-fault misses), each int64 (stop − start, R_train), of the plan's rows
+        start..stop−1: the compiled kernel alone, which releases the GIL (threads run it side by side)."""
+        return self._kernel(self.u, self.v, self.n_calibration, plan.gains[start:stop], plan.feedback[start:stop],
+                            plan.widths[start:stop], self.combine_max, self.faulty, *self.wavelet_arguments)
 
-    def __call__(self, X: np.ndarray) -> np.ndarray:
+    def objectives(self, alarms: np.ndarray, misses: np.ndarray) -> np.ndarray:
+        """The objectives (P, n_obj) from per-run counts (P, R_train): each run's FAR (alarms over its healthy
+        points) and MDR (misses over its target-fault points), their NaN-mean over the runs, inf where none
+        is defined — ``objective_values`` on the reference path."""
         import warnings
 
-        alarms, misses = self.counts(X)
         columns = []
-        for name in self.objectives:
+        for name in self.objective_names:
             numerator, count = (alarms, self.n_healthy) if name == "far" else (misses, self.n_faulty)
             # mosd.metrics.detection._share, then the nan-mean of mosd.metrics.registry.objective_values
             with np.errstate(invalid="ignore", divide="ignore"):
@@ -70,7 +104,15 @@ class FusedChartEvaluation:
                 warnings.simplefilter("ignore", RuntimeWarning)
                 mean = np.nanmean(per_run, axis=-1)
             columns.append(np.where(np.isfinite(mean), mean, np.inf))
-        return np.stack(columns, axis=-1)
+        return np.stack(columns, axis=-1).reshape(np.shape(alarms)[0], len(self.objective_names))
+
+    def counts(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Per-run (healthy alarms, target-fault misses), each (P, R_train)."""
+        plan = self.plan(X)
+        return self.counts_of(plan, 0, len(plan))
+
+    def __call__(self, X: np.ndarray) -> np.ndarray:
+        return self.objectives(*self.counts(X))
 
 
 def _validated(detector, X: np.ndarray) -> dict:
@@ -118,7 +160,7 @@ def supports(detector, objectives) -> bool:
     if not set(objectives) <= set(_FUSED_OBJECTIVES):
         return False
     denoiser = detector.denoiser
-    return type(denoiser) is NoDenoiser or (type(denoiser) is WaveletDenoiser and plan(denoiser) is not None)
+    return type(denoiser) is NoDenoiser or (type(denoiser) is WaveletDenoiser and kernel_plan(denoiser) is not None)
 
 
 def applies(detector, objectives) -> bool:
@@ -158,7 +200,7 @@ def fused_evaluation(detector, calibration_features, features, truth, objectives
     if type(denoiser) is NoDenoiser:
         wavelet_plan = None
     elif type(denoiser) is WaveletDenoiser:
-        wavelet_plan = plan(denoiser)
+        wavelet_plan = kernel_plan(denoiser)
         if wavelet_plan is None or not wavelet_plan.fits(n_points):
             return None
         if not (np.all(np.isfinite(calibration_features)) and np.all(np.isfinite(features))):

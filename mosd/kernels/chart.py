@@ -5,9 +5,20 @@ training runs, the reference path (``Chart.population`` then
 ``objective_values``) computes the smoothed statistic of every run, denoises it,
 fits the Phase-I limit E{l} + K·sd{l} on the calibration runs and scores the
 training runs' alarms — materialising (P, R, K) statistics, limits and
-decisions on the way. Here all of it is one compiled loop per candidate that
-keeps only one candidate's (R, K) statistic, and returns per-run alarm counts
-(P, R): healthy points that alarm and target-fault points that do not.
+decisions on the way. Here all of it is one compiled loop that returns per-run
+alarm counts (P, R): healthy points that alarm and target-fault points that do not.
+
+The loop is laid out for the memory, which bounded it once several threads ran
+it (issue 32): candidates go through side by side, :data:`_LANES` at a time, so
+each run's features are read once per block of candidates, not once per
+candidate, and each time step's arithmetic is one vector loop over the block;
+the features are run-major (each run's points contiguous); no statistic is
+written out beyond a segment of :data:`_SEGMENT` points, as the Phase-I mean and
+deviations are summed while the calibration points are produced (in NumPy's
+pairwise order, :func:`_accumulate`) and the training points scored as they are.
+A candidate's counts do not depend on the others in its block: each lane's
+arithmetic is its candidate's alone, so a population split any way gives the
+same counts.
 
 Each step reproduces the reference's arithmetic in its order (the recursion of
 ``ewma_time_major``, PyWavelets' sums via :mod:`mosd.kernels.wavelet`, NumPy's
@@ -119,74 +130,218 @@ def pairwise_sum(a, start, n):
     return _pairwise_sum(a, start, n)
 
 
-@_helper
-def _statistics(u, v, gain, f1, f2, order, combine_max, stat, y):
-    """Smoothed-and-combined statistic of every run: u, v time-major (K, C) -> stat (C, K).
+#: candidates evaluated side by side (the lanes of the inner loops): each run's features are read once per this
+#: many candidates, not once per candidate, and each step's arithmetic runs over the lanes as one vector loop
+_LANES = 16
+#: time points of one run whose statistic is produced, then consumed (a (_SEGMENT, _LANES) scratch that stays in
+#: the first-level cache), before the next
+_SEGMENT = 64
+#: the fields of the lanes' state, each _LANES values (field f of lane l at [f * _LANES + l]): one array indexed
+#: with constant strides and loops of a constant _LANES trips, so the compiler sees that no two fields overlap
+#: and vectorises the lane loops without checking at run time whether they do (it would, at every time step)
+_GAIN, _F1, _F2, _CENTER, _LIMIT, _U1, _U2, _V1, _V2, _ALARMS, _MISSES, _ACC = range(12)
+_STACK = _ACC + 9  # the pairwise sums' eight accumulators and NumPy's res, then the stack of finished sums
+_FIELDS = _STACK + 64
 
-    y: scratch (4, C) for the recursion's two past values of both parts, from a zero state. Each value is
-    :func:`mosd.kernels.ewma.ewma_step`'s (the one arithmetic of the charts); U and V in one pass.
+
+@_helper
+def _pairwise_leaves(n):
+    """The shape of NumPy's pairwise summation of n values (:func:`_pairwise_sum`), for summing them as they come.
+
+    Returns ``sizes`` (the blocks of at most 128 values that are summed on their own, in order) and ``joins``
+    (after each block, how many times the two topmost partial sums are added: left + right). The traversal is
+    :func:`_pairwise_sum`'s, recording what it does instead of summing.
     """
-    n_points, n_columns = u.shape
-    u1, u2, v1, v2 = y[0], y[1], y[2], y[3]
-    for c in range(n_columns):
-        u1[c] = 0.0
-        u2[c] = 0.0
-        v1[c] = 0.0
-        v2[c] = 0.0
-    for k in range(n_points):
-        uk, vk = u[k], v[k]
-        for c in range(n_columns):
-            a = ewma_step(uk[c], gain, f1, f2, u1[c], u2[c], order)
-            b = ewma_step(vk[c], gain, f1, f2, v1[c], v2[c], order)
+    # a block (a leaf of the recursion) of a split has at least 64 values, so n // 64 + 1 bound their number
+    sizes = np.zeros(n // 64 + 1, np.int64)
+    joins = np.zeros(n // 64 + 1, np.int64)
+    starts = np.empty(128, np.int64)
+    lengths = np.empty(128, np.int64)
+    combine = np.zeros(128, np.bool_)
+    top = 1
+    starts[0], lengths[0], combine[0] = 0, n, False
+    n_leaves = 0
+    while top > 0:
+        top -= 1
+        s, m, joining = starts[top], lengths[top], combine[top]
+        if joining:
+            joins[n_leaves - 1] += 1
+        elif m <= _BLOCK:
+            sizes[n_leaves] = m
+            n_leaves += 1
+        else:
+            half = m // 2
+            half -= half % 8
+            starts[top], lengths[top], combine[top] = s, m, True
+            starts[top + 1], lengths[top + 1], combine[top + 1] = s + half, m - half, False
+            starts[top + 2], lengths[top + 2], combine[top + 2] = s, half, False
+            top += 3
+    return sizes[:n_leaves], joins[:n_leaves]
+
+
+@_helper
+def _statistics(u_run, v_run, k0, k1, order, combine_max, lanes, out):
+    """Points k0..k1−1 of one run's smoothed-and-combined statistic for the lanes' candidates, side by side.
+
+    u_run, v_run: the run's U_k and V_k (K,); ``lanes``: the lanes' coefficients and the recursion's two past
+    values of both parts, carried from the previous call (from k0 = 0, the run's start, a zero state);
+    out[k − k0, lane] the statistic. Each value is :func:`mosd.kernels.ewma.ewma_step`'s (the one arithmetic
+    of the charts), the combination the reference's: max(|U|, |V|) or U² + V².
+    """
+    g, f1, f2 = _GAIN * _LANES, _F1 * _LANES, _F2 * _LANES
+    u1, u2, v1, v2 = _U1 * _LANES, _U2 * _LANES, _V1 * _LANES, _V2 * _LANES
+    if k0 == 0:
+        for lane in range(_LANES):
+            lanes[u1 + lane] = 0.0
+            lanes[u2 + lane] = 0.0
+            lanes[v1 + lane] = 0.0
+            lanes[v2 + lane] = 0.0
+    for k in range(k0, k1):
+        x, w, i = u_run[k], v_run[k], k - k0
+        for lane in range(_LANES):
+            a = ewma_step(x, lanes[g + lane], lanes[f1 + lane], lanes[f2 + lane], lanes[u1 + lane], lanes[u2 + lane],
+                          order)
+            b = ewma_step(w, lanes[g + lane], lanes[f1 + lane], lanes[f2 + lane], lanes[v1 + lane], lanes[v2 + lane],
+                          order)
             if order == 2:
-                u2[c] = u1[c]
-                v2[c] = v1[c]
-            u1[c] = a
-            v1[c] = b
+                lanes[u2 + lane] = lanes[u1 + lane]
+                lanes[v2 + lane] = lanes[v1 + lane]
+            lanes[u1 + lane] = a
+            lanes[v1 + lane] = b
             if combine_max:
-                stat[c, k] = max(abs(a), abs(b))
+                out[i, lane] = max(abs(a), abs(b))
             else:
                 s = a * a
                 s += b * b
-                stat[c, k] = s
+                out[i, lane] = s
 
 
 @_helper
-def _count(plotted, n_calibration, width, faulty, calibration, healthy_alarms, faulty_misses, p):
-    """Candidate ``p``'s Phase-I limit, mean + K·sd over every calibration point (``Chart.fit_statistic``),
-    and its per-run alarm counts on the training runs (rows ``n_calibration:`` of ``plotted``)."""
-    n_points = plotted.shape[1]
-    for c in range(n_calibration):
-        row = plotted[c]
-        base = c * n_points
-        for k in range(n_points):
-            calibration[base + k] = row[k]
-    center, scale = mean_std(calibration)
-    limit = center + width * scale
-    for r in range(healthy_alarms.shape[1]):
-        row = plotted[n_calibration + r]
-        truth = faulty[r]
-        alarms = 0
-        misses = 0
-        for k in range(n_points):
-            alarm = row[k] > limit
-            if truth[k]:
-                misses += not alarm
+def _accumulate(points, n_points, deviations, lanes, cursor, sizes, joins):
+    """Add the next ``n_points`` rows of ``points`` (n, lanes) to each lane's pairwise sum, NumPy's, as they come.
+
+    The values of a lane arrive in the order of the flat array NumPy would sum (calibration run by run, each
+    in time order); with ``deviations`` a lane adds (x − centre)² instead of x (``np.std``'s terms). The sum
+    is :func:`_pairwise_sum`'s, bit for bit, without the array: the blocks and their joins are
+    :func:`_pairwise_leaves`'; in a block of eight or more values the lanes' fields ACC + 0..7 are NumPy's
+    eight accumulators (each starts at its first value), then ACC + 8 takes their sum and the rest, as
+    NumPy's ``res``; a shorter block sums into ACC + 8 from 0.0. The fields from STACK on hold the finished
+    partial sums; ``cursor`` (block, position in it, stack depth) carries the place between calls: zeros
+    start a sum. After the last value, field STACK is each lane's sum.
+    """
+    block, j, depth = cursor[0], cursor[1], cursor[2]
+    if block == sizes.shape[0]:
+        return
+    center, res = _CENTER * _LANES, (_ACC + 8) * _LANES
+    m = sizes[block]
+    stop = m - m % 8 if m >= 8 else 0  # where the eight accumulators end (none in a short block)
+    if j == 0:
+        for lane in range(_LANES):
+            lanes[res + lane] = 0.0
+    for i in range(n_points):
+        slot = (_ACC + (j % 8 if j < stop else 8)) * _LANES
+        if j < 8 and stop > 0:  # an accumulator's first value: set, as NumPy does (not 0.0 + x: −0.0 stays)
+            if deviations:
+                for lane in range(_LANES):
+                    d = points[i, lane] - lanes[center + lane]
+                    lanes[slot + lane] = d * d
             else:
-                alarms += alarm
-        healthy_alarms[p, r] = alarms
-        faulty_misses[p, r] = misses
+                for lane in range(_LANES):
+                    lanes[slot + lane] = points[i, lane]
+        elif deviations:
+            for lane in range(_LANES):
+                d = points[i, lane] - lanes[center + lane]
+                lanes[slot + lane] += d * d
+        else:
+            for lane in range(_LANES):
+                lanes[slot + lane] += points[i, lane]
+        j += 1
+        if j == stop:
+            a = _ACC * _LANES
+            for lane in range(_LANES):
+                lanes[res + lane] = (((lanes[a + lane] + lanes[a + _LANES + lane])
+                                      + (lanes[a + 2 * _LANES + lane] + lanes[a + 3 * _LANES + lane]))
+                                     + ((lanes[a + 4 * _LANES + lane] + lanes[a + 5 * _LANES + lane])
+                                        + (lanes[a + 6 * _LANES + lane] + lanes[a + 7 * _LANES + lane])))
+        if j == m:  # the block is summed: onto the stack, then the joins that follow it in NumPy's recursion
+            top = (_STACK + depth) * _LANES
+            for lane in range(_LANES):
+                lanes[top + lane] = lanes[res + lane]
+            depth += 1
+            for _ in range(joins[block]):
+                depth -= 1
+                left, right = (_STACK + depth - 1) * _LANES, (_STACK + depth) * _LANES
+                for lane in range(_LANES):
+                    lanes[left + lane] = lanes[left + lane] + lanes[right + lane]
+            block += 1
+            j = 0
+            if block == sizes.shape[0]:
+                break
+            m = sizes[block]
+            stop = m - m % 8 if m >= 8 else 0
+            for lane in range(_LANES):
+                lanes[res + lane] = 0.0
+    cursor[0], cursor[1], cursor[2] = block, j, depth
 
 
 @_helper
-def _buffers(u, feedback, n_calibration):
-    """Both kernels' outputs (zeroed counts (P, R_train)) and scratch: the statistic (C, K), the recursion's
-    past values (4, C) and the calibration points."""
-    n_points, n_columns = u.shape
+def _count(points, n_points, truth, k0, lanes):
+    """Add points k0.. of one training run (rows of ``points``, (n, lanes)) to each lane's counts: healthy
+    points above the lane's limit to field ALARMS, target-fault points not above it to field MISSES (from
+    k0 = 0, the run's start, zeroed first; counted in floats, exact far beyond any run's length)."""
+    limit, alarms, misses = _LIMIT * _LANES, _ALARMS * _LANES, _MISSES * _LANES
+    if k0 == 0:
+        for lane in range(_LANES):
+            lanes[alarms + lane] = 0.0
+            lanes[misses + lane] = 0.0
+    for i in range(n_points):
+        if truth[k0 + i]:
+            for lane in range(_LANES):
+                lanes[misses + lane] += not points[i, lane] > lanes[limit + lane]
+        else:
+            for lane in range(_LANES):
+                lanes[alarms + lane] += points[i, lane] > lanes[limit + lane]
+
+
+@_helper
+def _buffers(u, feedback, n_calibration, n_points):
+    """Both kernels' outputs (zeroed counts (P, R_train)) and scratch: the lanes' state (fields × lanes), the
+    pairwise sums' cursor and the statistic of ``n_points`` points (n_points, lanes)."""
+    n_columns = u.shape[0]
     n_candidates = feedback.shape[0]
     n_train = n_columns - n_calibration
     return (np.zeros((n_candidates, n_train), np.int64), np.zeros((n_candidates, n_train), np.int64),
-            np.empty((n_columns, n_points)), np.empty((4, n_columns)), np.empty(n_calibration * n_points))
+            np.zeros(_FIELDS * _LANES), np.zeros(3, np.int64), np.empty((n_points, _LANES)))
+
+
+@_helper
+def _lanes(gains, feedback, widths, p0, lanes):
+    """Candidates p0.. into the lanes: their gains, f1, f2 (0 for order 1) and, in field LIMIT, their widths
+    K, which the Phase-I limit replaces once it is known. Lanes past the last candidate get zeros (a zero
+    statistic, computed and never read). Returns the number of candidates placed."""
+    order = feedback.shape[1]
+    n_lanes = min(_LANES, feedback.shape[0] - p0)
+    for lane in range(_LANES):
+        p = p0 + lane
+        real = lane < n_lanes
+        lanes[_GAIN * _LANES + lane] = gains[p] if real else 0.0
+        lanes[_F1 * _LANES + lane] = feedback[p, 0] if real else 0.0
+        lanes[_F2 * _LANES + lane] = feedback[p, 1] if real and order == 2 else 0.0
+        lanes[_LIMIT * _LANES + lane] = widths[p] if real else 0.0
+    return n_lanes
+
+
+@_helper
+def _limits(lanes, n_values, deviations):
+    """After the pairwise sum of every calibration point: the lanes' centre E{l} (``deviations`` False), or
+    their Phase-I limit E{l} + K·sd{l} (True), as ``mean_std`` and ``Chart.fit_statistic`` compute them."""
+    for lane in range(_LANES):
+        total = lanes[_STACK * _LANES + lane]
+        if deviations:
+            center = lanes[_CENTER * _LANES + lane]
+            lanes[_LIMIT * _LANES + lane] = center + lanes[_LIMIT * _LANES + lane] * math.sqrt(total / (n_values - 1))
+        else:
+            lanes[_CENTER * _LANES + lane] = total / n_values
 
 
 @njit(cache=True, nogil=True)
@@ -195,8 +350,8 @@ def alarm_counts(u, v, n_calibration, gains, feedback, widths, combine_max, faul
 
     Parameters
     ----------
-    u, v : float64 (K, C), time-major
-        U_k and V_k of the calibration runs (first ``n_calibration`` columns) then the training runs.
+    u, v : float64 (C, K), run-major
+        U_k and V_k of the calibration runs (first ``n_calibration`` rows) then the training runs.
     gains : (P,); feedback : (P, order); widths : (P,)
         Each candidate's recursion coefficients (as ``ewma_time_major`` computes them) and its K.
     faulty : bool (R_train, K)
@@ -206,15 +361,39 @@ def alarm_counts(u, v, n_calibration, gains, feedback, widths, combine_max, faul
     -------
     healthy_alarms, faulty_misses : int64 (P, R_train)
 
+    Candidates go through in blocks of :data:`_LANES`, each run's points in segments of :data:`_SEGMENT`;
+    no statistic is kept beyond a segment: the Phase-I limit's mean and deviations are summed as the
+    calibration points are produced (the recursion runs twice over the calibration runs, which is cheaper
+    than writing and reading them back), then each training point is scored as it is produced.
+
     A kernel of its own (not a flag of :func:`alarm_counts_denoised`): numba compiles every function a
     body calls, taken branch or not, so a run without a denoiser never compiles the wavelet.
     """
-    healthy_alarms, faulty_misses, raw, y, calibration = _buffers(u, feedback, n_calibration)
+    n_columns, n_points = u.shape
     order = feedback.shape[1]
-    for p in range(feedback.shape[0]):
-        f2 = feedback[p, 1] if order == 2 else 0.0
-        _statistics(u, v, gains[p], feedback[p, 0], f2, order, combine_max, raw, y)
-        _count(raw, n_calibration, widths[p], faulty, calibration, healthy_alarms, faulty_misses, p)
+    # int64 arguments, as the denoised kernel's: a literal (the constant _SEGMENT, a 0) would compile a helper again
+    healthy_alarms, faulty_misses, lanes, cursor, points = _buffers(u, feedback, n_calibration, np.int64(_SEGMENT))
+    n_values = n_calibration * n_points
+    sizes, joins = _pairwise_leaves(n_values)
+    for p0 in range(0, feedback.shape[0], _LANES):
+        n_lanes = _lanes(gains, feedback, widths, p0, lanes)
+        # the Phase-I limit E{l} + K·sd{l} (Chart.fit_statistic): the mean, then the squared deviations from it
+        for deviations in range(2):
+            cursor[0], cursor[1], cursor[2] = 0, 0, 0
+            for c in range(n_calibration):
+                for k0 in range(0, n_points, _SEGMENT):
+                    k1 = min(n_points, k0 + _SEGMENT)
+                    _statistics(u[c], v[c], k0, k1, order, combine_max, lanes, points)
+                    _accumulate(points, k1 - k0, deviations == 1, lanes, cursor, sizes, joins)
+            _limits(lanes, n_values, deviations == 1)
+        for r in range(n_columns - n_calibration):
+            for k0 in range(0, n_points, _SEGMENT):
+                k1 = min(n_points, k0 + _SEGMENT)
+                _statistics(u[n_calibration + r], v[n_calibration + r], k0, k1, order, combine_max, lanes, points)
+                _count(points, k1 - k0, faulty[r], k0, lanes)
+            for lane in range(n_lanes):
+                healthy_alarms[p0 + lane, r] = lanes[_ALARMS * _LANES + lane]
+                faulty_misses[p0 + lane, r] = lanes[_MISSES * _LANES + lane]
     return healthy_alarms, faulty_misses
 
 
@@ -222,29 +401,55 @@ def alarm_counts(u, v, n_calibration, gains, feedback, widths, combine_max, faul
 def alarm_counts_denoised(u, v, n_calibration, gains, feedback, widths, combine_max, faulty,
                           lo, hi, rec_lo, rec_hi, level, per_level, source, rule, fixed, hard):
     """:func:`alarm_counts` with each run's statistic wavelet-denoised before the limit and the counts
-    (the remaining arguments: :func:`mosd.kernels.wavelet.denoise_row`)."""
-    healthy_alarms, faulty_misses, raw, y, calibration = _buffers(u, feedback, n_calibration)
+    (the remaining arguments: :func:`mosd.kernels.wavelet.denoise_row`).
+
+    The denoiser needs a run's whole statistic, so each run's is produced whole for the block's lanes; the
+    denoised calibration points are kept (the limit's second pass reads them again: denoising them twice
+    would cost more than keeping them) and summed as :func:`alarm_counts` sums them.
+    """
+    n_columns, n_points = u.shape
     order = feedback.shape[1]
-    n_points, n_columns = u.shape
-    plotted = np.empty((n_columns, n_points))
+    healthy_alarms, faulty_misses, lanes, cursor, raw = _buffers(u, feedback, n_calibration, n_points)
+    start = np.int64(0)  # of type int64, as alarm_counts' segment starts (a literal 0 would compile the helpers again)
+    n_values = n_calibration * n_points
+    sizes, joins = _pairwise_leaves(n_values)
+    kept = np.empty((n_calibration, n_points, _LANES))
+    plotted = np.empty((n_points, _LANES))
+    row = np.empty(n_points)
+    denoised = np.empty(n_points)
     work = np.empty(work_size(n_points, lo.shape[0], level))
-    for p in range(feedback.shape[0]):
-        f2 = feedback[p, 1] if order == 2 else 0.0
-        _statistics(u, v, gains[p], feedback[p, 0], f2, order, combine_max, raw, y)
+    for p0 in range(0, feedback.shape[0], _LANES):
+        n_lanes = _lanes(gains, feedback, widths, p0, lanes)
         for c in range(n_columns):
-            denoise_row(raw[c], plotted[c], work, lo, hi, rec_lo, rec_hi, level, per_level, source, rule,
-                        fixed, hard)
-        _count(plotted, n_calibration, widths[p], faulty, calibration, healthy_alarms, faulty_misses, p)
+            _statistics(u[c], v[c], start, n_points, order, combine_max, lanes, raw)
+            target = kept[c] if c < n_calibration else plotted
+            for lane in range(n_lanes):
+                for k in range(n_points):
+                    row[k] = raw[k, lane]
+                denoise_row(row, denoised, work, lo, hi, rec_lo, rec_hi, level, per_level, source, rule, fixed, hard)
+                for k in range(n_points):
+                    target[k, lane] = denoised[k]
+            if c == n_calibration - 1:  # every calibration point is in: the Phase-I limit, as alarm_counts
+                for deviations in range(2):
+                    cursor[0], cursor[1], cursor[2] = 0, 0, 0
+                    for cal in range(n_calibration):
+                        _accumulate(kept[cal], n_points, deviations == 1, lanes, cursor, sizes, joins)
+                    _limits(lanes, n_values, deviations == 1)
+            elif c >= n_calibration:
+                r = c - n_calibration
+                _count(plotted, n_points, faulty[r], start, lanes)
+                for lane in range(n_lanes):
+                    healthy_alarms[p0 + lane, r] = lanes[_ALARMS * _LANES + lane]
+                    faulty_misses[p0 + lane, r] = lanes[_MISSES * _LANES + lane]
     return healthy_alarms, faulty_misses
 
 
 def _warm_up_arguments():
-    u = np.zeros((64, 3))
+    u = np.zeros((3, 64))  # run-major: 1 calibration run, 2 training runs of 64 points
     faulty = np.zeros((2, 64), bool)
-    # K as the tuning passes it: a column of the population (a strided view, numba's layout 'A'); a contiguous
-    # array here would compile a signature the run never calls, and the run would compile its own
-    widths = np.ones((2, 2))[:, 1]
-    return (u, u, 1, np.ones(2), np.zeros((2, 2)), widths, False, faulty)
+    # every array contiguous, as FusedChartEvaluation.plan makes them (a slice of its rows stays contiguous): a
+    # strided one here would compile a signature the run never calls, and the run would compile its own
+    return (u, u, 1, np.ones(2), np.zeros((2, 2)), np.ones(2), False, faulty)
 
 
 def warm_up(denoised: bool = False) -> None:
