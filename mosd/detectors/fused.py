@@ -73,6 +73,10 @@ class FusedChartEvaluation:
         self.wavelet_arguments = wavelet_plan.arguments(n_points) if self.denoise else ()
         self.combine_max = detector.combine == "max"
         self._kernel = chart.alarm_counts_denoised if self.denoise else chart.alarm_counts
+        #: candidates the kernel evaluates side by side: a slice of fewer costs as much as this many (the lanes
+        #: of a partial block are computed too; measured, 6 candidates took as long as 16), so a caller that
+        #: splits a population does best with slices of a multiple of it
+        self.lanes = chart._LANES
 
     def plan(self, X: np.ndarray) -> EvaluationPlan:
         """Every row of X validated (a bad design raises ``ConfigError`` naming its key) and turned into the

@@ -180,24 +180,32 @@ def _pairwise_leaves(n):
 
 
 @_helper
-def _statistics(u_run, v_run, k0, k1, order, combine_max, lanes, out):
+def _statistics(u_run, v_run, k0, k1, order, combine_max, lanes, out, count, faulty, r):
     """Points k0..k1−1 of one run's smoothed-and-combined statistic for the lanes' candidates, side by side.
 
     u_run, v_run: the run's U_k and V_k (K,); ``lanes``: the lanes' coefficients and the recursion's two past
-    values of both parts, carried from the previous call (from k0 = 0, the run's start, a zero state);
-    out[k − k0, lane] the statistic. Each value is :func:`mosd.kernels.ewma.ewma_step`'s (the one arithmetic
-    of the charts), the combination the reference's: max(|U|, |V|) or U² + V².
+    values of both parts, carried from the previous call (from k0 = 0, the run's start, a zero state).
+    Each value is :func:`mosd.kernels.ewma.ewma_step`'s (the one arithmetic of the charts), the combination
+    the reference's: max(|U|, |V|) or U² + V². The statistic goes to out[k − k0, lane], or with ``count``
+    is scored at once as training run ``r`` of ``faulty``: a healthy point above a lane's limit adds to its
+    field ALARMS, a target-fault point not above it to MISSES (from k0 = 0, zeros; counted in floats, exact
+    far beyond any run's length, and as arithmetic, so that the lane loop stays one vector loop).
     """
     g, f1, f2 = _GAIN * _LANES, _F1 * _LANES, _F2 * _LANES
     u1, u2, v1, v2 = _U1 * _LANES, _U2 * _LANES, _V1 * _LANES, _V2 * _LANES
+    limit, alarms, misses = _LIMIT * _LANES, _ALARMS * _LANES, _MISSES * _LANES
     if k0 == 0:
         for lane in range(_LANES):
             lanes[u1 + lane] = 0.0
             lanes[u2 + lane] = 0.0
             lanes[v1 + lane] = 0.0
             lanes[v2 + lane] = 0.0
+            lanes[alarms + lane] = 0.0
+            lanes[misses + lane] = 0.0
     for k in range(k0, k1):
         x, w, i = u_run[k], v_run[k], k - k0
+        target = 1.0 * faulty[r, k] if count else 0.0  # 1.0 at a target-fault point
+        healthy = 1.0 - target
         for lane in range(_LANES):
             a = ewma_step(x, lanes[g + lane], lanes[f1 + lane], lanes[f2 + lane], lanes[u1 + lane], lanes[u2 + lane],
                           order)
@@ -209,10 +217,15 @@ def _statistics(u_run, v_run, k0, k1, order, combine_max, lanes, out):
             lanes[u1 + lane] = a
             lanes[v1 + lane] = b
             if combine_max:
-                out[i, lane] = max(abs(a), abs(b))
+                s = max(abs(a), abs(b))
             else:
                 s = a * a
                 s += b * b
+            if count:
+                alarm = 1.0 * (s > lanes[limit + lane])
+                lanes[alarms + lane] += alarm * healthy
+                lanes[misses + lane] += (1.0 - alarm) * target
+            else:
                 out[i, lane] = s
 
 
@@ -229,6 +242,10 @@ def _accumulate(points, n_points, deviations, lanes, cursor, sizes, joins):
     partial sums; ``cursor`` (block, position in it, stack depth) carries the place between calls: zeros
     start a sum. After the last value, field STACK is each lane's sum.
     """
+    # the lanes' count as the compiler cannot know it: with the constant _LANES it would unroll these short loops
+    # first, then fail to pack the copies into vectors (points and lanes might overlap, as far as it knows);
+    # with a count known only at run time, each loop is one vector loop behind one overlap check
+    width = lanes.shape[0] // _FIELDS
     block, j, depth = cursor[0], cursor[1], cursor[2]
     if block == sizes.shape[0]:
         return
@@ -236,42 +253,42 @@ def _accumulate(points, n_points, deviations, lanes, cursor, sizes, joins):
     m = sizes[block]
     stop = m - m % 8 if m >= 8 else 0  # where the eight accumulators end (none in a short block)
     if j == 0:
-        for lane in range(_LANES):
+        for lane in range(width):
             lanes[res + lane] = 0.0
     for i in range(n_points):
         slot = (_ACC + (j % 8 if j < stop else 8)) * _LANES
         if j < 8 and stop > 0:  # an accumulator's first value: set, as NumPy does (not 0.0 + x: −0.0 stays)
             if deviations:
-                for lane in range(_LANES):
+                for lane in range(width):
                     d = points[i, lane] - lanes[center + lane]
                     lanes[slot + lane] = d * d
             else:
-                for lane in range(_LANES):
+                for lane in range(width):
                     lanes[slot + lane] = points[i, lane]
         elif deviations:
-            for lane in range(_LANES):
+            for lane in range(width):
                 d = points[i, lane] - lanes[center + lane]
                 lanes[slot + lane] += d * d
         else:
-            for lane in range(_LANES):
+            for lane in range(width):
                 lanes[slot + lane] += points[i, lane]
         j += 1
         if j == stop:
             a = _ACC * _LANES
-            for lane in range(_LANES):
+            for lane in range(width):
                 lanes[res + lane] = (((lanes[a + lane] + lanes[a + _LANES + lane])
                                       + (lanes[a + 2 * _LANES + lane] + lanes[a + 3 * _LANES + lane]))
                                      + ((lanes[a + 4 * _LANES + lane] + lanes[a + 5 * _LANES + lane])
                                         + (lanes[a + 6 * _LANES + lane] + lanes[a + 7 * _LANES + lane])))
         if j == m:  # the block is summed: onto the stack, then the joins that follow it in NumPy's recursion
             top = (_STACK + depth) * _LANES
-            for lane in range(_LANES):
+            for lane in range(width):
                 lanes[top + lane] = lanes[res + lane]
             depth += 1
             for _ in range(joins[block]):
                 depth -= 1
                 left, right = (_STACK + depth - 1) * _LANES, (_STACK + depth) * _LANES
-                for lane in range(_LANES):
+                for lane in range(width):
                     lanes[left + lane] = lanes[left + lane] + lanes[right + lane]
             block += 1
             j = 0
@@ -279,7 +296,7 @@ def _accumulate(points, n_points, deviations, lanes, cursor, sizes, joins):
                 break
             m = sizes[block]
             stop = m - m % 8 if m >= 8 else 0
-            for lane in range(_LANES):
+            for lane in range(width):
                 lanes[res + lane] = 0.0
     cursor[0], cursor[1], cursor[2] = block, j, depth
 
@@ -288,19 +305,22 @@ def _accumulate(points, n_points, deviations, lanes, cursor, sizes, joins):
 def _count(points, n_points, truth, k0, lanes):
     """Add points k0.. of one training run (rows of ``points``, (n, lanes)) to each lane's counts: healthy
     points above the lane's limit to field ALARMS, target-fault points not above it to field MISSES (from
-    k0 = 0, the run's start, zeroed first; counted in floats, exact far beyond any run's length)."""
+    k0 = 0, the run's start, zeroed first; counted in floats, exact far beyond any run's length). Lane by
+    lane, each lane's counts in registers: stored per point, they would be reloaded after every store (the
+    compiler cannot tell that ``points`` and ``lanes`` never overlap)."""
     limit, alarms, misses = _LIMIT * _LANES, _ALARMS * _LANES, _MISSES * _LANES
-    if k0 == 0:
-        for lane in range(_LANES):
-            lanes[alarms + lane] = 0.0
-            lanes[misses + lane] = 0.0
-    for i in range(n_points):
-        if truth[k0 + i]:
-            for lane in range(_LANES):
-                lanes[misses + lane] += not points[i, lane] > lanes[limit + lane]
-        else:
-            for lane in range(_LANES):
-                lanes[alarms + lane] += points[i, lane] > lanes[limit + lane]
+    for lane in range(_LANES):
+        bound = lanes[limit + lane]
+        healthy_alarms = 0.0 if k0 == 0 else lanes[alarms + lane]
+        faulty_misses = 0.0 if k0 == 0 else lanes[misses + lane]
+        for i in range(n_points):
+            alarm = points[i, lane] > bound
+            if truth[k0 + i]:
+                faulty_misses += not alarm
+            else:
+                healthy_alarms += alarm
+        lanes[alarms + lane] = healthy_alarms
+        lanes[misses + lane] = faulty_misses
 
 
 @_helper
@@ -373,6 +393,7 @@ def alarm_counts(u, v, n_calibration, gains, feedback, widths, combine_max, faul
     order = feedback.shape[1]
     # int64 arguments, as the denoised kernel's: a literal (the constant _SEGMENT, a 0) would compile a helper again
     healthy_alarms, faulty_misses, lanes, cursor, points = _buffers(u, feedback, n_calibration, np.int64(_SEGMENT))
+    scored = np.bool_(False)
     n_values = n_calibration * n_points
     sizes, joins = _pairwise_leaves(n_values)
     for p0 in range(0, feedback.shape[0], _LANES):
@@ -383,14 +404,14 @@ def alarm_counts(u, v, n_calibration, gains, feedback, widths, combine_max, faul
             for c in range(n_calibration):
                 for k0 in range(0, n_points, _SEGMENT):
                     k1 = min(n_points, k0 + _SEGMENT)
-                    _statistics(u[c], v[c], k0, k1, order, combine_max, lanes, points)
+                    _statistics(u[c], v[c], k0, k1, order, combine_max, lanes, points, scored, faulty, c)
                     _accumulate(points, k1 - k0, deviations == 1, lanes, cursor, sizes, joins)
             _limits(lanes, n_values, deviations == 1)
         for r in range(n_columns - n_calibration):
             for k0 in range(0, n_points, _SEGMENT):
                 k1 = min(n_points, k0 + _SEGMENT)
-                _statistics(u[n_calibration + r], v[n_calibration + r], k0, k1, order, combine_max, lanes, points)
-                _count(points, k1 - k0, faulty[r], k0, lanes)
+                _statistics(u[n_calibration + r], v[n_calibration + r], k0, k1, order, combine_max, lanes, points,
+                            not scored, faulty, r)
             for lane in range(n_lanes):
                 healthy_alarms[p0 + lane, r] = lanes[_ALARMS * _LANES + lane]
                 faulty_misses[p0 + lane, r] = lanes[_MISSES * _LANES + lane]
@@ -410,18 +431,19 @@ def alarm_counts_denoised(u, v, n_calibration, gains, feedback, widths, combine_
     n_columns, n_points = u.shape
     order = feedback.shape[1]
     healthy_alarms, faulty_misses, lanes, cursor, raw = _buffers(u, feedback, n_calibration, n_points)
-    start = np.int64(0)  # of type int64, as alarm_counts' segment starts (a literal 0 would compile the helpers again)
+    # of types int64 and bool, as alarm_counts' segment starts and flag (literals would compile the helpers again)
+    start, scored = np.int64(0), np.bool_(False)
     n_values = n_calibration * n_points
     sizes, joins = _pairwise_leaves(n_values)
-    kept = np.empty((n_calibration, n_points, _LANES))
-    plotted = np.empty((n_points, _LANES))
+    kept = np.zeros((n_calibration, n_points, _LANES))  # zeros in the unused lanes of a last, partial block
+    plotted = np.zeros((n_points, _LANES))
     row = np.empty(n_points)
     denoised = np.empty(n_points)
     work = np.empty(work_size(n_points, lo.shape[0], level))
     for p0 in range(0, feedback.shape[0], _LANES):
         n_lanes = _lanes(gains, feedback, widths, p0, lanes)
         for c in range(n_columns):
-            _statistics(u[c], v[c], start, n_points, order, combine_max, lanes, raw)
+            _statistics(u[c], v[c], start, n_points, order, combine_max, lanes, raw, scored, faulty, c)
             target = kept[c] if c < n_calibration else plotted
             for lane in range(n_lanes):
                 for k in range(n_points):
