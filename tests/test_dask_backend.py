@@ -114,3 +114,28 @@ def test_a_worker_lost_mid_evaluation_is_an_error_not_a_hang():
         cluster = evaluation.cluster
         evaluation.close()
     assert cluster.status.name == "closed"
+
+
+def test_through_the_scheduler_where_the_workers_are_out_of_reach(cluster):
+    """Workers that the client's machine cannot reach (only their scheduler): the scheduler relays the calls."""
+    evaluation = DaskEvaluation(_row_sums, 2, address=cluster.scheduler_address)
+    direct_rpc = evaluation.client.rpc
+
+    class Unreachable:  # every direct connection to a worker refused, as behind a firewall
+        def __init__(self, address):
+            self.address = address
+
+        def __getattr__(self, operation):
+            async def refused(**message):
+                raise OSError(f"Timed out trying to connect to {self.address}")
+            return refused
+
+    try:
+        evaluation.client.rpc = Unreachable
+        X = np.random.default_rng(6).normal(size=(5, 4))
+        np.testing.assert_array_equal(evaluation.evaluate(X), _row_sums(X))
+        assert evaluation.direct is False  # switched at the first generation, and stays
+        np.testing.assert_array_equal(evaluation.evaluate(X[::-1]), _row_sums(X[::-1]))
+    finally:
+        evaluation.client.rpc = direct_rpc
+        evaluation.close()

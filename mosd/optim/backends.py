@@ -316,6 +316,9 @@ class DaskEvaluation:
         self.client = None
         self._actors: list = []  # (worker address, actor key), one per worker
         self._actor_futures: list = []  # held: releasing them would delete the actors
+        # straight to the workers; through the scheduler where this machine reaches only the scheduler
+        self.direct = True
+        self._answered = False  # whether a generation has been answered yet
         try:
             if address is None:
                 # started early (start_local_cluster, while the run simulated), or now
@@ -366,6 +369,12 @@ class DaskEvaluation:
         X = np.atleast_2d(X)
         chunks = np.array_split(X, max(1, min(self.n_chunks(), X.shape[0])))
         answers = self.client.sync(self._call_actors, chunks)
+        if (self.direct and not self._answered and self.cluster is None
+                and all(isinstance(answer, OSError) for answer in answers)):
+            # no worker of the cluster at the address answers from here (a private network behind its
+            # scheduler): the scheduler relays the calls instead, slower but the same answers
+            self.direct = False
+            answers = self.client.sync(self._call_actors, chunks)
         parts = []
         for (worker, _), answer in zip(self._actors, answers):
             if isinstance(answer, OSError):  # the connection to the worker broke or was refused
@@ -376,6 +385,7 @@ class DaskEvaluation:
             if answer.get("status") != "OK":
                 raise answer["exception"]
             parts.append(answer["result"])
+        self._answered = True
         return np.concatenate([F for F, _ in parts], axis=0), float(sum(seconds for _, seconds in parts))
 
     async def _call_actors(self, chunks: list) -> list:
@@ -384,9 +394,15 @@ class DaskEvaluation:
 
         from distributed.protocol import to_serialize
 
-        calls = [self.client.rpc(worker).actor_execute(function="evaluate", actor=key,
-                                                          args=[to_serialize(chunk)], kwargs={})
-                 for (worker, key), chunk in zip(self._actors, chunks)]
+        def call(worker: str, key: str, chunk: np.ndarray):
+            # the worker's handler of an actor's method call (what distributed.Actor sends), for every
+            # chunk at once on the client's loop, without an ActorFuture and a thread hand-over each
+            message = dict(function="evaluate", actor=key, args=[to_serialize(chunk)], kwargs={})
+            if self.direct:
+                return self.client.rpc(worker).actor_execute(**message)
+            return self.client.scheduler.proxy(worker=worker, msg={"op": "actor_execute", **message})
+
+        calls = [call(worker, key, chunk) for (worker, key), chunk in zip(self._actors, chunks)]
         # every call answered before any error is raised: none is left running behind the caller
         return await asyncio.gather(*calls, return_exceptions=True)
 
