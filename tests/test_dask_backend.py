@@ -139,3 +139,45 @@ def test_through_the_scheduler_where_the_workers_are_out_of_reach(cluster):
     finally:
         evaluation.client.rpc = direct_rpc
         evaluation.close()
+
+
+def test_a_worker_gone_before_its_actor_starts_is_an_error_not_a_hang(cluster, monkeypatch):
+    """A worker listed by the scheduler that leaves before its actor starts: WorkerLost after the deadline."""
+    import distributed
+
+    from mosd.optim import backends
+
+    monkeypatch.setattr(backends, "CONNECT_TIMEOUT_S", 2.0)
+    gone = "tcp://127.0.0.1:9"  # the discard port: never a Dask worker
+    listed = distributed.Client.nthreads
+
+    def with_a_gone_worker(client, *args, **kwargs):
+        return {**listed(client, *args, **kwargs), gone: 1}
+
+    monkeypatch.setattr(distributed.Client, "nthreads", with_a_gone_worker)
+    outcome, seconds = _in_time(lambda: DaskEvaluation(_row_sums, 2, address=cluster.scheduler_address), 30.0)
+    assert isinstance(outcome.get("error"), WorkerLost), outcome
+    assert f"did not start on Dask worker {gone} within 2 s" in str(outcome["error"])
+
+
+@pytest.mark.slow
+def test_a_worker_lost_between_generations_is_an_error_at_the_next():
+    """Killed while idle (the nanny then starts a new worker elsewhere): the next generation raises WorkerLost
+    once Dask's connect timeout has passed, instead of waiting for the actor to come back."""
+    import signal
+
+    import dask
+    import distributed  # noqa: F401 - its config defaults, before setting one of them
+
+    with dask.config.set({"distributed.comm.timeouts.connect": "2s"}):
+        evaluation = DaskEvaluation(_row_sums, 2)
+    try:
+        X = np.random.default_rng(7).normal(size=(4, 2))
+        np.testing.assert_array_equal(evaluation.evaluate(X), _row_sums(X))
+        worker = evaluation._actors[1][0]
+        os.kill(evaluation.client.run(os.getpid, workers=[worker])[worker], signal.SIGKILL)
+        outcome, seconds = _in_time(lambda: evaluation.evaluate(X), 60.0)
+        assert isinstance(outcome.get("error"), WorkerLost), outcome
+        assert f"Dask worker {worker} holding the evaluator was lost" in str(outcome["error"])
+    finally:
+        evaluation.close()

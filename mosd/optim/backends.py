@@ -349,7 +349,16 @@ class DaskEvaluation:
             self.client.submit(_ResidentEvaluator, scattered, actor=True, workers=[worker],
                                allow_other_workers=False, pure=False)
             for worker in workers]
-        for worker, actor in zip(workers, self.client.gather(self._actor_futures)):
+        import time
+
+        deadline = time.monotonic() + CONNECT_TIMEOUT_S
+        for worker, future in zip(workers, self._actor_futures):
+            try:
+                # an actor is bound to its worker: one that left meanwhile would leave it waiting for ever
+                actor = future.result(timeout=max(0.1, deadline - time.monotonic()))
+            except TimeoutError:
+                raise WorkerLost(f"the evaluator's actor did not start on Dask worker {worker} within "
+                                 f"{CONNECT_TIMEOUT_S:g} s (did the worker leave the cluster?)") from None
             self._actors.append((worker, actor.key))
         # the actors hold the evaluator now; the scattered copy is not needed any more
         del scattered
@@ -378,7 +387,7 @@ class DaskEvaluation:
         parts = []
         for (worker, _), answer in zip(self._actors, answers):
             if isinstance(answer, OSError):  # the connection to the worker broke or was refused
-                raise WorkerLost(f"Dask worker {worker} holding the evaluator was lost during the evaluation "
+                raise WorkerLost(f"Dask worker {worker} holding the evaluator was lost "
                                  f"({type(answer).__name__}: {' '.join(str(answer).split())[:200]})") from answer
             if isinstance(answer, BaseException):
                 raise answer
