@@ -27,6 +27,7 @@ import importlib.util
 import logging
 import socket
 import threading
+import time
 from urllib.parse import urlsplit
 
 import numpy as np
@@ -190,8 +191,6 @@ class _ResidentEvaluator:
         self._thread = None
 
     def _timed(self, X: np.ndarray) -> tuple[np.ndarray, float]:
-        import time
-
         t0 = time.perf_counter()
         F = self.evaluator(X)
         seconds = time.perf_counter() - t0
@@ -349,8 +348,6 @@ class DaskEvaluation:
             self.client.submit(_ResidentEvaluator, scattered, actor=True, workers=[worker],
                                allow_other_workers=False, pure=False)
             for worker in workers]
-        import time
-
         deadline = time.monotonic() + CONNECT_TIMEOUT_S
         for worker, future in zip(workers, self._actor_futures):
             try:
