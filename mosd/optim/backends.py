@@ -6,8 +6,10 @@ persistent loky process pool. ``dask`` sends every generation to a
 `Dask distributed <https://distributed.dask.org>`_ cluster: a ``LocalCluster``
 of ``n_jobs`` single-threaded worker processes on 127.0.0.1 started for the
 problem, or the running scheduler at ``dask_address``. The evaluator (the cached
-features of the training runs) is scattered to every worker once per problem;
-a generation then ships only candidate vectors, as with loky.
+features of the training runs) is scattered to every worker once per problem and
+kept there by a Dask actor per worker; a generation then ships only candidate
+vectors, one call per worker straight from the client (no task, no scheduler in
+the way), as with loky.
 
 Results do not depend on the backend: each candidate's objectives are computed
 by the same code on the same arrays whatever process or chunk it lands in, so
@@ -25,6 +27,7 @@ import importlib.util
 import logging
 import socket
 import threading
+import time
 from urllib.parse import urlsplit
 
 import numpy as np
@@ -37,6 +40,9 @@ BACKENDS = ("loky", "dask")
 CLUSTER_INSTALL = 'pip install "mosd[cluster]"'
 #: Seconds to wait for a scheduler at ``dask_address`` before giving up.
 CONNECT_TIMEOUT_S = 30.0
+#: A worker computes a chunk expected to take at most this many seconds on its event loop (no thread hand-over);
+#: a longer one in a thread, so that its heartbeats to the scheduler keep going (:class:`_ResidentEvaluator`).
+INLINE_S = 0.25
 
 
 def _missing_distributed() -> ConfigError:
@@ -164,18 +170,43 @@ def _identify(address: str, timeout: float, answer: dict, connection_args: dict 
         answer["error"] = exc
 
 
-def _evaluate_scattered(evaluator, X: np.ndarray) -> tuple[np.ndarray, float]:
-    """A Dask task: the worker's copy of the scattered evaluator on one chunk; objectives and seconds taken."""
-    import time
+class _ResidentEvaluator:
+    """A Dask actor: one per worker, holding the evaluator for the problem's life; a generation calls it once.
 
-    from .workers import pin_threads
+    Its calls go from the client straight to the worker (Dask's ``actor_execute``), not through
+    the scheduler as tasks do. A chunk expected to finish within :data:`INLINE_S` (the previous
+    call's seconds per candidate) runs on the worker's event loop itself, saving the hand-over to
+    a thread; a longer one runs in the actor's own thread, so the worker keeps answering the
+    scheduler's heartbeats while it computes.
+    """
 
-    # the LocalCluster's nanny already sets OMP/MKL/OpenBLAS to one thread; a worker of a
-    # remote cluster may not, and n workers each starting a core's worth of BLAS threads thrash
-    pin_threads()
-    t0 = time.perf_counter()
-    F = evaluator(X)
-    return F, time.perf_counter() - t0
+    def __init__(self, evaluator):
+        from .workers import pin_threads
+
+        # the LocalCluster's nanny already sets OMP/MKL/OpenBLAS to one thread; a worker of a
+        # remote cluster may not, and n workers each starting a core's worth of BLAS threads thrash
+        pin_threads()
+        self.evaluator = evaluator
+        self.per_candidate_s = float("inf")  # unknown until the first chunk: that one runs in the thread
+        self._thread = None
+
+    def _timed(self, X: np.ndarray) -> tuple[np.ndarray, float]:
+        t0 = time.perf_counter()
+        F = self.evaluator(X)
+        seconds = time.perf_counter() - t0
+        self.per_candidate_s = seconds / max(1, X.shape[0])
+        return F, seconds
+
+    async def evaluate(self, X: np.ndarray) -> tuple[np.ndarray, float]:
+        """Objectives of the chunk X and the seconds they took on this worker."""
+        if self.per_candidate_s * X.shape[0] <= INLINE_S:
+            return self._timed(X)
+        import asyncio
+        from concurrent.futures import ThreadPoolExecutor
+
+        if self._thread is None:
+            self._thread = ThreadPoolExecutor(1, thread_name_prefix="mosd-evaluator")
+        return await asyncio.get_running_loop().run_in_executor(self._thread, self._timed, X)
 
 
 def _quiet_dask_logs() -> None:
@@ -231,6 +262,10 @@ def discard_local_clusters() -> None:
             pass
 
 
+class WorkerLost(RuntimeError):
+    """A Dask worker holding the evaluator went away during a run (its process died, the cluster closed)."""
+
+
 class DaskEvaluation:
     """Evaluate populations of one problem on a Dask cluster; owns the client (and cluster) it starts.
 
@@ -238,21 +273,33 @@ class DaskEvaluation:
     ----------
     evaluator : callable
         X (P, d) -> F (P, n_obj), picklable (:class:`~mosd.optim.problem.CandidateEvaluator`);
-        scattered to every worker once.
+        scattered to every worker once, where an actor keeps it.
     n_jobs : int
         Workers of the local cluster (one thread each); ignored with an address, where
         the cluster's own workers count.
     address : str or None
         A scheduler address to connect to; None starts a ``LocalCluster`` on 127.0.0.1
         (processes, one thread per worker, no dashboard).
+    timeout : float
+        Seconds to wait for the scheduler at ``address``.
 
     Notes
     -----
-    A population is split into as many chunks as the cluster has worker threads
-    (at most one candidate per chunk); each candidate's objectives are independent
-    of its chunk, so the split never changes the result. :meth:`close` (called by
-    :meth:`TuningProblem.close`) shuts down what this object started: the client,
-    and the local cluster if it started one, whose scattered data then disappears.
+    At the start, the evaluator is scattered to every worker of the cluster and a
+    :class:`_ResidentEvaluator` actor is placed on each, holding it. A generation then
+    splits the population into one chunk per worker (at most one candidate per
+    chunk) and calls every actor once, straight from this client to the worker: one
+    round trip per worker per generation, with no task and no scheduler in it (a
+    task goes client → scheduler → worker → scheduler → client, with the scheduler's
+    bookkeeping at every step). Workers that join the cluster later are not used;
+    each worker evaluates one chunk at a time, so a cluster's workers are best
+    started with one thread each (``dask worker --nworkers N --nthreads 1``).
+    Each candidate's objectives are independent of its chunk, so the split never
+    changes the result. A worker that is lost during a generation raises
+    :class:`WorkerLost` (it never hangs); an error of the evaluation itself reaches
+    the caller as itself. :meth:`close` (called by :meth:`TuningProblem.close`) shuts
+    down what this object started: the actors, the client, and the local cluster
+    if it started one.
     """
 
     def __init__(self, evaluator, n_jobs: int, address: str | None = None,
@@ -266,32 +313,56 @@ class DaskEvaluation:
         self.address = address
         self.cluster = None
         self.client = None
+        self._actors: list = []  # (worker address, actor key), one per worker
+        self._actor_futures: list = []  # held: releasing them would delete the actors
+        # straight to the workers; through the scheduler where this machine reaches only the scheduler
+        self.direct = True
+        self._answered = False  # whether a generation has been answered yet
         try:
             if address is None:
                 # started early (start_local_cluster, while the run simulated), or now
                 early = _EARLY.pop(self.n_jobs, None)
                 self.cluster = early.result() if early is not None else _local_cluster(self.n_jobs)
-                self.client = distributed.Client(self.cluster, set_as_default=False)
+                # direct_to_workers: the actors' calls and their answers skip the scheduler
+                self.client = distributed.Client(self.cluster, set_as_default=False, direct_to_workers=True)
             else:
                 try:
-                    self.client = distributed.Client(address, timeout=timeout, set_as_default=False)
+                    self.client = distributed.Client(address, timeout=timeout, set_as_default=False,
+                                                     direct_to_workers=True)
                 except OSError as exc:
                     raise ConfigError(f"optimizer.dask_address={address!r}: could not connect within "
                                       f"{timeout:g} s ({' '.join(str(exc).split())}); allowed: the address of "
                                       "a running Dask scheduler, or null for a local cluster") from None
-            # once per problem, to every worker: a generation then carries only its candidates
-            self._evaluator = self.client.scatter(evaluator, broadcast=True, hash=False)
+            self._place_actors(evaluator)
         except BaseException:
             self.close()
             raise
 
+    def _place_actors(self, evaluator) -> None:
+        """Scatter the evaluator to every worker once and start one :class:`_ResidentEvaluator` on each."""
+        workers = sorted(self.client.nthreads())
+        if not workers:
+            raise WorkerLost(f"the Dask cluster at {self.client.scheduler.address} has no workers")
+        scattered = self.client.scatter(evaluator, broadcast=True, hash=False)
+        self._actor_futures = [
+            self.client.submit(_ResidentEvaluator, scattered, actor=True, workers=[worker],
+                               allow_other_workers=False, pure=False)
+            for worker in workers]
+        deadline = time.monotonic() + CONNECT_TIMEOUT_S
+        for worker, future in zip(workers, self._actor_futures):
+            try:
+                # an actor is bound to its worker: one that left meanwhile would leave it waiting for ever
+                actor = future.result(timeout=max(0.1, deadline - time.monotonic()))
+            except TimeoutError:
+                raise WorkerLost(f"the evaluator's actor did not start on Dask worker {worker} within "
+                                 f"{CONNECT_TIMEOUT_S:g} s (did the worker leave the cluster?)") from None
+            self._actors.append((worker, actor.key))
+        # the actors hold the evaluator now; the scattered copy is not needed any more
+        del scattered
+
     def n_chunks(self) -> int:
-        """Worker threads of the cluster now (the local cluster: n_jobs, without asking the scheduler)."""
-        if self.cluster is not None:
-            # the cluster this object started does not grow or shrink: no scheduler round trip per generation
-            return max(1, self.n_jobs)
-        threads = sum(self.client.nthreads().values())
-        return max(1, threads or self.n_jobs)
+        """The workers holding an actor: one chunk each (fixed at the start, no scheduler round trip)."""
+        return max(1, len(self._actors))
 
     def evaluate(self, X: np.ndarray) -> np.ndarray:
         """Objectives of every row of X, computed on the cluster's workers, in the order of X."""
@@ -299,21 +370,53 @@ class DaskEvaluation:
 
     def evaluate_timed(self, X: np.ndarray) -> tuple[np.ndarray, float]:
         """:meth:`evaluate`, and the seconds the workers computed (summed over the chunks)."""
+        if self.client is None:
+            raise WorkerLost("this Dask evaluation is closed")
         X = np.atleast_2d(X)
         chunks = np.array_split(X, max(1, min(self.n_chunks(), X.shape[0])))
-        futures = self.client.map(_evaluate_scattered, [self._evaluator] * len(chunks), chunks, pure=False)
-        try:
-            parts = self.client.gather(futures)
-        except BaseException:
-            self.client.cancel(futures)
-            raise
+        answers = self.client.sync(self._call_actors, chunks)
+        if (self.direct and not self._answered and self.cluster is None
+                and all(isinstance(answer, OSError) for answer in answers)):
+            # no worker of the cluster at the address answers from here (a private network behind its
+            # scheduler): the scheduler relays the calls instead, slower but the same answers
+            self.direct = False
+            answers = self.client.sync(self._call_actors, chunks)
+        parts = []
+        for (worker, _), answer in zip(self._actors, answers):
+            if isinstance(answer, OSError):  # the connection to the worker broke or was refused
+                raise WorkerLost(f"Dask worker {worker} holding the evaluator was lost "
+                                 f"({type(answer).__name__}: {' '.join(str(answer).split())[:200]})") from answer
+            if isinstance(answer, BaseException):
+                raise answer
+            if answer.get("status") != "OK":
+                raise answer["exception"]
+            parts.append(answer["result"])
+        self._answered = True
         return np.concatenate([F for F, _ in parts], axis=0), float(sum(seconds for _, seconds in parts))
 
+    async def _call_actors(self, chunks: list) -> list:
+        """Every chunk to its worker's actor at once; the answers (or the exceptions raised) in order."""
+        import asyncio
+
+        from distributed.protocol import to_serialize
+
+        def call(worker: str, key: str, chunk: np.ndarray):
+            # the worker's handler of an actor's method call (what distributed.Actor sends), for every
+            # chunk at once on the client's loop, without an ActorFuture and a thread hand-over each
+            message = dict(function="evaluate", actor=key, args=[to_serialize(chunk)], kwargs={})
+            if self.direct:
+                return self.client.rpc(worker).actor_execute(**message)
+            return self.client.scheduler.proxy(worker=worker, msg={"op": "actor_execute", **message})
+
+        calls = [call(worker, key, chunk) for (worker, key), chunk in zip(self._actors, chunks)]
+        # every call answered before any error is raised: none is left running behind the caller
+        return await asyncio.gather(*calls, return_exceptions=True)
+
     def close(self) -> None:
-        """Close the client, then the local cluster if this object started it (idempotent)."""
+        """Release the actors, close the client, then the local cluster if this object started it (idempotent)."""
         client, cluster = self.client, self.cluster
         self.client = self.cluster = None
-        self.__dict__.pop("_evaluator", None)
+        self._actors, self._actor_futures = [], []
         for owned in (client, cluster):
             if owned is not None:
                 try:
