@@ -410,14 +410,18 @@ class TuningProblem(Problem):
         waits for the GIL they hold (on 16 cores that Python part, once per slice, took
         as long as the kernel's work).
         """
-        n_slices = self.n_chunks(X.shape[0], THREAD_CHUNK_OVERHEAD_S, _CHUNKS_PER_THREAD * self.n_jobs)
+        fused = self.evaluator.fused()
+        # the kernel takes candidates a block of ``lanes`` at a time, side by side: a slice of part of a
+        # block costs a whole block, so slices are whole blocks (the last may be short)
+        lanes = max(1, int(getattr(fused, "lanes", 1)))
+        blocks = -(-X.shape[0] // lanes)
+        n_slices = min(blocks, self.n_chunks(X.shape[0], THREAD_CHUNK_OVERHEAD_S, _CHUNKS_PER_THREAD * self.n_jobs))
         if n_slices == 1:
             return timed_call(self.evaluator, X)
-        fused = self.evaluator.fused()
         t0 = time.perf_counter()
         plan = fused.plan(X)
-        size, longer = divmod(X.shape[0], n_slices)  # np.array_split's slices: the first ``longer`` one row longer
-        edges = np.cumsum([0] + [size + 1] * longer + [size] * (n_slices - longer))
+        size, longer = divmod(blocks, n_slices)  # blocks per slice: the first ``longer`` slices one block more
+        edges = np.minimum(lanes * np.cumsum([0] + [size + 1] * longer + [size] * (n_slices - longer)), X.shape[0])
         counts: list = [None] * n_slices
         seconds = [0.0] * n_slices
         taken = itertools.count()  # next() on it is atomic: each slice goes to exactly one thread
