@@ -73,10 +73,12 @@ class FusedChartEvaluation:
         self.wavelet_arguments = wavelet_plan.arguments(n_points) if self.denoise else ()
         self.combine_max = detector.combine == "max"
         self._kernel = chart.alarm_counts_denoised if self.denoise else chart.alarm_counts
-        #: candidates the kernel evaluates side by side: a slice of fewer costs as much as this many (the lanes
-        #: of a partial block are computed too; measured, 6 candidates took as long as 16), so a caller that
-        #: splits a population does best with slices of a multiple of it
-        self.lanes = chart._LANES
+        #: what a caller that splits a population should align its slices to: the kernel computes a slice's
+        #: candidates rounded up to a multiple of this many lanes (chart._VECTOR), so a slice of fewer costs as
+        #: much as this many; past it, a slice's cost grows with its lanes (measured on AVX2: 8 candidates ~0.55
+        #: of a block of 16, 1-7 as much as 8). Slices of at least this many waste little: to fill n threads,
+        #: cut a population into n slices as long as each has about this many candidates or more
+        self.lanes = chart._VECTOR
 
     def plan(self, X: np.ndarray) -> EvaluationPlan:
         """Every row of X validated (a bad design raises ``ConfigError`` naming its key) and turned into the
