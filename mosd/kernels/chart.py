@@ -222,9 +222,10 @@ def _statistics(u_run, v_run, k0, k1, order, combine_max, lanes, width, out, cou
                           order)
             b = ewma_step(w, lanes[g + lane], lanes[f1 + lane], lanes[f2 + lane], lanes[v1 + lane], lanes[v2 + lane],
                           order)
-            if order == 2:
-                lanes[u2 + lane] = lanes[u1 + lane]
-                lanes[v2 + lane] = lanes[v1 + lane]
+            # whatever the order (order 1 never reads them): a store under a condition is a masked vector store,
+            # which the next step's load of the same lanes cannot take from the store buffer, and waits on
+            lanes[u2 + lane] = lanes[u1 + lane]
+            lanes[v2 + lane] = lanes[v1 + lane]
             lanes[u1 + lane] = a
             lanes[v1 + lane] = b
             if combine_max:
