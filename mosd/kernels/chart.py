@@ -20,8 +20,8 @@ A candidate's counts do not depend on the others in its block: each lane's
 arithmetic is its candidate's alone, so a population split any way gives the
 same counts. A block of fewer candidates computes only the lanes it needs (its
 candidates rounded up to :data:`_VECTOR`), so a caller may split a population
-into as many slices as it has threads: a slice of 6 to 8 costs about 0.7 of a
-full block, of 4 about 0.55, not a whole one (the rest is each step's latency).
+into as many slices as it has threads: a slice of 6 to 8 costs 0.6-0.75 of a
+full block, of 4 0.4-0.6, not a whole one (the rest is each step's latency).
 
 Each step reproduces the reference's arithmetic in its order (the recursion of
 ``ewma_time_major``, PyWavelets' sums via :mod:`mosd.kernels.wavelet`, NumPy's
@@ -144,7 +144,7 @@ _SEGMENT = 64
 #: vectorises the loop without interleaving copies of it (with a count it knew nothing of, it would: its vector
 #: body would take 16 lanes at once, and a block of 8 would run in scalar code); this is an AVX2 vector of
 #: float64. Measured (2 cores, AVX2, the main command's and the 20x workload), a block of 4 candidates costs
-#: ~0.5-0.6 of a full block, of 6-8 ~0.7: not less, as each time step's recursion then waits on its own latency
+#: 0.4-0.6 of a full block, of 6-8 0.6-0.75: not less, as each time step's recursion then waits on its latency
 #: (fewer independent lanes do not finish sooner). FusedChartEvaluation.lanes tells callers this number
 _VECTOR = 4
 #: the fields of the lanes' state, each _LANES values (field f of lane l at [f * _LANES + l]): one array indexed
