@@ -81,6 +81,30 @@ def test_counts_of_runs_in_threads_and_gives_the_same_counts():
     assert np.array_equal(np.concatenate([p[1] for p in parts]), misses)
 
 
+@pytest.mark.parametrize("chart_type, denoiser", [(SSDEWMA, None), (MDEWMA, None), (MaxEWMA, WaveletDenoiser())],
+                         ids=["ss", "order2", "max-wavelet"])
+def test_a_short_block_computes_every_candidate_of_its_slice(chart_type, denoiser):
+    """A block of fewer candidates than lanes computes only the lanes it needs (its candidates rounded up to
+    ``chart._VECTOR``): every slice length from one candidate to a block and one, at a block's start and past
+    it, gives the NumPy reference's objectives for its rows (a lane count rounded the wrong way, or state left
+    over from the previous block in a lane now used, would not)."""
+    evaluator = _evaluator(chart_type, denoiser, n_cal=2, n_train=3, n_points=97, seed=5)
+    fused = evaluator.fused()
+    assert fused is not None
+    assert fused.lanes == chart._VECTOR and chart._LANES % fused.lanes == 0
+    n = chart._LANES + 5
+    X = _population(n + 3, seed=9)
+    reference = evaluator.reference(X)
+    plan = fused.plan(X)
+    for start in (0, 3):
+        for length in range(1, n - start + 1):
+            counts = fused.counts_of(plan, start, start + length)
+            assert np.array_equal(fused.objectives(*counts), reference[start:start + length]), (start, length)
+    # a full block, then a short one in the same call: the short one's lanes held the full block's state
+    counts = fused.counts_of(plan, 3, 3 + chart._LANES + 2)
+    assert np.array_equal(fused.objectives(*counts), reference[3:5 + chart._LANES])
+
+
 @pytest.mark.parametrize("n_cal, n_points", [(1, 2), (1, 7), (2, 9), (1, 128), (3, 43), (2, 1000), (7, 333)])
 def test_the_streamed_pairwise_sums_give_the_reference_limit_for_any_number_of_points(n_cal, n_points):
     """The Phase-I mean and deviations, summed as the points come, in NumPy's pairwise order: blocks of fewer

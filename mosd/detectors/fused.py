@@ -73,10 +73,13 @@ class FusedChartEvaluation:
         self.wavelet_arguments = wavelet_plan.arguments(n_points) if self.denoise else ()
         self.combine_max = detector.combine == "max"
         self._kernel = chart.alarm_counts_denoised if self.denoise else chart.alarm_counts
-        #: candidates the kernel evaluates side by side: a slice of fewer costs as much as this many (the lanes
-        #: of a partial block are computed too; measured, 6 candidates took as long as 16), so a caller that
-        #: splits a population does best with slices of a multiple of it
-        self.lanes = chart._LANES
+        #: what a caller that splits a population should align its slices to: the kernel computes a slice's
+        #: candidates rounded up to a multiple of this many lanes (chart._VECTOR, 4), so a slice of fewer costs
+        #: as much as this many. A slice's cost grows with its lanes, plus a floor (each time step's latency):
+        #: measured on AVX2, 4 candidates 0.4-0.6 of a block of 16, 6-8 0.6-0.75, so per candidate a slice of 6
+        #: costs 1.5-2x one of 16. To fill n threads, cut a population into n slices (100 on 16 threads: 6-7
+        #: each, each 0.6-0.75 of a block, against 7 threads with a block each); no slice shorter than this many
+        self.lanes = chart._VECTOR
 
     def plan(self, X: np.ndarray) -> EvaluationPlan:
         """Every row of X validated (a bad design raises ``ConfigError`` naming its key) and turned into the

@@ -18,7 +18,10 @@ deviations are summed while the calibration points are produced (in NumPy's
 pairwise order, :func:`_accumulate`) and the training points scored as they are.
 A candidate's counts do not depend on the others in its block: each lane's
 arithmetic is its candidate's alone, so a population split any way gives the
-same counts.
+same counts. A block of fewer candidates computes only the lanes it needs (its
+candidates rounded up to :data:`_VECTOR`), so a caller may split a population
+into as many slices as it has threads: a slice of 6 to 8 costs 0.6-0.75 of a
+full block, of 4 0.4-0.6, not a whole one (the rest is each step's latency).
 
 Each step reproduces the reference's arithmetic in its order (the recursion of
 ``ewma_time_major``, PyWavelets' sums via :mod:`mosd.kernels.wavelet`, NumPy's
@@ -136,9 +139,17 @@ _LANES = 16
 #: time points of one run whose statistic is produced, then consumed (a (_SEGMENT, _LANES) scratch that stays in
 #: the first-level cache), before the next
 _SEGMENT = 64
+#: a block's lanes in use: its candidates rounded up to a multiple of this (the lanes beyond them compute zeros,
+#: never read). Each lane loop runs min(width, _LANES) trips: a count the compiler knows to be short, so it
+#: vectorises the loop without interleaving copies of it (with a count it knew nothing of, it would: its vector
+#: body would take 16 lanes at once, and a block of 8 would run in scalar code); this is an AVX2 vector of
+#: float64. Measured (2 cores, AVX2, the main command's and the 20x workload), a block of 4 candidates costs
+#: 0.4-0.6 of a full block, of 6-8 0.6-0.75: not less, as each time step's recursion then waits on its latency
+#: (fewer independent lanes do not finish sooner). FusedChartEvaluation.lanes tells callers this number
+_VECTOR = 4
 #: the fields of the lanes' state, each _LANES values (field f of lane l at [f * _LANES + l]): one array indexed
-#: with constant strides and loops of a constant _LANES trips, so the compiler sees that no two fields overlap
-#: and vectorises the lane loops without checking at run time whether they do (it would, at every time step)
+#: with constant strides, so the compiler sees that no two fields overlap (their distance is at least _LANES,
+#: a loop's most trips) and vectorises the lane loops without checking at run time whether they do
 _GAIN, _F1, _F2, _CENTER, _LIMIT, _U1, _U2, _V1, _V2, _ALARMS, _MISSES, _ACC = range(12)
 _STACK = _ACC + 9  # the pairwise sums' eight accumulators and NumPy's res, then the stack of finished sums
 _FIELDS = _STACK + 64
@@ -180,11 +191,12 @@ def _pairwise_leaves(n):
 
 
 @_helper
-def _statistics(u_run, v_run, k0, k1, order, combine_max, lanes, out, count, faulty, r):
+def _statistics(u_run, v_run, k0, k1, order, combine_max, lanes, width, out, count, faulty, r):
     """Points k0..k1−1 of one run's smoothed-and-combined statistic for the lanes' candidates, side by side.
 
     u_run, v_run: the run's U_k and V_k (K,); ``lanes``: the lanes' coefficients and the recursion's two past
-    values of both parts, carried from the previous call (from k0 = 0, the run's start, a zero state).
+    values of both parts, carried from the previous call (from k0 = 0, the run's start, a zero state), of
+    which the first ``width`` lanes are computed (:data:`_VECTOR`).
     Each value is :func:`mosd.kernels.ewma.ewma_step`'s (the one arithmetic of the charts), the combination
     the reference's: max(|U|, |V|) or U² + V². The statistic goes to out[k − k0, lane], or with ``count``
     is scored at once as training run ``r`` of ``faulty``: a healthy point above a lane's limit adds to its
@@ -195,7 +207,7 @@ def _statistics(u_run, v_run, k0, k1, order, combine_max, lanes, out, count, fau
     u1, u2, v1, v2 = _U1 * _LANES, _U2 * _LANES, _V1 * _LANES, _V2 * _LANES
     limit, alarms, misses = _LIMIT * _LANES, _ALARMS * _LANES, _MISSES * _LANES
     if k0 == 0:
-        for lane in range(_LANES):
+        for lane in range(width):
             lanes[u1 + lane] = 0.0
             lanes[u2 + lane] = 0.0
             lanes[v1 + lane] = 0.0
@@ -206,14 +218,15 @@ def _statistics(u_run, v_run, k0, k1, order, combine_max, lanes, out, count, fau
         x, w, i = u_run[k], v_run[k], k - k0
         target = 1.0 * faulty[r, k] if count else 0.0  # 1.0 at a target-fault point
         healthy = 1.0 - target
-        for lane in range(_LANES):
+        for lane in range(min(width, _LANES)):
             a = ewma_step(x, lanes[g + lane], lanes[f1 + lane], lanes[f2 + lane], lanes[u1 + lane], lanes[u2 + lane],
                           order)
             b = ewma_step(w, lanes[g + lane], lanes[f1 + lane], lanes[f2 + lane], lanes[v1 + lane], lanes[v2 + lane],
                           order)
-            if order == 2:
-                lanes[u2 + lane] = lanes[u1 + lane]
-                lanes[v2 + lane] = lanes[v1 + lane]
+            # whatever the order (order 1 never reads them): a store under a condition is a masked vector store,
+            # which the next step's load of the same lanes cannot take from the store buffer, and waits on
+            lanes[u2 + lane] = lanes[u1 + lane]
+            lanes[v2 + lane] = lanes[v1 + lane]
             lanes[u1 + lane] = a
             lanes[v1 + lane] = b
             if combine_max:
@@ -230,7 +243,7 @@ def _statistics(u_run, v_run, k0, k1, order, combine_max, lanes, out, count, fau
 
 
 @_helper
-def _accumulate(points, n_points, deviations, lanes, cursor, sizes, joins):
+def _accumulate(points, n_points, deviations, lanes, width, cursor, sizes, joins):
     """Add the next ``n_points`` rows of ``points`` (n, lanes) to each lane's pairwise sum, NumPy's, as they come.
 
     The values of a lane arrive in the order of the flat array NumPy would sum (calibration run by run, each
@@ -242,10 +255,10 @@ def _accumulate(points, n_points, deviations, lanes, cursor, sizes, joins):
     partial sums; ``cursor`` (block, position in it, stack depth) carries the place between calls: zeros
     start a sum. After the last value, field STACK is each lane's sum.
     """
-    # the lanes' count as the compiler cannot know it: with the constant _LANES it would unroll these short loops
-    # first, then fail to pack the copies into vectors (points and lanes might overlap, as far as it knows);
-    # with a count known only at run time, each loop is one vector loop behind one overlap check
-    width = lanes.shape[0] // _FIELDS
+    # the lanes' count known only at run time (with the constant _LANES the compiler would unroll these short
+    # loops first, then fail to pack the copies into vectors: points and lanes might overlap, as far as it knows),
+    # but at most _LANES, so that each loop is one vector loop of a vector's lanes per trip (_VECTOR)
+    width = min(width, _LANES)
     block, j, depth = cursor[0], cursor[1], cursor[2]
     if block == sizes.shape[0]:
         return
@@ -255,26 +268,59 @@ def _accumulate(points, n_points, deviations, lanes, cursor, sizes, joins):
     if j == 0:
         for lane in range(width):
             lanes[res + lane] = 0.0
-    for i in range(n_points):
-        slot = (_ACC + (j % 8 if j < stop else 8)) * _LANES
-        if j < 8 and stop > 0:  # an accumulator's first value: set, as NumPy does (not 0.0 + x: −0.0 stays)
+    a = _ACC * _LANES
+    i = 0
+    while i < n_points:
+        if j >= 8 and j % 8 == 0 and j + 8 <= stop and i + 8 <= n_points:
+            # eight values at once, one to each accumulator, as NumPy's loop adds them: the same sums, with the
+            # lane loop's start-up (and its overlap check) paid once per eight values, not per value
             if deviations:
                 for lane in range(width):
-                    d = points[i, lane] - lanes[center + lane]
-                    lanes[slot + lane] = d * d
+                    c = lanes[center + lane]
+                    d0, d1 = points[i, lane] - c, points[i + 1, lane] - c
+                    d2, d3 = points[i + 2, lane] - c, points[i + 3, lane] - c
+                    d4, d5 = points[i + 4, lane] - c, points[i + 5, lane] - c
+                    d6, d7 = points[i + 6, lane] - c, points[i + 7, lane] - c
+                    lanes[a + lane] += d0 * d0
+                    lanes[a + _LANES + lane] += d1 * d1
+                    lanes[a + 2 * _LANES + lane] += d2 * d2
+                    lanes[a + 3 * _LANES + lane] += d3 * d3
+                    lanes[a + 4 * _LANES + lane] += d4 * d4
+                    lanes[a + 5 * _LANES + lane] += d5 * d5
+                    lanes[a + 6 * _LANES + lane] += d6 * d6
+                    lanes[a + 7 * _LANES + lane] += d7 * d7
             else:
                 for lane in range(width):
-                    lanes[slot + lane] = points[i, lane]
-        elif deviations:
-            for lane in range(width):
-                d = points[i, lane] - lanes[center + lane]
-                lanes[slot + lane] += d * d
+                    lanes[a + lane] += points[i, lane]
+                    lanes[a + _LANES + lane] += points[i + 1, lane]
+                    lanes[a + 2 * _LANES + lane] += points[i + 2, lane]
+                    lanes[a + 3 * _LANES + lane] += points[i + 3, lane]
+                    lanes[a + 4 * _LANES + lane] += points[i + 4, lane]
+                    lanes[a + 5 * _LANES + lane] += points[i + 5, lane]
+                    lanes[a + 6 * _LANES + lane] += points[i + 6, lane]
+                    lanes[a + 7 * _LANES + lane] += points[i + 7, lane]
+            i += 8
+            j += 8
         else:
-            for lane in range(width):
-                lanes[slot + lane] += points[i, lane]
-        j += 1
+            slot = (_ACC + (j % 8 if j < stop else 8)) * _LANES
+            if j < 8 and stop > 0:  # an accumulator's first value: set, as NumPy does (not 0.0 + x: −0.0 stays)
+                if deviations:
+                    for lane in range(width):
+                        d = points[i, lane] - lanes[center + lane]
+                        lanes[slot + lane] = d * d
+                else:
+                    for lane in range(width):
+                        lanes[slot + lane] = points[i, lane]
+            elif deviations:
+                for lane in range(width):
+                    d = points[i, lane] - lanes[center + lane]
+                    lanes[slot + lane] += d * d
+            else:
+                for lane in range(width):
+                    lanes[slot + lane] += points[i, lane]
+            i += 1
+            j += 1
         if j == stop:
-            a = _ACC * _LANES
             for lane in range(width):
                 lanes[res + lane] = (((lanes[a + lane] + lanes[a + _LANES + lane])
                                       + (lanes[a + 2 * _LANES + lane] + lanes[a + 3 * _LANES + lane]))
@@ -302,14 +348,14 @@ def _accumulate(points, n_points, deviations, lanes, cursor, sizes, joins):
 
 
 @_helper
-def _count(points, n_points, truth, k0, lanes):
+def _count(points, n_points, truth, k0, lanes, width):
     """Add points k0.. of one training run (rows of ``points``, (n, lanes)) to each lane's counts: healthy
     points above the lane's limit to field ALARMS, target-fault points not above it to field MISSES (from
     k0 = 0, the run's start, zeroed first; counted in floats, exact far beyond any run's length). Lane by
     lane, each lane's counts in registers: stored per point, they would be reloaded after every store (the
     compiler cannot tell that ``points`` and ``lanes`` never overlap)."""
     limit, alarms, misses = _LIMIT * _LANES, _ALARMS * _LANES, _MISSES * _LANES
-    for lane in range(_LANES):
+    for lane in range(width):
         bound = lanes[limit + lane]
         healthy_alarms = 0.0 if k0 == 0 else lanes[alarms + lane]
         faulty_misses = 0.0 if k0 == 0 else lanes[misses + lane]
@@ -381,7 +427,8 @@ def alarm_counts(u, v, n_calibration, gains, feedback, widths, combine_max, faul
     -------
     healthy_alarms, faulty_misses : int64 (P, R_train)
 
-    Candidates go through in blocks of :data:`_LANES`, each run's points in segments of :data:`_SEGMENT`;
+    Candidates go through in blocks of :data:`_LANES` (the last one's lanes rounded up to :data:`_VECTOR`
+    candidates: a short slice costs its lanes, not a full block's), each run's points in segments of :data:`_SEGMENT`;
     no statistic is kept beyond a segment: the Phase-I limit's mean and deviations are summed as the
     calibration points are produced (the recursion runs twice over the calibration runs, which is cheaper
     than writing and reading them back), then each training point is scored as it is produced.
@@ -398,20 +445,21 @@ def alarm_counts(u, v, n_calibration, gains, feedback, widths, combine_max, faul
     sizes, joins = _pairwise_leaves(n_values)
     for p0 in range(0, feedback.shape[0], _LANES):
         n_lanes = _lanes(gains, feedback, widths, p0, lanes)
+        width = (n_lanes + _VECTOR - 1) // _VECTOR * _VECTOR
         # the Phase-I limit E{l} + K·sd{l} (Chart.fit_statistic): the mean, then the squared deviations from it
         for deviations in range(2):
             cursor[0], cursor[1], cursor[2] = 0, 0, 0
             for c in range(n_calibration):
                 for k0 in range(0, n_points, _SEGMENT):
                     k1 = min(n_points, k0 + _SEGMENT)
-                    _statistics(u[c], v[c], k0, k1, order, combine_max, lanes, points, scored, faulty, c)
-                    _accumulate(points, k1 - k0, deviations == 1, lanes, cursor, sizes, joins)
+                    _statistics(u[c], v[c], k0, k1, order, combine_max, lanes, width, points, scored, faulty, c)
+                    _accumulate(points, k1 - k0, deviations == 1, lanes, width, cursor, sizes, joins)
             _limits(lanes, n_values, deviations == 1)
         for r in range(n_columns - n_calibration):
             for k0 in range(0, n_points, _SEGMENT):
                 k1 = min(n_points, k0 + _SEGMENT)
-                _statistics(u[n_calibration + r], v[n_calibration + r], k0, k1, order, combine_max, lanes, points,
-                            not scored, faulty, r)
+                _statistics(u[n_calibration + r], v[n_calibration + r], k0, k1, order, combine_max, lanes, width,
+                            points, not scored, faulty, r)
             for lane in range(n_lanes):
                 healthy_alarms[p0 + lane, r] = lanes[_ALARMS * _LANES + lane]
                 faulty_misses[p0 + lane, r] = lanes[_MISSES * _LANES + lane]
@@ -442,8 +490,9 @@ def alarm_counts_denoised(u, v, n_calibration, gains, feedback, widths, combine_
     work = np.empty(work_size(n_points, lo.shape[0], level))
     for p0 in range(0, feedback.shape[0], _LANES):
         n_lanes = _lanes(gains, feedback, widths, p0, lanes)
+        width = (n_lanes + _VECTOR - 1) // _VECTOR * _VECTOR
         for c in range(n_columns):
-            _statistics(u[c], v[c], start, n_points, order, combine_max, lanes, raw, scored, faulty, c)
+            _statistics(u[c], v[c], start, n_points, order, combine_max, lanes, width, raw, scored, faulty, c)
             target = kept[c] if c < n_calibration else plotted
             for lane in range(n_lanes):
                 for k in range(n_points):
@@ -455,11 +504,11 @@ def alarm_counts_denoised(u, v, n_calibration, gains, feedback, widths, combine_
                 for deviations in range(2):
                     cursor[0], cursor[1], cursor[2] = 0, 0, 0
                     for cal in range(n_calibration):
-                        _accumulate(kept[cal], n_points, deviations == 1, lanes, cursor, sizes, joins)
+                        _accumulate(kept[cal], n_points, deviations == 1, lanes, width, cursor, sizes, joins)
                     _limits(lanes, n_values, deviations == 1)
             elif c >= n_calibration:
                 r = c - n_calibration
-                _count(plotted, n_points, faulty[r], start, lanes)
+                _count(plotted, n_points, faulty[r], start, lanes, width)
                 for lane in range(n_lanes):
                     healthy_alarms[p0 + lane, r] = lanes[_ALARMS * _LANES + lane]
                     faulty_misses[p0 + lane, r] = lanes[_MISSES * _LANES + lane]
