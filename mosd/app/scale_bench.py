@@ -132,8 +132,8 @@ def thread_ceiling(setup, evaluator, n_threads: int, repeats: int = 15) -> float
     """The speed-up of the bare evaluation on ``n_threads`` threads: what the machine gives, before any optimiser.
 
     One population of the set-up's size (uniform in the box, seed 0) is evaluated whole on one
-    thread, then cut into at most ``n_threads`` parts of whole kernel blocks (as the tuning cuts it),
-    evaluated at once, one per thread (this one and the tuning's own pool threads, already started),
+    thread, then cut into at most ``n_threads`` parts, none shorter than the kernel's lanes (as the tuning
+    cuts it), evaluated at once, one per thread (this one and the tuning's own pool threads, already started),
     with nothing between them: no optimiser step. Fastest of ``repeats`` each. The ratio is
     the most a threaded tuning of this workload can reach on this machine (cores shared with
     another hardware thread, memory bandwidth and clock boost all enter it); None when the
@@ -148,10 +148,9 @@ def thread_ceiling(setup, evaluator, n_threads: int, repeats: int = 15) -> float
         fused = evaluator.fused()
         pop = int(getattr(setup.algorithm, "pop_size", 100) or 100)
         X = problem.round(np.random.default_rng(0).uniform(problem.xl, problem.xu, size=(pop, problem.n_var)))
-        # whole blocks of the kernel's lanes, as the tuning cuts a population (TuningProblem._evaluate_in_threads)
+        # cut as the tuning cuts a population (TuningProblem._evaluate_in_threads): no part below the kernel's lanes
         lanes = max(1, int(getattr(fused, "lanes", 1)))
-        blocks = np.array_split(np.arange(-(-X.shape[0] // lanes)), min(n_threads, -(-X.shape[0] // lanes)))
-        parts = [X[lanes * b[0]:lanes * (b[-1] + 1)] for b in blocks]
+        parts = np.array_split(X, min(n_threads, max(1, X.shape[0] // lanes)))
         fused(X)  # compiled kernels loaded
 
         pool = _thread_pool(n_threads - 1)

@@ -199,8 +199,6 @@ def worker_pool(n_jobs: int, warm: bool = False):
 
 
 _THREADS: dict = {"pool": None, "size": 0}
-#: chunks per thread in a threaded evaluation (see TuningProblem._evaluate_in_threads)
-_CHUNKS_PER_THREAD = 2
 #: what one chunk costs beyond its work: a round trip on a worker's socket (pickle, write, wake-up, read;
 #: 0.15-0.2 ms on the project's 2-core machine, against 0.5-0.6 ms for a loky task) and a thread hand-over
 PROCESS_CHUNK_OVERHEAD_S = 1e-4
@@ -398,12 +396,14 @@ class TuningProblem(Problem):
         return self._pipes
 
     def _evaluate_in_threads(self, X: np.ndarray) -> tuple[np.ndarray, float]:
-        """The compiled kernel on slices of the population that this thread and ``n_jobs − 1`` pool threads
-        take in turn; the rest of the evaluation once, here.
+        """The compiled kernel on one slice of the population per thread (this one and ``n_jobs − 1`` pool
+        threads); the rest of the evaluation once, here.
 
-        Candidates do not cost the same (the wavelet's threshold search depends on the
-        design), so a few slices per thread, taken as each thread gets free, balance the
-        load better than one each. Only the kernel, which releases the GIL, runs in the
+        One slice per thread, as long as it can be: the kernel computes a slice's candidates
+        side by side in vector lanes (:attr:`FusedChartEvaluation.lanes
+        <mosd.detectors.fused.FusedChartEvaluation.lanes>`), so per candidate a short slice
+        costs more than a long one (6 candidates 1.5–2× what 16 cost), and no slice is cut
+        shorter than the lanes. Only the kernel, which releases the GIL, runs in the
         slices: the designs' validation and coefficients (:meth:`FusedChartEvaluation.plan
         <mosd.detectors.fused.FusedChartEvaluation.plan>`) and the objectives from the
         counts are computed once per population, not once per slice, since every thread
@@ -411,17 +411,15 @@ class TuningProblem(Problem):
         as long as the kernel's work).
         """
         fused = self.evaluator.fused()
-        # the kernel takes candidates a block of ``lanes`` at a time, side by side: a slice of part of a
-        # block costs a whole block, so slices are whole blocks (the last may be short)
         lanes = max(1, int(getattr(fused, "lanes", 1)))
-        blocks = -(-X.shape[0] // lanes)
-        n_slices = min(blocks, self.n_chunks(X.shape[0], THREAD_CHUNK_OVERHEAD_S, _CHUNKS_PER_THREAD * self.n_jobs))
+        n_slices = min(self.n_jobs, max(1, X.shape[0] // lanes),
+                       self.n_chunks(X.shape[0], THREAD_CHUNK_OVERHEAD_S, self.n_jobs))
         if n_slices == 1:
             return timed_call(self.evaluator, X)
         t0 = time.perf_counter()
         plan = fused.plan(X)
-        size, longer = divmod(blocks, n_slices)  # blocks per slice: the first ``longer`` slices one block more
-        edges = np.minimum(lanes * np.cumsum([0] + [size + 1] * longer + [size] * (n_slices - longer)), X.shape[0])
+        size, longer = divmod(X.shape[0], n_slices)  # np.array_split's slices: the first ``longer`` one row longer
+        edges = np.cumsum([0] + [size + 1] * longer + [size] * (n_slices - longer))
         counts: list = [None] * n_slices
         seconds = [0.0] * n_slices
         taken = itertools.count()  # next() on it is atomic: each slice goes to exactly one thread
