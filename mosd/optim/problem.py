@@ -41,7 +41,6 @@ a local one of ``n_jobs`` workers started for the problem, or the scheduler at
 from __future__ import annotations
 
 import functools
-import itertools
 import os
 import pickle
 import tempfile
@@ -216,6 +215,15 @@ def _thread_pool(n_threads: int):
             _THREADS["pool"].shutdown(wait=True)
         _THREADS.update(pool=ThreadPoolExecutor(n_threads, thread_name_prefix="mosd-evaluate"), size=n_threads)
     return _THREADS["pool"]
+
+
+def thread_slices(fused, n_rows: int, most: int) -> np.ndarray:
+    """Edges of the slices a threaded evaluation cuts ``n_rows`` candidates into: at most ``most``, none shorter
+    than the fused kernel's lanes (:attr:`FusedChartEvaluation.lanes`), sized as ``np.array_split`` sizes them."""
+    lanes = max(1, int(getattr(fused, "lanes", 1)))
+    n_slices = max(1, min(most, n_rows // lanes))
+    size, longer = divmod(n_rows, n_slices)  # the first ``longer`` slices one row longer
+    return np.cumsum([0] + [size + 1] * longer + [size] * (n_slices - longer))
 
 
 def uses_threads(detector, objectives, n_jobs: int, backend: str = "loky") -> bool:
@@ -411,37 +419,24 @@ class TuningProblem(Problem):
         as long as the kernel's work).
         """
         fused = self.evaluator.fused()
-        lanes = max(1, int(getattr(fused, "lanes", 1)))
-        n_slices = min(self.n_jobs, max(1, X.shape[0] // lanes),
-                       self.n_chunks(X.shape[0], THREAD_CHUNK_OVERHEAD_S, self.n_jobs))
-        if n_slices == 1:
+        edges = thread_slices(fused, X.shape[0], self.n_chunks(X.shape[0], THREAD_CHUNK_OVERHEAD_S, self.n_jobs))
+        if len(edges) == 2:
             return timed_call(self.evaluator, X)
         t0 = time.perf_counter()
         plan = fused.plan(X)
-        size, longer = divmod(X.shape[0], n_slices)  # np.array_split's slices: the first ``longer`` one row longer
-        edges = np.cumsum([0] + [size + 1] * longer + [size] * (n_slices - longer))
-        counts: list = [None] * n_slices
-        seconds = [0.0] * n_slices
-        taken = itertools.count()  # next() on it is atomic: each slice goes to exactly one thread
         planned = time.perf_counter() - t0
 
-        def work():
-            for index in taken:
-                if index >= n_slices:
-                    return
-                started = time.perf_counter()
-                counts[index] = fused.counts_of(plan, int(edges[index]), int(edges[index + 1]))
-                seconds[index] = time.perf_counter() - started
+        def slice_counts(index: int):
+            started = time.perf_counter()
+            counts = fused.counts_of(plan, int(edges[index]), int(edges[index + 1]))
+            return counts, time.perf_counter() - started
 
-        n_helpers = min(self.n_jobs, n_slices) - 1
-        futures = [_thread_pool(self.n_jobs - 1).submit(work) for _ in range(n_helpers)]
-        work()
-        for future in futures:
-            future.result()
+        futures = [_thread_pool(self.n_jobs - 1).submit(slice_counts, index) for index in range(1, len(edges) - 1)]
+        done = [slice_counts(0)] + [future.result() for future in futures]
         t1 = time.perf_counter()
-        F = fused.objectives(np.concatenate([alarms for alarms, _ in counts], axis=0),
-                             np.concatenate([misses for _, misses in counts], axis=0))
-        return F, planned + float(sum(seconds)) + (time.perf_counter() - t1)
+        F = fused.objectives(np.concatenate([alarms for (alarms, _), _ in done], axis=0),
+                             np.concatenate([misses for (_, misses), _ in done], axis=0))
+        return F, planned + sum(seconds for _, seconds in done) + (time.perf_counter() - t1)
 
     def close(self) -> None:
         """Delete the evaluator file the workers load and shut down the Dask client/cluster this problem started.
