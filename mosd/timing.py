@@ -1,4 +1,4 @@
-"""Wall-clock timing for the benchmark sections (``python -m mosd.bench``)."""
+"""Wall-clock timing: the benchmark sections' (``python -m mosd.bench``) and an evaluation's own seconds."""
 import time
 from typing import Callable
 
@@ -15,3 +15,13 @@ def best_of(fn: Callable[[], object], repeats: int) -> float:
         fn()
         times.append(time.perf_counter() - start)
     return min(times)
+
+
+def timed_call(fn: Callable, *args):
+    """``fn(*args)`` and the seconds it took, where it ran (a chunk's evaluation in a worker, a thread, here).
+
+    The evaluation part of :class:`mosd.optim.problem.EvaluationClock`, for every backend.
+    """
+    start = time.perf_counter()
+    result = fn(*args)
+    return result, time.perf_counter() - start

@@ -1,7 +1,8 @@
 """Every private part of another library that mosd uses, checked against the installed version.
 
-Each is reached through one adapter (:mod:`mosd.app.compat`, :mod:`mosd.optim.workers`);
-these tests fail, naming the adapter, when an upgrade moves or changes what it relies on.
+Each is reached through one adapter (:mod:`mosd.app.compat`, :mod:`mosd.optim.workers`, and Dask's
+in :mod:`mosd.optim.backends`); these tests fail, naming the adapter, when an upgrade moves or changes
+what it relies on.
 """
 from __future__ import annotations
 
@@ -154,3 +155,20 @@ def test_no_private_call_outside_the_adapters():
              for n, line in enumerate(path.read_text().splitlines(), 1)
              if private.search(line.split("#")[0])]
     assert not found, found
+
+
+def test_the_dask_backend_calls_what_the_installed_distributed_serves():
+    """A worker's ``actor_execute`` handler and its keywords, the scheduler's ``proxy`` handler and the client's
+    connection pool ``Client.rpc``: :class:`mosd.optim.backends.DaskEvaluation` calls an actor's method through
+    them rather than through ``distributed.Actor`` (one message per worker, no thread hand-over)."""
+    import inspect
+
+    from distributed import Client
+    from distributed.scheduler import Scheduler
+    from distributed.worker import Worker
+
+    assert {"actor", "function", "args", "kwargs"} <= set(inspect.signature(Worker.actor_execute).parameters)
+    assert '"actor_execute": self.actor_execute' in inspect.getsource(Worker.__init__)
+    assert {"msg", "worker"} <= set(inspect.signature(Scheduler.proxy).parameters)
+    assert '"proxy": self.proxy' in inspect.getsource(Scheduler.__init__)
+    assert "self.rpc = ConnectionPool(" in inspect.getsource(Client.__init__)

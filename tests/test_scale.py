@@ -53,6 +53,29 @@ def test_archive_is_bit_identical_for_every_n_jobs(evaluators, path):
         assert clock.calls == 4 and 0.0 < clock.compute_s / n_jobs <= clock.wall_s * 1.05
 
 
+def test_threads_are_dealt_the_population_and_give_each_row_its_own_objectives(evaluators):
+    """Slice j of a threaded evaluation holds rows j, j + n, … (a population's rows are not in random order, and a
+    design's cost depends on it), sized as :func:`thread_slices` cuts; every row gets the objectives it gets alone."""
+    from mosd.optim.problem import dealt, thread_slices
+
+    evaluator = evaluators["threads"]
+    fused = evaluator.fused()
+    order = dealt(23, 3)
+    assert sorted(order) == list(range(23))
+    edges = thread_slices(fused, 23, 3)
+    assert [sorted(order[a:b] % 3) for a, b in zip(edges[:-1], edges[1:])] == [[j] * (b - a) for j, (a, b) in
+                                                                              enumerate(zip(edges[:-1], edges[1:]))]
+    # λ rising with the row, as in a population whose later rows are one kind of move
+    X = np.column_stack([np.linspace(0.02, 0.98, 23), np.random.default_rng(5).uniform(0.0, 5.0, 23)])
+    problem = TuningProblem(evaluator, bounds={"K": (0.0, 5.0)}, n_jobs=3)
+    try:
+        assert problem.in_threads
+        F = problem.evaluate_population(X)
+    finally:
+        problem.close()
+    np.testing.assert_array_equal(F, np.vstack([evaluator(X[i:i + 1]) for i in range(23)]))
+
+
 def test_cheap_populations_are_not_split_and_give_the_same_objectives(evaluators, monkeypatch):
     evaluator = evaluators["processes"]
     X = np.random.default_rng(4).uniform([0.01, 0.0], [0.99, 5.0], size=(10, 2))

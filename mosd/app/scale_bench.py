@@ -139,7 +139,7 @@ def thread_ceiling(setup, evaluator, n_threads: int, repeats: int = 15) -> float
     another hardware thread, memory bandwidth and clock boost all enter it); None when the
     workload does not evaluate on threads.
     """
-    from ..optim.problem import TuningProblem, _thread_pool, thread_slices
+    from ..optim.problem import TuningProblem, _thread_pool, dealt, thread_slices
 
     problem = TuningProblem(evaluator, bounds=setup.bounds, n_jobs=max(2, n_threads))
     try:
@@ -148,9 +148,10 @@ def thread_ceiling(setup, evaluator, n_threads: int, repeats: int = 15) -> float
         fused = evaluator.fused()
         pop = int(getattr(setup.algorithm, "pop_size", 100) or 100)
         X = problem.round(np.random.default_rng(0).uniform(problem.xl, problem.xu, size=(pop, problem.n_var)))
-        # cut as the tuning cuts a population (TuningProblem._evaluate_in_threads)
+        # cut as the tuning cuts a population (TuningProblem._evaluate_in_threads): dealt, then sliced
         edges = thread_slices(fused, X.shape[0], n_threads)
-        parts = [X[start:stop] for start, stop in zip(edges[:-1], edges[1:])]
+        dealt_X = X[dealt(X.shape[0], len(edges) - 1)]
+        parts = [dealt_X[start:stop] for start, stop in zip(edges[:-1], edges[1:])]
         fused(X)  # compiled kernels loaded
 
         pool = _thread_pool(n_threads - 1)

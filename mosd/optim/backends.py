@@ -32,6 +32,7 @@ from urllib.parse import urlsplit
 
 import numpy as np
 
+from ..timing import timed_call
 from ..validation import ConfigError
 
 #: The evaluation backends (``optimizer.backend``).
@@ -191,9 +192,7 @@ class _ResidentEvaluator:
         self._thread = None
 
     def _timed(self, X: np.ndarray) -> tuple[np.ndarray, float]:
-        t0 = time.perf_counter()
-        F = self.evaluator(X)
-        seconds = time.perf_counter() - t0
+        F, seconds = timed_call(self.evaluator, X)
         self.per_candidate_s = seconds / max(1, X.shape[0])
         return F, seconds
 
