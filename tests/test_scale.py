@@ -44,13 +44,14 @@ def _tune(evaluator, n_jobs, backend="loky", n_gen=4):
 @pytest.mark.parametrize("path", ["threads", "processes"])
 def test_archive_is_bit_identical_for_every_n_jobs(evaluators, path):
     X1, F1, clock = _tune(evaluators[path], 1)
-    assert clock.calls == 4 and clock.candidates == 4 * 12
+    assert clock.calls == 4 and clock.candidates == 4 * 12 and clock.split == 0
     for n_jobs in (2, 3):
         X, F, clock = _tune(evaluators[path], n_jobs)
         np.testing.assert_array_equal(X, X1)
         np.testing.assert_array_equal(F, F1)
         # the clock accounts for the evaluation: compute spread over n_jobs fits in the wall it took
         assert clock.calls == 4 and 0.0 < clock.compute_s / n_jobs <= clock.wall_s * 1.05
+        assert 1 <= clock.split <= 4  # the first population, its cost not yet measured, is split
 
 
 def test_threads_are_dealt_the_population_and_give_each_row_its_own_objectives(evaluators):

@@ -125,6 +125,7 @@ def time_tuning(setup, evaluator, n_jobs: int, n_gen: int, backend: str = "loky"
             "wall_per_gen_s": wall / generations, "serial_per_gen_s": (wall - clock.wall_s) / generations,
             "dispatch_per_gen_s": max(0.0, clock.wall_s - evaluation) / generations,
             "evaluation_per_gen_s": evaluation / generations, "candidates": clock.candidates,
+            "split": clock.split,
             "X": np.atleast_2d(result.X), "F": np.atleast_2d(result.F)}
 
 
@@ -213,7 +214,8 @@ def bench_workload(name: str, quick: bool = False, cpus: int | None = None) -> t
         note = (f"wall/gen {1e3 * run['wall_per_gen_s']:.2f} ms = serial {1e3 * run['serial_per_gen_s']:.2f} "
                 f"+ dispatch/gather {1e3 * run['dispatch_per_gen_s']:.2f} + evaluation "
                 f"{1e3 * run['evaluation_per_gen_s']:.2f} ms; serial share {share:.1%}; efficiency "
-                f"{speedup / run['n_jobs']:.0%}; identical {int(identical)}; start {run['start_s']:.2f} s")
+                f"{speedup / run['n_jobs']:.0%}; identical {int(identical)}; start {run['start_s']:.2f} s; "
+                f"split {run['split']} of {run['generations']} populations")
         rows.append((f"{label} speed-up vs n_jobs=1", speedup, note))
         if run["backend"] == "dask":
             loky = next(r for r in runs if r["n_jobs"] == run["n_jobs"] and r["backend"] == "loky")

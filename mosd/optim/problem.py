@@ -160,6 +160,8 @@ class EvaluationClock:
         process or thread, a Dask worker, this thread). ``compute_s / n_jobs`` is the
         evaluation a perfect split would take; ``wall_s`` minus that is dispatch, gather and
         load imbalance.
+    split : int
+        Populations evaluated in more than one part (a cheap one is not split: :meth:`TuningProblem.n_chunks`).
     """
 
     def __init__(self):
@@ -167,12 +169,14 @@ class EvaluationClock:
         self.candidates = 0
         self.wall_s = 0.0
         self.compute_s = 0.0
+        self.split = 0
 
-    def add(self, candidates: int, wall_s: float, compute_s: float) -> None:
+    def add(self, candidates: int, wall_s: float, compute_s: float, parts: int = 1) -> None:
         self.calls += 1
         self.candidates += int(candidates)
         self.wall_s += wall_s
         self.compute_s += compute_s
+        self.split += int(parts > 1)
 
 
 def worker_pool(n_jobs: int, warm: bool = False):
@@ -292,7 +296,7 @@ class TuningProblem(Problem):
         self.is_integer = np.array([tunable[name].integer for name in self.names], bool)
         super().__init__(n_var=len(self.names), n_obj=len(evaluator.objectives), xl=np.array(xl), xu=np.array(xu),
                          exclude_from_serialization=["evaluator", "_payload", "_pipes", "_dask", "in_threads",
-                                                     "clock"])
+                                                     "clock", "_parts"])
         self._payload: str | None = None
         self._pipes = None  # the WorkerPipes of the process path, opened at the first split population
         self._dask = None  # the DaskEvaluation of backend="dask", started on first use
@@ -300,6 +304,7 @@ class TuningProblem(Problem):
         self.clock = EvaluationClock()
         # measured seconds per candidate (the last population's): sizes the process chunks
         self._per_candidate_s: float | None = None
+        self._parts = 1  # the parts the last population was evaluated in (the clock counts the split ones)
 
     @property
     def objectives(self) -> tuple[str, ...]:
@@ -343,6 +348,7 @@ class TuningProblem(Problem):
         """
         X = np.atleast_2d(X)
         t0 = time.perf_counter()
+        self._parts = self.n_jobs if self.backend == "dask" else 1
         if self.backend == "dask":
             if self._dask is None:
                 from .backends import DaskEvaluation
@@ -355,7 +361,7 @@ class TuningProblem(Problem):
             F, compute = self._evaluate_in_threads(X)
         else:
             F, compute = self._evaluate_in_processes(X)
-        self.clock.add(X.shape[0], time.perf_counter() - t0, compute)
+        self.clock.add(X.shape[0], time.perf_counter() - t0, compute, self._parts)
         if X.shape[0]:
             self._per_candidate_s = compute / X.shape[0]
         return F
@@ -380,6 +386,7 @@ class TuningProblem(Problem):
         read from this thread: a generation costs no pool task and no thread hand-over.
         """
         chunks = np.array_split(X, self.n_chunks(X.shape[0], PROCESS_CHUNK_OVERHEAD_S, self.n_jobs))
+        self._parts = len(chunks)
         if len(chunks) == 1:
             return timed_call(self.evaluator, X)
         pipes = self._worker_pipes()
@@ -427,6 +434,7 @@ class TuningProblem(Problem):
         """
         fused = self.evaluator.fused()
         edges = thread_slices(fused, X.shape[0], self.n_chunks(X.shape[0], THREAD_CHUNK_OVERHEAD_S, self.n_jobs))
+        self._parts = len(edges) - 1
         if len(edges) == 2:
             return timed_call(self.evaluator, X)
         t0 = time.perf_counter()
