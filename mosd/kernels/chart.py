@@ -55,59 +55,49 @@ def _pairwise_sum(a, start, n):
 
     NumPy recurses: sum(a[:h]) + sum(a[h:]) with h = n//2 rounded down to a
     multiple of 8, down to blocks of at most 128, each summed with eight
-    accumulators, then the rest. The recursion runs here on an explicit stack
-    (numba's on-disk cache mishandles recursive functions), and the block's sum
-    is written once, in the loop, not as a function of its own (each compiled
-    function costs the cold cache its own optimisation and code generation).
+    accumulators, then the rest. The recursion's blocks and joins are
+    :func:`_pairwise_leaves`' (numba's on-disk cache mishandles recursive
+    functions); here each block is summed as it comes and the partial sums are
+    joined on a stack. The block's sum is written once, in the loop, not as a
+    function of its own (each compiled function costs the cold cache its own
+    optimisation and code generation).
     """
-    starts = np.empty(128, np.int64)
-    sizes = np.empty(128, np.int64)
-    combine = np.zeros(128, np.bool_)
-    values = np.empty(128)
-    top = 1
-    starts[0], sizes[0], combine[0] = start, n, False
+    sizes, joins = _pairwise_leaves(n)
+    values = np.empty(sizes.shape[0])
     depth = 0
-    while top > 0:
-        top -= 1
-        s, m, joining = starts[top], sizes[top], combine[top]
-        if joining:
+    s = start
+    for leaf in range(sizes.shape[0]):
+        m = sizes[leaf]
+        if m < 8:  # a block: NumPy's eight accumulators, then the rest
+            res = 0.0
+            for i in range(s, s + m):
+                res += a[i]
+        else:
+            r0, r1, r2, r3 = a[s], a[s + 1], a[s + 2], a[s + 3]
+            r4, r5, r6, r7 = a[s + 4], a[s + 5], a[s + 6], a[s + 7]
+            i = 8
+            stop = m - m % 8
+            while i < stop:
+                b = s + i
+                r0 += a[b]
+                r1 += a[b + 1]
+                r2 += a[b + 2]
+                r3 += a[b + 3]
+                r4 += a[b + 4]
+                r5 += a[b + 5]
+                r6 += a[b + 6]
+                r7 += a[b + 7]
+                i += 8
+            res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+            while i < m:
+                res += a[s + i]
+                i += 1
+        values[depth] = res
+        depth += 1
+        s += m
+        for _ in range(joins[leaf]):  # left + right, as the recursion returns
             depth -= 1
             values[depth - 1] = values[depth - 1] + values[depth]
-        elif m <= _BLOCK:  # a block: NumPy's eight accumulators, then the rest
-            if m < 8:
-                res = 0.0
-                for i in range(s, s + m):
-                    res += a[i]
-            else:
-                r0, r1, r2, r3 = a[s], a[s + 1], a[s + 2], a[s + 3]
-                r4, r5, r6, r7 = a[s + 4], a[s + 5], a[s + 6], a[s + 7]
-                i = 8
-                stop = m - m % 8
-                while i < stop:
-                    b = s + i
-                    r0 += a[b]
-                    r1 += a[b + 1]
-                    r2 += a[b + 2]
-                    r3 += a[b + 3]
-                    r4 += a[b + 4]
-                    r5 += a[b + 5]
-                    r6 += a[b + 6]
-                    r7 += a[b + 7]
-                    i += 8
-                res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
-                while i < m:
-                    res += a[s + i]
-                    i += 1
-            values[depth] = res
-            depth += 1
-        else:
-            half = m // 2
-            half -= half % 8
-            # popped in reverse: the left half first, then the right, then their sum
-            starts[top], sizes[top], combine[top] = s, m, True
-            starts[top + 1], sizes[top + 1], combine[top + 1] = s + half, m - half, False
-            starts[top + 2], sizes[top + 2], combine[top + 2] = s, half, False
-            top += 3
     return values[0]
 
 
@@ -160,8 +150,8 @@ def _pairwise_leaves(n):
     """The shape of NumPy's pairwise summation of n values (:func:`_pairwise_sum`), for summing them as they come.
 
     Returns ``sizes`` (the blocks of at most 128 values that are summed on their own, in order) and ``joins``
-    (after each block, how many times the two topmost partial sums are added: left + right). The traversal is
-    :func:`_pairwise_sum`'s, recording what it does instead of summing.
+    (after each block, how many times the two topmost partial sums are added: left + right): NumPy's recursion,
+    run on an explicit stack, recording what it does instead of summing (:func:`_pairwise_sum` replays it).
     """
     # a block (a leaf of the recursion) of a split has at least 64 values, so n // 64 + 1 bound their number
     sizes = np.zeros(n // 64 + 1, np.int64)
