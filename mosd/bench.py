@@ -52,7 +52,8 @@ with bibmon installed, ``bibmon_predict_rows_per_s``, ``monitor_speedup_vs_bibmo
 ``bibmon_spe_agrees`` (1: the two SPEs agree to 1e-9 relative), and per family f in ica, kpca, autoencoder
 ``tep_candidates_per_s_f``, ``tep_fit_score_s_f``, ``tep_library_fit_transform_s_f``
 (:func:`bench_tep_nonlinear`); ``serve`` adds ``serve_latency_ms`` and ``serve_latency_p90_ms``;
-``scale`` adds ``scale_speedup_<workload>_<n>``, ``scale_serial_share_<workload>``, ``scale_identical_<workload>``,
+``scale`` adds ``scale_speedup_<workload>_<n>``, ``scale_compute_inflation_<workload>_<n>``,
+``scale_serial_share_<workload>``, ``scale_identical_<workload>``,
 ``scale_dask_vs_loky_<workload>``, ``scale_sweep_speedup`` and ``scale_load_average_1min``.
 """
 from __future__ import annotations

@@ -207,3 +207,18 @@ def test_a_local_cluster_started_ahead_is_adopted_or_discarded(evaluators):
     cluster = backends._EARLY[2].result()
     backends.discard_local_clusters()  # nobody took it: closed
     assert not backends._EARLY and cluster.status.name == "closed"
+
+
+@pytest.mark.slow
+def test_the_scale_section_reports_each_workload_s_keys():
+    """``python -m mosd.bench --only scale``'s figures of one workload at n_jobs 1 and 2, and on Dask at 2: speed-ups,
+    the compute the parts took against one worker's (same candidates: the archives are identical), the serial
+    share and the machine's ceiling."""
+    rows, figures = scale_bench.bench_workload("threads", quick=True, cpus=2)
+    assert figures["scale_speedup_threads_1"] == 1.0 and figures["scale_speedup_threads_2"] > 0
+    assert figures["scale_identical_threads"] == 1
+    assert 0.0 < figures["scale_serial_share_threads"] < 1.0
+    # two threads computed the same candidates: their summed compute is at least most of one thread's
+    assert figures["scale_compute_inflation_threads_2"] > 0.5
+    assert figures["scale_dask_vs_loky_threads"] > 0 and figures["scale_thread_ceiling_threads_2"] > 0
+    assert any("compute x" in note and "split" in note for _, _, note in rows)

@@ -21,9 +21,10 @@ tunings on the same pool or cluster each). Per generation it
 reports the wall time, the optimiser's own serial time (everything outside the evaluation:
 archive, operators, selection; pymoo's bookkeeping), dispatch and gather (the evaluation's wall
 time less a perfect split of its compute time: pipes, pickling, waiting on the slowest chunk) and
-the evaluation itself (the compute time over n). ``serial share`` is the optimiser's part of one
-n_jobs=1 generation: Amdahl's serial fraction, the bound 1/share on any speed-up. Every n must
-give the archive of n_jobs=1 bit for bit (``identical``).
+the evaluation itself (the compute time over n), and the compute time at n against n_jobs=1's for
+the same candidates (``compute x``: how much the parts computed at once slowed each other down).
+``serial share`` is the optimiser's part of one n_jobs=1 generation: Amdahl's serial fraction, the
+bound 1/share on any speed-up. Every n must give the archive of n_jobs=1 bit for bit (``identical``).
 
 Then a sweep of 2 × CPUs jobs of the main command, one after the other and with the joblib
 launcher running CPUs jobs at once (each job's thread pools pinned to its share of the cores).
@@ -211,9 +212,13 @@ def bench_workload(name: str, quick: bool = False, cpus: int | None = None) -> t
         identical = bool(np.array_equal(run["X"], one["X"]) and np.array_equal(run["F"], one["F"]))
         label = f"{name}: n_jobs={run['n_jobs']}" + (" dask" if run["backend"] == "dask" else "")
         share = run["serial_per_gen_s"] / run["wall_per_gen_s"]
+        # the same candidates (identical archives) computed in parts at once against in one process: above 1, the
+        # parts slowed each other down (shared cores, caches, memory bandwidth), which no dispatch can remove
+        inflation = run["evaluation_per_gen_s"] * run["n_jobs"] / max(one["evaluation_per_gen_s"], 1e-12)
         note = (f"wall/gen {1e3 * run['wall_per_gen_s']:.2f} ms = serial {1e3 * run['serial_per_gen_s']:.2f} "
                 f"+ dispatch/gather {1e3 * run['dispatch_per_gen_s']:.2f} + evaluation "
-                f"{1e3 * run['evaluation_per_gen_s']:.2f} ms; serial share {share:.1%}; efficiency "
+                f"{1e3 * run['evaluation_per_gen_s']:.2f} ms; compute x{inflation:.2f} of one worker's; "
+                f"serial share {share:.1%}; efficiency "
                 f"{speedup / run['n_jobs']:.0%}; identical {int(identical)}; start {run['start_s']:.2f} s; "
                 f"split {run['split']} of {run['generations']} populations")
         rows.append((f"{label} speed-up vs n_jobs=1", speedup, note))
@@ -224,6 +229,8 @@ def bench_workload(name: str, quick: bool = False, cpus: int | None = None) -> t
             figures[f"scale_dask_start_s_{name}"] = run["start_s"]
         else:
             figures[f"scale_speedup_{name}_{run['n_jobs']}"] = speedup
+            if run["n_jobs"] > 1:
+                figures[f"scale_compute_inflation_{name}_{run['n_jobs']}"] = inflation
         figures[f"scale_identical_{name}"] = int(identical and figures.get(f"scale_identical_{name}", 1))
     figures[f"scale_serial_share_{name}"] = serial_share
     for n_threads in (sorted({2, cpus}) if cpus > 1 else []):
