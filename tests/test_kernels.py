@@ -166,3 +166,22 @@ def test_a_chart_without_a_denoiser_never_compiles_the_wavelet(tmp_path):
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600, env=env)
     assert out.returncode == 0, out.stderr[-2000:]
     assert json.loads(out.stdout.strip().splitlines()[-1]) == [1, 0]
+
+
+@pytest.mark.parametrize("shape", [(3, 40), (4, 7, 50), (2, 5, 3, 30), (5, 1, 1)])
+def test_the_compiled_persistence_rule_is_the_reference(shape):
+    """mosd.kernels.decisions.persistence behind detectors.base.persistent gives the NumPy counting's booleans:
+    lengths from 1 to beyond the run, any number of leading axes, a strided input."""
+    from mosd.detectors.base import persistent
+
+    rng = np.random.default_rng(len(shape))
+    condition = rng.random(shape) < rng.uniform(0.2, 0.95)
+    condition[0] = True  # one design's every point, then a run of any length
+    lengths = rng.integers(1, shape[-1] + 3, shape[0])
+    lengths[-1] = 1
+    for given, length in ((condition, lengths), (condition[..., ::-1], lengths), (condition, 2)):
+        compiled = persistent(given, length)
+        with kernels.disabled():
+            reference = persistent(given, length)
+        assert compiled.dtype == reference.dtype == bool and compiled.shape == reference.shape
+        np.testing.assert_array_equal(compiled, reference)

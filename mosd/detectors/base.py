@@ -22,6 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .. import kernels
 from ..validation import Component
 
 
@@ -109,10 +110,19 @@ def persistent(condition: np.ndarray, length: np.ndarray | int) -> np.ndarray:
     condition : ndarray of bool, shape (P, ..., K)
     length : int or ndarray of int, shape (P,)
         The persistence L >= 1 per design (a rule against isolated false alarms).
+
+    Compiled (:mod:`mosd.kernels.decisions`: one pass per row, no integer arrays); the NumPy
+    counting below is the reference, used with the kernels off.
     """
     condition = np.asarray(condition, bool)
     lengths = np.broadcast_to(np.asarray(length, int), condition.shape[:1])
-    # run length of consecutive True ending at k, by cumulative counting
+    if condition.ndim >= 2 and condition.size and kernels.enabled():
+        from ..kernels.decisions import persistence
+
+        rows = np.ascontiguousarray(condition).reshape(condition.shape[0], -1, condition.shape[-1])
+        runs = persistence(rows, np.ascontiguousarray(lengths, dtype=np.int64), np.empty(rows.shape, bool))
+        return runs.reshape(condition.shape)
+    # run length of consecutive True ending at k, by cumulative counting (the reference)
     counts = np.cumsum(condition, axis=-1)
     reset = np.where(~condition, counts, 0)
     run = counts - np.maximum.accumulate(reset, axis=-1)

@@ -1,6 +1,6 @@
 """Compiled (numba) kernels for the hot loops, with the NumPy code kept as the reference.
 
-The first four modules reproduce NumPy code of the science core operation for
+The first five modules reproduce NumPy code of the science core operation for
 operation, in the same order of floating-point additions, so that their results are
 bit-identical to the reference (``tests/test_kernels.py`` and ``tests/test_plant.py``
 check equality, not a tolerance); the last three are close, not identical:
@@ -13,6 +13,8 @@ check equality, not a tolerance); the last three are close, not identical:
 * :mod:`mosd.kernels.chart` — the fused candidate evaluation of a mean–variance
   chart (recursion, denoising, Phase-I limit, alarm counts for FAR/MDR), which
   materialises no (P, R, K) array;
+* :mod:`mosd.kernels.decisions` — the persistence rule of
+  :func:`mosd.detectors.base.persistent` (L consecutive points), one pass per row;
 * :mod:`mosd.kernels.plants` — the closed-loop simulation of the mould oscillator
   (:class:`mosd.plants.MouldOscillator`) and the plants' physics at one point
   (``TRANSITIONS``: what :mod:`mosd.kernels.cubature` dispatches on);
@@ -30,7 +32,7 @@ check equality, not a tolerance); the last three are close, not identical:
 Compiled code is cached on disk (``cache=True``), so only the first run on a
 machine pays the compilation, and only for the kernels it calls (numba compiles a
 function when it is first called); the app hands those a run calls last to a second
-process that compiles them meanwhile (:mod:`mosd.kernels.ahead`). ``python -m mosd.kernels`` compiles all seven
+process that compiles them meanwhile (:mod:`mosd.kernels.ahead`). ``python -m mosd.kernels`` compiles all eight
 modules ahead (a machine image, a cluster's shared cache); the set-up does not need it. The NumPy path is used when numba is missing, when
 ``MOSD_KERNELS=numpy`` is set, or inside :func:`disabled` (how the tests and
 ``python -m mosd.bench`` compare the two in one process).
@@ -123,7 +125,7 @@ def configure_compiler() -> None:
 
 
 #: every kernel module, and those a candidate evaluation (an optimiser's worker) needs
-MODULES = ("ewma", "wavelet", "chart", "plants", "cubature", "imm", "entropy")
+MODULES = ("ewma", "wavelet", "chart", "plants", "cubature", "imm", "entropy", "decisions")
 EVALUATION_MODULES = ("ewma", "chart")  # the wavelet's chart kernel compiles when a run first denoises
 
 
