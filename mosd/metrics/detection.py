@@ -21,7 +21,7 @@ def _alarms(decisions: np.ndarray) -> np.ndarray:
 def false_alarm_rate(alarms: np.ndarray, fault_mask: np.ndarray) -> np.ndarray:
     """FAR = share of points without the target fault that raise an alarm (eq. 32)."""
     alarms = _alarms(alarms)
-    healthy = ~np.broadcast_to(fault_mask, alarms.shape)
+    healthy = np.broadcast_to(~np.asarray(fault_mask, bool), alarms.shape)
     return _share(alarms & healthy, healthy)
 
 
@@ -110,9 +110,10 @@ def role_alarm_rate(alarms: np.ndarray, fault_label: np.ndarray, fault_roles, ro
     active). NaN for runs without such points.
     """
     alarms = _alarms(alarms)
-    label = np.broadcast_to(np.asarray(fault_label), alarms.shape)
     codes = [i + 1 for i, r in enumerate(fault_roles) if r == role]
-    points = np.isin(label, codes)
+    # the role's points of each run, then broadcast over the designs: np.isin over the (P, R, K) broadcast was
+    # 43 % of paper 002's candidate evaluation
+    points = np.broadcast_to(np.isin(np.asarray(fault_label), codes), alarms.shape)
     return _share(alarms & points, points)
 
 
