@@ -89,3 +89,26 @@ def test_points_that_are_not_mode_probabilities_or_labels_of_the_wrong_length_ar
         ModeProbabilityDetector().decide(Z[..., :1], Z[..., :1])
     with pytest.raises(ConfigError, match="detector.labels has 3 entries; allowed: 2"):
         ModeProbabilityDetector(labels=[1, 2, 3]).decide(Z, Z)
+
+
+def test_the_declared_fault_is_numpys_argmax_over_the_models_on_ties_and_gaps():
+    """The population declares, among the fault models that hold, the most probable one, the first of equal ones
+    (np.argmax over the models, which it no longer calls): against that rule written out on 2-4 models."""
+    from mosd.detectors.base import persistent
+    from mosd.detectors.mode_probability import ModeProbabilityDetector
+
+    rng = np.random.default_rng(11)
+    for n_models in (2, 3, 4):
+        mu = rng.dirichlet(np.ones(n_models), size=(5, 60))
+        mu[:, 10:25, 1:] = 0.3  # the fault models tie
+        mu[:, 40, 1] = np.nan   # a missing point breaks a run
+        X = np.column_stack([rng.uniform(0.05, 0.6, 7), rng.integers(1, 5, 7)])
+        detector = ModeProbabilityDetector()
+        decision = detector.population(None, mu, X).decision
+        faults = np.moveaxis(mu[..., 1:], -1, -2)
+        lengths = detector.tunable["persistence"].round(X[:, 1], clip=True).astype(int)
+        held = persistent(faults[None] > X[:, 0, None, None, None], lengths)
+        score = np.where(held, faults[None], -1.0)
+        expected = np.where(held.any(axis=-2), np.argmax(score, axis=-2) + 1, 0)
+        np.testing.assert_array_equal(decision, expected)
+        assert (decision > 0).any() and (decision == 0).any()
