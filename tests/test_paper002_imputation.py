@@ -89,3 +89,37 @@ def test_imputer_without_gaps_returns_the_data_and_windows_are_lags():
     np.testing.assert_array_equal(lag_windows(y, 3)[1, 2], [8.0, 9.0, 10.0])
     with pytest.raises(ConfigError, match="estimator.imputer.half_width"):
         EMImputer(half_width=0)
+
+
+def test_conditional_moments_share_each_replications_solve_and_em_its_pattern_groups():
+    """The gain and conditional covariance are solved once per replication and pattern, and EM finds the
+    missingness patterns once: the same fill, corrections and estimates as one solve per row (computed here)."""
+    from mosd.estimators.imputation import _pattern_groups
+
+    rng = np.random.default_rng(8)
+    X = rng.standard_normal((4, 60, 3)).cumsum(axis=1)
+    X[rng.random(X.shape) < 0.3] = np.nan
+    X[0, :2] = np.nan
+    mean = rng.standard_normal((4, 3))
+    A = rng.standard_normal((4, 3, 3))
+    cov = A @ np.swapaxes(A, 1, 2) + np.eye(3)
+    filled, correction = conditional_moments(X, mean, cov)
+    for r in range(4):
+        for k in range(60):
+            missing = np.isnan(X[r, k])
+            if not missing.any():
+                continue
+            obs = ~missing
+            S = cov[r]
+            if obs.any():
+                gain = np.linalg.solve(S[np.ix_(obs, obs)], S[np.ix_(missing, obs)].T).T
+                expected = mean[r, missing] + gain @ (X[r, k, obs] - mean[r, obs])
+                expected_c = S[np.ix_(missing, missing)] - gain @ S[np.ix_(missing, obs)].T
+            else:
+                expected, expected_c = mean[r, missing], S[np.ix_(missing, missing)]
+            np.testing.assert_allclose(filled[r, k, missing], expected, rtol=1e-12, atol=1e-12)
+            np.testing.assert_allclose(correction[r, k][np.ix_(missing, missing)], expected_c, rtol=1e-12, atol=1e-12)
+    groups = list(_pattern_groups(np.isnan(X)))
+    again = conditional_moments(X, mean, cov, groups)
+    np.testing.assert_array_equal(again[0], filled)
+    np.testing.assert_array_equal(again[1], correction)
