@@ -29,10 +29,15 @@ check equality, not a tolerance); the last three are close, not identical:
   the particle pairs with no (N, N) array; not bit-identical (another order of
   summation, a vectorised exp): ~1e-15 of the size of the summed terms.
 
+and one with its own order: :mod:`mosd.kernels.projection` — the PCA projection and the
+T²/SPE scores of :mod:`mosd.detectors.pca`, each sum in a fixed order whatever the number
+of rows scored together (a BLAS product's last bits depend on it), so the tuning and the
+deployed model give the same numbers.
+
 Compiled code is cached on disk (``cache=True``), so only the first run on a
 machine pays the compilation, and only for the kernels it calls (numba compiles a
 function when it is first called); the app hands those a run calls last to a second
-process that compiles them meanwhile (:mod:`mosd.kernels.ahead`). ``python -m mosd.kernels`` compiles all eight
+process that compiles them meanwhile (:mod:`mosd.kernels.ahead`). ``python -m mosd.kernels`` compiles all nine
 modules ahead (a machine image, a cluster's shared cache); the set-up does not need it. The NumPy path is used when numba is missing, when
 ``MOSD_KERNELS=numpy`` is set, or inside :func:`disabled` (how the tests and
 ``python -m mosd.bench`` compare the two in one process).
@@ -125,7 +130,7 @@ def configure_compiler() -> None:
 
 
 #: every kernel module, and those a candidate evaluation (an optimiser's worker) needs
-MODULES = ("ewma", "wavelet", "chart", "plants", "cubature", "imm", "entropy", "decisions")
+MODULES = ("ewma", "wavelet", "chart", "plants", "cubature", "imm", "entropy", "decisions", "projection")
 EVALUATION_MODULES = ("ewma", "chart")  # the wavelet's chart kernel compiles when a run first denoises
 
 
