@@ -72,10 +72,11 @@ def conditional_moments(X: np.ndarray, mean: np.ndarray, cov: np.ndarray, groups
         if obs.any():
             S_oo = S[:, obs][:, :, obs]
             S_mo = S[:, pattern][:, :, obs]
-            dev = X[rep, row][:, obs] - mu[of_row][:, obs]
+            mu_rows = mu[of_row]                           # (m, d): each row's replication's mean
+            dev = X[rep, row][:, obs] - mu_rows[:, obs]
             # Σ_MO Σ_OO⁻¹ through a solve with the symmetric Σ_OO: (Σ_OO⁻¹ Σ_OM)ᵀ
             gain = np.swapaxes(np.linalg.solve(S_oo, np.swapaxes(S_mo, 1, 2)), 1, 2)
-            x_m = mu[of_row][:, pattern] + np.einsum("mij,mj->mi", gain[of_row], dev)
+            x_m = mu_rows[:, pattern] + np.einsum("mij,mj->mi", gain[of_row], dev)
             c_mm = (S_mm - gain @ np.swapaxes(S_mo, 1, 2))[of_row]
         else:
             x_m, c_mm = mu[of_row][:, pattern], S_mm[of_row]

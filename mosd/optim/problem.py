@@ -296,7 +296,7 @@ class TuningProblem(Problem):
         self.is_integer = np.array([tunable[name].integer for name in self.names], bool)
         super().__init__(n_var=len(self.names), n_obj=len(evaluator.objectives), xl=np.array(xl), xu=np.array(xu),
                          exclude_from_serialization=["evaluator", "_payload", "_pipes", "_dask", "in_threads",
-                                                     "clock", "_parts"])
+                                                     "clock"])
         self._payload: str | None = None
         self._pipes = None  # the WorkerPipes of the process path, opened at the first split population
         self._dask = None  # the DaskEvaluation of backend="dask", started on first use
@@ -304,7 +304,6 @@ class TuningProblem(Problem):
         self.clock = EvaluationClock()
         # measured seconds per candidate (the last population's): sizes the process chunks
         self._per_candidate_s: float | None = None
-        self._parts = 1  # the parts the last population was evaluated in (the clock counts the split ones)
 
     @property
     def objectives(self) -> tuple[str, ...]:
@@ -348,20 +347,19 @@ class TuningProblem(Problem):
         """
         X = np.atleast_2d(X)
         t0 = time.perf_counter()
-        self._parts = self.n_jobs if self.backend == "dask" else 1
         if self.backend == "dask":
             if self._dask is None:
                 from .backends import DaskEvaluation
 
                 self._dask = DaskEvaluation(self.evaluator, self.n_jobs, self.dask_address)
-            F, compute = self._dask.evaluate_timed(X)
+            (F, compute), parts = self._dask.evaluate_timed(X), self.n_jobs
         elif self.n_jobs == 1 or X.shape[0] < 2:
-            F, compute = timed_call(self.evaluator, X)
+            (F, compute), parts = timed_call(self.evaluator, X), 1
         elif self.in_threads:
-            F, compute = self._evaluate_in_threads(X)
+            F, compute, parts = self._evaluate_in_threads(X)
         else:
-            F, compute = self._evaluate_in_processes(X)
-        self.clock.add(X.shape[0], time.perf_counter() - t0, compute, self._parts)
+            F, compute, parts = self._evaluate_in_processes(X)
+        self.clock.add(X.shape[0], time.perf_counter() - t0, compute, parts)
         if X.shape[0]:
             self._per_candidate_s = compute / X.shape[0]
         return F
@@ -379,16 +377,16 @@ class TuningProblem(Problem):
         worth = n_candidates * self._per_candidate_s / (CHUNK_WORK_FACTOR * per_chunk_overhead_s)
         return int(max(1, min(most, worth)))
 
-    def _evaluate_in_processes(self, X: np.ndarray) -> tuple[np.ndarray, float]:
-        """The first chunk in this process, the others on the pool's workers (their evaluator resident).
+    def _evaluate_in_processes(self, X: np.ndarray) -> tuple[np.ndarray, float, int]:
+        """The first chunk in this process, the others on the pool's workers (their evaluator resident);
+        the objectives, the compute seconds and the number of chunks.
 
         Each worker is reached by a pipe of its own (:class:`~mosd.optim.pipes.WorkerPipes`), written and
         read from this thread: a generation costs no pool task and no thread hand-over.
         """
         chunks = np.array_split(X, self.n_chunks(X.shape[0], PROCESS_CHUNK_OVERHEAD_S, self.n_jobs))
-        self._parts = len(chunks)
         if len(chunks) == 1:
-            return timed_call(self.evaluator, X)
+            return (*timed_call(self.evaluator, X), 1)
         pipes = self._worker_pipes()
         others = range(len(chunks) - 1)
         for index in others:
@@ -402,7 +400,7 @@ class TuningProblem(Problem):
             F, seconds = answers[index]
             parts.append(F)
             compute += seconds
-        return np.concatenate(parts, axis=0), compute
+        return np.concatenate(parts, axis=0), compute, len(chunks)
 
     def _worker_pipes(self):
         """The pipes to the pool's ``n_jobs − 1`` workers, each holding this problem's evaluator (opened once)."""
@@ -417,7 +415,7 @@ class TuningProblem(Problem):
                                       self._payload)
         return self._pipes
 
-    def _evaluate_in_threads(self, X: np.ndarray) -> tuple[np.ndarray, float]:
+    def _evaluate_in_threads(self, X: np.ndarray) -> tuple[np.ndarray, float, int]:
         """The compiled kernel on one slice of the population per thread (this one and ``n_jobs − 1`` pool
         threads); the rest of the evaluation once, here.
 
@@ -434,9 +432,8 @@ class TuningProblem(Problem):
         """
         fused = self.evaluator.fused()
         edges = thread_slices(fused, X.shape[0], self.n_chunks(X.shape[0], THREAD_CHUNK_OVERHEAD_S, self.n_jobs))
-        self._parts = len(edges) - 1
         if len(edges) == 2:
-            return timed_call(self.evaluator, X)
+            return (*timed_call(self.evaluator, X), 1)
         t0 = time.perf_counter()
         order = dealt(X.shape[0], len(edges) - 1)
         plan = fused.plan(X[order])
@@ -454,7 +451,7 @@ class TuningProblem(Problem):
                                    np.concatenate([misses for (_, misses), _ in done], axis=0))
         F = np.empty_like(dealt_F)
         F[order] = dealt_F
-        return F, planned + sum(seconds for _, seconds in done) + (time.perf_counter() - t1)
+        return F, planned + sum(seconds for _, seconds in done) + (time.perf_counter() - t1), len(edges) - 1
 
     def close(self) -> None:
         """Delete the evaluator file the workers load and shut down the Dask client/cluster this problem started.
