@@ -185,3 +185,36 @@ def test_the_compiled_persistence_rule_is_the_reference(shape):
             reference = persistent(given, length)
         assert compiled.dtype == reference.dtype == bool and compiled.shape == reference.shape
         np.testing.assert_array_equal(compiled, reference)
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_the_compiled_latent_ewma_is_lfilter(seed):
+    """mosd.kernels.latent.smooth_rows behind ewma_from and smoothed_values gives SciPy lfilter's bits (the
+    reference with the kernels off): missing and infinite points, zeros (their sign too), λ = 1, tiny λ, a
+    carried state, a strided statistic, one and three axes."""
+    from mosd.detectors.latent import ewma_from, smoothed_values
+
+    rng = np.random.default_rng(seed)
+    shape = [(int(rng.integers(1, 30)), int(rng.integers(1, 200))), (int(rng.integers(1, 300)),),
+             (2, 3, int(rng.integers(1, 50)))][seed % 3]
+    x = rng.standard_normal(shape) * 10.0 ** rng.uniform(-6, 6)
+    if seed % 2:
+        x[rng.random(shape) < 0.1] = np.nan
+    if seed % 5 == 0:
+        x[rng.random(shape) < 0.05] = np.inf
+    if seed % 7 == 0:
+        x = -np.abs(x)
+        x[..., :3] = 0.0
+    lam = (float(rng.uniform(0.01, 1.0)), 1.0, 0.5, 1e-3)[seed % 4]
+    start = float(rng.standard_normal()) if seed % 3 else 0.0
+    previous = None if seed % 4 == 1 else float(rng.standard_normal())
+    strided = np.stack([x, x + 1.0], axis=-1)[..., 0]  # a family's statistic: one of several stacked
+    for given in (x, strided):
+        compiled = (ewma_from(given, lam, start, previous), smoothed_values(given, lam, start))
+        with kernels.disabled():
+            reference = (ewma_from(given, lam, start, previous), smoothed_values(given, lam, start))
+        for a, b in zip(compiled, reference):
+            assert a.shape == b.shape == x.shape
+            np.testing.assert_array_equal(a, b)
+            assert np.array_equal(np.signbit(a), np.signbit(b))
+    assert np.isnan(smoothed_values(x, lam, start)[~np.isfinite(x)]).all()

@@ -12,7 +12,7 @@ from pymoo.operators.repair.to_bound import set_to_bounds_if_outside
 from pymoo.optimize import minimize
 from pymoo.problems import get_problem
 
-from mosd.optim.archive import GridArchive, _all_objectives, _front_of_two, dominance_matrix
+from mosd.optim.archive import GridArchive, _all_objectives, _front_of_two, dominance_matrix, eq37_removal_counts
 from mosd.optim.mopso import MOPSO, polynomial_steps, sbx_pairs, to_bounds
 
 
@@ -154,3 +154,37 @@ def test_the_array_path_through_a_generation_is_the_population_path(name, preset
     last = fast.algorithm.pop
     assert {id(ind) for ind in fast.algorithm.leader_archive.members} & {id(ind) for ind in last} == \
         {id(ind) for ind in fast.algorithm.leader_archive.members if ind.get("n_gen") == n_gen}
+
+
+def one_removal_at_a_time(occupancy, capacity, tie_break=None, removable=None):
+    """Eq. 37's step 2 as the loop it replaced: one Python-level pass per leftover removal."""
+    occupancy = np.asarray(occupancy, dtype=int)
+    removed = eq37_removal_counts(occupancy, capacity, tie_break, removable, leftover=False)
+    excess = int(occupancy.sum()) - capacity
+    tie = np.zeros(len(occupancy)) if tie_break is None else np.asarray(tie_break, dtype=float)
+    cap = occupancy if removable is None else np.minimum(np.asarray(removable, dtype=int), occupancy)
+    if cap.sum() < excess:
+        cap = occupancy
+    rank = np.empty(len(occupancy), dtype=int)
+    rank[np.lexsort((np.arange(len(occupancy)), -tie))] = np.arange(len(occupancy))
+    for _ in range(max(0, excess - int(removed.sum()))):
+        crowd = np.where(removed < cap, occupancy - removed, -1)
+        tied = np.flatnonzero(crowd == crowd.max())
+        removed[tied[np.argmin(rank[tied])]] += 1
+    return removed
+
+
+@pytest.mark.parametrize("seed", range(300))
+def test_eq37_leftover_is_the_one_at_a_time_walk(seed):
+    rng = np.random.default_rng(seed)
+    n_cells = int(rng.integers(1, 60))
+    # few distinct occupancies and tie values, so that crowds and ties repeat
+    occupancy = rng.integers(1, int(rng.integers(2, 12)), n_cells)
+    size = int(occupancy.sum())
+    capacity = int(rng.integers(0, size + 2))
+    tie = None if seed % 3 == 0 else rng.integers(0, 3, n_cells).astype(float)
+    removable = None if seed % 2 else rng.integers(0, 12, n_cells)
+    expected = one_removal_at_a_time(occupancy, capacity, tie, removable)
+    counts = eq37_removal_counts(occupancy, capacity, tie, removable)
+    assert np.array_equal(counts, expected)
+    assert counts.sum() == max(0, size - capacity)

@@ -37,7 +37,7 @@ deployed model give the same numbers.
 Compiled code is cached on disk (``cache=True``), so only the first run on a
 machine pays the compilation, and only for the kernels it calls (numba compiles a
 function when it is first called); the app hands those a run calls last to a second
-process that compiles them meanwhile (:mod:`mosd.kernels.ahead`). ``python -m mosd.kernels`` compiles all nine
+process that compiles them meanwhile (:mod:`mosd.kernels.ahead`). ``python -m mosd.kernels`` compiles all ten
 modules ahead (a machine image, a cluster's shared cache); the set-up does not need it. The NumPy path is used when numba is missing, when
 ``MOSD_KERNELS=numpy`` is set, or inside :func:`disabled` (how the tests and
 ``python -m mosd.bench`` compare the two in one process).
@@ -130,7 +130,7 @@ def configure_compiler() -> None:
 
 
 #: every kernel module, and those a candidate evaluation (an optimiser's worker) needs
-MODULES = ("ewma", "wavelet", "chart", "plants", "cubature", "imm", "entropy", "decisions", "projection")
+MODULES = ("ewma", "wavelet", "chart", "plants", "cubature", "imm", "entropy", "decisions", "projection", "latent")
 EVALUATION_MODULES = ("ewma", "chart")  # the wavelet's chart kernel compiles when a run first denoises
 
 
