@@ -190,3 +190,29 @@ def test_the_side_processes_start_early_only_with_a_core_to_spare(monkeypatch):
     state["runnable"] = 1
     monkeypatch.setattr(plots, "usable_cpus", lambda: 1)  # one CPU: the checks take it
     assert not mosd.app.spare_core()
+
+
+def test_a_studys_figures_are_a_figure_job_drawn_beside_the_runs_with_the_same_files(tmp_path):
+    """The app hands a study's figures to its figure process (plots.study_figures) instead of drawing them in the
+    run's process: drawn beside the run's figures by a second drawer, they are the files write_figures draws."""
+    from types import SimpleNamespace
+
+    from mosd.systems import cli, paper000
+
+    experiment = cli.preset("paper000", ["seed=2", "budget.n_calibration=2", "budget.n_train=2",
+                                         "budget.n_test=4"]).experiment
+    detector = experiment.detector.with_params(**paper000.PAPER_PRESETS["SS-DEWMA"]["offset_var"])
+    study = paper000.Study(n_runs=4)
+    metrics, data = study.measure(experiment, SimpleNamespace(detector=detector, params={}))
+    assert metrics["ss_dewma_far"] == metrics["far"]
+    serial, parallel = tmp_path / "serial", tmp_path / "parallel"
+    serial.mkdir(), parallel.mkdir()
+    expected = study.write_figures(data, serial)
+    jobs = [*_jobs(parallel), ("study_figures", {"study": study, "data": data, "out_dir": parallel})]
+    assert [4] in plots.shares(jobs, 2)  # the study alone on one drawer
+    paths = plots.draw_in_parallel(jobs, 2)
+    assert paths[:4] == [parallel / n for n in ("pareto.png", "chart.png", "residual.png", "history.png")]
+    assert paths[4:] == [parallel / p.name for p in expected] and expected
+    for path in paths[4:]:
+        assert path.read_bytes() == (serial / path.name).read_bytes(), path.name
+    assert plots.draw(jobs[4:]) == paths[4:]  # one process: the same paths, flattened

@@ -14,7 +14,7 @@ can be written, that lists what the directory lacks.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable, Mapping
+from typing import TYPE_CHECKING, Any, Callable, Mapping, Sequence
 
 import numpy as np
 from hydra.experimental.callback import Callback
@@ -56,13 +56,15 @@ def lacking(run_dir: Path, expected: list[Path]) -> list[str]:
 
 def write_run_files(run_dir: Path, cfg, result, setup: Setup, labels: Mapping[str, str],
                     study: Mapping[str, float] | None = None, figures=None,
-                    on_text_files: Callable[[list[Path]], None] | None = None) -> list[Path]:
+                    on_text_files: Callable[[list[Path]], None] | None = None,
+                    extra_figures: Sequence[tuple[str, dict]] = ()) -> list[Path]:
     """Resolved config, Pareto set and history as CSV, summary JSON and the PNG plots.
 
     ``figures``: a :class:`mosd.app.plots.FigureWriter` (started with the run) that
     draws the PNGs in its side process while this writes the other files; None
     draws them here. ``on_text_files`` is called with the text files once they
     are written, before the figures are waited for (MLflow takes them meanwhile).
+    ``extra_figures``: more figure jobs drawn with the run's (a study's: :func:`mosd.app.plots.study_figures`).
     """
     from omegaconf import OmegaConf
 
@@ -72,7 +74,7 @@ def write_run_files(run_dir: Path, cfg, result, setup: Setup, labels: Mapping[st
     F = result.archive_F
     objectives = list(result.objectives)
     # the figures first: they are the slow part, drawn while the text files are written
-    jobs = figure_jobs(run_dir, result, setup, labels)
+    jobs = [*figure_jobs(run_dir, result, setup, labels), *extra_figures]
     if figures is not None:
         figures.submit(jobs)
     written = []

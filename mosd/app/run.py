@@ -197,12 +197,15 @@ def run(cfg, started: float | None = None, checked=None):
                                       dask_address=setup.dask_address)
         progress.close()
         timings.update(result.timings)
-        study_metrics, study_files = {}, []
+        study_metrics, study_figures = {}, []
         writing = True
         if setup.study is not None:
             t0 = time.perf_counter()
             run_dir.mkdir(parents=True, exist_ok=True)
-            study_metrics, study_files = setup.study.run(setup.experiment, result, run_dir)
+            study_metrics, study_data = setup.study.measure(setup.experiment, result)
+            if setup.study.figures:
+                # drawn by the figure process with the run's own figures, while this process writes the files
+                study_figures = [("study_figures", {"study": setup.study, "data": study_data, "out_dir": run_dir})]
             result.timings["study_s"] = timings["study_s"] = time.perf_counter() - t0
         test_metrics = final_metrics(result, result.example["seconds_per_point"])
         # a study metric named like a test metric (paper 003's far, scored its own way; paper 000's with
@@ -233,7 +236,7 @@ def run(cfg, started: float | None = None, checked=None):
                                       *(f"best_{name}" for name in result.objectives))
                           if np.isfinite(record[key]))
             logged.extend((k, v, 0) for k, v in metrics.items())
-            sent.extend([*text_files, *study_files])
+            sent.extend(text_files)
             tracker.log(params=params, metrics=logged, tags=study_metric_tags(study_metrics), artifacts=sent)
             tracker.send()
 
@@ -247,7 +250,7 @@ def run(cfg, started: float | None = None, checked=None):
 
         t0 = time.perf_counter()
         files = write_run_files(run_dir, cfg, result, setup, labels, study_metrics, figures,
-                                on_text_files=while_figures_are_drawn) + list(study_files)
+                                on_text_files=while_figures_are_drawn, extra_figures=study_figures)
         # the deployable pipeline and the first test replication's stream, after the run's own files (a disk
         # that fills up takes the extras, not the results); logged with the last artifacts
         model_file, deployment = save_for_run(setup, result, run_dir, found[0] if found else None)

@@ -169,8 +169,17 @@ class Study(abc.ABC):
         return {"paper": detector.with_params(**paper)} if paper else {}
 
     def run(self, experiment, result, out_dir) -> tuple[dict[str, float], list[Path]]:
-        """The app's hook: the study of ``result.detector`` beside :meth:`reference_designs`."""
+        """The study of ``result.detector`` beside :meth:`reference_designs`: its metrics and its figures' files."""
+        metrics, data = self.measure(experiment, result)
+        files = self.write_figures(data, Path(out_dir)) if self.figures else []
+        return metrics, files
+
+    def measure(self, experiment, result) -> tuple[dict[str, float], dict]:
+        """:meth:`run` without the figures: the metrics and the data :meth:`write_figures` draws.
+
+        The app's hook: it hands the figures to its figure process (``mosd.app.plots.study_figures``),
+        which draws them beside the run's own while this process writes the run's files.
+        """
         designs = {TUNED: result.detector, **self.reference_designs(experiment, result.detector)}
         data = self.compute(experiment, designs)
-        files = self.write_figures(data, Path(out_dir)) if self.figures else []
-        return self.metrics(data), files
+        return self.metrics(data), data
