@@ -216,3 +216,25 @@ def test_a_studys_figures_are_a_figure_job_drawn_beside_the_runs_with_the_same_f
     for path in paths[4:]:
         assert path.read_bytes() == (serial / path.name).read_bytes(), path.name
     assert plots.draw(jobs[4:]) == paths[4:]  # one process: the same paths, flattened
+
+
+def test_a_job_that_cannot_reach_the_figure_process_is_drawn_in_the_run(tmp_path):
+    """A figure job that does not pickle (a study holding a local object) is drawn in the run's process, and the
+    writer says why; the run's own figures are still drawn."""
+
+    class LocalStudy:  # a local class: pickle cannot name it
+        def write_figures(self, data, out_dir):
+            path = Path(out_dir) / "local.txt"
+            path.write_text(str(data["value"]))
+            return [path]
+
+    writer = plots.FigureWriter()
+    try:
+        writer.submit([*_jobs(tmp_path)[:1], ("study_figures", {"study": LocalStudy(), "data": {"value": 3},
+                                                                 "out_dir": tmp_path})])
+        paths = writer.result()
+    finally:
+        writer.close()
+    assert paths == [tmp_path / "pareto.png", tmp_path / "local.txt"]
+    assert (tmp_path / "local.txt").read_text() == "3" and (tmp_path / "pareto.png").stat().st_size > 1000
+    assert "could not be sent to the figure process" in writer.fallback and not writer.alive()

@@ -750,7 +750,14 @@ class FigureWriter:
         if self._proc is None:
             return
         try:
-            pickle.dump(self._jobs, self._proc.stdin)
+            payload = pickle.dumps(self._jobs)
+        except Exception as exc:  # noqa: BLE001 - a job that cannot cross (a study holding an open resource): drawn here
+            fallback = f"the figures could not be sent to the figure process: {type(exc).__name__}: {exc}"
+            self.close(wait=False)
+            self.fallback = fallback
+            return
+        try:
+            self._proc.stdin.write(payload)
             self._proc.stdin.flush()
         except OSError as exc:
             self.fallback = f"the figure process ended: {exc}"
