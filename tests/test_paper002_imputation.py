@@ -94,7 +94,7 @@ def test_imputer_without_gaps_returns_the_data_and_windows_are_lags():
 def test_conditional_moments_share_each_replications_solve_and_em_its_pattern_groups():
     """The gain and conditional covariance are solved once per replication and pattern, and EM finds the
     missingness patterns once: the same fill, corrections and estimates as one solve per row (computed here)."""
-    from mosd.estimators.imputation import _pattern_groups
+    from mosd.estimators.imputation import _pattern_groups, _pattern_plan
 
     rng = np.random.default_rng(8)
     X = rng.standard_normal((4, 60, 3)).cumsum(axis=1)
@@ -120,6 +120,7 @@ def test_conditional_moments_share_each_replications_solve_and_em_its_pattern_gr
             np.testing.assert_allclose(filled[r, k, missing], expected, rtol=1e-12, atol=1e-12)
             np.testing.assert_allclose(correction[r, k][np.ix_(missing, missing)], expected_c, rtol=1e-12, atol=1e-12)
     groups = list(_pattern_groups(np.isnan(X)))
-    again = conditional_moments(X, mean, cov, groups)
-    np.testing.assert_array_equal(again[0], filled)
-    np.testing.assert_array_equal(again[1], correction)
+    for given in (groups, _pattern_plan(X)):  # EM's plan: the indexing worked out once for every iteration
+        again = conditional_moments(X, mean, cov, given)
+        np.testing.assert_array_equal(again[0], filled)
+        np.testing.assert_array_equal(again[1], correction)

@@ -44,8 +44,8 @@ def conditional_moments(X: np.ndarray, mean: np.ndarray, cov: np.ndarray, groups
     cov : ndarray, shape (R, d, d)
         The Gaussian of each batch (replication) r.
     groups : list, optional
-        ``list(_pattern_groups(np.isnan(X)))``, when the caller has it (EM calls this with the same X
-        at every iteration).
+        ``list(_pattern_groups(np.isnan(X)))`` or ``_pattern_plan(X)``, when the caller has it (EM calls this
+        with the same X at every iteration).
 
     Returns
     -------
@@ -56,36 +56,57 @@ def conditional_moments(X: np.ndarray, mean: np.ndarray, cov: np.ndarray, groups
     """
     X = np.asarray(X, float)
     R, n, d = X.shape
-    missing = np.isnan(X)
+    plan = groups if isinstance(groups, _PatternPlan) else _pattern_plan(X, groups)
     filled = X.copy()
     correction = np.zeros((R, n, d, d))
-    for pattern, (rep, row) in (_pattern_groups(missing) if groups is None else groups):
-        if not pattern.any():
-            continue
-        obs = ~pattern
+    for pattern, obs, rep, row, reps, of_row, x_obs, at_missing, at_block in plan.groups:
         # the gain and the conditional covariance depend on the replication and the pattern only: computed once
         # per replication, then taken by every row of it (the same numbers as one solve per row, which repeated
         # each replication's solve for every row: most of the study's EM time)
-        reps, of_row = np.unique(rep, return_inverse=True)
         mu, S = mean[reps], cov[reps]                  # (r, d), (r, d, d)
         S_mm = S[:, pattern][:, :, pattern]
-        if obs.any():
+        if x_obs is not None:
             S_oo = S[:, obs][:, :, obs]
             S_mo = S[:, pattern][:, :, obs]
             mu_rows = mu[of_row]                           # (m, d): each row's replication's mean
-            dev = X[rep, row][:, obs] - mu_rows[:, obs]
+            dev = x_obs - mu_rows[:, obs]
             # Σ_MO Σ_OO⁻¹ through a solve with the symmetric Σ_OO: (Σ_OO⁻¹ Σ_OM)ᵀ
             gain = np.swapaxes(np.linalg.solve(S_oo, np.swapaxes(S_mo, 1, 2)), 1, 2)
             x_m = mu_rows[:, pattern] + np.einsum("mij,mj->mi", gain[of_row], dev)
             c_mm = (S_mm - gain @ np.swapaxes(S_mo, 1, 2))[of_row]
         else:
             x_m, c_mm = mu[of_row][:, pattern], S_mm[of_row]
-        block = filled[rep, row]
-        block[:, pattern] = x_m
-        filled[rep, row] = block
-        idx = np.nonzero(pattern)[0]
-        correction[rep[:, None, None], row[:, None, None], idx[None, :, None], idx[None, None, :]] = c_mm
+        filled[at_missing] = x_m
+        correction[at_block] = c_mm
     return filled, correction
+
+
+class _PatternPlan:
+    """What :func:`conditional_moments` indexes per missingness pattern of one X, worked out once (:func:`_pattern_plan`).
+
+    ``groups``: per pattern with a missing entry, (pattern, observed, rows' replication and row, the distinct
+    replications and each row's among them, the rows' observed values or None, the index of the rows' missing
+    entries, the index of their missing block). EM's iterations change the Gaussian, never X: the plan's sorting,
+    gathering and index building were half of each iteration's time.
+    """
+
+    def __init__(self, groups):
+        self.groups = groups
+
+
+def _pattern_plan(X: np.ndarray, groups=None) -> _PatternPlan:
+    planned = []
+    for pattern, (rep, row) in (_pattern_groups(np.isnan(X)) if groups is None else groups):
+        if not pattern.any():
+            continue
+        obs = ~pattern
+        reps, of_row = np.unique(rep, return_inverse=True)
+        idx = np.nonzero(pattern)[0]
+        x_obs = X[rep, row][:, obs] if obs.any() else None
+        at_missing = (rep[:, None], row[:, None], idx[None, :])
+        at_block = (rep[:, None, None], row[:, None, None], idx[None, :, None], idx[None, None, :])
+        planned.append((pattern, obs, rep, row, reps, of_row, x_obs, at_missing, at_block))
+    return _PatternPlan(planned)
 
 
 def em_gaussian(X: np.ndarray, max_iter: int = 500, tol: float = 1e-10):
@@ -115,9 +136,9 @@ def em_gaussian(X: np.ndarray, max_iter: int = 500, tol: float = 1e-10):
     var = np.nan_to_num(np.nanvar(X, axis=1), nan=1.0)
     cov = np.eye(X.shape[-1]) * np.where(var > 0, var, 1.0)[:, None, :]
     n_iter = 0
-    groups = list(_pattern_groups(np.isnan(X)))  # the missing entries do not change between iterations
+    plan = _pattern_plan(X)  # the missing entries do not change between iterations
     for n_iter in range(1, max_iter + 1):
-        filled, correction = conditional_moments(X, mean, cov, groups)
+        filled, correction = conditional_moments(X, mean, cov, plan)
         new_mean = filled.mean(axis=1)
         dev = filled - new_mean[:, None, :]
         new_cov = (np.einsum("rni,rnj->rij", dev, dev) + correction.sum(axis=1)) / n
