@@ -198,3 +198,35 @@ def test_noise_draw_has_the_stated_covariances():
     w, v = noise.draw(np.random.default_rng(0), 40000)
     np.testing.assert_allclose(np.cov(w.T), np.diag([0.01, 0.04]), atol=2e-3 * 0.04 * 10)
     np.testing.assert_allclose(np.cov(v.T), 0.25 * np.eye(2), atol=0.01)
+
+
+def test_discretisation_of_many_intervals_is_each_intervals_batched_discretisation_and_memoised():
+    """discretise on an array of intervals (repeated ones among them) gives, for every interval, the bits of
+    SciPy's batched exponentials over the whole array (the previous computation, written out here), and an
+    interval seen before is not exponentiated again."""
+    from mosd.plants.networked_target import _discretised
+
+    model = NetworkedTarget(omega=OMEGA).model(ContinuousWhiteNoise(process_intensity=0.02))
+    model = model.augment(np.array([1.0, 0.0]), 1e-3, 2.0)
+    rng = np.random.default_rng(5)
+    delta = np.concatenate([rng.choice([0.1, 0.25, 0.5], 20), rng.uniform(0.0, 2.0, 7), [0.0]]).reshape(4, 7)
+    n, n_u = model.B.shape
+    d = delta[..., None, None]
+    with_input = np.zeros((n + n_u, n + n_u))
+    with_input[:n, :n], with_input[:n, n:] = model.A, model.B
+    ex = expm(d * with_input)
+    van_loan = np.zeros((2 * n, 2 * n))
+    van_loan[:n, :n], van_loan[:n, n:], van_loan[n:, n:] = -model.A, model.process_intensity, model.A.T
+    q = ex[..., :n, :n] @ expm(d * van_loan)[..., :n, n:]
+    expected = (ex[..., :n, :n], ex[..., :n, n:], 0.5 * (q + np.swapaxes(q, -1, -2)))
+    _discretised.cache_clear()
+    got = model.discretise(delta)
+    for a, b in zip(got, expected):
+        assert a.shape == b.shape
+        np.testing.assert_array_equal(a, b)
+    assert _discretised.cache_info().misses == len(np.unique(delta))
+    again = model.discretise(delta[::-1])
+    assert _discretised.cache_info().misses == len(np.unique(delta))  # every interval from the memo
+    np.testing.assert_array_equal(again[0], got[0][::-1])
+    scalar = model.discretise(0.25)
+    assert scalar[0].shape == (n, n) and np.array_equal(scalar[0], got[0][delta == 0.25][0])
