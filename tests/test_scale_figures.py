@@ -208,7 +208,9 @@ def test_a_studys_figures_are_a_figure_job_drawn_beside_the_runs_with_the_same_f
     serial, parallel = tmp_path / "serial", tmp_path / "parallel"
     serial.mkdir(), parallel.mkdir()
     expected = study.write_figures(data, serial)
-    jobs = [*_jobs(parallel), ("study_figures", {"study": study, "data": data, "out_dir": parallel})]
+    jobs = [*_jobs(parallel), *[("study_figures", {"study": study, "method": method, "kwargs": kwargs})
+                                for method, kwargs in study.figure_jobs(data, parallel)]]
+    assert len(jobs) == 5  # paper 000's one figure: the default, write_figures whole
     assert [4] in plots.shares(jobs, 2)  # the study alone on one drawer
     paths = plots.draw_in_parallel(jobs, 2)
     assert paths[:4] == [parallel / n for n in ("pareto.png", "chart.png", "residual.png", "history.png")]
@@ -230,8 +232,8 @@ def test_a_job_that_cannot_reach_the_figure_process_is_drawn_in_the_run(tmp_path
 
     writer = plots.FigureWriter()
     try:
-        writer.submit([*_jobs(tmp_path)[:1], ("study_figures", {"study": LocalStudy(), "data": {"value": 3},
-                                                                 "out_dir": tmp_path})])
+        writer.submit([*_jobs(tmp_path)[:1], ("study_figures", {
+            "study": LocalStudy(), "method": "write_figures", "kwargs": {"data": {"value": 3}, "out_dir": tmp_path}})])
         paths = writer.result()
     finally:
         writer.close()

@@ -48,6 +48,8 @@ def test_summary_has_the_study_keys_and_the_splits(run):
     assert summary["test"]["far"]["n"] == 1
     for name in ("tep_detection_rates.png", "tep_statistics.png", "tep_contributions.png", "tep_table.csv"):
         assert (run_dir / name).stat().st_size > 0
+    # the study's figures went to the figure process as jobs of their own (Study.figure_jobs), not drawn here
+    assert "figures drawn in-process" not in (run_dir / "mosd.log").read_text()
 
 
 def test_report_command_prints_the_classic_table(tmp_path):

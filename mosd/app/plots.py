@@ -518,13 +518,14 @@ def _warm_up_in_background(stop) -> None:
         pass
 
 
-def study_figures(study, data: dict, out_dir: str | Path) -> list[Path]:
-    """A system's study figures (:meth:`mosd.systems.base.Study.write_figures` of ``study`` on ``data``).
+def study_figures(study, method: str, kwargs: dict) -> list[Path]:
+    """One of a system's study figure jobs (:meth:`mosd.systems.base.Study.figure_jobs`): ``study.method(**kwargs)``.
 
     A job like the run's own figures, so that a study's figures, drawn in the run's process before, are drawn
     by the figure process beside the run's (1.4–4 s of a preset's study on the 2-core machine; issue 32).
     """
-    return list(study.write_figures(data, Path(out_dir)))
+    drawn = getattr(study, method)(**kwargs)
+    return [Path(p) for p in drawn] if isinstance(drawn, (list, tuple)) else [Path(drawn)]
 
 
 def draw(jobs: Sequence[tuple[str, dict[str, Any]]]) -> list[Path]:
@@ -549,7 +550,7 @@ def _flat(per_job) -> list[Path]:
 #: Relative drawing cost of each figure (CPU seconds, warm, best of 3, measured on the project's 2-core machine
 #: at load 2: the chart's log-scale ticks are the dearest): how :func:`shares` balances the drawing processes.
 FIGURE_COST = {"chart_trace": 0.30, "optimisation_history": 0.26, "pareto_pairs": 0.25, "pareto_front": 0.22,
-               "residual_trace": 0.21, "study_figures": 1.5}
+               "residual_trace": 0.21, "study_figures": 0.8}
 
 
 def shares(jobs: Sequence[tuple[str, dict[str, Any]]], drawers: int) -> list[list[int]]:

@@ -205,7 +205,8 @@ def run(cfg, started: float | None = None, checked=None):
             study_metrics, study_data = setup.study.measure(setup.experiment, result)
             if setup.study.figures:
                 # drawn by the figure process with the run's own figures, while this process writes the files
-                study_figures = [("study_figures", {"study": setup.study, "data": study_data, "out_dir": run_dir})]
+                study_figures = [("study_figures", {"study": setup.study, "method": method, "kwargs": kwargs})
+                                 for method, kwargs in setup.study.figure_jobs(study_data, run_dir)]
             result.timings["study_s"] = timings["study_s"] = time.perf_counter() - t0
         test_metrics = final_metrics(result, result.example["seconds_per_point"])
         # a study metric named like a test metric (paper 003's far, scored its own way; paper 000's with

@@ -158,6 +158,13 @@ class Study(abc.ABC):
         """The study's figures in ``out_dir`` (none by default)."""
         return []
 
+    def figure_jobs(self, data: dict, out_dir: Path) -> list[tuple[str, dict]]:
+        """:meth:`write_figures` as jobs (method name, keyword arguments) that the app's figure process may draw
+        at once on several processes (``mosd.app.plots.study_figures``); each method returns a path or a list of
+        paths. By default one job, :meth:`write_figures` itself; a study whose figures are separate methods lists
+        them, so that a machine with more cores draws them side by side."""
+        return [("write_figures", {"data": data, "out_dir": Path(out_dir)})]
+
     def reference_designs(self, experiment, detector) -> dict[str, Any]:
         """Designs scored beside the tuned ``detector`` by :meth:`run`: the paper's recorded design, if any.
 
@@ -177,8 +184,9 @@ class Study(abc.ABC):
     def measure(self, experiment, result) -> tuple[dict[str, float], dict]:
         """:meth:`run` without the figures: the metrics and the data :meth:`write_figures` draws.
 
-        The app's hook: it hands the figures to its figure process (``mosd.app.plots.study_figures``),
-        which draws them beside the run's own while this process writes the run's files.
+        The app's hook: it hands the figures to its figure process (:meth:`figure_jobs`,
+        ``mosd.app.plots.study_figures``), which draws them beside the run's own while this process writes the
+        run's files.
         """
         designs = {TUNED: result.detector, **self.reference_designs(experiment, result.detector)}
         data = self.compute(experiment, designs)

@@ -419,13 +419,23 @@ class Study(base.Study):
 
     def write_figures(self, data: dict, out_dir: Path) -> list[Path]:
         out_dir.mkdir(parents=True, exist_ok=True)
-        files = [self._rates_figure(data, out_dir / "tep_detection_rates.png")]
+        return [getattr(self, method)(**kwargs) for method, kwargs in self.figure_jobs(data, out_dir)]
+
+    def figure_jobs(self, data: dict, out_dir: Path) -> list[tuple[str, dict]]:
+        """The detection rates, the statistics and the contributions (three figures, drawn side by side where
+        the app has the cores), and the table as CSV."""
+        out_dir = Path(out_dir)
+        jobs = [("_rates_figure", {"data": data, "path": out_dir / "tep_detection_rates.png"})]
         if data.get("figure"):
-            files += [self._statistics_figure(data, out_dir / "tep_statistics.png"),
-                      self._contributions_figure(data, out_dir / "tep_contributions.png")]
-        path = out_dir / "tep_table.csv"
+            jobs += [("_statistics_figure", {"data": data, "path": out_dir / "tep_statistics.png"}),
+                     ("_contributions_figure", {"data": data, "path": out_dir / "tep_contributions.png"})]
+        return [*jobs, ("_write_table", {"data": data, "path": out_dir / "tep_table.csv"})]
+
+    @staticmethod
+    def _write_table(data: dict, path: Path) -> Path:
+        path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(format_table(data, csv=True))
-        return [*files, path]
+        return path
 
     def _rates_figure(self, data: dict, path: Path) -> Path:
         designs = list(data["fdr"])
