@@ -341,49 +341,63 @@ class Study(base.Study):
 
     # -- figures --------------------------------------------------------------------------
     def write_figures(self, data: dict, out_dir: Path) -> list[Path]:
-        """Figs. 2–5 as PNG files: mode probabilities, amplitude, state RMSE, amplitude RMSE."""
+        """Figs. 2–5 as PNG files: mode probabilities, amplitude, state RMSE, amplitude RMSE; and the calibration."""
         out_dir.mkdir(parents=True, exist_ok=True)
-        prefix = f"{self.system}_"
-        t, onset = data["t"], data["onset_s"]
-        styles = {"fused": ("k", "-"), "sensor1": ("tab:blue", "--"), "sensor2": ("tab:orange", "-."),
-                  "sensor3": ("tab:green", ":")}
-        files = []
+        return [getattr(self, method)(**kwargs) for method, kwargs in self.figure_jobs(data, out_dir)]
 
-        def finish(ax, ylabel, title):
-            ax.axvline(onset, color="grey", lw=0.8, ls=":")
-            decorate(ax, "t (s)", ylabel, title)
+    def figure_jobs(self, data: dict, out_dir: Path) -> list[tuple[str, dict]]:
+        """The five figures of :meth:`write_figures`, each a job of its own (drawn side by side where the app has
+        the cores)."""
+        path = Path(out_dir) / f"{self.system}_"
+        return [("_mode_probabilities_figure", {"data": data, "path": Path(f"{path}mode_probabilities.png")}),
+                ("_amplitude_figure", {"data": data, "path": Path(f"{path}amplitude.png")}),
+                ("_rmse_figure", {"data": data, "key": "state", "title": "Fig. 4: RMSE of the state",
+                                  "path": Path(f"{path}rmse_state.png")}),
+                ("_rmse_figure", {"data": data, "key": "amplitude", "title": "Fig. 5: RMSE of the fault input",
+                                  "path": Path(f"{path}rmse_amplitude.png")}),
+                ("_calibration_figure", {"data": data, "path": Path(f"{path}calibration.png")})]
 
+    @staticmethod
+    def _finish(ax, onset: float, ylabel: str, title: str) -> None:
+        ax.axvline(onset, color="grey", lw=0.8, ls=":")
+        decorate(ax, "t (s)", ylabel, title)
+
+    def _mode_probabilities_figure(self, data: dict, path: Path) -> Path:
         fig = figure(6.0, 3.4)
         ax = fig.add_subplot()
         mu = data["mode_probabilities_mean"]
         for m, label in enumerate(("normal model", "actuator-1 fault model", "actuator-2 fault model")):
-            ax.plot(t, mu[:, m], marker="o", ms=2.5, label=label)
+            ax.plot(data["t"], mu[:, m], marker="o", ms=2.5, label=label)
         ax.axhline(0.5, color="r", lw=0.8, ls="--", label="μ_T = 0.5")
-        finish(ax, "mean mode probability", f"Fig. 2: fused IMM, mean over {data['n_runs']} runs")
-        files.append(out_dir / f"{prefix}mode_probabilities.png")
-        fig.savefig(files[-1], dpi=110)
+        self._finish(ax, data["onset_s"], "mean mode probability", f"Fig. 2: fused IMM, mean over {data['n_runs']} runs")
+        fig.savefig(path, dpi=110)
+        return path
 
+    def _amplitude_figure(self, data: dict, path: Path) -> Path:
         fig = figure(6.0, 3.4)
         ax = fig.add_subplot()
+        t = data["t"]
         ax.plot(t, data["true_amplitude"][:, 1], color="r", lw=1.0, label="true f (actuator 2)")
         for name, curve in data["curves"].items():
-            color, ls = styles[name]
+            color, ls = FIGURE_STYLES[name]
             ax.plot(t, curve["amplitude_mean"], color=color, ls=ls, label=name)
-        finish(ax, "mean f̂ of the actuator-2 model", "Fig. 3: amplitude estimate, fused vs single sensors")
-        files.append(out_dir / f"{prefix}amplitude.png")
-        fig.savefig(files[-1], dpi=110)
+        self._finish(ax, data["onset_s"], "mean f̂ of the actuator-2 model",
+                     "Fig. 3: amplitude estimate, fused vs single sensors")
+        fig.savefig(path, dpi=110)
+        return path
 
-        for key, title, fname in (("state", "Fig. 4: RMSE of the state", "rmse_state"),
-                                  ("amplitude", "Fig. 5: RMSE of the fault input", "rmse_amplitude")):
-            fig = figure(6.0, 3.4)
-            ax = fig.add_subplot()
-            for name, curve in data["curves"].items():
-                color, ls = styles[name]
-                ax.plot(t, curve[key], color=color, ls=ls, label=name)
-            finish(ax, "RMSE over runs", f"{title}, {data['n_runs']} runs")
-            files.append(out_dir / f"{prefix}{fname}.png")
-            fig.savefig(files[-1], dpi=110)
+    def _rmse_figure(self, data: dict, key: str, title: str, path: Path) -> Path:
+        fig = figure(6.0, 3.4)
+        ax = fig.add_subplot()
+        for name, curve in data["curves"].items():
+            color, ls = FIGURE_STYLES[name]
+            ax.plot(data["t"], curve[key], color=color, ls=ls, label=name)
+        self._finish(ax, data["onset_s"], "RMSE over runs", f"{title}, {data['n_runs']} runs")
+        fig.savefig(path, dpi=110)
+        return path
 
+    @staticmethod
+    def _calibration_figure(data: dict, path: Path) -> Path:
         cal = data["calibration"]
         fig = figure(4.2, 4.0)
         ax = fig.add_subplot()
@@ -397,9 +411,13 @@ class Study(base.Study):
                      fontsize=8)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
-        files.append(out_dir / f"{prefix}calibration.png")
-        fig.savefig(files[-1], dpi=110)
-        return files
+        fig.savefig(path, dpi=110)
+        return path
+
+
+#: line colour and style of each filter in the study's figures
+FIGURE_STYLES = {"fused": ("k", "-"), "sensor1": ("tab:blue", "--"), "sensor2": ("tab:orange", "-."),
+                 "sensor3": ("tab:green", ":")}
 
 
 def format_report(metrics: dict[str, float], designs: dict[str, dict]) -> str:

@@ -362,12 +362,25 @@ class Study(base.Study):
         The thresholds, ROC and delays shown are the tuned design's (the first design if none is tuned).
         """
         out_dir.mkdir(parents=True, exist_ok=True)
-        prefix = f"{self.system}_"
-        files = []
-        t, onset, rates = data["t"], data["onset_s"], data["rates"]
+        return [getattr(self, method)(**kwargs) for method, kwargs in self.figure_jobs(data, out_dir)]
+
+    def figure_jobs(self, data: dict, out_dir: Path) -> list[tuple[str, dict]]:
+        """The three figures of :meth:`write_figures`, each a job of its own (drawn side by side where the app
+        has the cores)."""
+        path = Path(out_dir) / f"{self.system}_"
+        return [("_errors_figure", {"data": data, "path": Path(f"{path}errors.png")}),
+                ("_gain_figure", {"data": data, "path": Path(f"{path}gain.png")}),
+                ("_separation_figure", {"data": data, "path": Path(f"{path}separation_delay.png")})]
+
+    @staticmethod
+    def _shown(data: dict) -> tuple[dict, dict]:
+        """The shown design's results and parameters: the tuned design's, else the first design's."""
         name = TUNED if TUNED in data["designs"] else next(iter(data["designs"]))
-        shown, params = data["designs"][name], data["params"][name]
-        threshold = params.get("threshold", math.nan)
+        return data["designs"][name], data["params"][name]
+
+    def _errors_figure(self, data: dict, path: Path) -> Path:
+        t, onset, rates = data["t"], data["onset_s"], data["rates"]
+        threshold = self._shown(data)[1].get("threshold", math.nan)
         fig = figure(9.0, 2.2 * len(rates))
         axes = fig.subplots(len(rates), 2, sharex=True, sharey=True, squeeze=False)
         for i, rate in enumerate(rates):
@@ -390,9 +403,12 @@ class Study(base.Study):
                 if i == len(rates) - 1:
                     ax.set_xlabel("t (s)")
         axes[0, 0].legend(fontsize=7, loc="upper left")
-        files.append(out_dir / f"{prefix}errors.png")
-        fig.savefig(files[-1], dpi=100)
+        fig.savefig(path, dpi=100)
+        return path
 
+    @staticmethod
+    def _gain_figure(data: dict, path: Path) -> Path:
+        t, onset = data["t"], data["onset_s"]
         fig = figure(6.0, 3.2)
         ax = fig.add_subplot()
         gain = data["gain"]
@@ -400,9 +416,12 @@ class Study(base.Study):
         ax.axhline(data["baseline_gain"], color="tab:orange", ls="--", label=f"fixed gain {data['baseline_gain']:g}")
         ax.axvline(onset, color="grey", ls=":", lw=0.8)
         decorate(ax, "t (s)", "gain U", "Gain schedule: entropy-optimal vs fixed")
-        files.append(out_dir / f"{prefix}gain.png")
-        fig.savefig(files[-1], dpi=110)
+        fig.savefig(path, dpi=110)
+        return path
 
+    def _separation_figure(self, data: dict, path: Path) -> Path:
+        rates = data["rates"]
+        shown, params = self._shown(data)
         fig = figure(9.0, 3.4)
         ax, bx = fig.subplots(1, 2)
         for name, color in (("entropy", "tab:blue"), ("baseline", "tab:orange")):
@@ -422,9 +441,8 @@ class Study(base.Study):
         paper = [(100 * r, PAPER["target_delay"][r]) for r in rates if r in PAPER["target_delay"]]
         bx.plot([p[0] for p in paper], [p[1] for p in paper], "k^", label="paper (target; fails at 20 %)")
         decorate(bx, "missing outputs (%)", "target isolation delay (s)", "Delay over the missing rate (tuned design)")
-        files.append(out_dir / f"{prefix}separation_delay.png")
-        fig.savefig(files[-1], dpi=110)
-        return files
+        fig.savefig(path, dpi=110)
+        return path
 
 
 def _choices(key: str, values, allowed) -> tuple[str, ...]:
