@@ -202,6 +202,11 @@ def with_fault(trace, fault):
     return replace(trace, y=trace.y + g, fault_mask=mask)
 
 
+#: how the figures name the two statistics
+STATISTIC_NAMES = {"observer_chi2": "observer's χ² (reading 2)",
+                   "chi2": "filter's innovation χ² (reading 1)"}
+
+
 class Study(base.Study):
     """Paper 003's Table 2 and Figs. 6–8 for a tuned adaptive-χ² design, windows N against ramp rates.
 
@@ -450,11 +455,18 @@ class Study(base.Study):
     def write_figures(self, data: dict, out_dir: Path) -> list[Path]:
         """Table 2 (step and rate against N), Fig. 8 (per rate), Fig. 7 (residual vs threshold), Fig. 6 (loss)."""
         out_dir.mkdir(parents=True, exist_ok=True)
-        prefix = f"{self.system}_"
-        files = []
-        windows, rates, s0 = data["windows"], data["rates"], data["statistic"]
-        names = {"observer_chi2": "observer's χ² (reading 2)", "chi2": "filter's innovation χ² (reading 1)"}
+        return [getattr(self, method)(**kwargs) for method, kwargs in self.figure_jobs(data, out_dir)]
 
+    def figure_jobs(self, data: dict, out_dir: Path) -> list[tuple[str, dict]]:
+        """The four figures of :meth:`write_figures`, each a job of its own (drawn side by side where the app has
+        the cores)."""
+        path = Path(out_dir) / f"{self.system}_"
+        return [(method, {"data": data, "path": Path(f"{path}{name}.png")}) for method, name in (
+            ("_table2_figure", "table2"), ("_detection_point_figure", "detection_point"),
+            ("_residual_threshold_figure", "residual_threshold"), ("_training_loss_figure", "training_loss"))]
+
+    def _table2_figure(self, data: dict, path: Path) -> Path:
+        windows, rates = data["windows"], data["rates"]
         fig = figure(9.0, 3.4)
         ax, bx = fig.subplots(1, 2)
         for design, ls in (("tuned", "-"), ("paper", "--")):
@@ -462,7 +474,7 @@ class Study(base.Study):
                 if design not in data["table"]:
                     continue
                 t = data["table"][design][s]
-                label = f"{design}, {names[s]}"
+                label = f"{design}, {STATISTIC_NAMES[s]}"
                 ax.plot(windows, self._over_rates(t["detection_step"]), ls=ls, color=color, marker="o", label=label)
                 bx.plot(windows, 100 * self._over_rates(t["detection_rate"]), ls=ls, color=color, marker="o",
                         label=label)
@@ -475,9 +487,12 @@ class Study(base.Study):
         for a in (ax, bx):
             a.grid(alpha=0.3)
         bx.legend(fontsize=7)
-        files.append(out_dir / f"{prefix}table2.png")
-        fig.savefig(files[-1], dpi=110)
+        fig.savefig(path, dpi=110)
+        return path
 
+    @staticmethod
+    def _detection_point_figure(data: dict, path: Path) -> Path:
+        windows, rates, s0 = data["windows"], data["rates"], data["statistic"]
         fig = figure(6.5, 3.6)
         ax = fig.add_subplot()
         steps = data["table"]["tuned"][s0]["detection_step"]
@@ -487,12 +502,14 @@ class Study(base.Study):
         ax.axhline(data["onset_step"], color="grey", ls=":", lw=0.8)
         ax.set_xlabel("window N")
         ax.set_ylabel("mean detection step")
-        ax.set_title(f"Fig. 8: detection point per ramp rate (tuned design, {names[s0]})", fontsize=9)
+        ax.set_title(f"Fig. 8: detection point per ramp rate (tuned design, {STATISTIC_NAMES[s0]})", fontsize=9)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7, ncol=2)
-        files.append(out_dir / f"{prefix}detection_point.png")
-        fig.savefig(files[-1], dpi=110)
+        fig.savefig(path, dpi=110)
+        return path
 
+    def _residual_threshold_figure(self, data: dict, path: Path) -> Path:
+        s0 = data["statistic"]
         best = int(self.summary(data, "tuned", s0)["best_window"])
         fig = figure(9.0, 5.0)
         axes = fig.subplots(2, 1, sharex=True)
@@ -500,7 +517,7 @@ class Study(base.Study):
         for ax, window in zip(axes, (1, best)):
             tr = data["traces"][("tuned", s0, window)]
             k = np.arange(tr["statistic"].size)
-            ax.plot(k[lo:hi], tr["statistic"][lo:hi], lw=0.9, label=f"statistic ({names[s0]})")
+            ax.plot(k[lo:hi], tr["statistic"][lo:hi], lw=0.9, label=f"statistic ({STATISTIC_NAMES[s0]})")
             ax.plot(k[lo:hi], tr["threshold"][lo:hi], lw=0.9, color="r", label="adaptive threshold a·T_D + b·(E_{k−d}/σ_N)²")
             ax.axvline(data["onset_step"], color="grey", ls=":", lw=0.8)
             if tr["first_alarm"] >= 0:
@@ -513,21 +530,22 @@ class Study(base.Study):
             ax.grid(alpha=0.3)
             ax.legend(fontsize=7, loc="upper left")
         axes[-1].set_xlabel("log step")
-        files.append(out_dir / f"{prefix}residual_threshold.png")
-        fig.savefig(files[-1], dpi=110)
+        fig.savefig(path, dpi=110)
+        return path
 
+    def _training_loss_figure(self, data: dict, path: Path) -> Path:
+        best = int(self.summary(data, "tuned", data["statistic"])["best_window"])
         fig = figure(6.5, 3.4)
         ax = fig.add_subplot()
-        for window, color in zip(sorted({1, best, windows[-1]}), ("tab:blue", "tab:green", "tab:red")):
+        for window, color in zip(sorted({1, best, data["windows"][-1]}), ("tab:blue", "tab:green", "tab:red")):
             curves = data["loss"][window]
             ax.plot(curves["train_loss"], color=color, label=f"N = {window}, training")
             ax.plot(curves["validation_loss"], color=color, ls="--", label=f"N = {window}, validation")
         ax.set_yscale("log")
         decorate(ax, "epoch", "weighted multi-step loss (standardised)",
                  "Fig. 6: training loss (early stopping, patience 10)", legend_size=7)
-        files.append(out_dir / f"{prefix}training_loss.png")
-        fig.savefig(files[-1], dpi=110)
-        return files
+        fig.savefig(path, dpi=110)
+        return path
 
 
 def _colormap(n: int) -> list:
