@@ -124,11 +124,16 @@ class Study(abc.ABC):
     ``write_figures(data, out_dir) -> [Path]``
         PNG (or CSV) files of the data in ``out_dir``, drawn with :func:`figure` (panels
         finished with :func:`decorate`), named ``<system>_*.png``.
-    ``run(experiment, result, out_dir) -> (metrics, files)``
-        The app's hook after the experiment (:mod:`mosd.app.run`): the tuned detector
-        (``result.detector``) beside :meth:`reference_designs`, then ``metrics`` and, with
-        ``figures``, ``write_figures``. The metrics land in ``summary.json`` and MLflow, the
-        files in the run directory. Subclasses rarely override it.
+    ``figure_jobs(data, out_dir) -> [(method, kwargs)]``
+        Optional: the same files as jobs, one per figure, that the app's figure process draws side
+        by side (default: ``write_figures`` as one job). The study and its data cross to that
+        process by pickle.
+    ``measure(experiment, result) -> (metrics, data)``, ``run(experiment, result, out_dir) -> (metrics, files)``
+        The tuned detector (``result.detector``) beside :meth:`reference_designs`, then ``metrics``;
+        ``run`` also draws, with ``figures``, ``write_figures``. The app calls ``measure`` after the
+        experiment (:mod:`mosd.app.run`) and hands ``figure_jobs`` to its figure process; the metrics
+        land in ``summary.json`` and MLflow, the files in the run directory. Subclasses rarely
+        override them.
 
     Subclasses set :attr:`system` (the name of the designs file and the figures' prefix),
     validate their parameters in ``__init__`` with one-line :class:`ConfigError` s that name
@@ -137,7 +142,7 @@ class Study(abc.ABC):
     Parameters
     ----------
     figures : bool
-        Whether :meth:`run` writes the figures.
+        Whether :meth:`run` (and the app) writes the figures.
     """
 
     #: the system's name: ``mosd/systems/designs/<system>.json`` and the figures' file prefix
