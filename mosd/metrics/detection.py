@@ -21,14 +21,14 @@ def _alarms(decisions: np.ndarray) -> np.ndarray:
 def false_alarm_rate(alarms: np.ndarray, fault_mask: np.ndarray) -> np.ndarray:
     """FAR = share of points without the target fault that raise an alarm (eq. 32)."""
     alarms = _alarms(alarms)
-    healthy = np.broadcast_to(~np.asarray(fault_mask, bool), alarms.shape)
+    healthy = ~np.asarray(fault_mask, bool)
     return _share(alarms & healthy, healthy)
 
 
 def missed_detection_rate(alarms: np.ndarray, fault_mask: np.ndarray) -> np.ndarray:
     """MDR = share of target-fault points without an alarm = 1 − FDR (eq. 33)."""
     alarms = _alarms(alarms)
-    faulty = np.broadcast_to(fault_mask, alarms.shape)
+    faulty = np.asarray(fault_mask, bool)
     return _share(~alarms & faulty, faulty)
 
 
@@ -113,11 +113,13 @@ def role_alarm_rate(alarms: np.ndarray, fault_label: np.ndarray, fault_roles, ro
     codes = [i + 1 for i, r in enumerate(fault_roles) if r == role]
     # the role's points of each run, then broadcast over the designs: np.isin over the (P, R, K) broadcast was
     # 43 % of paper 002's candidate evaluation
-    points = np.broadcast_to(np.isin(np.asarray(fault_label), codes), alarms.shape)
+    points = np.isin(np.asarray(fault_label), codes)
     return _share(alarms & points, points)
 
 
-def _share(numerator: np.ndarray, denominator: np.ndarray) -> np.ndarray:
-    count = denominator.sum(axis=-1)
+def _share(numerator: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """numerator's True points over ``points``' per row, NaN where a row has no point; ``points`` broadcasts
+    against ``numerator`` (a run's mask, not repeated per design: its count is taken once and broadcast)."""
+    count = np.broadcast_to(np.asarray(points).sum(axis=-1), numerator.shape[:-1])
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(count > 0, numerator.sum(axis=-1) / np.maximum(count, 1), np.nan)
