@@ -722,6 +722,11 @@ LAUNCHERS = {"basic": [], "joblib": ["hydra/launcher=joblib", "hydra.launcher.n_
 FIGURES = {"chart.png", "residual.png", "history.png", "pareto.png", "summary.json", "history.csv", "pareto.csv"}
 
 
+def _default_stop_signals() -> None:
+    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+        signal.signal(sig, signal.SIG_DFL)
+
+
 @pytest.mark.serial  # signals and seconds: run after the parallel phase, one at a time (README)
 @pytest.mark.slow
 @pytest.mark.parametrize("launcher, delivery, sig", [
@@ -730,9 +735,11 @@ FIGURES = {"chart.png", "residual.png", "history.png", "pareto.png", "summary.js
 ], ids=["basic-pid-sigterm", "basic-group-ctrl_c", "joblib-pid-sigterm", "joblib-group-ctrl_c", "joblib-group-sighup"])
 def test_a_signal_during_a_sweep_kills_the_started_jobs_and_keeps_the_finished_ones(tmp_path, launcher, delivery, sig):
     """Issue 22: under the joblib launcher the jobs were left RUNNING, with a segmentation-fault dump."""
+    # the stop signals at their default disposition in the sweep, whatever this test runs under: mosd keeps a
+    # signal its parent ignores ignored (nohup's SIGHUP), and a suite started with nohup passes that on
     proc = subprocess.Popen([sys.executable, "-m", "mosd", "-m", *LAUNCHERS[launcher], *SWEEP], cwd=tmp_path,
                             env=_env(), text=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            start_new_session=True)
+                            start_new_session=True, preexec_fn=_default_stop_signals)
     db = tmp_path / "outputs" / "mlflow.db"
     running_jobs = 2 if launcher == "joblib" else 1
     try:
