@@ -519,7 +519,8 @@ def _warm_up_in_background(stop) -> None:
 
 
 def study_figures(study, method: str, kwargs: dict) -> list[Path]:
-    """One of a system's study figure jobs (:meth:`mosd.systems.base.Study.figure_jobs`): ``study.method(**kwargs)``.
+    """One of a system's study figure jobs (:meth:`mosd.systems.base.Study.figure_jobs`): ``study.method(**kwargs)``,
+    its path or paths as a list.
 
     A job like the run's own figures, so that a study's figures, drawn in the run's process before, are drawn
     by the figure process beside the run's (1.4–4 s of a preset's study on the 2-core machine; issue 32).
@@ -533,18 +534,19 @@ def draw(jobs: Sequence[tuple[str, dict[str, Any]]]) -> list[Path]:
     return _flat(_draw_each(jobs))
 
 
-def _draw_each(jobs: Sequence[tuple[str, dict[str, Any]]]) -> list:
-    """Each job's PNG path (a list of paths for :func:`study_figures`), in order."""
+def _draw_each(jobs: Sequence[tuple[str, dict[str, Any]]]) -> list[list[Path]]:
+    """Each job's PNG paths, in order: one for a run figure, a study's for :func:`study_figures`."""
     out = []
     for name, kwargs in jobs:
         if name not in FIGURES:
             raise ValueError(f"{name!r} is not a figure; allowed: {', '.join(FIGURES)}")
-        out.append(globals()[name](**kwargs))
+        drawn = globals()[name](**kwargs)
+        out.append(drawn if isinstance(drawn, list) else [drawn])
     return out
 
 
-def _flat(per_job) -> list[Path]:
-    return [Path(p) for drawn in per_job for p in (drawn if isinstance(drawn, (list, tuple)) else [drawn])]
+def _flat(per_job: Sequence[Sequence]) -> list[Path]:
+    return [Path(p) for drawn in per_job for p in drawn]
 
 
 #: Relative drawing cost of each figure (CPU seconds, warm, best of 3, measured on the project's 2-core machine
@@ -602,8 +604,7 @@ def draw_in_parallel(jobs: Sequence[tuple[str, dict[str, Any]]], drawers: int) -
                 if _die_with_parent(parent):
                     try:
                         drawn = _draw_each([jobs[i] for i in part])
-                        reply = {"ok": True, "paths": [[str(p) for p in d] if isinstance(d, (list, tuple)) else str(d)
-                                                       for d in drawn]}
+                        reply = {"ok": True, "paths": [[str(p) for p in paths] for paths in drawn]}
                     except Exception as exc:
                         reply = {"ok": False, "error": f"{type(exc).__name__}: {' '.join(str(exc).split())}"}
                     with os.fdopen(write, "wb") as out:

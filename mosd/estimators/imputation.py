@@ -59,7 +59,7 @@ def conditional_moments(X: np.ndarray, mean: np.ndarray, cov: np.ndarray, groups
     plan = groups if isinstance(groups, _PatternPlan) else _pattern_plan(X, groups)
     filled = X.copy()
     correction = np.zeros((R, n, d, d))
-    for pattern, obs, rep, row, reps, of_row, x_obs, at_missing, at_block in plan.groups:
+    for pattern, obs, reps, of_row, x_obs, at_missing, at_block in plan.groups:
         # the gain and the conditional covariance depend on the replication and the pattern only: computed once
         # per replication, then taken by every row of it (the same numbers as one solve per row, which repeated
         # each replication's solve for every row: most of the study's EM time)
@@ -84,9 +84,9 @@ def conditional_moments(X: np.ndarray, mean: np.ndarray, cov: np.ndarray, groups
 class _PatternPlan:
     """What :func:`conditional_moments` indexes per missingness pattern of one X, worked out once (:func:`_pattern_plan`).
 
-    ``groups``: per pattern with a missing entry, (pattern, observed, rows' replication and row, the distinct
-    replications and each row's among them, the rows' observed values or None, the index of the rows' missing
-    entries, the index of their missing block). EM's iterations change the Gaussian, never X: the plan's sorting,
+    ``groups``: per pattern with a missing entry, (pattern, observed, the distinct replications of its rows and
+    each row's among them, the rows' observed values or None, the index of the rows' missing entries, the index
+    of their missing block). EM's iterations change the Gaussian, never X: the plan's sorting,
     gathering and index building were half of each iteration's time.
     """
 
@@ -105,7 +105,7 @@ def _pattern_plan(X: np.ndarray, groups=None) -> _PatternPlan:
         x_obs = X[rep, row][:, obs] if obs.any() else None
         at_missing = (rep[:, None], row[:, None], idx[None, :])
         at_block = (rep[:, None, None], row[:, None, None], idx[None, :, None], idx[None, None, :])
-        planned.append((pattern, obs, rep, row, reps, of_row, x_obs, at_missing, at_block))
+        planned.append((pattern, obs, reps, of_row, x_obs, at_missing, at_block))
     return _PatternPlan(planned)
 
 

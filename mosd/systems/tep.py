@@ -433,7 +433,6 @@ class Study(base.Study):
 
     @staticmethod
     def _write_table(data: dict, path: Path) -> Path:
-        path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(format_table(data, csv=True))
         return path
 
