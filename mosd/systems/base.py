@@ -170,6 +170,11 @@ class Study(abc.ABC):
         them, so that a machine with more cores draws them side by side."""
         return [("write_figures", {"data": data, "out_dir": Path(out_dir)})]
 
+    def draw_figure_jobs(self, data: dict, out_dir: Path) -> list[Path]:
+        """:meth:`figure_jobs` drawn here, in order: ``write_figures`` of a study that lists its figures as jobs."""
+        Path(out_dir).mkdir(parents=True, exist_ok=True)
+        return [getattr(self, method)(**kwargs) for method, kwargs in self.figure_jobs(data, out_dir)]
+
     def reference_designs(self, experiment, detector) -> dict[str, Any]:
         """Designs scored beside the tuned ``detector`` by :meth:`run`: the paper's recorded design, if any.
 

@@ -342,8 +342,7 @@ class Study(base.Study):
     # -- figures --------------------------------------------------------------------------
     def write_figures(self, data: dict, out_dir: Path) -> list[Path]:
         """Figs. 2–5 as PNG files: mode probabilities, amplitude, state RMSE, amplitude RMSE; and the calibration."""
-        out_dir.mkdir(parents=True, exist_ok=True)
-        return [getattr(self, method)(**kwargs) for method, kwargs in self.figure_jobs(data, out_dir)]
+        return self.draw_figure_jobs(data, out_dir)
 
     def figure_jobs(self, data: dict, out_dir: Path) -> list[tuple[str, dict]]:
         """The five figures of :meth:`write_figures`, each a job of its own (drawn side by side where the app has

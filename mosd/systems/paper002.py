@@ -361,8 +361,7 @@ class Study(base.Study):
 
         The thresholds, ROC and delays shown are the tuned design's (the first design if none is tuned).
         """
-        out_dir.mkdir(parents=True, exist_ok=True)
-        return [getattr(self, method)(**kwargs) for method, kwargs in self.figure_jobs(data, out_dir)]
+        return self.draw_figure_jobs(data, out_dir)
 
     def figure_jobs(self, data: dict, out_dir: Path) -> list[tuple[str, dict]]:
         """The three figures of :meth:`write_figures`, each a job of its own (drawn side by side where the app

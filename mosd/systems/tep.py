@@ -418,8 +418,7 @@ class Study(base.Study):
         return metrics
 
     def write_figures(self, data: dict, out_dir: Path) -> list[Path]:
-        out_dir.mkdir(parents=True, exist_ok=True)
-        return [getattr(self, method)(**kwargs) for method, kwargs in self.figure_jobs(data, out_dir)]
+        return self.draw_figure_jobs(data, out_dir)
 
     def figure_jobs(self, data: dict, out_dir: Path) -> list[tuple[str, dict]]:
         """The detection rates, the statistics and the contributions (three figures, drawn side by side where
