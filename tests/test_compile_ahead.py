@@ -19,18 +19,24 @@ from mosd.app.config import CONFIG_DIR
 PACKAGE_PARENT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
-def _experiment(*overrides):
+def _setup(*overrides):
     with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
-        return build(compose("config", overrides=["tracking=none", *overrides])).experiment
+        return build(compose("config", overrides=["tracking=none", *overrides]))
+
+
+def _experiment(*overrides):
+    return _setup(*overrides).experiment
 
 
 @pytest.mark.parametrize("overrides, parts", [
-    (("+fault=offset_var",), ("cubature.helpers", "chart", "ewma")),  # the README's main command
-    (("+experiment=paper000",), ("cubature.helpers", "chart.denoised", "ewma", "wavelet")),
-    (("+experiment=paper002",), ()),  # the entropy filter and a threshold: one kernel module, the run's own
+    (("+fault=offset_var",), ("cubature.helpers", "chart", "ewma", "swarm")),  # the README's main command
+    (("+fault=offset_var", "optimizer=nsga2"), ("cubature.helpers", "chart", "ewma")),  # pymoo's own operators
+    (("+experiment=paper000",), ("cubature.helpers", "chart.denoised", "ewma", "wavelet", "swarm")),
+    (("+experiment=paper002",), ("swarm",)),  # the entropy filter and a threshold: the run's own, then the move
 ])
 def test_the_parts_a_run_hands_over_are_those_it_calls_after_its_first(overrides, parts):
-    assert kernel_parts(_experiment(*overrides)) == parts
+    setup = _setup(*overrides)
+    assert kernel_parts(setup.experiment, setup.algorithm) == parts
 
 
 def test_no_parts_with_the_kernels_off():

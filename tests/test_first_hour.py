@@ -347,7 +347,7 @@ def test_the_main_command_on_a_cold_cache_compiles_only_the_kernels_it_calls(tmp
     assert run.returncode == 0, run.stderr[-3000:]
     saved_here = set(re.findall(r"\[cache\] data saved to '[^']*?([A-Za-z_]+)-\d+\.py", run.stdout))
     assert {"cesckf", "simulate_mould_oscillator"} <= saved_here, run.stdout[-3000:]
-    handed_over = {"_tria_lanes", "_update_lanes", "alarm_counts", "ewma_population"}
+    handed_over = {"_tria_lanes", "_update_lanes", "alarm_counts", "ewma_population", "particle_move", "offspring"}
     if len(os.sched_getaffinity(0)) >= 2:  # compiled ahead in the second process, loaded here: saved there only
         assert not saved_here & handed_over, saved_here
     else:  # one CPU: no second process, everything compiles here
@@ -355,7 +355,7 @@ def test_the_main_command_on_a_cold_cache_compiles_only_the_kernels_it_calls(tmp
     script = "from mosd import kernels; print(' '.join(m for m in kernels.MODULES if kernels.cached(m)))"
     out = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=300)
     # denoise=none: the wavelet's chart kernel (and the wavelet) are left for a run that denoises
-    assert set(out.stdout.split()) == {"ewma", "chart", "plants", "cubature"}, out.stdout
+    assert set(out.stdout.split()) == {"ewma", "chart", "plants", "cubature", "swarm"}, out.stdout
 
 
 def test_a_single_run_prints_its_results_before_its_files_and_mlflow(tmp_path):

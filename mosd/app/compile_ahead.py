@@ -17,16 +17,19 @@ import logging
 log = logging.getLogger(__name__)
 
 
-def kernel_parts(experiment) -> tuple[str, ...]:
-    """The parts of :data:`mosd.kernels.ahead.PARTS` a run of ``experiment`` calls after its first kernels, in order.
+def kernel_parts(experiment, algorithm=None) -> tuple[str, ...]:
+    """The parts of :data:`mosd.kernels.ahead.PARTS` a run of ``experiment`` tuned by ``algorithm`` calls after its
+    first kernels, in order.
 
     What stays with the run: the plant's simulation and the estimator's own kernels (the filter's body, paper
     001's IMM, paper 002's entropy filter), which its dry run needs first. What goes ahead: the cubature
     filter's two helpers (the filter compiles its body first, :func:`mosd.kernels.cubature.filter_batch`), then
     a chart's fused candidate evaluation (``chart``, or ``chart.denoised`` with the wavelet denoiser, then the
-    whole-series ``wavelet`` kernels of its test) and the EWMA recursion (``ewma``). These repeat the
-    components' own decisions to call a kernel: the plant's compiled transition
-    (:data:`mosd.kernels.plants.TRANSITIONS`), a cubature filter on it, :func:`mosd.detectors.fused.applies`.
+    whole-series ``wavelet`` kernels of its test) and the EWMA recursion (``ewma``), and last the MOPSO move
+    (``swarm``), which the tuning first calls at its second generation. These repeat the components' own
+    decisions to call a kernel: the plant's compiled transition (:data:`mosd.kernels.plants.TRANSITIONS`), a
+    cubature filter on it, :func:`mosd.detectors.fused.applies`, an optimiser that is a
+    :class:`~mosd.optim.mopso.MOPSO`.
     """
     from .. import kernels
 
@@ -52,13 +55,17 @@ def kernel_parts(experiment) -> tuple[str, ...]:
         parts.append("ewma")
         if wavelet:
             parts.append("wavelet")
+    from ..optim.mopso import MOPSO
+
+    if isinstance(algorithm, MOPSO):
+        parts.append("swarm")
     return tuple(parts)
 
 
 _MODULE_OF = {"cubature.helpers": "cubature", "chart.denoised": "chart"}
 
 
-def start_for(experiment):
+def start_for(experiment, algorithm=None):
     """Start compiling the uncached parts of :func:`kernel_parts` in a second process; the handle, or None.
 
     An optimisation only: whatever goes wrong is logged and the run compiles its kernels itself.
@@ -71,7 +78,7 @@ def start_for(experiment):
         if usable_cpus() < 2:
             return None
 
-        parts = [part for part in kernel_parts(experiment) if not kernels.cached(_MODULE_OF.get(part, part))]
+        parts = [part for part in kernel_parts(experiment, algorithm) if not kernels.cached(_MODULE_OF.get(part, part))]
         started = ahead.start(parts)
         if started is not None:
             _side_processes_yield()

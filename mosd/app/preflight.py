@@ -605,7 +605,7 @@ def preflight(argv: Sequence[str], compile_ahead: bool = False) -> Checked:
             if compile_ahead:
                 from .compile_ahead import start_for
 
-                start_for(setup.experiment)
+                start_for(setup.experiment, setup.algorithm)
                 compile_ahead = False
             check_job(cfg, setup, done, multirun=bool(args.multirun))
             checked.add(cfg, setup)

@@ -34,10 +34,14 @@ T²/SPE scores of :mod:`mosd.detectors.pca`, each sum in a fixed order whatever 
 of rows scored together (a BLAS product's last bits depend on it), so the tuning and the
 deployed model give the same numbers.
 
+Two more keep the reference's values: :mod:`mosd.kernels.latent` (the recorded-data monitors' EWMA, SciPy's
+``lfilter`` bit for bit) and :mod:`mosd.kernels.swarm` (the MOPSO move, NumPy's draws from the optimiser's own
+generator and its arithmetic; the same bits wherever NumPy's ``power`` is the C library's).
+
 Compiled code is cached on disk (``cache=True``), so only the first run on a
 machine pays the compilation, and only for the kernels it calls (numba compiles a
 function when it is first called); the app hands those a run calls last to a second
-process that compiles them meanwhile (:mod:`mosd.kernels.ahead`). ``python -m mosd.kernels`` compiles all ten
+process that compiles them meanwhile (:mod:`mosd.kernels.ahead`). ``python -m mosd.kernels`` compiles all eleven
 modules ahead (a machine image, a cluster's shared cache); the set-up does not need it. The NumPy path is used when numba is missing, when
 ``MOSD_KERNELS=numpy`` is set, or inside :func:`disabled` (how the tests and
 ``python -m mosd.bench`` compare the two in one process).
@@ -130,7 +134,8 @@ def configure_compiler() -> None:
 
 
 #: every kernel module, and those a candidate evaluation (an optimiser's worker) needs
-MODULES = ("ewma", "wavelet", "chart", "plants", "cubature", "imm", "entropy", "decisions", "projection", "latent")
+MODULES = ("ewma", "wavelet", "chart", "plants", "cubature", "imm", "entropy", "decisions", "projection", "latent",
+           "swarm")
 EVALUATION_MODULES = ("ewma", "chart")  # the wavelet's chart kernel compiles when a run first denoises
 
 

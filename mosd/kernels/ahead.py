@@ -50,7 +50,7 @@ def _warm_up_filter_helpers() -> None:
 PARTS = {
     "cubature.helpers": ("cubature", _filter_helpers, _warm_up_filter_helpers),
     **{name: (name, None, None) for name in ("ewma", "wavelet", "chart", "plants", "cubature", "imm", "entropy",
-                                             "projection", "decisions", "latent")},
+                                             "projection", "decisions", "latent", "swarm")},
     "chart.denoised": ("chart", None, lambda: importlib.import_module(f"{__package__}.chart").warm_up_denoised()),
 }
 

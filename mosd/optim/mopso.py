@@ -1090,6 +1090,58 @@ class MOPSO(Algorithm):
         previous_velocity = self.particle_velocity[:n_particles]
         leaders = archive.X[archive.select_leaders(n_particles, rng, self.leader)]
         w, c1, c2 = (self._scheduled(value, move) for value in (self.w, self.c1, self.c2))
+        compiled = self._compiled_move()
+        if compiled is not None:
+            X_new, velocity = self._compiled_particles(compiled, X, previous_velocity, personal, leaders, w, c1, c2)
+        else:
+            X_new, velocity = self._particles(X, previous_velocity, personal, leaders, w, c1, c2, move)
+        if n_offspring:
+            X_new = np.vstack([X_new, self._archive_offspring(n_offspring)])
+            velocity = np.vstack([velocity, np.zeros((n_offspring, problem.n_var))])
+        self.particle_velocity = velocity
+        return round_integers(X_new, self.is_integer, problem.xl, problem.xu)
+
+    def _compiled_move(self):
+        """The compiled move (:mod:`mosd.kernels.swarm`) when it applies, else None (the NumPy code below).
+
+        It applies when the kernels are on, the random state is a NumPy Generator, the boundary rule is one of
+        :func:`apply_bounds`' and the particles' mutation is polynomial or none (Coello's stays NumPy code).
+        """
+        from .. import kernels
+
+        if (not kernels.enabled() or type(self.random_state) is not np.random.Generator
+                or self.boundary not in BOUNDARY_RULES
+                or (self.mutation_rate is not None and self.mutation == "coello")):
+            return None
+        from ..kernels import swarm
+
+        return swarm
+
+    def _compiled_particles(self, swarm, X, previous_velocity, personal, leaders, w, c1, c2):
+        """The particles' move of :meth:`_particles` in one call of :func:`mosd.kernels.swarm.particle_move`."""
+        problem, n_particles = self.problem, len(X)
+        xl, xu = (np.asarray(bound, dtype=float) for bound in (problem.xl, problem.xu))
+        limit = (np.empty(0) if self.max_velocity is None
+                 else np.asarray(self.max_velocity * (problem.xu - problem.xl), dtype=float))
+        share = self._exploring_share()
+        n_exploring = int(np.count_nonzero(np.arange(n_particles) < share * self.pop_size)) if share > 0.0 else 0
+        mutate = self.mutation_rate is not None and self.mutation == "polynomial"
+        etas = self._eta_rows(n_particles) if mutate else np.empty(0)
+        return swarm.particle_move(
+            np.ascontiguousarray(X, dtype=float), np.ascontiguousarray(previous_velocity, dtype=float),
+            np.ascontiguousarray(personal, dtype=float), np.ascontiguousarray(leaders, dtype=float),
+            float(w), float(c1), float(c2), limit, n_exploring, *(float(c) for c in SMPSO_C_RANGE),
+            SMPSO_INERTIA, SMPSO_MAX_VELOCITY, xl, xu, swarm.BOUNDARY_CODES[self.boundary], mutate, etas,
+            float(self.mutation_rate) if mutate else 0.0, swarm.bit_source(self.random_state))
+
+    def _eta_rows(self, n: int) -> np.ndarray:
+        """:meth:`_mutation_etas` as one index per row (what the compiled mutation takes)."""
+        return np.array(np.broadcast_to(np.asarray(self._mutation_etas(n), dtype=float), (n,)))
+
+    def _particles(self, X, previous_velocity, personal, leaders, w, c1, c2, move):
+        """The particles' move on NumPy arrays: eq. 39's velocity, SMPSO's for the exploring ones, eq. 38 and
+        the boundary rule, then the particles' mutation; the new positions and velocities."""
+        rng, problem, n_particles = self.random_state, self.problem, len(X)
         r1, r2 = rng.random(X.shape), rng.random(X.shape)
         velocity = w * previous_velocity + c1 * r1 * (personal - X) + c2 * r2 * (leaders - X)
         if self.max_velocity is not None:
@@ -1113,11 +1165,7 @@ class MOPSO(Algorithm):
             # pymoo's operator: a share mutation_rate of the particles, each variable with 1/n_var
             X_new = polynomial_mutation(X_new, problem.xl, problem.xu, self._mutation_etas(n_particles),
                                         self.mutation_rate, rng)
-        if n_offspring:
-            X_new = np.vstack([X_new, self._archive_offspring(n_offspring)])
-            velocity = np.vstack([velocity, np.zeros((n_offspring, problem.n_var))])
-        self.particle_velocity = velocity
-        return round_integers(X_new, self.is_integer, problem.xl, problem.xu)
+        return X_new, velocity
 
     def _advance(self, infills=None, **kwargs):
         self.pop = infills
@@ -1191,6 +1239,11 @@ class MOPSO(Algorithm):
         if n == 0:
             return np.empty((0, problem.n_var))
         pairs = archive.select_leaders(2 * n, rng, self.leader).reshape(n, 2)
+        compiled = self._compiled_move()
+        if compiled is not None:
+            return compiled.offspring(archive.X[pairs[:, 0]].astype(float), archive.X[pairs[:, 1]].astype(float),
+                                      np.asarray(problem.xl, dtype=float), np.asarray(problem.xu, dtype=float),
+                                      CROSSOVER_PROBABILITY, CROSSOVER_ETA, self._eta_rows(n), compiled.bit_source(rng))
         children = sbx_children(archive.X[pairs[:, 0]], archive.X[pairs[:, 1]], problem.xl, problem.xu, rng,
                                 CROSSOVER_PROBABILITY, CROSSOVER_ETA)
         return polynomial_mutation(children, problem.xl, problem.xu, self._mutation_etas(n), 1.0, rng)
