@@ -141,7 +141,7 @@ def test_a_tuning_with_the_compiled_move_is_the_numpy_tuning(problem, settings):
 
 def test_the_move_is_compiled_only_where_it_reproduces_the_numpy_move():
     algorithm = MOPSO(pop_size=10)
-    algorithm.setup(get_problem("zdt1", n_var=3), seed=1)
+    algorithm.setup(get_problem("zdt1", n_var=3), termination=("n_gen", 10), seed=1)
     assert algorithm._compiled_move() is swarm
     with kernels.disabled():
         assert algorithm._compiled_move() is None
@@ -149,3 +149,21 @@ def test_the_move_is_compiled_only_where_it_reproduces_the_numpy_move():
     legacy = MOPSO(pop_size=10)
     legacy.random_state = np.random.RandomState(0)  # not a Generator: its draws are another algorithm's
     assert legacy._compiled_move() is None
+
+
+def test_a_copy_of_a_running_swarm_draws_from_its_own_generator():
+    """The kept addresses of the generator (MOPSO._bit_source) are not the copy's: a deep copy of a running
+    algorithm (res.history holds such copies) moves as the original would and leaves the original's state alone."""
+    import copy
+
+    algorithm = MOPSO(pop_size=12)
+    algorithm.setup(get_problem("zdt1", n_var=4), termination=("n_gen", 10), seed=5)
+    for _ in range(3):
+        algorithm.next()
+    state = algorithm.random_state.bit_generator.state
+    twin = copy.deepcopy(algorithm)
+    twin.next()
+    assert algorithm.random_state.bit_generator.state == state
+    algorithm.next()
+    np.testing.assert_array_equal(twin.pop.get("X"), algorithm.pop.get("X"))
+    assert twin.random_state.bit_generator.state == algorithm.random_state.bit_generator.state

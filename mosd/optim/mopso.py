@@ -101,6 +101,7 @@ from pymoo.termination.max_eval import MaximumFunctionCallTermination
 from pymoo.termination.max_gen import MaximumGenerationTermination
 from pymoo.util.display.multi import MultiObjectiveOutput
 
+from .. import kernels
 from ..validation import ConfigError, Interval, check_choice, check_in, check_int
 from .archive import (CONSTRAINED_RULES, INFEASIBLE_RULES, LEADER_RULES, REMOVAL_RULES, GridArchive,
                       evaluated_arrays, pairwise_dominates)
@@ -125,6 +126,8 @@ MUTATIONS = ("polynomial", "coello")
 #: SMPSO's move (Nebro et al. 2009): c1, c2 ~ U[1.5, 2.5] per particle and move, inertia 0.1,
 #: velocity clamp ±0.5 (xu − xl); see :func:`smpso_velocity`.
 SMPSO_C_RANGE = (1.5, 2.5)
+#: an empty array: no velocity clamp, or no distribution indices, for the compiled move
+_NO_LIMIT = np.empty(0)
 SMPSO_INERTIA = 0.1
 SMPSO_MAX_VELOCITY = 0.5
 #: The archive offspring's simulated binary crossover (see :meth:`MOPSO._archive_offspring`): pymoo's
@@ -1096,8 +1099,8 @@ class MOPSO(Algorithm):
         else:
             X_new, velocity = self._particles(X, previous_velocity, personal, leaders, w, c1, c2, move)
         if n_offspring:
-            X_new = np.vstack([X_new, self._archive_offspring(n_offspring)])
-            velocity = np.vstack([velocity, np.zeros((n_offspring, problem.n_var))])
+            X_new = np.concatenate([X_new, self._archive_offspring(n_offspring)])
+            velocity = np.concatenate([velocity, np.zeros((n_offspring, problem.n_var))])
         self.particle_velocity = velocity
         return round_integers(X_new, self.is_integer, problem.xl, problem.xu)
 
@@ -1107,8 +1110,6 @@ class MOPSO(Algorithm):
         It applies when the kernels are on, the random state is a NumPy Generator, the boundary rule is one of
         :func:`apply_bounds`' and the particles' mutation is polynomial or none (Coello's stays NumPy code).
         """
-        from .. import kernels
-
         if (not kernels.enabled() or type(self.random_state) is not np.random.Generator
                 or self.boundary not in BOUNDARY_RULES
                 or (self.mutation_rate is not None and self.mutation == "coello")):
@@ -1117,26 +1118,36 @@ class MOPSO(Algorithm):
 
         return swarm
 
+    def _bit_source(self, swarm) -> np.ndarray:
+        """:func:`mosd.kernels.swarm.bit_source` of the current random state, kept while it is the same generator
+        with the same state (a copy of the algorithm, as in ``res.history``, carries a copy of the generator whose
+        state lies elsewhere: it finds the kept addresses stale and takes its own)."""
+        generator, cached = self.random_state, self.__dict__.get("_source")
+        if (cached is None or cached[0] is not generator
+                or cached[1][2] != generator.bit_generator.ctypes.state_address):
+            cached = self.__dict__["_source"] = (generator, swarm.bit_source(generator))
+        return cached[1]
+
     def _compiled_particles(self, swarm, X, previous_velocity, personal, leaders, w, c1, c2):
         """The particles' move of :meth:`_particles` in one call of :func:`mosd.kernels.swarm.particle_move`."""
         problem, n_particles = self.problem, len(X)
-        xl, xu = (np.asarray(bound, dtype=float) for bound in (problem.xl, problem.xu))
-        limit = (np.empty(0) if self.max_velocity is None
-                 else np.asarray(self.max_velocity * (problem.xu - problem.xl), dtype=float))
+        xl, xu = np.asarray(problem.xl, dtype=float), np.asarray(problem.xu, dtype=float)
+        limit = _NO_LIMIT if self.max_velocity is None else self.max_velocity * (xu - xl)
         share = self._exploring_share()
-        n_exploring = int(np.count_nonzero(np.arange(n_particles) < share * self.pop_size)) if share > 0.0 else 0
+        n_exploring = min(n_particles, math.ceil(share * self.pop_size)) if share > 0.0 else 0
         mutate = self.mutation_rate is not None and self.mutation == "polynomial"
-        etas = self._eta_rows(n_particles) if mutate else np.empty(0)
         return swarm.particle_move(
             np.ascontiguousarray(X, dtype=float), np.ascontiguousarray(previous_velocity, dtype=float),
             np.ascontiguousarray(personal, dtype=float), np.ascontiguousarray(leaders, dtype=float),
-            float(w), float(c1), float(c2), limit, n_exploring, *(float(c) for c in SMPSO_C_RANGE),
-            SMPSO_INERTIA, SMPSO_MAX_VELOCITY, xl, xu, swarm.BOUNDARY_CODES[self.boundary], mutate, etas,
-            float(self.mutation_rate) if mutate else 0.0, swarm.bit_source(self.random_state))
+            float(w), float(c1), float(c2), limit, n_exploring, *SMPSO_C_RANGE, SMPSO_INERTIA,
+            SMPSO_MAX_VELOCITY, xl, xu, swarm.BOUNDARY_CODES[self.boundary], mutate,
+            self._eta_rows(n_particles) if mutate else _NO_LIMIT, float(self.mutation_rate) if mutate else 0.0,
+            self._bit_source(swarm))
 
     def _eta_rows(self, n: int) -> np.ndarray:
         """:meth:`_mutation_etas` as one index per row (what the compiled mutation takes)."""
-        return np.array(np.broadcast_to(np.asarray(self._mutation_etas(n), dtype=float), (n,)))
+        etas = self._mutation_etas(n)
+        return np.full(n, float(etas)) if np.ndim(etas) == 0 else np.asarray(etas, dtype=float)
 
     def _particles(self, X, previous_velocity, personal, leaders, w, c1, c2, move):
         """The particles' move on NumPy arrays: eq. 39's velocity, SMPSO's for the exploring ones, eq. 38 and
@@ -1243,7 +1254,7 @@ class MOPSO(Algorithm):
         if compiled is not None:
             return compiled.offspring(archive.X[pairs[:, 0]].astype(float), archive.X[pairs[:, 1]].astype(float),
                                       np.asarray(problem.xl, dtype=float), np.asarray(problem.xu, dtype=float),
-                                      CROSSOVER_PROBABILITY, CROSSOVER_ETA, self._eta_rows(n), compiled.bit_source(rng))
+                                      CROSSOVER_PROBABILITY, CROSSOVER_ETA, self._eta_rows(n), self._bit_source(compiled))
         children = sbx_children(archive.X[pairs[:, 0]], archive.X[pairs[:, 1]], problem.xl, problem.xu, rng,
                                 CROSSOVER_PROBABILITY, CROSSOVER_ETA)
         return polynomial_mutation(children, problem.xl, problem.xu, self._mutation_etas(n), 1.0, rng)
