@@ -222,3 +222,6 @@ def test_the_scale_section_reports_each_workload_s_keys():
     assert figures["scale_compute_inflation_threads_2"] > 0.5
     assert figures["scale_dask_vs_loky_threads"] > 0 and figures["scale_thread_ceiling_threads_2"] > 0
     assert any("compute x" in note and "split" in note for _, _, note in rows)
+    # the compiled MOPSO move against the NumPy move, side by side (their archives checked equal by the bench)
+    assert figures["scale_serial_move_ratio_threads"] > 0
+    assert any("compiled move" in label for label, _, _ in rows)

@@ -25,6 +25,9 @@ the evaluation itself (the compute time over n), and the compute time at n again
 the same candidates (``compute x``: how much the parts computed at once slowed each other down).
 ``serial share`` is the optimiser's part of one n_jobs=1 generation: Amdahl's serial fraction, the
 bound 1/share on any speed-up. Every n must give the archive of n_jobs=1 bit for bit (``identical``).
+For a MOPSO set-up, the optimiser's serial time with the compiled move (:mod:`mosd.kernels.swarm`) and
+with the NumPy move, tunings of each alternated in one process (``scale_serial_move_ratio_<workload>``,
+NumPy over compiled; the archives must be the same).
 
 Then a sweep of 2 × CPUs jobs of the main command, one after the other and with the joblib
 launcher running CPUs jobs at once (each job's thread pools pinned to its share of the cores).
@@ -241,11 +244,47 @@ def bench_workload(name: str, quick: bool = False, cpus: int | None = None) -> t
         rows.append((f"{name}: the bare evaluation on {n_threads} threads vs 1 (the machine's ceiling)", ceiling,
                      f"one population in {n_threads} parts at once, no optimiser: the most a "
                      f"{n_threads}-worker tuning of this workload can reach here"))
+    move = compiled_move_side_by_side(setup, evaluator, n_gen, rounds=2 if quick else 4)
+    if move is not None:
+        compiled, numpy_move = move
+        figures[f"scale_serial_move_ratio_{name}"] = numpy_move / compiled
+        rows.append((f"{name}: optimiser's serial time per generation, NumPy move vs compiled move",
+                     numpy_move / compiled,
+                     f"n_jobs=1, medians of alternated tunings: {1e3 * numpy_move:.2f} ms with the NumPy move, "
+                     f"{1e3 * compiled:.2f} ms with mosd.kernels.swarm (same archives)"))
     figures[f"scale_wall_per_gen_ms_{name}_1"] = 1e3 * one["wall_per_gen_s"]
     rows.append((f"{name}: serial share of an n_jobs=1 generation", serial_share,
                  f"Amdahl's bound on the speed-up 1/share = {1 / max(serial_share, 1e-12):.0f}; load average "
                  f"{load_before:.2f} -> {load_average():.2f}"))
     return rows, figures
+
+
+def compiled_move_side_by_side(setup, evaluator, n_gen: int, rounds: int = 4) -> tuple[float, float] | None:
+    """The optimiser's serial seconds per n_jobs=1 generation with the compiled MOPSO move and with the NumPy
+    move (:meth:`mosd.optim.mopso.MOPSO._compiled_move` declined), medians of ``rounds`` tunings of each,
+    alternated in this process; None when the set-up's algorithm does not use the compiled move."""
+    from unittest import mock
+
+    from .. import kernels
+    from ..optim.mopso import MOPSO
+
+    algorithm = setup.algorithm
+    if not (isinstance(algorithm, MOPSO) and kernels.enabled()):
+        return None
+    times: dict = {True: [], False: []}
+    results = {}
+    for _ in range(rounds):
+        for compiled in (True, False):
+            if compiled:
+                run = time_tuning(setup, evaluator, 1, n_gen)
+            else:
+                with mock.patch.object(MOPSO, "_compiled_move", lambda self: None):
+                    run = time_tuning(setup, evaluator, 1, n_gen)
+            times[compiled].append(run["serial_per_gen_s"])
+            results[compiled] = (run["X"], run["F"])
+    if not all(np.array_equal(a, b) for a, b in zip(results[True], results[False])):
+        raise RuntimeError("the compiled MOPSO move gave another archive than the NumPy move")
+    return float(np.median(times[True])), float(np.median(times[False]))
 
 
 def sweep_wall(n_jobs: int, launcher_jobs: int | None, quick: bool = False) -> float:
