@@ -4,6 +4,7 @@ import math
 import numpy as np
 import pytest
 
+from mosd import kernels
 from mosd.faults.ramp import RampFault
 from mosd.plants.flapping_wing import FlappingWingMAV
 from mosd.validation import ConfigError
@@ -81,9 +82,31 @@ def test_same_seed_same_flight_and_batch_independence(plant):
     b = plant.simulate(40, WhiteLogNoise(), None, rngs(3))
     np.testing.assert_array_equal(a.y, b.y)
     single = plant.simulate(40, WhiteLogNoise(), None, rngs(3)[2:])
-    np.testing.assert_allclose(single.y[0], a.y[2], rtol=0, atol=1e-12)
+    # the compiled simulation flies each flight on its own: bit for bit whatever the batch
+    np.testing.assert_array_equal(single.y[0], a.y[2])
+    with kernels.disabled():  # the NumPy code's matrix products (BLAS) depend on the batch in their last bits
+        np.testing.assert_allclose(plant.simulate(40, WhiteLogNoise(), None, rngs(3)[2:]).y[0], a.y[2], rtol=0,
+                                   atol=1e-12)
     other = plant.simulate(40, WhiteLogNoise(), None, [np.random.default_rng([8, 2, 0])])
     assert not np.allclose(other.y[0], a.y[0])
+
+
+@pytest.mark.parametrize("faulty", [False, True])
+def test_the_compiled_flights_are_the_numpy_flights(plant, faulty):
+    """mosd.kernels.plants.simulate_flapping_wing against the NumPy loop (kernels off): every logged array to
+    1e-12 (their matrix products sum in another order: BLAS's fused multiply-adds there, a plain sum here),
+    the autopilot's references exactly; the process noise and a GPS ramp included."""
+    noise = WhiteLogNoise()
+    noise.draw = lambda rng, n: (rng.standard_normal((n, 6)) * 0.01, rng.standard_normal((n, 5)) * 0.05)
+    fault = RampFault(onset=20.0, rate=0.05) if faulty else None
+    compiled = plant.simulate(300, noise, fault, rngs(5, stream=4))
+    with kernels.disabled():
+        reference = plant.simulate(300, noise, fault, rngs(5, stream=4))
+    for name in ("x", "y", "u"):
+        np.testing.assert_allclose(getattr(compiled, name), getattr(reference, name), rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(compiled.meta["reference"], reference.meta["reference"])
+    np.testing.assert_array_equal(compiled.fault_mask, reference.fault_mask)
+    assert np.ptp(compiled.x[..., 4]) > 1.0  # the flights moved: not a trivially equal pair
 
 
 def test_ramp_enters_the_gps_log_only(plant):

@@ -17,7 +17,10 @@ check equality, not a tolerance); the last three are close, not identical:
   :func:`mosd.detectors.base.persistent` (L consecutive points), one pass per row;
 * :mod:`mosd.kernels.plants` — the closed-loop simulation of the mould oscillator
   (:class:`mosd.plants.MouldOscillator`) and the plants' physics at one point
-  (``TRANSITIONS``: what :mod:`mosd.kernels.cubature` dispatches on);
+  (``TRANSITIONS``: what :mod:`mosd.kernels.cubature` dispatches on); also paper 003's
+  flights (:class:`mosd.plants.FlappingWingMAV`), close rather than identical: the NumPy
+  code's matrix products are BLAS's fused multiply-adds (~1e-14), and each flight is
+  flown on its own, so a flight no longer depends on its batch;
 * :mod:`mosd.kernels.cubature` — the CESCKF over a batch of replications, for
   models that give a compiled form of f and h (a ``PointwiseModel``); not
   bit-identical (LAPACK's QR sums in another order): ~1e-13 relative;

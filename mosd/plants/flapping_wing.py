@@ -264,7 +264,10 @@ class FlappingWingMAV(Plant):
 
         Draw order per replication (so that a flight never depends on the
         batch): noise model (w, v), then the plant's own draws (initial bias,
-        bias, flapping, reference wander), then the fault's.
+        bias, flapping, reference wander), then the fault's. The flights are flown by
+        :func:`mosd.kernels.plants.simulate_flapping_wing` (each on its own, ~100× faster)
+        or, with the kernels off, by :meth:`_flights` (all at once on NumPy arrays; their
+        matrix products round differently in the last bits, ~1e-14).
         """
         n_reps, N, M = len(rngs), int(n_samples), self.substeps
         h_step = self.dt / M
@@ -291,20 +294,60 @@ class FlappingWingMAV(Plant):
         bias_step_sigma = self.gps_bias_sigma * math.sqrt(1.0 - decay**2)
         # flapping: exact discretisation of the unit-variance resonant process
         phi, flap_factor, flap_stationary = self._oscillator(h_step)
-        flap = wander0[:, 0, :] @ np.linalg.cholesky(flap_stationary + 1e-15 * np.eye(2)).T
+        flap_root = np.linalg.cholesky(flap_stationary + 1e-15 * np.eye(2))
         # wandering references: two cascaded first-order lags of white noise (smooth paths); the
         # first stage starts stationary, the second at zero so that every flight starts on its trim
         lag = math.exp(-h_step / self.wander_time)
         lag_sigma = math.sqrt(1.0 - lag**2)
         wander_first = wander0[:, 1, :]
-        wander_second = np.zeros((n_reps, 2))
         scale_ref = np.array([self.altitude_wander, self.speed_wander]) / math.sqrt(_cascade_variance(lag))
 
+        bias = self.gps_bias_sigma * bias0
+        from .. import kernels
+
+        if kernels.enabled():
+            from ..kernels.plants import simulate_flapping_wing
+
+            arrays = [np.ascontiguousarray(a, dtype=float) for a in (
+                self.trim_state, self.trim_input, self.gain, phi, flap_factor, wander0[:, 0, :], flap_root,
+                wander_first, scale_ref, bias, bias_noise, flap_noise, wander_noise, w_proc)]
+            trim_state, trim_input, gain, phi_c, factor, flap_draw, root, first, scale, level, *noises = arrays
+            x, y, u_log, reference_log = simulate_flapping_wing(
+                self._constants(), trim_state, trim_input, gain, float(self.altitude), float(self.tail_limit), M,
+                h_step, phi_c, factor, flap_draw, root, lag, lag_sigma, first, scale, decay, bias_step_sigma, level,
+                *noises)
+        else:
+            flap = wander0[:, 0, :] @ flap_root.T
+            x, y, u_log, reference_log = self._flights(N, M, h_step, phi, flap_factor, flap, lag, lag_sigma,
+                                                       wander_first, scale_ref, decay, bias_step_sigma, bias,
+                                                       bias_noise, flap_noise, wander_noise, w_proc)
+        y = y + v_meas
+        y[..., channel] += g
+        meta = {"fault": repr(fault), "fault_scale": unit_of(fault, fault_scale), "output_names": self.output_names,
+                "dt": self.dt, "trim_input": self.trim_input.tolist(),
+                # the autopilot's altitude (m) and forward-speed (m/s) references at the logging instants
+                "reference": reference_log}
+        return Trace(t=t, u=u_log, x=x, y=y, fault_mask=mask, meta=meta)
+
+    def _constants(self) -> np.ndarray:
+        """The airframe's and the flapping's constants in :data:`mosd.kernels.plants.FLIGHT_CONSTANTS`' order, each
+        the float :meth:`derivative` computes from them (the same products in the same order)."""
+        a = self.airframe
+        return np.array([0.5 * a.air_density, a.wing_area, a.chord, a.c_l0, a.c_l_alpha, a.c_l_q, a.c_l_delta_e,
+                         a.c_d_p, math.pi * a.oswald * a.aspect_ratio,
+                         0.5 * a.air_density * a.prop_area * a.prop_coefficient, a.motor_constant, a.mass, a.c_m0,
+                         a.c_m_alpha, a.c_m_q, a.c_m_delta_e, a.inertia_y, GRAVITY, self.flap_heave, self.flap_pitch])
+
+    def _flights(self, N, M, h_step, phi, flap_factor, flap, lag, lag_sigma, wander_first, scale_ref, decay,
+                 bias_step_sigma, bias, bias_noise, flap_noise, wander_noise, w_proc):
+        """The flights on NumPy arrays, all replications at once (the reference of
+        :func:`mosd.kernels.plants.simulate_flapping_wing`): x, y without noise, u and the references."""
+        n_reps = len(bias)
+        wander_second = np.zeros((n_reps, 2))
         x = np.empty((n_reps, N, len(self.state_names)))
         y = np.empty((n_reps, N, len(self.output_names)))
         u_log = np.empty((n_reps, N, len(self.input_names)))
         rigid = np.broadcast_to(self.trim_state, (n_reps, 5)).copy()
-        bias = self.gps_bias_sigma * bias0
         integral = np.zeros(n_reps)
         reference_log = np.empty((n_reps, N, 2))
         for k in range(N):
@@ -327,13 +370,7 @@ class FlappingWingMAV(Plant):
             y[:, k] = np.stack([x[:, k, 4] + bias, -h_dot, x[:, k, 3], u_log[:, k, 0], u_log[:, k, 1]], -1)
             rigid = rigid + w_proc[:, k, :5]
             bias = decay * bias + bias_step_sigma * bias_noise[:, k] + w_proc[:, k, 5]
-        y = y + v_meas
-        y[..., channel] += g
-        meta = {"fault": repr(fault), "fault_scale": unit_of(fault, fault_scale), "output_names": self.output_names,
-                "dt": self.dt, "trim_input": self.trim_input.tolist(),
-                # the autopilot's altitude (m) and forward-speed (m/s) references at the logging instants
-                "reference": reference_log}
-        return Trace(t=t, u=u_log, x=x, y=y, fault_mask=mask, meta=meta)
+        return x, y, u_log, reference_log
 
     def _autopilot(self, rigid: np.ndarray, integral: np.ndarray, reference: np.ndarray):
         """Saturated LQR command (R, 2) and the rate of the altitude-error integral (R,)."""
