@@ -135,3 +135,53 @@ def test_the_side_processes_started_early_yield_to_the_compiling():
     finally:
         plots.discard()
     assert plots.early_pids() == []
+
+
+_SWARM_PROBE = """
+import json, threading
+import numpy as np
+from pymoo.optimize import minimize
+from pymoo.problems import get_problem
+from mosd.kernels import ahead, swarm
+from mosd.optim.mopso import MOPSO
+
+class Compiling:  # the second process's handle while it still compiles the move
+    _done = {"swarm": threading.Event()}
+ahead._CURRENT.append(Compiling())
+algorithm = MOPSO(pop_size=12)
+algorithm.setup(get_problem("zdt1", n_var=3), termination=("n_gen", 10), seed=2)
+while_compiling = algorithm._compiled_move() is not None
+first = minimize(get_problem("zdt1", n_var=3), MOPSO(pop_size=12), ("n_gen", 15), seed=2)
+loaded_meanwhile = bool(swarm.particle_move.overloads)
+Compiling._done["swarm"].set()
+after = algorithm._compiled_move() is swarm
+second = minimize(get_problem("zdt1", n_var=3), MOPSO(pop_size=12), ("n_gen", 15), seed=2)
+ahead._CURRENT.clear()
+print(json.dumps({"while_compiling": while_compiling, "matches_numpy": swarm.matches_numpy(),
+                  "loaded_meanwhile": loaded_meanwhile, "after": after,
+                  "same": bool(np.array_equal(first.F, second.F) and np.array_equal(first.X, second.X))}))
+"""
+
+
+def test_while_the_move_compiles_ahead_the_optimiser_takes_the_numpy_move(tmp_path):
+    """A run does not wait for the compiled MOPSO move the second process is still compiling: it takes the NumPy
+    move (the same numbers where NumPy's power is libm's; elsewhere it waits), and the compiled one once ready."""
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba"), PYTHONPATH=PACKAGE_PARENT)
+    env.pop("MOSD_KERNELS", None)
+    run = subprocess.run([sys.executable, "-c", _SWARM_PROBE], capture_output=True, text=True, env=env, timeout=600)
+    assert run.returncode == 0, run.stderr[-3000:]
+    found = json.loads(run.stdout.strip().splitlines()[-1])
+    assert found["while_compiling"] is not found["matches_numpy"]
+    assert found["loaded_meanwhile"] is not found["matches_numpy"]  # nothing compiled or loaded while it waited
+    assert found["after"] and found["same"]
+
+
+def test_a_run_that_ends_lets_the_second_process_finish(tmp_path):
+    """ahead.finish waits for the parts still compiling (then ends the process): the next run finds them cached."""
+    script = ("from mosd import kernels; from mosd.kernels import ahead; h = ahead.start(['ewma']); "
+              "ahead.finish(120); print(sorted(h.ready), h._proc.poll() is not None, kernels.cached('ewma'))")
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba"), PYTHONPATH=PACKAGE_PARENT)
+    env.pop("MOSD_KERNELS", None)
+    run = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, env=env, timeout=300)
+    assert run.returncode == 0, run.stderr[-3000:]
+    assert run.stdout.split() == ["['ewma']", "True", "True"]

@@ -245,6 +245,7 @@ def _checked_and_run(argv: list[str], started: float) -> int:
 
         _LAUNCHED = True
         run_composed(checked.config, run_task, str(CONFIG_DIR))
+        _finish_compiling()
         return 0
     task = hydra.main(version_base="1.3", config_path=str(CONFIG_DIR), config_name=CONFIG_NAME)(run_task)
     saved = sys.argv
@@ -257,4 +258,19 @@ def _checked_and_run(argv: list[str], started: float) -> int:
             task()
     finally:
         sys.argv = saved
+    _finish_compiling()
     return 0
+
+
+#: how long a command that ended normally waits for the kernels still compiling ahead (the optimiser's move
+#: takes about 5 s on an empty cache on two cores; the run's results are out by then)
+FINISH_COMPILING_S = 60.0
+
+
+def _finish_compiling() -> None:
+    """Let the second process finish the kernels it compiles (:func:`mosd.kernels.ahead.finish`), so that the next
+    run loads them: a run may end before the optimiser's move is compiled, having taken its NumPy form meanwhile.
+    Not after an error or a signal (the exit kills the process)."""
+    ahead = sys.modules.get("mosd.kernels.ahead")
+    if ahead is not None:
+        ahead.finish(FINISH_COMPILING_S)

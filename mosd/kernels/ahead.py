@@ -189,6 +189,27 @@ def close() -> None:
         _CURRENT.pop().close()
 
 
+def pending(part: str) -> bool:
+    """Whether the second process is still compiling ``part`` (a lookup of its kernels here would wait for it)."""
+    return any(part in ahead._done and not ahead._done[part].is_set() for ahead in _CURRENT)
+
+
+def finish(timeout: float) -> None:
+    """Let the second process finish what it compiles (at most ``timeout`` seconds), then end it.
+
+    A run that took another path while a part compiled (the optimiser's NumPy move while the compiled move
+    compiles: :func:`mosd.kernels.swarm.ready`) may end first; waiting here, after its results, leaves the part
+    in numba's cache for the next run instead of killing its compilation every time.
+    """
+    import time
+
+    deadline = time.monotonic() + max(0.0, timeout)
+    for ahead in list(_CURRENT):
+        for done in ahead._done.values():
+            done.wait(max(0.0, deadline - time.monotonic()))
+    close()
+
+
 atexit.register(close)
 
 
@@ -202,6 +223,12 @@ def _exit_when_orphaned() -> None:
     os._exit(0)
 
 
+#: parts the first process does not wait for (it runs another path meanwhile: :func:`mosd.kernels.swarm.ready`):
+#: compiled at a lower priority, on the CPU the run leaves idle, after the parts it waits for
+BACKGROUND = ("swarm",)
+BACKGROUND_NICE = 10
+
+
 def compile_parts(parts: Sequence[str], report=print) -> int:
     """Compile each part in order into the cache, reporting ``ready PART`` / ``failed PART why``; the failures."""
     failed = 0
@@ -209,6 +236,8 @@ def compile_parts(parts: Sequence[str], report=print) -> int:
         try:
             if part not in PARTS:
                 raise ValueError(f"not a kernel part (allowed: {', '.join(PARTS)})")
+            if part in BACKGROUND and hasattr(os, "nice"):
+                os.nice(max(0, BACKGROUND_NICE - os.nice(0)))  # once: a nice value is never raised back
             _compile(part)
             report(f"ready {part}")
         except Exception as exc:  # noqa: BLE001 - reported; the first process compiles this part itself

@@ -25,6 +25,8 @@ swarms, the generator's state after them included.
 from __future__ import annotations
 
 import ctypes
+import functools
+import math
 
 import numpy as np
 from llvmlite import ir
@@ -34,6 +36,9 @@ from numba.extending import intrinsic
 from . import configure_compiler
 
 configure_compiler()  # before this module's first compile
+
+#: a helper called only from compiled code: no CPython or C-callable entry point to generate and compile
+_inner = njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 
 #: boundary rules of :func:`mosd.optim.mopso.apply_bounds`, as the kernel's codes
 BOUNDARY_CODES = {"clip": 0, "reflect": 1, "absorb": 2}
@@ -71,7 +76,7 @@ def bit_source(generator: np.random.Generator) -> np.ndarray:
                     dtype=np.intp)
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@_inner
 def _clip(value, low, high):
     # np.clip's scalar rule: a NaN stays, max first, then min
     if np.isnan(value):
@@ -82,7 +87,7 @@ def _clip(value, low, high):
     return value if value < high else high
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@_inner
 def _polynomial_mutation(X, xl, xu, etas, per_variable, share, source):
     """:func:`mosd.optim.mopso.polynomial_mutation` (``per_variable`` = 1/n_var) with one distribution index per
     row, ``etas[i]``, on ``X`` in place: :func:`mosd.optim.mopso.polynomial_steps`' draws and arithmetic."""
@@ -195,7 +200,7 @@ def particle_move(X, previous_velocity, personal, leaders, w, c1, c2, limit, n_e
     return positions, velocity
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@_inner
 def _spread(beta, r, exponent, root):
     alpha = 2.0 - beta ** exponent
     threshold, scaled = 1.0 / alpha, r * alpha
@@ -279,6 +284,31 @@ def offspring(first, second, xl, xu, probability, eta, etas, source):
             for j in range(n_var):
                 children[i, j] = parent[i, j]
     return _polynomial_mutation(children, xl, xu, etas, 1.0 / n_var, 1.0, source)
+
+
+@functools.lru_cache(maxsize=None)
+def matches_numpy() -> bool:
+    """Whether NumPy's ``power`` is the C library's ``pow`` here (checked once on 512 values): then the kernels give
+    the NumPy move's bits, and a run may take either move at any generation with the same result."""
+    rng = np.random.default_rng(0)
+    base, exponent = rng.uniform(0.0, 2.0, 512), rng.uniform(-30.0, 30.0, 512)
+    return bool(np.array_equal(np.power(base, exponent), [math.pow(a, b) for a, b in zip(base, exponent)]))
+
+
+def ready() -> bool:
+    """Whether a move should run compiled now: its code is loaded here, or nobody else is compiling it (then it is
+    loaded from numba's cache, or compiled here, as any kernel where a run first calls it).
+
+    While the second process of :mod:`mosd.kernels.ahead` compiles it (about 5 s on an empty cache, after the
+    run's other kernels) the optimiser takes the NumPy move instead of waiting, which gives the same numbers
+    where :func:`matches_numpy`; elsewhere it waits, so that a run's positions never depend on when a
+    compilation ended.
+    """
+    if particle_move.overloads and offspring.overloads:
+        return True
+    from . import ahead
+
+    return not ahead.pending("swarm") or not matches_numpy()
 
 
 def warm_up() -> None:

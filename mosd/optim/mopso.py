@@ -1108,7 +1108,8 @@ class MOPSO(Algorithm):
         """The compiled move (:mod:`mosd.kernels.swarm`) when it applies, else None (the NumPy code below).
 
         It applies when the kernels are on, the random state is a NumPy Generator, the boundary rule is one of
-        :func:`apply_bounds`' and the particles' mutation is polynomial or none (Coello's stays NumPy code).
+        :func:`apply_bounds`' and the particles' mutation is polynomial or none (Coello's stays NumPy code); on an
+        empty cache, from the generation its compilation ahead ends (:func:`mosd.kernels.swarm.ready`).
         """
         if (not kernels.enabled() or type(self.random_state) is not np.random.Generator
                 or self.boundary not in BOUNDARY_RULES
@@ -1116,7 +1117,7 @@ class MOPSO(Algorithm):
             return None
         from ..kernels import swarm
 
-        return swarm
+        return swarm if swarm.ready() else None
 
     def _bit_source(self, swarm) -> np.ndarray:
         """:func:`mosd.kernels.swarm.bit_source` of the current random state, kept while it is the same generator
