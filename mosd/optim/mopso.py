@@ -126,10 +126,10 @@ MUTATIONS = ("polynomial", "coello")
 #: SMPSO's move (Nebro et al. 2009): c1, c2 ~ U[1.5, 2.5] per particle and move, inertia 0.1,
 #: velocity clamp ±0.5 (xu − xl); see :func:`smpso_velocity`.
 SMPSO_C_RANGE = (1.5, 2.5)
-#: an empty array: no velocity clamp, or no distribution indices, for the compiled move
-_NO_LIMIT = np.empty(0)
 SMPSO_INERTIA = 0.1
 SMPSO_MAX_VELOCITY = 0.5
+#: an empty array: no velocity clamp, or no distribution indices, for the compiled move (never written to)
+_NO_LIMIT = np.empty(0)
 #: The archive offspring's simulated binary crossover (see :meth:`MOPSO._archive_offspring`): pymoo's
 #: defaults, which are its NSGA-II's (probability 0.9 per pair, η = 15, each variable with probability 0.5).
 CROSSOVER_PROBABILITY = 0.9
@@ -1253,9 +1253,10 @@ class MOPSO(Algorithm):
         pairs = archive.select_leaders(2 * n, rng, self.leader).reshape(n, 2)
         compiled = self._compiled_move()
         if compiled is not None:
-            return compiled.offspring(archive.X[pairs[:, 0]].astype(float), archive.X[pairs[:, 1]].astype(float),
-                                      np.asarray(problem.xl, dtype=float), np.asarray(problem.xu, dtype=float),
-                                      CROSSOVER_PROBABILITY, CROSSOVER_ETA, self._eta_rows(n), self._bit_source(compiled))
+            first, second = archive.X[pairs[:, 0]].astype(float), archive.X[pairs[:, 1]].astype(float)
+            return compiled.offspring(first, second, np.asarray(problem.xl, dtype=float),
+                                      np.asarray(problem.xu, dtype=float), CROSSOVER_PROBABILITY, CROSSOVER_ETA,
+                                      self._eta_rows(n), self._bit_source(compiled))
         children = sbx_children(archive.X[pairs[:, 0]], archive.X[pairs[:, 1]], problem.xl, problem.xu, rng,
                                 CROSSOVER_PROBABILITY, CROSSOVER_ETA)
         return polynomial_mutation(children, problem.xl, problem.xu, self._mutation_etas(n), 1.0, rng)
