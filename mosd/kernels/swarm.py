@@ -19,7 +19,7 @@ Generator's lock is not taken: the optimiser's generator is used by one thread.
 The arithmetic is the NumPy code's, expression for expression on the same elements (numba compiles without
 fast-math: nothing is reassociated or fused), so the positions are the same bits where NumPy's ``power`` is
 the C library's ``pow``, as on every machine without AVX-512 (there NumPy may take a SIMD ``pow`` that
-rounds some results to the neighbouring float). ``tests/test_kernels.py`` compares the two paths on random
+rounds some results to the neighbouring float). ``tests/test_kernel_swarm.py`` compares the two paths on random
 swarms, the generator's state after them included.
 """
 from __future__ import annotations
