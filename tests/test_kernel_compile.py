@@ -99,7 +99,8 @@ def test_every_kernel_compiles_once_from_an_empty_cache(compiled):
 @pytest.mark.slow
 def test_helpers_have_no_python_entry_point(compiled):
     entry = {"mosd.kernels.cubature.cesckf", "mosd.kernels.cubature._output_prediction",
-             "mosd.kernels.plants.simulate_mould_oscillator", "mosd.kernels.plants.transition_points"}
+             "mosd.kernels.plants.simulate_mould_oscillator", "mosd.kernels.plants.simulate_flapping_wing",
+             "mosd.kernels.plants.transition_points"}
     for name, info in compiled.items():
         assert info["wrapper"] == (name in entry), name
 
