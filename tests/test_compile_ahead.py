@@ -185,3 +185,31 @@ def test_a_run_that_ends_lets_the_second_process_finish(tmp_path):
     run = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, env=env, timeout=300)
     assert run.returncode == 0, run.stderr[-3000:]
     assert run.stdout.split() == ["['ewma']", "True", "True"]
+
+
+def test_an_index_left_by_an_older_source_is_not_cached(tmp_path):
+    """kernels.cached reads numba's index with its source stamp (a hash of the file): after the module's file
+    changes (an edit, a new version over an old cache) its kernels count as uncached, so the second process
+    compiles them, not the run."""
+    import shutil
+
+    package = os.path.join(PACKAGE_PARENT, "mosd")
+    shutil.copytree(package, tmp_path / "mosd", ignore=shutil.ignore_patterns("__pycache__"))
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba"), PYTHONPATH=str(tmp_path))
+    env.pop("MOSD_KERNELS", None)
+
+    def cached(warm: bool) -> str:
+        script = ("from mosd import kernels; from mosd.kernels import ewma; "
+                  + ("ewma.warm_up(); " if warm else "") + "print(kernels.cached('ewma'), ewma.__file__)")
+        run = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, env=env, timeout=300,
+                             cwd=tmp_path)
+        assert run.returncode == 0, run.stderr[-3000:]
+        answer, where = run.stdout.split()
+        assert where.startswith(str(tmp_path))
+        return answer
+
+    assert cached(False) == "False"  # an empty cache
+    assert cached(True) == "True"
+    source = tmp_path / "mosd" / "kernels" / "ewma.py"
+    source.write_text(source.read_text() + "\n# a later version\n")  # the file changed since they were compiled
+    assert cached(False) == "False"

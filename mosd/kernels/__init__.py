@@ -153,16 +153,21 @@ def warm_up(modules: tuple[str, ...] = EVALUATION_MODULES) -> None:
 
 
 def cached(name: str) -> bool:
-    """Whether kernel module ``name`` has compiled code in numba's on-disk cache (any of its index files).
+    """Whether kernel module ``name`` has compiled code in numba's on-disk cache for its current source.
 
-    Cheap (a directory listing; the module is imported, which imports numba).
+    Cheap: its kernels' indexes are read (the module is imported, which imports numba). numba keeps
+    an index per kernel with a stamp of the source it was compiled from (a hash of the file), and a kernel whose
+    file has changed since (an edit, a new version over an old cache) is compiled again where it is next called,
+    so such an index does not count: ``mosd.kernels.ahead`` then compiles the module in the second process, not
+    the run (a directory listing, as before, counted it, and the run compiled it).
     """
-    import glob
     import importlib
 
-    for dispatcher in cached_dispatchers(importlib.import_module(f"{__name__}.{name}")):
-        return bool(glob.glob(os.path.join(glob.escape(dispatcher._cache._cache_path), f"{name}.*.nbi")))
-    return True  # nothing cached by numba in this module
+    dispatchers = cached_dispatchers(importlib.import_module(f"{__name__}.{name}"))
+    if not dispatchers:
+        return True  # nothing cached by numba in this module
+    # numba's own check (the index file's version and the source's stamp): {} when absent or stale
+    return any(dispatcher._cache._cache_file._load_index() for dispatcher in dispatchers)
 
 
 def cached_dispatchers(module) -> list:
