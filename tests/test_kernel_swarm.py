@@ -2,11 +2,10 @@
 serial step).
 
 Same draws from the same generator (its state after the move included) and the same positions: bit for bit
-where NumPy's ``power`` is the C library's ``pow`` (checked on a probe below; on a machine where NumPy takes
-a SIMD ``pow`` the positions may differ in their last bit, and only there is a tolerance of a few ulps used).
+where NumPy's ``power`` is the C library's ``pow`` (swarm.matches_numpy's probe, the one a run trusts; where
+NumPy takes a SIMD ``pow`` the positions may differ in their last bit, and only there is a tolerance of a few
+ulps used).
 """
-import math
-
 import numpy as np
 import pytest
 from pymoo.optimize import minimize
@@ -18,13 +17,7 @@ from mosd.optim import mopso
 from mosd.optim.mopso import MOPSO
 
 
-def _numpy_power_is_libm() -> bool:
-    rng = np.random.default_rng(0)
-    base, exponent = rng.uniform(0.0, 2.0, 20000), rng.uniform(-30.0, 30.0, 20000)
-    return np.array_equal(np.power(base, exponent), np.array([math.pow(a, b) for a, b in zip(base, exponent)]))
-
-
-EXACT = _numpy_power_is_libm()
+EXACT = swarm.matches_numpy()  # NumPy's power is libm's here: the kernels must give its bits
 
 
 def _assert_same(compiled, reference):

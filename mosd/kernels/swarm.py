@@ -94,11 +94,9 @@ def _polynomial_mutation(X, xl, xu, etas, per_variable, share, source):
     n, n_var = X.shape
     # polynomial_steps: one uniform per variable (mutated below per_variable; never a fixed variable) ...
     mutate = np.empty((n, n_var), dtype=np.bool_)
-    k = 0
     for i in range(n):
         for j in range(n_var):
             mutate[i, j] = _next_double(source[0], source[2]) < per_variable and xl[j] != xu[j]
-            k += mutate[i, j]
     # ... then one per mutated variable, in row-major order (X[mutate]'s)
     steps = np.empty((n, n_var))
     for i in range(n):
@@ -317,8 +315,7 @@ def warm_up() -> None:
     source = bit_source(generator)
     X = np.zeros((2, 2))
     bounds = np.zeros(2), np.ones(2)
+    # one signature serves every configuration (no clamp is an empty limit, no mutation a flag)
     particle_move(X, X, X, X, 0.5, 1.0, 1.0, np.ones(2), 1, 1.5, 2.5, 0.1, 0.5, *bounds, 0, True, np.ones(2),
-                  0.5, source)
-    particle_move(X, X, X, X, 0.5, 1.0, 1.0, np.empty(0), 0, 1.5, 2.5, 0.1, 0.5, *bounds, 1, False, np.ones(2),
                   0.5, source)
     offspring(X, X + 0.5, *bounds, 0.9, 15.0, np.ones(2), source)
