@@ -144,17 +144,31 @@ def test_the_unverified_tls_context_checks_neither_certificate_nor_host():
 
 
 def test_no_private_call_outside_the_adapters():
-    """``ssl._…``, ``atexit._…``, ``hydra._internal`` are reached in compat.py (and the optimiser's workers.py) only."""
+    """``ssl._…``, ``atexit._…``, ``hydra._internal``, the joblib launcher's ``_core`` are reached in compat.py (and the optimiser's workers.py) only."""
     import re
     from pathlib import Path
 
     package = Path(__file__).resolve().parents[1] / "mosd"
-    private = re.compile(r"\b(ssl|atexit)\._[a-z]|hydra\._internal")
+    private = re.compile(r"\b(ssl|atexit)\._[a-z]|hydra\._internal|hydra_joblib_launcher\._core")
     found = [f"{path.relative_to(package)}:{n}" for path in sorted(package.rglob("*.py"))
              if path.name not in ("compat.py", "workers.py")
              for n, line in enumerate(path.read_text().splitlines(), 1)
              if private.search(line.split("#")[0])]
     assert not found, found
+
+
+def test_the_joblib_launcher_arguments_are_the_plugins_parallel_arguments():
+    """``hydra.launcher`` of the joblib launcher as the plugin hands it to ``joblib.Parallel`` (its own conversion)."""
+    import dataclasses
+
+    from hydra_plugins.hydra_joblib_launcher.config import JobLibLauncherConf
+    from joblib import Parallel
+    from omegaconf import OmegaConf
+
+    arguments = compat.joblib_launcher_arguments(OmegaConf.structured(JobLibLauncherConf(n_jobs=3)))
+    assert set(arguments) == {f.name for f in dataclasses.fields(JobLibLauncherConf)} - {"_target_"}
+    assert arguments["backend"] == "loky" and arguments["n_jobs"] == 3
+    Parallel(**arguments)  # every key is one Parallel takes
 
 
 def test_the_dask_backend_calls_what_the_installed_distributed_serves():

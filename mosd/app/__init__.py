@@ -188,6 +188,9 @@ def _main(argv: list[str], started: float) -> int:
         # side processes started for a run that did not take them (an error, a sweep, tracking disabled)
         plots.discard()
         channel.discard()
+        sweep = sys.modules.get(f"{__name__}.sweep")
+        if sweep is not None:
+            sweep.discard_warm_workers()  # job workers started for a sweep that was not launched
 
 
 def _checked_and_run(argv: list[str], started: float) -> int:
@@ -213,7 +216,7 @@ def _checked_and_run(argv: list[str], started: float) -> int:
         from .preflight import preflight
 
         # the components of every job, built once: a job run in this process takes its own
-        checked = preflight(argv, compile_ahead=checking)
+        checked = preflight(argv, compile_ahead=checking, warm_workers=checking)
     except (UsageError, ConfigError) as exc:
         from .settings import redacted
 
@@ -248,13 +251,17 @@ def _checked_and_run(argv: list[str], started: float) -> int:
         _finish_compiling()
         return 0
     task = hydra.main(version_base="1.3", config_path=str(CONFIG_DIR), config_name=CONFIG_NAME)(run_task)
+    from .sweep import launched_into_warm_pool
+
+    launched_into_warm_pool()
     saved = sys.argv
     sys.argv = [saved[0] if saved else "mosd", *argv]
     try:
         _LAUNCHED = True
-        from .compat import redacted_stdout
+        from .compat import redacted_stdout, sweep_composed_once
 
-        with redacted_stdout() if not checking else contextlib.nullcontext():  # --cfg: no password shown
+        # --cfg: no password shown; a sweep: Hydra's sweeper does not compose again the jobs preflight composed
+        with redacted_stdout() if not checking else sweep_composed_once(checked.composed):
             task()
     finally:
         sys.argv = saved

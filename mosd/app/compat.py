@@ -20,18 +20,30 @@ adapter, :mod:`mosd.optim.workers`: the science core cannot import the app.)
   run uses the configuration preflight composed. ``hydra.main`` composes it twice more (once
   to read ``hydra.mode``, once for the run): 0.33 s each for the main command (fastest of 8 on the
   project's 2-core machine at load average 7.7).
+* :func:`sweep_composed_once` — Hydra's ``BasicSweeper.validate_batch_is_legal``
+  (``hydra._internal.core_plugins``): before launching a batch, the basic sweeper composes every
+  job of it to catch a composition error early, which preflight did already for the same jobs
+  (the job then composes its configuration a third time where it runs). Skipped for the jobs
+  preflight composed; 2.7 s of a 16-job sweep of the main command on the project's 2-core machine,
+  every second of it before the first job starts (docs/SCALING.md).
+* :func:`joblib_launcher_arguments` — the joblib launcher plugin's ``process_joblib_cfg``
+  (``hydra_plugins.hydra_joblib_launcher._core``): the ``Parallel`` arguments the launcher builds
+  from ``hydra.launcher``, so that the workers a sweep starts while preflight checks its jobs
+  (:func:`mosd.app.sweep.warm_job_workers`) are the pool the launcher then reuses (joblib reuses its
+  worker pool for a ``Parallel`` of the same arguments).
 * :data:`MLFLOW_CORE_TABLES`, :data:`MLFLOW_MIGRATION_LEFTOVER`,
   :data:`MLFLOW_VERSION_TABLE` — what :mod:`mosd.app.store` reads of MLflow's sqlite
   schema (with the standard library, read-only: importing MLflow costs seconds,
   and preflight must judge a store before any work).
 
-What used to be private and is no longer used: Hydra's ``BasicSweeper`` (the
+What used to be private and is no longer used: Hydra's ``BasicSweeper``'s expansion (the
 jobs of a sweep are expanded with the public override API,
 :func:`sweep_jobs`) and Hydra's error text (a composition error is read from
 the exception's public attributes, :func:`composition_error`).
 """
 from __future__ import annotations
 
+import contextlib
 import itertools
 from typing import Any, Sequence
 
@@ -150,6 +162,61 @@ def redacted_stdout():
             stream.flush()
 
     return redacting()
+
+
+#: What ``hydra.main`` adds to the hydra overrides of a ``-m`` command line.
+MULTIRUN_OVERRIDE = "hydra.mode=MULTIRUN"
+
+
+def job_signature(overrides: Sequence[str]) -> tuple[str, ...]:
+    """A job's override strings as one key, whatever their order (:func:`sweep_composed_once`)."""
+    return tuple(sorted(str(o) for o in overrides))
+
+
+@contextlib.contextmanager
+def sweep_composed_once(composed: set[tuple[str, ...]]):
+    """Within this block Hydra's basic sweeper does not compose again the jobs preflight composed (private API).
+
+    ``composed``: :func:`job_signature` of each job preflight composed, hydra overrides included.
+    ``BasicSweeper.validate_batch_is_legal`` composes every job of a batch (the job's task overrides
+    after the primary config's hydra overrides) only to raise a composition error before any job
+    runs; a job whose overrides preflight composed (the same strings, in any order) has passed that
+    check already, and any other job (one of a sweep the sweeper reads from ``hydra.sweeper.params``, or
+    written differently from preflight's expansion) is still composed here. A subclass that overrides
+    the method keeps its own.
+    """
+    from hydra._internal.core_plugins.basic_sweeper import BasicSweeper
+    from omegaconf import OmegaConf
+
+    original = BasicSweeper.validate_batch_is_legal
+
+    def validate_batch_is_legal(self, batch):
+        # the override Hydra adds for -m (preflight composes the jobs without it): a value of an enum key of
+        # Hydra's own section, which cannot make a composition fail
+        hydra_overrides = [o for o in OmegaConf.to_container(self.config.hydra.overrides.hydra)
+                           if o != MULTIRUN_OVERRIDE]
+        unchecked = [job for job in batch if job_signature([*hydra_overrides, *job]) not in composed]
+        if unchecked:
+            original(self, unchecked)
+
+    BasicSweeper.validate_batch_is_legal = validate_batch_is_legal
+    try:
+        yield
+    finally:
+        BasicSweeper.validate_batch_is_legal = original
+
+
+def joblib_launcher_arguments(launcher_cfg) -> dict:
+    """The keyword arguments Hydra's joblib launcher gives ``joblib.Parallel`` for ``launcher_cfg`` (``hydra.launcher``;
+    private API: the plugin's own conversion, and the loky backend it forces)."""
+    from hydra_plugins.hydra_joblib_launcher._core import process_joblib_cfg
+    from omegaconf import OmegaConf
+
+    arguments = OmegaConf.to_container(launcher_cfg, resolve=True)
+    arguments.pop("_target_", None)
+    arguments["backend"] = "loky"
+    process_joblib_cfg(arguments)
+    return arguments
 
 
 def run_composed(cfg, task_function, config_dir: str, task_name: str = "mosd") -> None:

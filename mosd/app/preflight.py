@@ -27,7 +27,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from .build import Setup, build
-from .compat import composition_error, hydra_args_parser, sweep_jobs
+from .compat import composition_error, hydra_args_parser, job_signature, sweep_jobs
 from .config import CONFIG_DIR, CONFIG_NAME, ConfigError, UsageError, default_groups, groups, one_line, options
 
 #: Sections that do not change the shapes a run goes through (a sweep over them shares one dry run).
@@ -539,6 +539,9 @@ class Checked:
         #: a single run's composed configuration (hydra section included): the run uses it as composed
         #: (:func:`mosd.app.compat.run_composed`) instead of Hydra composing it twice more; None for a sweep
         self.config = None
+        #: :func:`mosd.app.compat.job_signature` of every job composed here: Hydra's sweeper need not compose
+        #: them again before launching them (:func:`mosd.app.compat.sweep_composed_once`)
+        self.composed: set[tuple[str, ...]] = set()
 
     def add(self, cfg, setup: Setup) -> None:
         key = job_key(cfg)
@@ -555,17 +558,19 @@ class Checked:
 
     def __getstate__(self):
         # a job in another process (the joblib launcher pickles the task) builds its own: nothing is shipped
-        return {"_setups": {}, "config": None}
+        return {"_setups": {}, "config": None, "composed": set()}
 
 
-def preflight(argv: Sequence[str], compile_ahead: bool = False) -> Checked:
+def preflight(argv: Sequence[str], compile_ahead: bool = False, warm_workers: bool = False) -> Checked:
     """Compose and build every job of a command line; raise UsageError/ConfigError on a mistake.
 
     Returns the built components of every job (:class:`Checked`), so that a job
     run in this process does not build them again (:func:`mosd.app.run.run`).
     ``compile_ahead``: a second process may compile the kernels the first job calls
     last while its dry run compiles the first ones (:func:`mosd.app.compile_ahead.start_for`:
-    nothing on a warm cache or on one CPU).
+    nothing on a warm cache or on one CPU). ``warm_workers``: a sweep under the joblib launcher starts its
+    workers once its first job is composed, where :data:`mosd.app.sweep.WARM_FREE_CPUS` CPUs are idle
+    (:func:`mosd.app.sweep.warm_job_workers`).
     """
     checked = Checked()
     args = _args_parser().parse_args(list(argv))
@@ -589,12 +594,22 @@ def preflight(argv: Sequence[str], compile_ahead: bool = False) -> Checked:
     GlobalHydra.instance().clear()
     done: dict = {}
     with initialize_config_dir(config_dir=str(config_dir), version_base="1.3", job_name="mosd"):
-        for job in _jobs(parsed, args.multirun):
+        jobs = _jobs(parsed, args.multirun)
+        for job in jobs:
             try:
                 cfg = compose(config_name, overrides=[*extra, *job], return_hydra_config=True)
             except (HydraException, OmegaConfBaseException) as exc:
                 raise UsageError(_composition_message(
                     exc, lambda: compose(config_name, overrides=[*extra, *group_only]))) from None
+            if args.multirun and warm_workers:
+                from .plots import free_cpus
+                from .sweep import WARM_FREE_CPUS, warm_job_workers
+
+                # the launcher's workers start and import while the jobs are checked here, on CPUs these checks
+                # leave idle
+                warm_workers = False
+                if free_cpus() >= WARM_FREE_CPUS:
+                    warm_job_workers(cfg.hydra, len(jobs))
             try:
                 with warnings.catch_warnings():
                     # a data source reports what it dropped through logging and warnings.warn: one line is enough
@@ -609,6 +624,8 @@ def preflight(argv: Sequence[str], compile_ahead: bool = False) -> Checked:
                 compile_ahead = False
             check_job(cfg, setup, done, multirun=bool(args.multirun))
             checked.add(cfg, setup)
+            if not extra:  # (a --config-dir search path is not among Hydra's overrides: its jobs compose there)
+                checked.composed.add(job_signature(job))
     if not (args.multirun or args.config_path or args.config_dir or args.config_name) and \
             getattr(cfg.hydra.mode, "name", "RUN") == "RUN":  # (hydra.mode=MULTIRUN without -m: Hydra sweeps)
         checked.config = cfg
