@@ -53,9 +53,10 @@ with bibmon installed, ``bibmon_predict_rows_per_s``, ``monitor_speedup_vs_bibmo
 ``tep_candidates_per_s_f``, ``tep_fit_score_s_f``, ``tep_library_fit_transform_s_f``
 (:func:`bench_tep_nonlinear`); ``serve`` adds ``serve_latency_ms`` and ``serve_latency_p90_ms``;
 ``scale`` adds ``scale_speedup_<workload>_<n>``, ``scale_compute_inflation_<workload>_<n>``,
-``scale_serial_share_<workload>``, ``scale_identical_<workload>``,
+``scale_serial_share_<workload>`` (the first generations), ``scale_serial_share_budget_<workload>`` (the set-up's
+own run length; not with ``--quick``), ``scale_identical_<workload>``,
 ``scale_serial_move_ratio_<workload>`` (a MOPSO set-up: its serial time with the NumPy move over the compiled move's),
-``scale_dask_vs_loky_<workload>``, ``scale_sweep_speedup`` and ``scale_load_average_1min``.
+``scale_dask_vs_loky_<workload>``, ``scale_sweep_speedup``, ``scale_sweep_first_job_s`` and ``scale_load_average_1min``.
 """
 from __future__ import annotations
 

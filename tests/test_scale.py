@@ -225,3 +225,10 @@ def test_the_scale_section_reports_each_workload_s_keys():
     # the compiled MOPSO move against the NumPy move, side by side (their archives checked equal by the bench)
     assert figures["scale_serial_move_ratio_threads"] > 0
     assert any("compiled move" in label for label, _, _ in rows)
+
+
+@pytest.mark.slow
+def test_the_sweep_row_reports_when_the_first_job_started():
+    rows, figures = scale_bench.bench_sweep(quick=True, cpus=1)
+    assert 0.0 < figures["scale_sweep_first_job_s"] < figures["scale_sweep_parallel_s"]
+    assert figures["scale_sweep_speedup"] > 0 and any("before its first job" in label for label, _, _ in rows)
