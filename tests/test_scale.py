@@ -232,3 +232,10 @@ def test_the_sweep_row_reports_when_the_first_job_started():
     rows, figures = scale_bench.bench_sweep(quick=True, cpus=1)
     assert 0.0 < figures["scale_sweep_first_job_s"] < figures["scale_sweep_parallel_s"]
     assert figures["scale_sweep_speedup"] > 0 and any("before its first job" in label for label, _, _ in rows)
+
+
+@pytest.mark.slow
+def test_each_workload_is_measured_in_a_process_of_its_own():
+    rows, figures = scale_bench.workload_in_own_process("paper001", quick=True)
+    assert figures["scale_identical_paper001"] == 1 and figures["scale_speedup_paper001_1"] == 1.0
+    assert rows and all(len(row) == 3 and isinstance(row[0], str) for row in rows)

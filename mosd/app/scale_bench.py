@@ -360,12 +360,33 @@ def bench_sweep(quick: bool = False, cpus: int | None = None) -> tuple[list, dic
                   "scale_sweep_parallel_s": parallel, "scale_sweep_first_job_s": first_job}
 
 
+def workload_in_own_process(name: str, quick: bool = False) -> tuple[list, dict]:
+    """:func:`bench_workload` in a fresh interpreter, as a run of that workload has it.
+
+    One process for every workload made the later ones' figures depend on the earlier ones: glibc's malloc
+    raises its thresholds for returning memory to the kernel after large frees, so after the main command's
+    workload paper 001's evaluation took 8 ms a population in this process against 18-19 ms in a fresh one
+    (its temporaries, tens of MB, were then no longer mapped and unmapped at each call), and its 2-worker
+    speed-up compared a fresh worker with that faster process (docs/SCALING.md, session 12).
+    """
+    import json
+
+    code = ("import json, sys; from mosd.app.scale_bench import bench_workload; "
+            "rows, figures = bench_workload(sys.argv[1], quick=sys.argv[2] == '1'); "
+            "print(json.dumps({'rows': rows, 'figures': figures}))")
+    done = subprocess.run([sys.executable, "-c", code, name, "1" if quick else "0"], capture_output=True, text=True)
+    if done.returncode != 0:
+        raise RuntimeError(f"the scale workload {name} failed: {done.stderr.strip()[-500:]}")
+    found = json.loads(done.stdout.strip().splitlines()[-1])
+    return [tuple(row) for row in found["rows"]], found["figures"]
+
+
 def bench_scale(quick: bool = False) -> tuple[list, dict]:
-    """Every workload of :data:`WORKLOADS`, then the sweep; the load average beside them."""
+    """Every workload of :data:`WORKLOADS`, each in its own process, then the sweep; the load average beside them."""
     rows: list = [("load average (1 min) at the start", load_average(), f"{os.cpu_count()} CPUs")]
     figures: dict = {}
     for name in DEFAULT_WORKLOADS:
-        more, found = bench_workload(name, quick)
+        more, found = workload_in_own_process(name, quick)
         rows += more
         figures.update(found)
     more, found = bench_sweep(quick)
