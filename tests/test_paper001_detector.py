@@ -112,3 +112,24 @@ def test_the_declared_fault_is_numpys_argmax_over_the_models_on_ties_and_gaps():
         expected = np.where(held.any(axis=-2), np.argmax(score, axis=-2) + 1, 0)
         np.testing.assert_array_equal(decision, expected)
         assert (decision > 0).any() and (decision == 0).any()
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_the_compiled_population_decides_as_the_numpy_code(seed):
+    """mosd.kernels.decisions.mode_decisions against the NumPy rule it replaces: ties between models (probabilities on
+    a coarse grid), thresholds on those values, persistence 1 to longer than a run, three and four fault models."""
+    from mosd import kernels
+
+    rng = np.random.default_rng(seed)
+    n_models = 3 + seed % 2
+    mu = rng.integers(0, 5, size=(30, 25, n_models + 1)) / 4.0  # (R, K, M + 1): many exact ties
+    X = np.column_stack([rng.choice([0.0, 0.25, 0.5, 0.6, 0.75, 1.0], 40), rng.integers(1, 30, 40)])
+    detector = ModeProbabilityDetector(labels=list(rng.permutation(np.arange(1, n_models + 1)) * 3))
+    compiled = detector.population(mu, mu, X)
+    with kernels.disabled():
+        reference = detector.population(mu, mu, X)
+    assert compiled.decision.dtype == reference.decision.dtype
+    np.testing.assert_array_equal(compiled.decision, reference.decision)
+    np.testing.assert_array_equal(compiled.statistic, reference.statistic)
+    np.testing.assert_array_equal(compiled.threshold, reference.threshold)
+    assert 0 < np.count_nonzero(reference.decision) < reference.decision.size  # both kinds of points occur

@@ -12,6 +12,7 @@ from typing import Sequence
 
 import numpy as np
 
+from .. import kernels
 from ..streaming import COUNT, PointDecision, StateVar, points_of, spread
 from ..validation import ConfigError, Interval, Param, check_int
 from .base import Decisions, Detector, persistent, run_lengths
@@ -74,6 +75,15 @@ class ModeProbabilityDetector(Detector):
         # (R, M−1, K): time last for the persistence rule, copied (a few kB) so that the comparisons over all the
         # designs below read contiguous memory (over the moved view they took 30 times as long)
         faults = np.ascontiguousarray(np.moveaxis(mu[..., 1:], -1, -2))
+        labels = self._labels(faults.shape[-2])
+        statistic = faults.max(axis=-2)
+        if kernels.enabled() and labels.dtype == np.int64:
+            from ..kernels.decisions import mode_decisions
+
+            decision = mode_decisions(faults, np.ascontiguousarray(threshold), np.ascontiguousarray(lengths, np.int64),
+                                      labels, np.empty((X.shape[0],) + statistic.shape, np.int64))
+            return Decisions(statistic=np.broadcast_to(statistic, decision.shape), threshold=threshold[:, None, None],
+                             decision=decision)
         above = faults[None] > threshold[:, None, None, None]  # (P, R, M−1, K)
         held = persistent(above, lengths)
         # among the fault models that satisfy the rule, the most probable one is declared: np.argmax over the
@@ -88,8 +98,8 @@ class ModeProbabilityDetector(Detector):
             winner[better] = model
             np.maximum(best, score, out=best)
             declared |= held[:, :, model]
-        decision = np.where(declared, self._labels(faults.shape[-2])[winner], 0)
-        statistic = np.broadcast_to(faults.max(axis=-2), decision.shape)
+        decision = np.where(declared, labels[winner], 0)
+        statistic = np.broadcast_to(statistic, decision.shape)
         return Decisions(statistic=statistic, threshold=threshold[:, None, None], decision=decision)
 
 

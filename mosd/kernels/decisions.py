@@ -1,4 +1,5 @@
-"""The persistence rule of the detectors' decisions, compiled: :func:`persistence`.
+"""The persistence rule of the detectors' decisions, compiled: :func:`persistence`, and paper 001's
+mode-probability decisions built on it, :func:`mode_decisions`.
 
 :func:`mosd.detectors.base.persistent` (a design alarms where its condition held at L consecutive
 points) on NumPy counts the runs with a cumulative sum, a running maximum and their difference: four
@@ -44,6 +45,63 @@ def persistence(condition, lengths, out):
     return out
 
 
+@njit(cache=True, nogil=True)
+def mode_decisions(faults, thresholds, lengths, labels, out):  # pragma: no cover - compiled
+    """Every design's decisions on mode probabilities: :meth:`mosd.detectors.mode_probability.ModeProbabilityDetector.population`.
+
+    For design p, run r and point k, fault model m satisfies the rule where its probability exceeded
+    the threshold μ_T,p at the last L_p points (:func:`persistence`); of those, the one with the largest
+    probability is declared (the first of equal ones, as ``np.argmax``), ``labels[m]``, else 0. The
+    comparisons and the running maximum are the NumPy code's, NaN included (a NaN probability never
+    exceeds a threshold; a NaN score makes the running best NaN, which no later score beats), so the
+    decisions are the same; without its (P, R, M, K) temporaries, whose allocation (tens of MB per
+    population, mapped and unmapped by the C library at every call) was most of a fresh process's time.
+
+    Parameters
+    ----------
+    faults : ndarray of float64, shape (R, M, K), C-contiguous
+        The fault models' probabilities (model m of run r at point k).
+    thresholds : ndarray of float64, shape (P,)
+    lengths : ndarray of int64, shape (P,)
+    labels : ndarray of int64, shape (M,)
+    out : ndarray of int64, shape (P, R, K)
+        Written and returned.
+    """
+    n_designs = thresholds.shape[0]
+    n_runs, n_models, n_points = faults.shape
+    runs = np.zeros(n_models, np.int64)
+    for p in range(n_designs):
+        threshold, length = thresholds[p], lengths[p]
+        for r in range(n_runs):
+            runs[:] = 0
+            for k in range(n_points):
+                declared = False
+                winner = 0
+                best = -1.0
+                for m in range(n_models):
+                    value = faults[r, m, k]
+                    if value > threshold:
+                        runs[m] += 1
+                    else:
+                        runs[m] = 0
+                    held = runs[m] >= length
+                    declared = declared or held
+                    score = value if held else -1.0
+                    if m == 0:
+                        best = score
+                    else:
+                        if score > best:
+                            winner = m
+                        if best != best or score != score:
+                            best = np.nan
+                        elif score > best:
+                            best = score
+                out[p, r, k] = labels[winner] if declared else 0
+    return out
+
+
 def warm_up() -> None:
-    """Load (or compile) the kernel."""
+    """Load (or compile) the kernels."""
     persistence(np.zeros((1, 1, 2), np.bool_), np.ones(1, np.int64), np.empty((1, 1, 2), np.bool_))
+    mode_decisions(np.zeros((1, 2, 2)), np.zeros(1), np.ones(1, np.int64), np.arange(1, 3, dtype=np.int64),
+                   np.empty((1, 1, 2), np.int64))
