@@ -101,7 +101,8 @@ def test_the_workers_warmed_during_preflight_are_the_launchers_pool():
         stop_dir = os.environ.get(signals.STOP_DIR_ENV)
 
         def job():
-            return os.getpid(), "mosd.app.run" in sys.modules, os.environ.get(signals.STOP_DIR_ENV)
+            return (os.getpid(), {"mosd.experiment", "mosd.optim.mopso", "mosd.app.build"} <= set(sys.modules),
+                    os.environ.get(signals.STOP_DIR_ENV))
 
         # what the launcher calls: Parallel with its arguments (hydra_plugins.hydra_joblib_launcher._core.launch)
         ran = Parallel(**compat.joblib_launcher_arguments(hydra_cfg.launcher))(delayed(job)() for _ in range(4))

@@ -158,7 +158,10 @@ def _warm_worker() -> int:
     worker_signals.run_ended()
     import hydra.core.utils  # noqa: F401  (the launcher's task runs the job with its run_job)
 
-    from . import run  # noqa: F401  (the job: NumPy, SciPy, numba, pymoo, the components)
+    # what a job's run imports (NumPy, SciPy, numba, pymoo, the components, the builder), short of the app's run
+    # module itself, which imports this one
+    from .. import experiment, optim  # noqa: F401
+    from . import build  # noqa: F401
     return os.getpid()
 
 
