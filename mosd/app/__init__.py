@@ -189,7 +189,7 @@ def _main(argv: list[str], started: float) -> int:
         plots.discard()
         channel.discard()
         sweep = sys.modules.get(f"{__name__}.sweep")
-        if sweep is not None:
+        if sweep is not None and not _LAUNCHED:
             sweep.discard_warm_workers()  # job workers started for a sweep that was not launched
 
 
@@ -251,9 +251,6 @@ def _checked_and_run(argv: list[str], started: float) -> int:
         _finish_compiling()
         return 0
     task = hydra.main(version_base="1.3", config_path=str(CONFIG_DIR), config_name=CONFIG_NAME)(run_task)
-    from .sweep import launched_into_warm_pool
-
-    launched_into_warm_pool()
     saved = sys.argv
     sys.argv = [saved[0] if saved else "mosd", *argv]
     try:

@@ -103,7 +103,6 @@ class _Warming:
     """The pool :func:`warm_job_workers` started for this command (one per process)."""
 
     thread = None
-    launched = False
 
 
 def warm_job_workers(hydra_cfg, n_jobs_in_sweep: int) -> bool:
@@ -165,14 +164,9 @@ def _warm_worker() -> int:
     return os.getpid()
 
 
-def launched_into_warm_pool() -> None:
-    """The sweep is launched: the warm pool is the launcher's from now on."""
-    _Warming.launched = True
-
-
 def discard_warm_workers() -> None:
-    """End the pool :func:`warm_job_workers` started, if no sweep was launched into it (an error, a stop)."""
-    if _Warming.thread is None or _Warming.launched:
+    """End the pool :func:`warm_job_workers` started (a command that stops before launching its sweep into it)."""
+    if _Warming.thread is None:
         return
     from ..optim.workers import shutdown_pool
 

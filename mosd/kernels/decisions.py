@@ -52,9 +52,9 @@ def mode_decisions(faults, thresholds, lengths, labels, out):  # pragma: no cove
     For design p, run r and point k, fault model m satisfies the rule where its probability exceeded
     the threshold μ_T,p at the last L_p points (:func:`persistence`); of those, the one with the largest
     probability is declared (the first of equal ones, as ``np.argmax``), ``labels[m]``, else 0. The
-    comparisons and the running maximum are the NumPy code's, NaN included (a NaN probability never
-    exceeds a threshold; a NaN score makes the running best NaN, which no later score beats), so the
-    decisions are the same; without its (P, R, M, K) temporaries, whose allocation (tens of MB per
+    comparisons are the NumPy code's, so the decisions are the same; a score is a probability that
+    exceeded the threshold, or −1, never NaN (a NaN exceeds no threshold), so the NumPy code's running
+    maximum is a plain one here. Without its (P, R, M, K) temporaries, whose allocation (tens of MB per
     population, mapped and unmapped by the C library at every call) was most of a fresh process's time.
 
     Parameters
@@ -89,13 +89,8 @@ def mode_decisions(faults, thresholds, lengths, labels, out):  # pragma: no cove
                     score = value if held else -1.0
                     if m == 0:
                         best = score
-                    else:
-                        if score > best:
-                            winner = m
-                        if best != best or score != score:
-                            best = np.nan
-                        elif score > best:
-                            best = score
+                    elif score > best:
+                        winner, best = m, score
                 out[p, r, k] = labels[winner] if declared else 0
     return out
 
