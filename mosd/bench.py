@@ -719,8 +719,26 @@ def main(argv: list[str] | None = None) -> int:
     if args.json:
         load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
         metrics.update(cpus=os.cpu_count(), load_average_1min=load, quick=int(args.quick))
-        print(json.dumps({k: (round(v, 6) if isinstance(v, float) else v) for k, v in metrics.items()}), flush=True)
+        print(json.dumps(json_metrics(metrics), allow_nan=False), flush=True)
     return 0
+
+
+def json_metrics(metrics: dict) -> dict:
+    """The ``--json`` line's keys: floats rounded to 6 decimals, and a value that is not a finite number left out.
+
+    JSON has no NaN or infinity (``json.dumps`` would write bare ``NaN``, which strict parsers refuse): a figure
+    the machine could not give (no load average, no sweep job log) is absent rather than written as one.
+    """
+    out = {}
+    for key, value in metrics.items():
+        if isinstance(value, (float, np.floating)):
+            if not math.isfinite(value):
+                continue
+            value = round(float(value), 6)
+        elif isinstance(value, np.integer):
+            value = int(value)
+        out[key] = value
+    return out
 
 
 if __name__ == "__main__":

@@ -84,3 +84,14 @@ def test_parallel_section_reports_identical_archives(monkeypatch):
 
     monkeypatch.setattr(bench, "_tuning_setup", shifted_when_parallel)
     assert bench.bench_parallel(quick=True)[1]["parallel_identical"] == 0
+
+
+def test_json_line_leaves_out_what_is_not_a_finite_number(capsys, monkeypatch):
+    # a section whose figure the machine could not give (NaN), an infinite ratio, NumPy scalars
+    monkeypatch.setattr(bench, "bench_tep", lambda quick: ([], {"tep_a": float("nan"), "tep_b": np.float64(np.inf),
+                                                                "tep_c": np.float64(1.23456789), "tep_d": np.int64(3)}))
+    monkeypatch.setattr(bench.os, "getloadavg", lambda: (float("nan"),) * 3)
+    assert bench.main(["--json", "--only", "tep"]) == 0
+    result = json.loads(capsys.readouterr().out, parse_constant=lambda name: pytest.fail(f"bare {name} in the JSON"))
+    assert result["tep_c"] == 1.234568 and result["tep_d"] == 3
+    assert not {"tep_a", "tep_b", "load_average_1min"} & set(result)
