@@ -662,6 +662,52 @@ def test_a_signal_inside_numbas_unpickling_hook_is_raised_once_out_of_it():
     assert out.returncode == 0 and out.stdout.split() == ["stopped", "by", "2", "1"], out.stderr[-2000:]
 
 
+def test_stop_signals_that_arrive_while_the_handler_runs_inside_numbas_hook_stop_the_process_once():
+    """A process group's Ctrl-C and the launcher passing it on reach a joblib sweep's job worker together: the
+    handler ran again inside its own wake-up of the retry thread (``threading.Event.set``), waited for the lock it
+    held and the worker never marked its run (test_a_signal_during_a_sweep_..., 1 run in 20-40)."""
+    out = _python("""
+        import os, signal, sys, time
+        import numba
+        import numpy as np
+        from numba.core import serialize
+        from mosd.app import signals
+
+        @numba.njit
+        def pair(x):
+            return x + 1.0, x * 2.0
+
+        x = np.ones(3)
+        pair(x)
+        signals.install_signal_handlers()
+        hook, handler, sent = serialize._numba_unpickle.__code__, signals._on_signal.__code__, []
+
+        def inside(frame, code):
+            while frame is not None and frame.f_code is not code:
+                frame = frame.f_back
+            return frame is not None
+
+        def tracer(frame, event, arg):
+            # the first signal while the hook runs, then one at every call the handler makes from there on: a
+            # second signal then runs the handler again at whatever point the first one has reached
+            if event == "call" and len(sent) < 40 and inside(frame, hook) and (not sent or inside(frame, handler)):
+                sent.append(1)
+                os.kill(os.getpid(), signal.SIGINT)
+            return tracer
+
+        sys.settrace(tracer)
+        try:
+            end = time.monotonic() + 5
+            while time.monotonic() < end:
+                pair(x)
+            print("not stopped")
+        except signals.Interrupted as exc:
+            sys.settrace(None)
+            print("stopped by", exc.signum, len(sent) > 1)
+    """, timeout=60)
+    assert out.returncode == 0 and out.stdout.split() == ["stopped", "by", "2", "True"], out.stderr[-2000:]
+
+
 def test_the_launcher_waits_until_every_job_worker_has_marked_its_run(tmp_path):
     """loky SIGKILLs every worker as soon as one ends: a job that ends after marking its run used to take
     down the others still marking theirs. Two jobs, one slow to mark; both have marked when the launcher raises."""

@@ -20,6 +20,9 @@ Where the signal may not raise at once:
 * inside numba's unpickling hook, which compiled code calls to box its results and which does
   not expect an exception (one raised there crashes the process with a segmentation fault), it
   is raised again a few milliseconds later, once control is back in ordinary Python code.
+
+The handler takes no lock (a byte on a pipe wakes the retry thread, :func:`_wake_retry`): a second
+signal runs it again inside itself, and a lock it held there would never be released.
 """
 from __future__ import annotations
 
@@ -63,8 +66,8 @@ class _State:
     job_pool = False      # this process launches a sweep's jobs into the loky pool
     job_worker = False    # this process is a joblib-launcher worker running mosd jobs
     in_run = False        # ... and one of them is running (it has an MLflow run to mark)
-    retry: threading.Event | None = None
-    retry_pid = 0
+    retry_fd = -1         # write end of the pipe that wakes this process's retry thread (-1: none)
+    retry_pid = 0         # the process that owns that thread and pipe (a forked child has neither)
 
 
 def name(signum: int) -> str:
@@ -142,15 +145,34 @@ def _in_compiled_callback(frame) -> bool:
     return False
 
 
-def _retry_loop(event: threading.Event) -> None:
+def _retry_loop(wake_fd: int) -> None:
     import _thread
 
     while True:
-        event.wait()
-        event.clear()
+        try:
+            if not os.read(wake_fd, 512):  # every wake-up written so far
+                return
+        except OSError:
+            return
         time.sleep(RETRY_S)
         if RECEIVED and not _State.raised:
             _thread.interrupt_main(RECEIVED[0])  # runs the handler again, in the main thread
+
+
+def _wake_retry() -> None:
+    """Wake the retry thread with a byte on its pipe: a system call, no lock.
+
+    The handler may run again inside itself (a second stop signal: a process group's Ctrl-C and the
+    launcher passing it on arrive together), and a lock such as ``threading.Event``'s is not reentrant:
+    the handler that woke the thread through ``Event.set`` and ran again inside ``Event.set`` waited for
+    the lock it held, for ever (the joblib sweep's job worker that never marked its run).
+    """
+    if _State.retry_pid != os.getpid():
+        return
+    try:
+        os.write(_State.retry_fd, b"\0")
+    except OSError:  # a full pipe (wake-ups pending already) or a closed one
+        pass
 
 
 def _on_signal(signum, frame):
@@ -172,8 +194,7 @@ def _on_signal(signum, frame):
     if _State.deferring:
         return  # raised when the section ends
     if _in_compiled_callback(frame):
-        if _State.retry is not None:
-            _State.retry.set()
+        _wake_retry()
         return
     _State.raised = True
     raise Interrupted(first)
@@ -188,8 +209,10 @@ def install_signal_handlers(job_worker: bool = False) -> None:
     if threading.current_thread() is not threading.main_thread():
         return
     if _State.retry_pid != os.getpid():  # once per process (a forked child has no such thread)
-        _State.retry, _State.retry_pid = threading.Event(), os.getpid()
-        threading.Thread(target=_retry_loop, args=(_State.retry,), name="mosd-signal-retry", daemon=True).start()
+        wake_fd, _State.retry_fd = os.pipe()
+        os.set_blocking(_State.retry_fd, False)
+        _State.retry_pid = os.getpid()
+        threading.Thread(target=_retry_loop, args=(wake_fd,), name="mosd-signal-retry", daemon=True).start()
     if job_worker:
         _State.job_worker = _State.in_run = True
     for sig in STOP_SIGNALS:
@@ -245,7 +268,7 @@ def end_job_worker(signum: int) -> None:
     for stream in (sys.stdout, sys.stderr):
         try:
             stream.flush()
-        except (OSError, ValueError):
+        except (OSError, ValueError, RuntimeError):  # RuntimeError: the signal interrupted a write to that stream
             pass
     stop_dir = os.environ.get(STOP_DIR_ENV)
     if stop_dir:
