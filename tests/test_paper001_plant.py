@@ -158,6 +158,30 @@ def test_fault_set_labels_each_replication_with_its_actuator_fault():
     assert set(trace.sensors) == {"s1", "s2", "s3"}
 
 
+def test_a_fault_per_replication_simulates_each_run_as_its_own_fault_does_in_one_batch():
+    """Paper 001's calibration runs (faults starting at random instants) are simulated in one call: each run is the
+    run its own fault gives, with its own draws (groups of two runs: a batch of one rounds its matrix products
+    differently, test_replications_do_not_depend_on_batching_and_seeds_reproduce)."""
+    plant, noise = NetworkedTarget(), ContinuousWhiteNoise()
+    early, late = ActuatorFault(actuator=1, onset=5.0), ActuatorFault(actuator=2, amplitude=1.5, onset=30.0)
+    order = [late, late, None, None, early, early]
+    rngs = replication_rngs(3, "test", 6, first=100)
+    mixed = plant.simulate(41, noise, order, rngs)
+    rngs = replication_rngs(3, "test", 6, first=100)
+    for fault, rows in ((late, slice(0, 2)), (None, slice(2, 4)), (early, slice(4, 6))):
+        alone = plant.simulate(41, noise, fault, rngs[rows])
+        np.testing.assert_array_equal(mixed.x[rows], alone.x)
+        np.testing.assert_array_equal(mixed.fault_mask[rows], alone.fault_mask)
+        for name in ("s1", "s2", "s3"):
+            np.testing.assert_array_equal(mixed.sensors[name].y[rows], alone.sensors[name].y)
+            np.testing.assert_array_equal(mixed.sensors[name].arrived[rows], alone.sensors[name].arrived)
+    # one fault for every run: the batch a lone fault gives
+    same = plant.simulate(41, noise, [early] * 3, replication_rngs(3, "test", 3))
+    np.testing.assert_array_equal(same.x, plant.simulate(41, noise, early, replication_rngs(3, "test", 3)).x)
+    with pytest.raises(ConfigError, match="a list of 2 faults for 3 replications"):
+        plant.simulate(41, noise, [early, None], replication_rngs(3, "test", 3))
+
+
 @pytest.mark.parametrize("kwargs, message", [
     ({"omega": 11}, "plant.omega"),
     ({"u": [0.5]}, "plant.u"),

@@ -282,36 +282,66 @@ class NetworkedTarget(Plant):
 
         Per replication, the generator draws, in this order: the process noise
         of every grid step, then per sensor its random periods (if any), its
-        measurement noise and its packet arrivals; so a replication's run never
-        depends on how replications are batched. ``fault_scale`` is ignored
-        (actuator faults are absolute).
+        measurement noise and its packet arrivals; so a replication's draws never
+        depend on how replications are batched. ``fault_scale`` is ignored
+        (actuator faults are absolute). ``fault`` may also be a list with one
+        fault (or None) per replication, simulated in one batch (paper 001's
+        calibration runs, whose faults start at random instants:
+        :func:`mosd.systems.paper001.mode_calibration`).
         """
         model = self.model(noise)
         n_reps, n_x = len(rngs), model.n_x
         t = np.arange(int(n_samples)) * self.fusion_period
         n_grid = int(round(t[-1] / self.resolution)) + 1
         grid = np.arange(n_grid) * self.resolution
-        fault_input = np.zeros((n_grid, len(self.input_names)))
-        if fault is not None:
-            self.check_fault(fault)
-            fault_input[:, fault.actuator - 1] = fault.signal(grid)
         phi, gamma, q = model.discretise(self.resolution)
-        drive = (self.u + fault_input) @ gamma.T  # input held over [t_g, t_g + resolution)
+        if isinstance(fault, (list, tuple)):
+            fault_input, drive, mask = self._each_replication(fault, n_reps, grid, t, gamma)
+        else:
+            fault_input = np.zeros((n_grid, len(self.input_names)))
+            if fault is not None:
+                self.check_fault(fault)
+                fault_input[:, fault.actuator - 1] = fault.signal(grid)
+            drive = (self.u + fault_input) @ gamma.T  # input held over [t_g, t_g + resolution)
+            fault_input = np.broadcast_to(fault_input, (n_reps,) + fault_input.shape)
+            drive = np.broadcast_to(drive, (n_reps,) + drive.shape)
+            mask = np.broadcast_to(fault.active(t) if fault is not None else np.zeros(t.shape, bool),
+                                   (n_reps, t.size))
         process = np.stack([rng.standard_normal((n_grid - 1, n_x)) for rng in rngs]) @ psd_sqrt(q).T
         x = np.empty((n_reps, n_grid, n_x))
         x[:, 0] = self.initial_state
         for g in range(n_grid - 1):
-            x[:, g + 1] = x[:, g] @ phi.T + drive[g] + process[:, g]
+            x[:, g + 1] = x[:, g] @ phi.T + drive[:, g] + process[:, g]
         sensors = {name: self._sample(n, x, grid, model.sensors[n], rngs) for n, name in enumerate(self.sensor_names)}
         on_fusion_grid = np.rint(t / self.resolution).astype(int)
-        truth = np.concatenate([x[:, on_fusion_grid], np.broadcast_to(
-            fault_input[on_fusion_grid], (n_reps,) + fault_input[on_fusion_grid].shape)], axis=-1)
-        mask = np.broadcast_to(fault.active(t) if fault is not None else np.zeros(t.shape, bool), (n_reps, t.size))
+        truth = np.concatenate([x[:, on_fusion_grid], fault_input[:, on_fusion_grid]], axis=-1)
         meta = {"fault": repr(fault), "dt": self.fusion_period, "resolution": self.resolution,
                 "state_names": self.state_names + tuple(f"f{i + 1}" for i in range(len(self.input_names))),
                 "sensor_names": self.sensor_names}
         return Trace(t=t, u=np.broadcast_to(self.u, (n_reps, t.size, self.u.size)).copy(), x=truth,
                      y=np.empty((n_reps, t.size, 0)), fault_mask=mask.copy(), meta=meta, sensors=sensors)
+
+    def _each_replication(self, faults, n_reps: int, grid: np.ndarray, t: np.ndarray, gamma: np.ndarray):
+        """Fault input, drive and fault mask of each replication from a list of one fault (or None) per replication;
+        each distinct fault's drive computed as a lone fault's is."""
+        if len(faults) != n_reps:
+            raise ConfigError(f"fault: a list of {len(faults)} faults for {n_reps} replications; allowed: one fault "
+                              f"(or None) per replication")
+        fault_input = np.zeros((n_reps, grid.size, len(self.input_names)))
+        drive = np.empty((n_reps, grid.size, gamma.shape[0]))
+        mask = np.zeros((n_reps, t.size), bool)
+        done: dict = {}
+        for r, fault in enumerate(faults):
+            key = None if fault is None else (fault.actuator, repr(fault))
+            if key not in done:
+                one = np.zeros((grid.size, len(self.input_names)))
+                if fault is not None:
+                    self.check_fault(fault)
+                    one[:, fault.actuator - 1] = fault.signal(grid)
+                done[key] = (one, (self.u + one) @ gamma.T,
+                             fault.active(t) if fault is not None else np.zeros(t.shape, bool))
+            fault_input[r], drive[r], mask[r] = done[key]
+        return fault_input, drive, mask
 
     def _sample(self, n: int, x: np.ndarray, grid: np.ndarray, sensor: SensorModel,
                 rngs: Sequence[np.random.Generator]) -> SensorSamples:
