@@ -101,6 +101,38 @@ def test_the_study_reports_every_mechanism_and_fill(experiment):
     assert metrics["gap_skip_error_fluct_target_r20"] > metrics["mcar_em_error_fluct_target_r20"]
 
 
+def _same(a, b, where="data") -> None:
+    """``a`` and ``b`` hold the same numbers, bit for bit, under the same keys in the same order."""
+    assert type(a) is type(b), where
+    if isinstance(a, dict):
+        assert list(a) == list(b), where
+        for key in a:
+            _same(a[key], b[key], f"{where}[{key!r}]")
+    elif isinstance(a, (list, tuple)):
+        assert len(a) == len(b), where
+        for i, (x, y) in enumerate(zip(a, b)):
+            _same(x, y, f"{where}[{i}]")
+    elif isinstance(a, np.ndarray):
+        np.testing.assert_array_equal(a, b, err_msg=where)
+    else:
+        assert a == b or (a != a and b != b), where
+
+
+def test_the_study_is_the_same_on_one_thread_and_on_several(experiment, monkeypatch):
+    """The rates and the grid's mechanism x rate cells run on threads (issue 32): the same numbers, in the same
+    order, as on one."""
+    from mosd import kernels
+
+    study = paper002.Study(n_runs=10, missing_rates=[0.0, 0.2], figures=False, amplitude_laws=[])
+    tuned = experiment.detector.with_params(threshold=0.63, persistence=4)
+    found = []
+    for threads in (1, 3):
+        monkeypatch.setattr(kernels, "threads", lambda threads=threads: threads)
+        found.append(study.compute(experiment, {"tuned": tuned}))
+    assert list(found[0]["grid"]) == [(m, f, r) for m in study.mechanisms for r in (0.0, 0.2) for f in study.fills]
+    _same(found[0], found[1])
+
+
 def test_the_study_validates_mechanisms_fills_and_burst_length():
     with pytest.raises(ConfigError, match=r"study.mechanisms='mcar' is not allowed; allowed: a list"):
         paper002.Study(mechanisms="mcar")
