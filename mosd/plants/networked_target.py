@@ -297,16 +297,9 @@ class NetworkedTarget(Plant):
         phi, gamma, q = model.discretise(self.resolution)
         if isinstance(fault, (list, tuple)):
             fault_input, drive, mask = self._each_replication(fault, n_reps, grid, t, gamma)
-        else:
-            fault_input = np.zeros((n_grid, len(self.input_names)))
-            if fault is not None:
-                self.check_fault(fault)
-                fault_input[:, fault.actuator - 1] = fault.signal(grid)
-            drive = (self.u + fault_input) @ gamma.T  # input held over [t_g, t_g + resolution)
-            fault_input = np.broadcast_to(fault_input, (n_reps,) + fault_input.shape)
-            drive = np.broadcast_to(drive, (n_reps,) + drive.shape)
-            mask = np.broadcast_to(fault.active(t) if fault is not None else np.zeros(t.shape, bool),
-                                   (n_reps, t.size))
+        else:  # one fault for every replication: its arrays, broadcast
+            fault_input, drive, mask = (np.broadcast_to(a, (n_reps,) + a.shape)
+                                        for a in self._fault_drive(fault, grid, t, gamma))
         process = np.stack([rng.standard_normal((n_grid - 1, n_x)) for rng in rngs]) @ psd_sqrt(q).T
         x = np.empty((n_reps, n_grid, n_x))
         x[:, 0] = self.initial_state
@@ -334,14 +327,18 @@ class NetworkedTarget(Plant):
         for r, fault in enumerate(faults):
             key = None if fault is None else (fault.actuator, repr(fault))
             if key not in done:
-                one = np.zeros((grid.size, len(self.input_names)))
-                if fault is not None:
-                    self.check_fault(fault)
-                    one[:, fault.actuator - 1] = fault.signal(grid)
-                done[key] = (one, (self.u + one) @ gamma.T,
-                             fault.active(t) if fault is not None else np.zeros(t.shape, bool))
+                done[key] = self._fault_drive(fault, grid, t, gamma)
             fault_input[r], drive[r], mask[r] = done[key]
         return fault_input, drive, mask
+
+    def _fault_drive(self, fault, grid: np.ndarray, t: np.ndarray, gamma: np.ndarray):
+        """One fault's (or None's) input on the grid, the drive it gives, and its mask on the fusion instants."""
+        fault_input = np.zeros((grid.size, len(self.input_names)))
+        if fault is not None:
+            self.check_fault(fault)
+            fault_input[:, fault.actuator - 1] = fault.signal(grid)
+        drive = (self.u + fault_input) @ gamma.T  # input held over [t_g, t_g + resolution)
+        return fault_input, drive, fault.active(t) if fault is not None else np.zeros(t.shape, bool)
 
     def _sample(self, n: int, x: np.ndarray, grid: np.ndarray, sensor: SensorModel,
                 rngs: Sequence[np.random.Generator]) -> SensorSamples:
