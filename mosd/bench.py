@@ -52,7 +52,9 @@ with bibmon installed, ``bibmon_predict_rows_per_s``, ``monitor_speedup_vs_bibmo
 ``bibmon_spe_agrees`` (1: the two SPEs agree to 1e-9 relative), and per family f in ica, kpca, autoencoder
 ``tep_candidates_per_s_f``, ``tep_fit_score_s_f``, ``tep_library_fit_transform_s_f``
 (:func:`bench_tep_nonlinear`); ``serve`` adds ``serve_latency_ms`` and ``serve_latency_p90_ms``;
-``scale`` adds ``scale_speedup_<workload>_<n>``, ``scale_compute_inflation_<workload>_<n>``,
+``scale`` adds ``scale_machine_ceiling_<n>`` (n copies of a loop that shares nothing at once against one: the
+machine's own bound on any n-worker speed-up), ``scale_speedup_<workload>_<n>``,
+``scale_compute_inflation_<workload>_<n>``,
 ``scale_serial_share_<workload>`` (the first generations), ``scale_serial_share_budget_<workload>`` (the set-up's
 own run length; not with ``--quick``), ``scale_identical_<workload>``,
 ``scale_serial_move_ratio_<workload>`` (a MOPSO set-up: its serial time with the NumPy move over the compiled move's),

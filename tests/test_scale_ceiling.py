@@ -5,6 +5,7 @@ from __future__ import annotations
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
 
 from mosd.app import scale_bench
 from mosd.detectors import SSDEWMA
@@ -32,3 +33,25 @@ def test_the_ceiling_times_the_fused_evaluation_on_threads_and_only_there(small_
     assert calls[:4] == [40] * 4 and [sorted(calls[i:i + 2]) for i in (4, 6, 8)] == [[20, 20]] * 3
     # a workload that evaluates on processes (accuracy: no fused kernel) has no thread ceiling
     assert scale_bench.thread_ceiling(setup, processes, 2, repeats=1) is None
+
+
+def test_the_machine_ceiling_is_n_times_one_copy_alone_over_the_slowest_copy_at_once(monkeypatch):
+    # one copy alone, then three at once, three times; the machine is twice as slow during the second pair
+    timings = iter([[0.10], [0.11, 0.25, 0.12], [0.20], [0.22, 0.30, 0.24], [0.10], [0.12, 0.15, 0.11]])
+    calls = []
+    monkeypatch.setattr(scale_bench, "_spin_at_once", lambda n, loops: calls.append(n) or next(timings))
+    ceiling, alone, together = scale_bench.machine_ceiling(3, repeats=3)
+    assert calls == [1, 3] * 3
+    # a generation waits for its slowest part: each pair gives 3 x alone / slowest (1.2, 2.0, 2.0); the ratio
+    # of the medians (3 x 0.10 / 0.25 = 1.2) would compare a fast moment alone with a slow one at once
+    assert np.isclose(ceiling, 2.0) and (alone, together) == (0.10, 0.25)
+    with pytest.raises(ValueError, match="n_processes"):
+        scale_bench.machine_ceiling(0)
+
+
+def test_the_machine_ceiling_runs_its_copies_for_real():
+    rows, figures = scale_bench.bench_machine(quick=True, cpus=2)
+    ceiling = figures["scale_machine_ceiling_2"]
+    # two copies at once take at least about one copy's time each, whatever the machine
+    assert 0.0 < ceiling < 2.5
+    assert len(rows) == 1 and "at once" in rows[0][0] and rows[0][1] == ceiling

@@ -29,6 +29,11 @@ For a MOPSO set-up, the optimiser's serial time with the compiled move (:mod:`mo
 with the NumPy move, tunings of each alternated in one process (``scale_serial_move_ratio_<workload>``,
 NumPy over compiled; the archives must be the same).
 
+Before the workloads, the machine's own ceiling (:func:`machine_ceiling`): n copies of a loop that shares
+nothing, started at the same instant, against one alone. A borrowed machine's "cores" may share physical cores
+and power with each other and with its neighbours, so n of them at once do less than n times one's work; no
+n-worker tuning can beat this ratio by much (its evaluation, unlike the loop, also shares memory bandwidth).
+
 Then a sweep of 2 × CPUs jobs of the main command, one after the other and with the joblib
 launcher running CPUs jobs at once (each job's thread pools pinned to its share of the cores).
 """
@@ -75,6 +80,57 @@ def job_counts(cpus: int) -> list[int]:
         counts.append(n)
         n *= 2
     return counts + [max(1, cpus)]
+
+
+#: the loop :func:`machine_ceiling` runs in each process: integer arithmetic in the interpreter, nothing shared but
+#: the core; it sleeps until the wall-clock instant on its command line, so that every copy starts at once
+_SPIN = ("import sys, time\n"
+         "time.sleep(max(0.0, float(sys.argv[1]) - time.time()))\n"
+         "t, s = time.perf_counter(), 0\n"
+         "for i in range(int(sys.argv[2])):\n"
+         "    s += i * i\n"
+         "print(time.perf_counter() - t)\n")
+#: iterations of that loop: 0.1-0.3 s alone on the machines measured so far
+SPIN_LOOPS = 2_000_000
+
+
+def _spin_at_once(n_processes: int, loops: int) -> list[float]:
+    """Seconds each of ``n_processes`` copies of :data:`_SPIN` took, all started at one instant."""
+    # (the interpreters start within this lead; -S: no site packages, a start of a few ms)
+    start = time.time() + 0.15 + 0.01 * n_processes
+    copies = [subprocess.Popen([sys.executable, "-S", "-c", _SPIN, repr(start), str(loops)],
+                               stdout=subprocess.PIPE, text=True) for _ in range(n_processes)]
+    return [float(copy_.communicate()[0]) for copy_ in copies]
+
+
+def machine_ceiling(n_processes: int, repeats: int = 5, loops: int = SPIN_LOOPS) -> tuple[float, float, float]:
+    """What ``n_processes`` workers can gain over one on this machine, whatever runs on them.
+
+    ``n_processes`` copies of a loop that shares nothing (:data:`_SPIN`) start at one instant; a generation
+    waits for its slowest part, so the ceiling is ``n_processes`` times one copy's time alone over the slowest
+    copy's time among them. One copy alone and the copies at once are timed back to back, ``repeats`` times,
+    and the median of those pairs' ratios is the ceiling: a shared machine's speed drifts by tens of percent
+    within seconds, and a pair sees the same drift on both sides. Returns (ceiling, median seconds alone,
+    median seconds of the slowest copy at once).
+    """
+    if n_processes < 1:
+        raise ValueError(f"n_processes must be at least 1, got {n_processes}")
+    pairs = [(_spin_at_once(1, loops)[0], max(_spin_at_once(n_processes, loops))) for _ in range(max(1, repeats))]
+    alone, together = np.array(pairs).T
+    return float(np.median(n_processes * alone / together)), float(np.median(alone)), float(np.median(together))
+
+
+def bench_machine(quick: bool = False, cpus: int | None = None) -> tuple[list, dict]:
+    """Rows and ``scale_machine_ceiling_<n>`` for every n of :func:`job_counts` above 1."""
+    cpus = cpus or os.cpu_count() or 1
+    rows, figures = [], {}
+    for n in job_counts(cpus)[1:]:
+        ceiling, alone, together = machine_ceiling(n, repeats=3 if quick else 5)
+        figures[f"scale_machine_ceiling_{n}"] = ceiling
+        rows.append((f"the machine: {n} processes of a loop that shares nothing at once vs one", ceiling,
+                     f"medians: one alone {1e3 * alone:.0f} ms, the slowest of {n} at once {1e3 * together:.0f} ms; about the "
+                     f"most a tuning on {n} workers can gain here"))
+    return rows, figures
 
 
 def load_average() -> float:
@@ -385,7 +441,8 @@ def workload_in_own_process(name: str, quick: bool = False) -> tuple[list, dict]
 def bench_scale(quick: bool = False) -> tuple[list, dict]:
     """Every workload of :data:`WORKLOADS`, each in its own process, then the sweep; the load average beside them."""
     rows: list = [("load average (1 min) at the start", load_average(), f"{os.cpu_count()} CPUs")]
-    figures: dict = {}
+    more, figures = bench_machine(quick)
+    rows += more
     for name in DEFAULT_WORKLOADS:
         more, found = workload_in_own_process(name, quick)
         rows += more
