@@ -55,3 +55,26 @@ def test_the_machine_ceiling_runs_its_copies_for_real():
     # two copies at once take at least about one copy's time each, whatever the machine
     assert 0.0 < ceiling < 2.5
     assert len(rows) == 1 and "at once" in rows[0][0] and rows[0][1] == ceiling
+
+
+def test_the_two_moves_archives_are_compared_only_where_numpys_power_is_the_c_librarys(monkeypatch):
+    from mosd import kernels
+    from mosd.kernels import swarm
+    from mosd.optim.mopso import MOPSO
+
+    compiled_move = MOPSO._compiled_move
+
+    def tuning(setup, evaluator, n_jobs, n_gen, **_):
+        compiled = MOPSO._compiled_move is compiled_move  # the NumPy move's tunings run with it declined
+        # the two moves part by one float, as with AVX-512's SIMD power in NumPy
+        return {"serial_per_gen_s": 0.001 if compiled else 0.002, "X": np.array([[0.5 if compiled else 0.5000001]]),
+                "F": np.zeros((1, 2))}
+
+    monkeypatch.setattr(kernels, "enabled", lambda: True)
+    monkeypatch.setattr(scale_bench, "time_tuning", tuning)
+    setup = SimpleNamespace(algorithm=MOPSO(pop_size=4))
+    monkeypatch.setattr(swarm, "matches_numpy", lambda: False)
+    assert scale_bench.compiled_move_side_by_side(setup, None, 2, rounds=2) == (0.001, 0.002, False)
+    monkeypatch.setattr(swarm, "matches_numpy", lambda: True)  # there the two must be the same bits
+    with pytest.raises(RuntimeError, match="another archive"):
+        scale_bench.compiled_move_side_by_side(setup, None, 2, rounds=2)

@@ -138,3 +138,58 @@ def test_a_launcher_that_runs_its_jobs_here_gets_no_pool():
                          env={**os.environ, "PYTHONPATH": PACKAGE_PARENT})
     assert out.returncode == 0, out.stderr[-2000:]
     assert out.stdout.split() == ["False", "False", "[]"]
+
+
+#: the launching process of a sweep under the joblib launcher, on a machine with idle CPUs, that hands every job
+#: after the first to the launcher's workers (preflight waits for them to start instead of checking on alone)
+POOL_CHECKS = """
+import sys
+from mosd.app import main, plots, preflight, sweep
+plots.free_cpus = lambda: 8
+preflight.POOL_CHECK_MIN_JOBS = 2
+handed = []
+ready = sweep.warm_workers_ready
+sweep.warm_workers_ready = lambda: (sweep._Warming.thread.join(120), ready())[1]
+run = sweep.run_on_warm_workers
+sweep.run_on_warm_workers = lambda function, calls: handed.append(len(calls)) or run(function, calls)
+code = main(sys.argv[1:])
+print("HANDED", handed, code)
+sys.exit(code)
+"""
+
+
+def _pool_sweep(tmp_path: Path, *overrides: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-c", POOL_CHECKS, "-m", "+fault=offset,variance", "seed=1,2,3",
+                           "debug=tiny", "tracking=none", "hydra/launcher=joblib", "hydra.launcher.n_jobs=2",
+                           *overrides, f"hydra.sweep.dir={tmp_path / 'sweep'}"], cwd=tmp_path,
+                          env=_environment(tmp_path), capture_output=True, text=True, timeout=600)
+
+
+@pytest.mark.slow
+def test_the_launchers_workers_check_the_jobs_left_and_then_run_them(tmp_path):
+    done = _pool_sweep(tmp_path)
+    assert done.returncode == 0, done.stderr[-3000:]
+    line, = [ln for ln in done.stdout.splitlines() if ln.startswith("HANDED")]
+    assert line == "HANDED [5] 0"  # the first job checked here, the five others on the workers
+    statuses = [json.loads((tmp_path / "sweep" / str(job) / "summary.json").read_text())["status"]
+                for job in range(6)]
+    assert statuses == ["finished"] * 6
+
+
+def test_a_job_the_workers_find_wrong_is_refused_as_preflight_refuses_it(tmp_path):
+    # the second job of each pair has no training runs: the first wrong job is the second of the sweep
+    done = _pool_sweep(tmp_path, "budget.n_train=20,0")
+    assert done.returncode == 2
+    assert done.stderr.strip() == "mosd: error: budget.n_train=0 is out of range; allowed: integers in [1, inf]"
+    assert "HANDED [11]" in done.stdout and not (tmp_path / "sweep").exists()
+
+
+def test_the_first_wrong_job_in_the_sweeps_order_is_the_one_reported():
+    from mosd.app.config import ConfigError, UsageError
+    from mosd.app.preflight import _raise_first
+
+    with pytest.raises(ConfigError, match="^second$"):
+        _raise_first(iter([None, ("ConfigError", "second"), ("UsageError", "third")]))
+    with pytest.raises(UsageError, match="^first$"):
+        _raise_first([("UsageError", "first"), None])
+    _raise_first([None, None])  # every job passed

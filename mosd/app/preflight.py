@@ -561,6 +561,84 @@ class Checked:
         return {"_setups": {}, "config": None, "composed": set()}
 
 
+#: jobs still to check, at least, for preflight to hand them to the joblib launcher's workers once those have started:
+#: a worker's first composition (Hydra's search path, the first YAML files) takes about two jobs' time, and a
+#: handful of jobs is checked here sooner (a job is 0.2-0.3 s, nearly all of it Hydra's composition)
+POOL_CHECK_MIN_JOBS = 8
+
+
+def _compose_job(compose, config_name: str, extra: list[str], group_only: list[str], job: list[str]):
+    """The job's configuration, hydra section included; a composition error as one line (UsageError)."""
+    from hydra.errors import HydraException
+    from omegaconf.errors import OmegaConfBaseException
+
+    try:
+        return compose(config_name, overrides=[*extra, *job], return_hydra_config=True)
+    except (HydraException, OmegaConfBaseException) as exc:
+        raise UsageError(_composition_message(
+            exc, lambda: compose(config_name, overrides=[*extra, *group_only]))) from None
+
+
+def _build_job(cfg) -> Setup:
+    from omegaconf.errors import OmegaConfBaseException
+
+    try:
+        with warnings.catch_warnings():
+            # a data source reports what it dropped through logging and warnings.warn: one line is enough
+            warnings.filterwarnings("ignore", message=r"data: ", category=UserWarning)
+            return build(cfg)
+    except OmegaConfBaseException as exc:
+        raise UsageError(one_line(exc)) from None
+
+
+#: what :func:`check_in_worker` checked in this process (outputs, store, one dry run per shape), across its calls
+_DONE_IN_WORKER: dict = {}
+
+
+def check_in_worker(config_dir: str, config_name: str, extra: list[str], group_only: list[str], job: list[str],
+                    done: dict) -> tuple[str, str] | None:
+    """Preflight's checks of one sweep job in a worker of the joblib launcher: None, or the error's kind and line.
+
+    The same composition, build and :func:`check_job` as in the launching process; ``done`` is what that process
+    checked already (the outputs, the store, the dry run of the first jobs' shapes), so a worker repeats none of
+    it. The error is returned, not raised, so that the launching process reports the first failing job in the
+    sweep's order, as it does checking them itself.
+    """
+    from hydra import compose, initialize_config_dir
+    from hydra.core.global_hydra import GlobalHydra
+
+    for key, value in done.items():
+        _DONE_IN_WORKER.setdefault(key, value)
+    GlobalHydra.instance().clear()
+    try:
+        with initialize_config_dir(config_dir=config_dir, version_base="1.3", job_name="mosd"):
+            cfg = _compose_job(compose, config_name, extra, group_only, job)
+            check_job(cfg, _build_job(cfg), _DONE_IN_WORKER, multirun=True)
+    except (UsageError, ConfigError) as exc:
+        return type(exc).__name__, str(exc)
+    finally:
+        GlobalHydra.instance().clear()  # the job this worker runs next gets the launching process's Hydra state
+    return None
+
+
+def _raise_first(outcomes) -> None:
+    """Raise the first error of :func:`check_in_worker`'s outcomes (in the jobs' order), as the class it was; the
+    jobs after it are not checked (those already started are cancelled)."""
+    found = None
+    with warnings.catch_warnings():
+        # joblib reports the cancelled calls: the error line is all a user should see
+        warnings.filterwarnings("ignore", message=r".*were still being processed", category=UserWarning)
+        for outcome in outcomes:
+            if outcome is not None:
+                found = outcome
+                break
+        if hasattr(outcomes, "close"):
+            outcomes.close()
+    if found is not None:
+        kind, message = found
+        raise (UsageError if kind == "UsageError" else ConfigError)(message)
+
+
 def preflight(argv: Sequence[str], compile_ahead: bool = False, warm_workers: bool = False) -> Checked:
     """Compose and build every job of a command line; raise UsageError/ConfigError on a mistake.
 
@@ -570,7 +648,8 @@ def preflight(argv: Sequence[str], compile_ahead: bool = False, warm_workers: bo
     last while its dry run compiles the first ones (:func:`mosd.app.compile_ahead.start_for`:
     nothing on a warm cache or on one CPU). ``warm_workers``: a sweep under the joblib launcher starts its
     workers once its first job is composed, where :data:`mosd.app.sweep.WARM_FREE_CPUS` CPUs are idle
-    (:func:`mosd.app.sweep.warm_job_workers`).
+    (:func:`mosd.app.sweep.warm_job_workers`); once they have all started, the jobs left to check, if at least
+    :data:`POOL_CHECK_MIN_JOBS`, are checked on them (:func:`check_in_worker`), one job per worker at a time.
     """
     checked = Checked()
     args = _args_parser().parse_args(list(argv))
@@ -580,7 +659,6 @@ def preflight(argv: Sequence[str], compile_ahead: bool = False, warm_workers: bo
     from hydra.core.global_hydra import GlobalHydra
     from hydra.core.override_parser.overrides_parser import OverridesParser
     from hydra.errors import HydraException
-    from omegaconf.errors import OmegaConfBaseException
 
     try:
         parsed = OverridesParser.create().parse_overrides(list(args.overrides))
@@ -593,14 +671,21 @@ def preflight(argv: Sequence[str], compile_ahead: bool = False, warm_workers: bo
     group_only = [o.input_line for o in parsed if o.key_or_group in set(groups()) and not o.is_sweep_override()]
     GlobalHydra.instance().clear()
     done: dict = {}
+    pool = False  # whether the joblib launcher's workers were started ahead (warm_job_workers)
     with initialize_config_dir(config_dir=str(config_dir), version_base="1.3", job_name="mosd"):
         jobs = _jobs(parsed, args.multirun)
-        for job in jobs:
-            try:
-                cfg = compose(config_name, overrides=[*extra, *job], return_hydra_config=True)
-            except (HydraException, OmegaConfBaseException) as exc:
-                raise UsageError(_composition_message(
-                    exc, lambda: compose(config_name, overrides=[*extra, *group_only]))) from None
+        for index, job in enumerate(jobs):
+            if pool and len(jobs) - index >= POOL_CHECK_MIN_JOBS:
+                from .sweep import run_on_warm_workers, warm_workers_ready
+
+                if warm_workers_ready():
+                    # the rest on the launcher's workers, started and idle by now, each job on one of them
+                    _raise_first(run_on_warm_workers(check_in_worker, [
+                        (str(config_dir), config_name, extra, group_only, rest, done) for rest in jobs[index:]]))
+                    if not extra:
+                        checked.composed.update(job_signature(rest) for rest in jobs[index:])
+                    break
+            cfg = _compose_job(compose, config_name, extra, group_only, job)
             if args.multirun and warm_workers:
                 from .plots import free_cpus
                 from .sweep import WARM_FREE_CPUS, warm_job_workers
@@ -609,14 +694,8 @@ def preflight(argv: Sequence[str], compile_ahead: bool = False, warm_workers: bo
                 # leave idle
                 warm_workers = False
                 if free_cpus() >= WARM_FREE_CPUS:
-                    warm_job_workers(cfg.hydra, len(jobs))
-            try:
-                with warnings.catch_warnings():
-                    # a data source reports what it dropped through logging and warnings.warn: one line is enough
-                    warnings.filterwarnings("ignore", message=r"data: ", category=UserWarning)
-                    setup = build(cfg)
-            except OmegaConfBaseException as exc:
-                raise UsageError(one_line(exc)) from None
+                    pool = warm_job_workers(cfg.hydra, len(jobs))
+            setup = _build_job(cfg)
             if compile_ahead:
                 from .compile_ahead import start_for
 

@@ -103,6 +103,9 @@ class _Warming:
     """The pool :func:`warm_job_workers` started for this command (one per process)."""
 
     thread = None
+    #: the launcher's ``Parallel`` arguments the pool was started with, and whether its workers all started
+    arguments: dict | None = None
+    started = False
 
 
 def warm_job_workers(hydra_cfg, n_jobs_in_sweep: int) -> bool:
@@ -134,6 +137,7 @@ def warm_job_workers(hydra_cfg, n_jobs_in_sweep: int) -> bool:
     signals.jobs_run_in_pool()
     with quiet_resource_trackers():
         start_resource_trackers()
+    _Warming.arguments = arguments
     _Warming.thread = threading.Thread(target=_start_pool, args=(arguments, min(n_workers, n_jobs_in_sweep)),
                                        name="mosd-warm-job-workers", daemon=True)
     _Warming.thread.start()
@@ -145,8 +149,24 @@ def _start_pool(arguments: dict, n_workers: int) -> None:
 
     try:
         Parallel(**arguments)(delayed(_warm_worker)() for _ in range(n_workers))
+        _Warming.started = True
     except BaseException:  # noqa: BLE001 - the launcher starts its own pool, and its jobs report what fails
         pass
+
+
+def warm_workers_ready() -> bool:
+    """Whether the pool :func:`warm_job_workers` started has all its workers started and imported, now."""
+    return _Warming.thread is not None and not _Warming.thread.is_alive() and _Warming.started
+
+
+def run_on_warm_workers(function, calls: list[tuple]):
+    """``function(*call)`` for each call on the pool of :func:`warm_job_workers` (which the launcher's jobs then run
+    on: the same ``Parallel`` arguments reuse it): the results in the calls' order, each as soon as it and those
+    before it are done. Leaving the loop early cancels the calls not yet started."""
+    from joblib import Parallel, delayed
+
+    arguments = {**_Warming.arguments, "return_as": "generator"}
+    return Parallel(**arguments)(delayed(function)(*call) for call in calls)
 
 
 def _warm_worker() -> int:
