@@ -681,10 +681,11 @@ def test_stop_signals_that_arrive_while_the_handler_runs_inside_numbas_hook_stop
     held and the worker never marked its run (test_a_signal_during_a_sweep_..., 1 run in 20-40).
 
     The first signal is handled inside numba's hook with tracing on, then a second one arrives at every call the
-    handler makes. (Sent from a tracer, the first signal is handled inside the tracer, where nothing is traced,
-    and whether the retry thread's later interrupt lands inside the hook is a matter of timing: the test then
-    passed in about half of its runs without testing anything.) The hook is numba's own code object, the one the
-    handler looks for, with a memo that misses so that it calls ``loads``, where the first signal is raised.
+    handler makes. (Sent from a tracer, the first signal is handled inside the tracer, where nothing is traced;
+    only the retry thread's later interrupt could then run the handler traced inside the hook, and whether it
+    lands there is a matter of timing: the test failed in about half of its runs, having sent one signal.) The
+    hook is numba's own code object, the one the handler looks for, with a memo that misses so that it calls
+    ``loads``, where the first signal is raised.
     """
     out = _python("""
         import os, signal, sys, time, types
