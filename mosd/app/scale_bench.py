@@ -115,8 +115,8 @@ def machine_ceiling(n_processes: int, repeats: int = 5, loops: int = SPIN_LOOPS)
     """
     if n_processes < 1:
         raise ValueError(f"n_processes must be at least 1, got {n_processes}")
-    pairs = [(_spin_at_once(1, loops)[0], max(_spin_at_once(n_processes, loops))) for _ in range(max(1, repeats))]
-    alone, together = np.array(pairs).T
+    alone, together = np.array([(_spin_at_once(1, loops)[0], max(_spin_at_once(n_processes, loops)))
+                                for _ in range(max(1, repeats))]).T
     return float(np.median(n_processes * alone / together)), float(np.median(alone)), float(np.median(together))
 
 
@@ -128,8 +128,8 @@ def bench_machine(quick: bool = False, cpus: int | None = None) -> tuple[list, d
         ceiling, alone, together = machine_ceiling(n, repeats=3 if quick else 5)
         figures[f"scale_machine_ceiling_{n}"] = ceiling
         rows.append((f"the machine: {n} processes of a loop that shares nothing at once vs one", ceiling,
-                     f"medians: one alone {1e3 * alone:.0f} ms, the slowest of {n} at once {1e3 * together:.0f} ms; about the "
-                     f"most a tuning on {n} workers can gain here"))
+                     f"medians: one alone {1e3 * alone:.0f} ms, the slowest of {n} at once {1e3 * together:.0f} ms; "
+                     f"about the most a tuning on {n} workers can gain here"))
     return rows, figures
 
 
