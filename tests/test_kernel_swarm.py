@@ -1,10 +1,19 @@
 """The compiled MOPSO move (mosd.kernels.swarm) against the NumPy move it replaces (issue 32: the optimiser's
 serial step).
 
-Same draws from the same generator (its state after the move included) and the same positions: bit for bit
-where NumPy's ``power`` is the C library's ``pow`` (swarm.matches_numpy's probe, the one a run trusts; where
-NumPy takes a SIMD ``pow`` the positions may differ in their last bit, and only there is a tolerance of a few
-ulps used).
+Same draws from the same generator (its state after the move included, compared exactly: the number and kind of
+draws is integer bookkeeping, the same on every CPU) and positions within a stated tolerance, never bit for bit
+(issue 50): the two moves are two code paths, and NumPy may take a SIMD ``power`` (AVX-512) where the kernel
+calls the C library's ``pow``.
+
+Tolerances, derived: a move is a few tens of flops per variable plus at most two ``pow`` calls (SBX's spread and
+the polynomial mutation's, each within a few ulps on any libm or SIMD library); a position is
+``x + delta * (xu - xl)`` with ``|delta| <= 1``, so its error is a few tens of ulps of the variable's range. One
+move: ``ONE_MOVE`` = 64 ulps relative, and absolute 64 ulps of the range. A whole tuning chains 25 such moves
+through the velocities (factors below 3 a generation in the worst case, about 1 in practice: 1.2e-14 relative was
+measured on an AVX-512 EPYC after 25 generations), so ``WHOLE_RUN`` = 1e-9 of the range: five orders of magnitude
+above what was measured, and far below any real change of the move (those move a position by 1e-3 of its range
+or more).
 """
 import numpy as np
 import pytest
@@ -17,15 +26,15 @@ from mosd.optim import mopso
 from mosd.optim.mopso import MOPSO
 
 
-EXACT = swarm.matches_numpy()  # NumPy's power is libm's here: the kernels must give its bits
+ULP = np.finfo(float).eps
+ONE_MOVE = 64 * ULP
+WHOLE_RUN = 1e-9
 
 
-def _assert_same(compiled, reference):
+def _assert_same(compiled, reference, span=1.0, tolerance=ONE_MOVE):
+    """Equal within ``tolerance`` relative to each value and to the variables' range ``span``."""
     assert compiled.shape == reference.shape
-    if EXACT:
-        np.testing.assert_array_equal(compiled, reference)
-    else:  # pragma: no cover - machines whose NumPy dispatches power to SIMD code (AVX-512)
-        np.testing.assert_allclose(compiled, reference, rtol=1e-14, atol=0.0)
+    np.testing.assert_allclose(compiled, reference, rtol=tolerance, atol=tolerance * float(np.max(span)))
 
 
 def _swarm(rng):
@@ -71,8 +80,8 @@ def test_the_compiled_particle_move_is_the_numpy_move(seed):
     expected_X, expected_velocity = mopso.apply_bounds(X + expected, expected, xl, xu, boundary)
     if mutate:
         expected_X = mopso.polynomial_mutation(expected_X, xl, xu, etas, rate, theirs)
-    _assert_same(moved, expected_X)
-    np.testing.assert_array_equal(new_velocity, expected_velocity)
+    _assert_same(moved, expected_X, xu - xl)
+    _assert_same(new_velocity, expected_velocity, xu - xl)
     assert mine.bit_generator.state == theirs.bit_generator.state
 
 
@@ -98,7 +107,7 @@ def test_the_compiled_offspring_are_sbx_then_polynomial_mutation(seed):
     children = swarm.offspring(first, second, xl, xu, probability, 15.0, etas, swarm.bit_source(mine))
     expected = mopso.polynomial_mutation(mopso.sbx_children(first, second, xl, xu, theirs, probability, 15.0),
                                          xl, xu, etas, 1.0, theirs)
-    _assert_same(children, expected)
+    _assert_same(children, expected, xu - xl)
     assert mine.bit_generator.state == theirs.bit_generator.state
 
 
@@ -125,11 +134,14 @@ def test_a_tuning_with_the_compiled_move_is_the_numpy_tuning(problem, settings):
                                   save_history=True)
         runs.append(result)
     compiled_run, numpy_run = runs
-    for read in (lambda run: run.algorithm.leader_archive.X, lambda run: run.algorithm.leader_archive.F,
-                 lambda run: run.algorithm.pbest_X):
-        _assert_same(read(compiled_run), read(numpy_run))
+    problem = get_problem(problem, **kwargs)
+    span = problem.xu - problem.xl
+    for read in (lambda run: run.algorithm.leader_archive.X, lambda run: run.algorithm.pbest_X):
+        _assert_same(read(compiled_run), read(numpy_run), span, WHOLE_RUN)
+    F = numpy_run.algorithm.leader_archive.F
+    _assert_same(compiled_run.algorithm.leader_archive.F, F, np.ptp(F, axis=0).max(initial=1.0), WHOLE_RUN)
     for a, b in zip(compiled_run.history, numpy_run.history):
-        _assert_same(a.pop.get("X"), b.pop.get("X"))
+        _assert_same(a.pop.get("X"), b.pop.get("X"), span, WHOLE_RUN)
 
 
 def test_the_move_is_compiled_only_where_it_reproduces_the_numpy_move():

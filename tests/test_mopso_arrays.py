@@ -1,17 +1,18 @@
 """Issue 32: MOPSO keeps X/F/CV as arrays and builds pymoo's individuals directly (ArrayEvaluator,
-new_population) — the archives must be those of the code before, bit for bit.
+new_population) — the archives must be those of the code before.
 
-The hashes in :data:`PINNED` were recorded from the code before this change (commit 8cdc547 of
-the integration branch, exported with ``git archive 8cdc547 | tar -x -C OLD``): with
-``PYTHONPATH=OLD`` (so ``mosd`` is the old package) and this file's directory on ``sys.path``,
-``import test_mopso_arrays as t; [t.archive_hash(case) for case in t.CASES]``. The new code must
-give the same SHA-256 of the final archive's X and F bytes (``res.X``, ``res.F``).
+The archives were first pinned by the SHA-256 of their bytes, recorded from the code before this change (commit
+8cdc547 of the integration branch). Issue 50: a hash is bit for bit, and NumPy's SIMD ``power`` on AVX-512
+machines moves a position by an ulp, so the hashes failed there. :data:`PINNED` now holds each final archive's
+shape and four moments (sum and sum of squares of ``res.X`` and ``res.F``), computed on an x86-64 machine without
+AVX-512 from the code whose archives still had those hashes (same bytes, so the same moments as the old code's).
+They are compared with a relative tolerance of :data:`TOLERANCE` = 1e-9: an ulp's change of a position, carried
+through 20-40 generations, moved the archives by about 1e-14 (measured in test_kernel_swarm's whole runs), while
+any change of the algorithm moves a moment by 1e-4 or more.
 """
 from __future__ import annotations
 
 import copy
-import hashlib
-
 import numpy as np
 import pytest
 from pymoo.core.callback import Callback
@@ -25,16 +26,20 @@ from mosd.optim.mopso import MOPSO
 CASES = [("zdt1", "default", 30, 1), ("zdt1", "paper", 30, 2), ("osy", "default", 40, 1),
          ("mw1", "default", 30, 3), ("osy", "paper", 30, 1), ("main", "default", 20, None)]
 
+#: case -> (archive shape, sum X, sum X**2, sum F, sum F**2)
 PINNED = {
-    ("zdt1", "default", 30, 1): "8c6eb362956e5c9265650e94a8b38eb8a3eb5909f5971e94567dc520c94987e4",
-    ("zdt1", "paper", 30, 2): "60b009de3a19133b5307d89691eb4652afb2855c0157d6a775834000098113b6",
+    ("zdt1", "default", 30, 1): ((100, 30), 52.635253381881306, 25.928223570907818, 85.44089074556236,
+                                 52.83082494446992),
+    ("zdt1", "paper", 30, 2): ((13, 30), 100.60564195612511, 70.70680558140255, 33.67822562259457, 65.07133640126239),
     # the constrained default's (issue 33, fifth change: the late phase's refinement children and eta 50 change every
     # constrained run from half its planned generations on; recorded from the new code, docs/MOPSO.md)
-    ("osy", "default", 40, 1): "18cef5c0c79aa38d2b76eadb9b6ad6680339b239d58c46cf2c6dd337415f8e4f",
-    ("mw1", "default", 30, 3): "aebb507862250405172ec4a7dfaf1144fd363c7deb2662bd2b1fb72f84f58581",
-    ("osy", "paper", 30, 1): "194ce443281cd5716faa984fe279dd12db3ac22a072581d1328dc2d0d658b1c8",
-    ("main", "default", 20, None): "708e50479ddc56b5d1c522c76117fc532c17d6201f8e809eb4c25a2612fd0247",
+    ("osy", "default", 40, 1): ((62, 6), 496.55223097862716, 1417.2610833918193, -8658.705525013867,
+                                1924313.2172456202),
+    ("mw1", "default", 30, 3): ((8, 15), 110.97676255901287, 107.51353055861608, 10.027713506432963, 9.78669252832821),
+    ("osy", "paper", 30, 1): ((9, 6), 89.52635488149029, 275.919934077047, -662.616760516964, 150656.67127879037),
+    ("main", "default", 20, None): ((9, 2), 40.82223189579928, 190.0134278655761, 0.5762, 0.15346355999999994),
 }
+TOLERANCE = 1e-9
 
 
 def build(name: str):
@@ -59,24 +64,35 @@ def run(case, evaluator=None, **kwargs):
     return minimize(problem, algorithm, ("n_gen", n_gen), seed=setup_seed if seed is None else seed, **kwargs)
 
 
-def digest(res) -> str:
-    X, F = np.ascontiguousarray(np.atleast_2d(res.X)), np.ascontiguousarray(np.atleast_2d(res.F))
-    return hashlib.sha256(X.tobytes() + F.tobytes()).hexdigest()
+def moments(res) -> tuple:
+    """The archive's shape and the sums of its values and of their squares (X, then F)."""
+    X, F = np.atleast_2d(res.X), np.atleast_2d(res.F)
+    return X.shape, float(X.sum()), float((X ** 2).sum()), float(F.sum()), float((F ** 2).sum())
 
 
-def archive_hash(case) -> str:
-    return digest(run(case))
+def assert_pinned(res, case):
+    shape, *values = moments(res)
+    assert shape == PINNED[case][0]
+    np.testing.assert_allclose(values, PINNED[case][1:], rtol=TOLERANCE)
+
+
+def assert_same_archive(res, other):
+    """Two runs of the same case: the same archive within :data:`TOLERANCE` (compared whole, not by moments)."""
+    for read in (lambda r: np.atleast_2d(r.X), lambda r: np.atleast_2d(r.F)):
+        a, b = read(res), read(other)
+        assert a.shape == b.shape
+        np.testing.assert_allclose(a, b, rtol=TOLERANCE, atol=TOLERANCE * max(1.0, float(np.abs(b).max())))
 
 
 @pytest.mark.parametrize("case", CASES, ids=lambda case: "-".join(str(part) for part in case))
-def test_final_archive_is_the_old_codes_bit_for_bit(case):
-    assert archive_hash(case) == PINNED[case]
+def test_final_archive_is_the_old_codes(case):
+    assert_pinned(run(case), case)
 
 
 @pytest.mark.parametrize("case", [CASES[0], CASES[2]], ids=["zdt1", "osy"])
 def test_pymoos_own_evaluator_gives_the_same_archive(case):
     """A caller's Evaluator (the arrays then read back from the individuals) changes nothing."""
-    assert digest(run(case, evaluator=Evaluator())) == PINNED[case]
+    assert_same_archive(run(case, evaluator=Evaluator()), run(case))
 
 
 class _Generations(Callback):
@@ -108,7 +124,7 @@ def test_individuals_history_and_callbacks_are_pymoos():
         fresh = copy.copy(individual)
         fresh.CV = None
         assert np.array_equal(individual.CV, fresh.CV)
-    assert digest(res) == digest(run(("osy", "default", 6, 1)))
+    assert_same_archive(res, run(("osy", "default", 6, 1)))
 
 
 def test_one_draw_of_integers_is_pymoos_choice_of_a_parent():

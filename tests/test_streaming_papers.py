@@ -325,7 +325,10 @@ def test_paper003_model_is_served_without_torch(tmp_path):
     run = subprocess.run([sys.executable, "-c", code, str(tmp_path / "out.npy")], capture_output=True, text=True,
                          cwd=root, env={"PYTHONPATH": str(root), "PATH": ""}, timeout=120)
     assert run.returncode == 0, run.stderr[-2000:]
-    assert _same(np.load(tmp_path / "out.npy"), expected) and np.isfinite(expected[window:]).all()
+    # without torch the observer's layers run in NumPy, with it in torch: two code paths (issue 50), so equal
+    # within 1e-10 relative (a three-layer network of width 4: a few hundred flops a row), not bit for bit
+    _close(np.load(tmp_path / "out.npy"), expected)
+    assert np.isfinite(expected[window:]).all()
 
 
 # -- the presets, end to end -------------------------------------------------------------------------

@@ -21,6 +21,7 @@ import concurrent.futures
 import os
 import shutil
 import socket
+import struct
 import tempfile
 import time
 import weakref
@@ -97,6 +98,7 @@ class WorkerPipes:
         address = os.path.join(self._directory, "socket")
         listener = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
         self.connections: list[Connection] = []
+        self.pids: list[int | None] = []  # the process at the other end of each connection (None: not known)
         self._futures: list = []
         self._finalizer = weakref.finalize(self, _close, self.connections, self._futures, self._directory)
         try:
@@ -117,6 +119,7 @@ class WorkerPipes:
                         raise WorkerFailure(f"the evaluation workers did not connect within {timeout:g} s") from None
                     continue
                 sock.setblocking(True)
+                self.pids.append(_peer_pid(sock))
                 self.connections.append(Connection(sock.detach()))
         except BaseException:
             self.close()
@@ -166,6 +169,15 @@ class WorkerPipes:
     def close(self) -> None:
         """End the workers' tasks (they go back to the pool) and remove the socket's directory. Idempotent."""
         self._finalizer()
+
+
+def _peer_pid(sock: socket.socket) -> int | None:
+    """The process id at the other end of a connected Unix socket (Linux's ``SO_PEERCRED``), or None elsewhere."""
+    option = getattr(socket, "SO_PEERCRED", None)
+    if option is None:
+        return None
+    pid, _uid, _gid = struct.unpack("3i", sock.getsockopt(socket.SOL_SOCKET, option, struct.calcsize("3i")))
+    return pid
 
 
 def _close(connections: list, futures: list, directory: str) -> None:

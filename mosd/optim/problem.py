@@ -453,6 +453,14 @@ class TuningProblem(Problem):
         F[order] = dealt_F
         return F, planned + sum(seconds for _, seconds in done) + (time.perf_counter() - t1), len(edges) - 1
 
+    def worker_pids(self) -> list[int]:
+        """The process ids of the pool workers this problem's evaluations are sent to (empty before the first
+        split population, on threads or Dask, and where the platform does not tell a socket's peer)."""
+        pipes = self._pipes
+        if pipes is None or pipes.closed:
+            return []
+        return [pid for pid in pipes.pids if pid is not None]
+
     def close(self) -> None:
         """Delete the evaluator file the workers load and shut down the Dask client/cluster this problem started.
 
