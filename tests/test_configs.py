@@ -210,7 +210,7 @@ def _message(exc_info) -> str:
     (["+fault=offset_var", "optimizer.n_gen=-2"], r"optimizer\.n_gen=-2 .*allowed"),
     (["+fault=offset_var", "optimizer.velocity=fast"], r"optimizer\.velocity='fast'.*constriction, inertia"),
     (["+fault=offset_var", "budget.n_test=0"], r"budget\.n_test=0"),
-    (["+fault=offset_var", "detector.bounds.K=[0,20]"], r"detector\.bounds\.K=.*allowed: low < high within \[0, 10\]"),
+    (["+fault=offset_var", "detector.bounds.K=[0,20]"], r"detector\.bounds\.K=.*allowed: low <= high within \[0, 10\]"),
     (["+fault=offset_var", "+detector.foo=1"], r"detector\.foo is not a parameter of SSDEWMA; allowed: lam, K, limit"),
     (["+fault=offset_var", "selection.rule=best"], r"selection\.rule='best'.*max_accuracy"),
     (["+fault=offset_var", "tracking.uri=ftp://x"], r"tracking\.uri='ftp://x'.*sqlite"),

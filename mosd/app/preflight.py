@@ -276,9 +276,12 @@ def narrow_to_data(setup: Setup, box: dict[str, tuple[float, float]] | None) -> 
             continue
         new_low, new_high = max(low, float(interval.low)), min(high, float(interval.high))
         if new_low > new_high or new_low == new_high and (interval.open_low or interval.open_high):
-            raise ConfigError(f"the calibration data allow detector.{name} only in [{low:g}, {high:g}], outside its "
-                              f"range {interval}; allowed: more (or longer) calibration runs, or fewer held back "
-                              "(detector.fit_runs)")
+            allow = (f"at most {high:g}" if high < low or high < float(interval.low)
+                     else f"only in [{low:g}, {high:g}]")
+            raise ConfigError(f"the calibration data allow detector.{name} {allow}, outside its range {interval}; "
+                              "allowed: more tags (a model with a residual space needs two or more), more (or "
+                              "longer) calibration runs, fewer held back (detector.fit_runs), or a per-tag detector "
+                              "(detector=tag_ewma, detector=tag_cusum)")
         if new_low == float(interval.low) and new_high == float(interval.high):
             continue
         for end, value, moved in (("low", new_low, new_low > interval.low),

@@ -288,10 +288,14 @@ class TuningProblem(Problem):
         for name in self.names:
             interval = tunable[name]
             lo, hi = bounds.get(name, (interval.low, interval.high))
-            if not interval.low <= lo < hi <= interval.high:
-                raise ConfigError(f"bounds.{name}=[{lo}, {hi}] is not allowed; allowed: low < high within {interval}")
-            xl.append(lo + (_OPEN_BOUND_MARGIN if interval.open_low and lo == interval.low else 0.0))
-            xu.append(hi - (_OPEN_BOUND_MARGIN if interval.open_high and hi == interval.high else 0.0))
+            low = lo + (_OPEN_BOUND_MARGIN if interval.open_low and lo == interval.low else 0.0)
+            high = hi - (_OPEN_BOUND_MARGIN if interval.open_high and hi == interval.high else 0.0)
+            # low == high is a fixed parameter (a 2-tag table leaves n_components only 1, issue 53): both
+            # optimisers keep a variable whose bounds coincide at that value
+            if not interval.low <= lo <= hi <= interval.high or low > high:
+                raise ConfigError(f"bounds.{name}=[{lo}, {hi}] is not allowed; allowed: low <= high within {interval}")
+            xl.append(low)
+            xu.append(high)
         #: True for the integer parameters (rounded before every evaluation)
         self.is_integer = np.array([tunable[name].integer for name in self.names], bool)
         super().__init__(n_var=len(self.names), n_obj=len(evaluator.objectives), xl=np.array(xl), xu=np.array(xu),
