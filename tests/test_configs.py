@@ -28,6 +28,9 @@ from mosd.app.settings import TrackingSettings, default_tracking_uri
 from mosd.validation import ConfigError
 
 CONF = _config_module.CONFIG_DIR
+#: the fault options as a one-line error lists them: read from conf/fault/, never spelled out here (issue 50:
+#: adding a fault is one module and one YAML, no test to edit)
+FAULTS = ", ".join(sorted(path.stem for path in (CONF / "fault").glob("*.yaml")))
 GROUPS = sorted(p.name for p in CONF.iterdir() if p.is_dir())
 OPTIONS = [(g, o) for g in GROUPS for o in _config_module.options(g)]
 README = Path(__file__).resolve().parents[1] / "README.md"
@@ -142,7 +145,7 @@ def test_fault_is_not_in_defaults_and_null_in_body(composer):
     assert "fault" not in groups_in_defaults and "optimizer" in groups_in_defaults
     assert raw.fault is None
     assert composer().fault is None
-    with pytest.raises(_config_module.UsageError, match=r"\+fault=NAME .*actuator, drift, offset, offset_var, ramp, target_nuisance, variance"):
+    with pytest.raises(_config_module.UsageError, match=r"\+fault=NAME .*" + re.escape(FAULTS)):
         _build_module.build(composer())
 
 
@@ -224,9 +227,9 @@ def test_build_errors_are_one_line_naming_key_and_allowed(composer, overrides, p
 
 
 @pytest.mark.parametrize("argv,pattern", [
-    ([], r"no fault chosen.*actuator, drift, offset, offset_var, ramp, target_nuisance, variance"),
+    ([], r"no fault chosen.*" + re.escape(FAULTS)),
     (["+fault=offset_var", "optimizer=foo"], r"optimizer=foo is not an option; allowed: mopso, (.*, )?nsga2"),
-    (["+fault=nope"], r"fault=nope is not an option; allowed: actuator, drift, offset, offset_var, ramp, target_nuisance, variance"),
+    (["+fault=nope"], r"fault=nope is not an option; allowed: " + re.escape(FAULTS)),
     (["fault=offset"], r"\+fault=offset"),
     (["+fault=offset", "+optimizer=nsga2"], r"optimizer=nsga2 without the \+"),
     (["+fault=offset", "detector.lamm=0.3"], r"detector\.lamm is not a config key of detector; allowed: .*lam"),
