@@ -20,15 +20,19 @@ so fault 1 becomes ``d10.dat`` (fault 10's data) and faults 3-9 ask for
 Splits (:mod:`mosd.data.base`), all runs 160 rows long except the PCA fit run:
 
 * ``calibration``: ``d00.dat`` (500 rows: the PCA and its theoretical limits),
-  then rows 0-159 of ``d00_te.dat``, ``d02_te.dat``, ..., ``d20_te.dat`` (the
-  fault-free first 8 h of the even-numbered test files, held back for the
-  empirical and EWMA-recalibrated limits);
+  then rows 0-159 of ``d02_te.dat``, ``d04_te.dat``, ..., ``d20_te.dat`` (the
+  fault-free first 8 h of the even-numbered fault files, held back for the
+  empirical and EWMA-recalibrated limits). Not ``d00_te.dat``'s: its rows
+  160-959 give the test FAR, and no row of that run calibrates it (issue 49;
+  before, its lead-in was an 11th held-back run and set CVA's Q limit);
 * ``training``: ``dNN.dat`` of every fault in ``faults`` cut into three runs of
   160 rows, and rows 0-159 of ``d01_te.dat``, ``d03_te.dat``, ..., ``d21_te.dat``
   (fault-free: the FAR the optimiser sees);
 * ``test``: rows 160-959 of ``dNN_te.dat`` for every fault in ``test_faults``
   (800 faulty rows each; by default the training faults), then rows 160-959 of
-  ``d00_te.dat`` (the literature's FAR). No test row is in any other split.
+  ``d00_te.dat`` (the literature's FAR). No test row is in any other split,
+  and ``d00_te.dat``'s lead-in is in none (scoring streams it as the test
+  rows' past only: :func:`mosd.systems.tep.whole_test_files`).
 """
 from __future__ import annotations
 
@@ -178,7 +182,8 @@ class TennesseeEastman(RecordedData):
 
     def segments(self, split: str) -> list[Segment]:
         if split == "calibration":
-            held = [Segment(file_name(i, test=True), 0, ONSET) for i in range(0, 22, 2)]
+            # the even fault files' lead-ins; not d00_te.dat's, whose later rows measure the test FAR (docstring)
+            held = [Segment(file_name(i, test=True), 0, ONSET) for i in range(2, 22, 2)]
             return [Segment("d00.dat", 0, ROWS["train0"]), *held]
         if split == "training":
             faulty = [Segment(file_name(f), s, s + SEGMENT, label=f, onset=0)
