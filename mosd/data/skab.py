@@ -1,0 +1,260 @@
+"""SKAB, the Skoltech Anomaly Benchmark (github.com/waico/SKAB, GPL-3.0): read a folder of its layout.
+
+SKAB records a water-circulation testbed (pump, valves, tank) with 8 sensors
+sampled about once a second. mosd never ships the files (their licence is
+GPL-3.0): users clone that repository and point ``root`` at its ``data/``
+folder, which holds
+
+* ``valve1/0.csv`` ... ``valve1/15.csv``: the valve at the pump's inlet closed;
+* ``valve2/0.csv`` ... ``valve2/3.csv``: the valve at the pump's outlet closed;
+* ``other/1.csv`` ... ``other/14.csv``: leaks, rotor imbalance, cavitation, ...;
+* ``anomaly-free/anomaly-free.csv``: normal operation only, without label columns.
+
+Each file is ``;``-separated with a ``datetime`` column, the 8 sensor columns
+of :data:`TAGS` and, in the 34 experiments with anomalies, the labels
+``anomaly`` and ``changepoint`` (0/1). SKAB's protocol: the first
+:data:`FIT_ROWS` rows of each experiment are its fit part, the rest its test
+part. The benchmark says the fit part holds no anomaly; ``other/2.csv`` has
+296 rows labelled anomalous among its first 400 (commit b2c0d46), so the
+labels are returned as they are and :attr:`SkabExperiment.fit_anomalies`
+counts such rows: what a caller does with them is its own protocol's choice.
+
+:func:`read_experiments` and :func:`read_anomaly_free` return
+:class:`SkabExperiment` records; :class:`Skab` (the Hydra data source,
+``data=skab``, below) builds on them. Bad input is one
+:class:`~mosd.validation.ConfigError` line naming the path, the key and what is
+allowed.
+"""
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from ..validation import ConfigError
+
+#: The 8 sensor columns, in file order.
+TAGS = ("Accelerometer1RMS", "Accelerometer2RMS", "Current", "Pressure", "Temperature", "Thermocouple",
+        "Voltage", "Volume Flow RateRMS")
+#: The label columns of an experiment with anomalies.
+LABELS = ("anomaly", "changepoint")
+TIME = "datetime"
+#: The folders with anomalies, in the benchmark's order.
+ANOMALY_GROUPS = ("valve1", "valve2", "other")
+FREE = "anomaly-free"
+GROUPS = (*ANOMALY_GROUPS, FREE)
+#: SKAB's fit part: the first 400 rows of each experiment.
+FIT_ROWS = 400
+SEP = ";"
+
+
+@dataclass(frozen=True, eq=False)
+class SkabExperiment:
+    """One SKAB recording (module docstring).
+
+    Attributes
+    ----------
+    group : str
+        The folder: ``valve1``, ``valve2``, ``other`` or ``anomaly-free``.
+    name : str
+        ``valve1/3``: the folder and the file's stem.
+    time : ndarray of datetime64[s]
+        The ``datetime`` column (strictly increasing).
+    values : ndarray of float, shape (rows, 8)
+        The sensor columns in :data:`tags` order.
+    tags : tuple of str
+    anomaly, changepoint : ndarray of bool, shape (rows,)
+        The labels (all False in ``anomaly-free``, which has none).
+    fit_rows : int
+        Rows ``0 .. fit_rows-1`` are the fit part (SKAB's 400; every row of ``anomaly-free``).
+    """
+
+    group: str
+    name: str
+    time: np.ndarray
+    values: np.ndarray
+    tags: tuple[str, ...]
+    anomaly: np.ndarray
+    changepoint: np.ndarray
+    fit_rows: int = FIT_ROWS
+
+    @property
+    def n_rows(self) -> int:
+        return int(self.values.shape[0])
+
+    @property
+    def seconds(self) -> np.ndarray:
+        """Seconds from the first row (float)."""
+        return (self.time - self.time[0]).astype("timedelta64[s]").astype(float)
+
+    @property
+    def fit_anomalies(self) -> int:
+        """Rows of the fit part labelled anomalous (module docstring: ``other/2`` has 296)."""
+        return int(np.count_nonzero(self.anomaly[: self.fit_rows]))
+
+    def fit(self) -> np.ndarray:
+        """The fit part's values, shape (fit_rows, 8)."""
+        return self.values[: self.fit_rows]
+
+    def test(self) -> tuple[np.ndarray, np.ndarray]:
+        """The test part: values (rows - fit_rows, 8) and the anomaly labels."""
+        return self.values[self.fit_rows:], self.anomaly[self.fit_rows:]
+
+
+def read_experiments(root: str | Path, groups: str | Sequence[str] | None = None,
+                     key: str = "data.root") -> list[SkabExperiment]:
+    """The experiments of a SKAB folder, in a stable order.
+
+    Parameters
+    ----------
+    root : str or Path
+        SKAB's ``data/`` folder (module docstring).
+    groups : str or sequence of str, optional
+        Folders to read among ``valve1``, ``valve2``, ``other``, ``anomaly-free``; None: the three
+        folders with anomalies (34 experiments). Read in :data:`GROUPS` order whatever the order given.
+    key : str
+        The configuration key or option ``root`` came from, named in the errors.
+
+    Returns
+    -------
+    list of SkabExperiment
+        valve1, valve2, other (then anomaly-free), each folder by its files' integer number.
+    """
+    folder = check_root(root, key)
+    chosen = check_groups(groups)
+    out: list[SkabExperiment] = []
+    for group in chosen:
+        if group == FREE:
+            out.append(read_anomaly_free(folder, key))
+            continue
+        for number, path in _numbered_files(folder / group, key):
+            out.append(_experiment(path, group, f"{group}/{number}", key))
+    return out
+
+
+def read_anomaly_free(root: str | Path, key: str = "data.root") -> SkabExperiment:
+    """``anomaly-free/anomaly-free.csv``: labels all False, every row the fit part."""
+    folder = check_root(root, key)
+    path = folder / FREE / f"{FREE}.csv"
+    if not path.is_file():
+        raise ConfigError(f"{key}={str(root)!r}: {path} is missing; allowed: SKAB's data folder with "
+                          f"{FREE}/{FREE}.csv")
+    return _experiment(path, FREE, f"{FREE}/{FREE}", key)
+
+
+def check_root(root, key: str = "data.root") -> Path:
+    """``root`` as a folder of SKAB's layout (one line naming ``key`` otherwise)."""
+    if root is None or str(root) in ("", "???"):
+        raise ConfigError(f"{key} is not set; allowed: SKAB's data folder (a clone of github.com/waico/SKAB, "
+                          f"its data/), e.g. {key}=SKAB/data")
+    folder = Path(str(root)).expanduser()
+    if not folder.is_dir():
+        raise ConfigError(f"{key}={str(root)!r} is not a directory; allowed: SKAB's data folder with "
+                          f"{', '.join(GROUPS)}")
+    if not any((folder / g).is_dir() for g in GROUPS):
+        raise ConfigError(f"{key}={str(root)!r} has none of SKAB's folders; allowed: a folder with "
+                          f"{', '.join(GROUPS)} (SKAB's data/)")
+    return folder
+
+
+def check_groups(groups, key: str = "groups") -> tuple[str, ...]:
+    """Folder names among :data:`GROUPS`, in :data:`GROUPS` order; None: the anomaly folders."""
+    if groups is None:
+        return ANOMALY_GROUPS
+    names = [groups] if isinstance(groups, str) else [str(g) for g in groups]
+    for name in names:
+        if name not in GROUPS:
+            raise ConfigError(f"{key}: {name!r} is not a SKAB folder; allowed: {', '.join(GROUPS)}")
+    if not names or len(set(names)) != len(names):
+        raise ConfigError(f"{key}={names} is not a set of folders; allowed: distinct names among "
+                          f"{', '.join(GROUPS)}")
+    return tuple(g for g in GROUPS if g in names)
+
+
+def _numbered_files(folder: Path, key: str) -> list[tuple[int, Path]]:
+    if not folder.is_dir():
+        raise ConfigError(f"{key}: folder {folder} is missing; allowed: SKAB's data folder with "
+                          f"{', '.join(ANOMALY_GROUPS)}/N.csv")
+    files = []
+    for path in folder.glob("*.csv"):
+        if path.stem.isdigit():
+            files.append((int(path.stem), path))
+    if not files:
+        raise ConfigError(f"{key}: {folder} has no numbered CSV file; allowed: files 0.csv, 1.csv, ...")
+    return sorted(files)
+
+
+def _experiment(path: Path, group: str, name: str, key: str) -> SkabExperiment:
+    labelled = group != FREE
+    time, values, labels = _read(str(path), path.stat().st_mtime, labelled, key)
+    n = len(values)
+    if labelled and n <= FIT_ROWS:
+        raise ConfigError(f"{key}: {path} has {n} rows; allowed: more than {FIT_ROWS} (SKAB's fit part, then "
+                          "the test part)")
+    anomaly = labels[:, 0] if labelled else np.zeros(n, bool)
+    changepoint = labels[:, 1] if labelled else np.zeros(n, bool)
+    return SkabExperiment(group=group, name=name, time=time, values=values, tags=TAGS, anomaly=anomaly,
+                          changepoint=changepoint, fit_rows=FIT_ROWS if labelled else n)
+
+
+@functools.lru_cache(maxsize=64)
+def _read(path: str, mtime: float, labelled: bool, key: str):
+    """One file's time, values and labels, read-only (cached while the file is unchanged)."""
+    try:
+        import pandas as pd
+    except ImportError:
+        raise ConfigError('data=skab needs pandas: pip install ".[table]"') from None
+    try:
+        frame = pd.read_csv(path, sep=SEP)
+    except Exception as exc:
+        raise ConfigError(f"{key}: {path} cannot be read: {type(exc).__name__}: {' '.join(str(exc).split())}; "
+                          f"allowed: SKAB's ';'-separated CSV") from None
+    needed = (TIME, *TAGS, *(LABELS if labelled else ()))
+    missing = [c for c in needed if c not in frame.columns]
+    if missing:
+        raise ConfigError(f"{key}: {path} has no column {missing[0]!r}; allowed: SKAB's columns "
+                          f"{', '.join(needed)} (';'-separated)")
+    if frame.empty:
+        raise ConfigError(f"{key}: {path} has no data row; allowed: SKAB's recordings")
+    stamps = pd.to_datetime(frame[TIME], errors="coerce", format="%Y-%m-%d %H:%M:%S")
+    if stamps.isna().any():
+        row = int(np.flatnonzero(stamps.isna().to_numpy())[0])
+        raise ConfigError(f"{key}: {path} column {TIME!r} row {row} holds {str(frame[TIME].iloc[row])!r}, not a "
+                          "time; allowed: YYYY-MM-DD HH:MM:SS")
+    time = stamps.to_numpy().astype("datetime64[s]")
+    back = np.flatnonzero(np.diff(time) <= np.timedelta64(0, "s"))
+    if back.size:
+        row = int(back[0]) + 1
+        raise ConfigError(f"{key}: {path} row {row}: time {time[row]} does not follow {time[row - 1]}; "
+                          "allowed: strictly increasing times")
+    values = _numbers(frame, TAGS, path, key, "finite numbers")
+    labels = np.zeros((len(frame), 0), bool)
+    if labelled:
+        raw = _numbers(frame, LABELS, path, key, "0 or 1")
+        bad = ~np.isin(raw, (0.0, 1.0))
+        if bad.any():
+            row, col = (int(i) for i in np.argwhere(bad)[0])
+            raise ConfigError(f"{key}: {path} column {LABELS[col]!r} row {row} holds {raw[row, col]!r}; "
+                              "allowed: 0 or 1")
+        labels = raw > 0.5
+    for array in (time, values, labels):
+        array.setflags(write=False)
+    return time, values, labels
+
+
+def _numbers(frame, columns: Sequence[str], path: str, key: str, allowed: str) -> np.ndarray:
+    import pandas as pd
+
+    out = np.empty((len(frame), len(columns)))
+    for j, column in enumerate(columns):
+        numbers = pd.to_numeric(frame[column], errors="coerce").to_numpy(dtype=float, na_value=np.nan)
+        bad = ~np.isfinite(numbers)
+        if bad.any():
+            row = int(np.flatnonzero(bad)[0])
+            raise ConfigError(f"{key}: {path} column {column!r} row {row} holds {str(frame[column].iloc[row])!r}; "
+                              f"allowed: {allowed}")
+        out[:, j] = numbers
+    return out
