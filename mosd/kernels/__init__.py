@@ -58,12 +58,21 @@ _STATE = {"enabled": os.environ.get("MOSD_KERNELS", "numba").strip().lower() not
 
 
 def available() -> bool:
-    """True when numba imports (checked once; the import itself is deferred until a kernel is needed)."""
+    """True when numba imports and compiles (checked once; the import is deferred until a kernel is needed).
+
+    ``NUMBA_DISABLE_JIT=1`` (numba's documented switch, read as ``numba.config.DISABLE_JIT``) turns every
+    ``@njit`` into the plain Python function: the kernels would then run as interpreted loops, and those that
+    call each other through their compiled addresses (the filter's) would fail. The NumPy path is taken instead.
+    """
     if "numba" not in _STATE:
         try:
-            import numba  # noqa: F401
+            import numba
 
-            _STATE["numba"] = True
+            _STATE["numba"] = not numba.config.DISABLE_JIT
+            if _STATE["numba"]:
+                from .cache import repair
+
+                repair()  # a damaged cache file is removed here, before any kernel loads it
         except ImportError:  # pragma: no cover - numba is a dependency; this keeps the reference path usable
             _STATE["numba"] = False
     return _STATE["numba"]

@@ -1,0 +1,85 @@
+"""A damaged kernel cache is removed, not fatal.
+
+numba keeps each compiled kernel in two files beside the module (``__pycache__/<module>.<kernel>-<line>.pyXY.nbi``,
+its index, and ``….nbc``, the code), or under ``NUMBA_CACHE_DIR``; both are pickle streams that numba loads with
+``pickle.load`` when a kernel is first called. A truncated or overwritten file (a full disk, a copy interrupted,
+a cache shared between machines) then stopped the run wherever that first call was, with ``UnpicklingError:
+pickle data was truncated`` (issue 50). numba writes its files whole (a temporary file renamed into place), so a
+damaged file is never one being written.
+
+:func:`repair` walks each such file's pickle opcodes with the standard library's :func:`pickletools.genops`,
+which parses the stream without building any object (about 30 ms for the whole cache of 4 MB), and removes the
+files that do not parse: numba then finds no cached code for that kernel and compiles it again, as on an empty
+cache. One warning line says which files went and why. The check reads only mosd's own files (its package's ``__pycache__`` folders, and ``NUMBA_CACHE_DIR``).
+"""
+from __future__ import annotations
+
+import io
+import os
+import pickletools
+import sys
+from pathlib import Path
+
+#: what numba names its cache files: the index and the code of one kernel
+SUFFIXES = (".nbi", ".nbc")
+
+
+def cache_files(package_dir: Path | None = None) -> list[Path]:
+    """mosd's numba cache files: in the ``__pycache__`` folders of the package and under ``NUMBA_CACHE_DIR``."""
+    package_dir = Path(package_dir or Path(__file__).resolve().parents[1])
+    places = list(package_dir.rglob("__pycache__"))
+    override = os.environ.get("NUMBA_CACHE_DIR", "").strip()
+    if override and Path(override).is_dir():
+        places.append(Path(override))
+    found = set()
+    for place in places:
+        for suffix in SUFFIXES:
+            found.update(path for path in place.rglob(f"*{suffix}") if path.is_file())
+    return sorted(found)
+
+
+def damaged(path: Path) -> str | None:
+    """Why ``path`` is not a sequence of whole pickles (None when it is): the opcodes are parsed, nothing is built."""
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        return f"{type(exc).__name__}: {exc.strerror or exc}"
+    if not data:
+        return "empty"
+    stream = io.BytesIO(data)
+    try:
+        while stream.tell() < len(data):  # an index is two pickles (numba's version, then the index)
+            for _ in pickletools.genops(stream):
+                pass
+    except Exception as exc:  # noqa: BLE001 - genops raises ValueError, and others on garbage: all mean damaged
+        return f"{type(exc).__name__}: {exc}"
+    return None
+
+
+def repair(package_dir: Path | None = None, stream=None) -> list[Path]:
+    """Remove the damaged kernel cache files (one warning line on ``stream``, stderr by default); the removed paths.
+
+    A file that cannot be removed (a read-only cache) is left, and the warning says so: numba then fails to
+    load it where the kernel is first called, as before.
+    """
+    removed, kept, reason = [], [], ""
+    for path in cache_files(package_dir):
+        why = damaged(path)
+        if why is None:
+            continue
+        reason = reason or why
+        try:
+            path.unlink()
+            removed.append(path)
+        except FileNotFoundError:  # another process removed it first
+            removed.append(path)
+        except OSError:
+            kept.append(path)
+    if removed or kept:
+        place = (removed or kept)[0].parent
+        text = (f"mosd: warning: {len(removed)} damaged kernel cache file(s) in {place} removed ({reason}); "
+                "those kernels compile again")
+        if kept:
+            text += f"; {len(kept)} could not be removed (read-only): delete them by hand"
+        print(text, file=stream or sys.stderr)
+    return removed

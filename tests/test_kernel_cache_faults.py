@@ -1,0 +1,74 @@
+"""Issue 50 item 4: kernel-cache faults fall back with one warning line instead of stopping a run.
+
+A damaged cache file (truncated, overwritten) is removed before any kernel loads it and the kernel compiles
+again (mosd.kernels.cache); ``NUMBA_DISABLE_JIT=1`` takes the NumPy path (before: ``AttributeError: 'function'
+object has no attribute 'py_func'`` in the dry run; a damaged file: ``UnpicklingError: pickle data was
+truncated``).
+"""
+from __future__ import annotations
+
+import os
+import pickle
+import subprocess
+import sys
+from pathlib import Path
+
+from mosd.kernels.cache import cache_files, damaged, repair
+
+ROOT = Path(__file__).resolve().parents[1]
+SCRIPT = ("import numpy as np; from mosd.detectors.base import persistent; from mosd import kernels; "
+          "x = persistent(np.array([[1, 1, 0, 1, 1, 1]], bool), 2); print(kernels.enabled(), x.astype(int).tolist())")
+EXPECTED = "[[0, 1, 0, 0, 1, 1]]"
+
+
+def _python(env_extra: dict, tmp_path) -> subprocess.CompletedProcess:
+    env = {**os.environ, "PYTHONPATH": str(ROOT), **env_extra}
+    env.pop("MOSD_KERNELS", None)
+    return subprocess.run([sys.executable, "-c", SCRIPT], capture_output=True, text=True, cwd=tmp_path, env=env,
+                          timeout=300)
+
+
+def test_only_files_that_are_not_whole_pickles_are_damaged(tmp_path):
+    cache = tmp_path / "pkg" / "__pycache__"
+    cache.mkdir(parents=True)
+    whole = cache / "m.k-1.py311.nbi"
+    whole.write_bytes(pickle.dumps("0.60") + pickle.dumps(({"a": 1}, [1.5, b"code"])))
+    code = cache / "m.k-1.py311.1.nbc"
+    code.write_bytes(pickle.dumps((b"\x00" * 1000, "name")))
+    truncated = cache / "m.j-9.py311.nbi"
+    truncated.write_bytes(whole.read_bytes()[:-7])
+    garbage = cache / "m.j-9.py311.1.nbc"
+    garbage.write_bytes(b"garbage")
+    other = cache / "m.cpython-311.pyc"
+    other.write_bytes(b"not numba's")
+    assert damaged(whole) is None and damaged(code) is None
+    assert damaged(truncated) and damaged(garbage) and damaged(cache / "missing.nbi")
+    assert cache_files(tmp_path / "pkg") == sorted([whole, code, truncated, garbage])
+    lines = []
+    removed = repair(tmp_path / "pkg", stream=type("S", (), {"write": lambda self, t: lines.append(t)})())
+    assert sorted(removed) == sorted([truncated, garbage])
+    assert whole.exists() and code.exists() and other.exists() and not truncated.exists()
+    text = "".join(lines).strip()
+    assert "\n" not in text and text.startswith("mosd: warning: 2 damaged kernel cache file(s)")
+
+
+def test_a_damaged_cache_is_compiled_again_with_one_warning(tmp_path):
+    cache = tmp_path / "numba-cache"
+    first = _python({"NUMBA_CACHE_DIR": str(cache)}, tmp_path)
+    assert first.returncode == 0 and first.stdout.split() == ["True", *EXPECTED.split()], first.stderr[-2000:]
+    written = [p for p in cache.rglob("*") if p.suffix in (".nbi", ".nbc")]
+    assert written
+    for path in written:
+        path.write_bytes(path.read_bytes()[: len(path.read_bytes()) // 2])
+    again = _python({"NUMBA_CACHE_DIR": str(cache)}, tmp_path)
+    assert again.returncode == 0, again.stderr[-2000:]
+    assert again.stdout.split() == ["True", *EXPECTED.split()]
+    warnings = [line for line in again.stderr.splitlines() if "damaged kernel cache" in line]
+    assert len(warnings) == 1 and f"{len(written)} damaged" in warnings[0], again.stderr[-2000:]
+    assert all(damaged(p) is None for p in cache.rglob("*") if p.suffix in (".nbi", ".nbc"))
+
+
+def test_numba_disable_jit_takes_the_numpy_path(tmp_path):
+    run = _python({"NUMBA_DISABLE_JIT": "1"}, tmp_path)
+    assert run.returncode == 0, run.stderr[-2000:]
+    assert run.stdout.split() == ["False", *EXPECTED.split()]
