@@ -82,7 +82,8 @@ def test_splits_are_disjoint_and_shaped_as_documented():
     te = TennesseeEastman()
     assert te.output_names == PRESETS["literature"] and len(te.output_names) == 33
     cal, train, test = te.trace("calibration"), te.trace("training"), te.trace("test")
-    assert cal.y.shape == (12, 500, 33) and cal.x.shape == (12, 500, 0) and cal.u.shape[-1] == 0
+    # d00.dat and the lead-ins of d02_te ... d20_te; not d00_te.dat's, whose rows 160-959 give the test FAR (issue 49)
+    assert cal.y.shape == (11, 500, 33) and cal.x.shape == (11, 500, 0) and cal.u.shape[-1] == 0
     assert np.isfinite(cal.y[0]).all() and np.isfinite(cal.y[1:, :ONSET]).all() and np.isnan(cal.y[1:, ONSET:]).all()
     assert not cal.fault_mask.any()
     assert train.y.shape == (3 * len(DEFAULT_FAULTS) + 11, 160, 33)
