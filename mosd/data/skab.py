@@ -34,7 +34,9 @@ from typing import Sequence
 
 import numpy as np
 
+from ..types import Trace
 from ..validation import ConfigError
+from .base import RecordedData, Segment
 
 #: The 8 sensor columns, in file order.
 TAGS = ("Accelerometer1RMS", "Accelerometer2RMS", "Current", "Pressure", "Temperature", "Thermocouple",
@@ -258,3 +260,164 @@ def _numbers(frame, columns: Sequence[str], path: str, key: str, allowed: str) -
                               f"allowed: {allowed}")
         out[:, j] = numbers
     return out
+
+
+# -- the Hydra data source (data=skab) ---------------------------------------------------------
+
+#: rows of one scored run (a window of an experiment's test part; the scored splits need one length)
+RUN_ROWS = 100
+#: the monitored variables' names: the tag's, in units of its experiment's fit part (not the raw tag's)
+SUFFIX = "_z"
+
+
+def split_experiments(experiments: Sequence[SkabExperiment], test_share: float,
+                      rng: np.random.Generator) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """Training and test experiments: ``test_share`` of each folder held out, drawn with ``rng``.
+
+    Stratified by folder so that every fault type is in both sides: a folder of ``n >= 2``
+    experiments gives ``round(test_share * n)`` of them (at least 1, at most ``n - 1``) to the
+    test side; a folder of one experiment gives it to training. Names in the input's order.
+    """
+    test: set[str] = set()
+    for group in dict.fromkeys(e.group for e in experiments):
+        names = [e.name for e in experiments if e.group == group]
+        if len(names) < 2:
+            continue
+        k = min(len(names) - 1, max(1, int(round(test_share * len(names)))))
+        test.update(names[i] for i in rng.permutation(len(names))[:k])
+    train = tuple(e.name for e in experiments if e.name not in test)
+    return train, tuple(e.name for e in experiments if e.name in test)
+
+
+def standardise(experiment: SkabExperiment) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The experiment's values in units of its own fit part: ``(values - mean) / std``, mean and std.
+
+    Mean and std (ddof 1) come from the fit part's rows not labelled anomalous only (SKAB's
+    operating point moves between experiments: Volume Flow RateRMS is about 32 in valve1, 76 and
+    126 in other). A tag constant over them is a one-line error naming the experiment.
+    """
+    fit = experiment.fit()[~experiment.anomaly[: experiment.fit_rows]]
+    if len(fit) <= len(experiment.tags):
+        raise ConfigError(f"data.root: {experiment.name} has {len(fit)} fit rows not labelled anomalous among its "
+                          f"first {experiment.fit_rows}; allowed: more than {len(experiment.tags)} (one per tag)")
+    mean, std = fit.mean(axis=0), fit.std(axis=0, ddof=1)
+    flat = ~(std > 1e-12 * np.maximum(1.0, np.abs(mean)))
+    if flat.any():
+        raise ConfigError(f"data.root: {experiment.name}: tag {experiment.tags[int(np.flatnonzero(flat)[0])]!r} is "
+                          f"constant over the fit rows; allowed: tags that vary over the first {experiment.fit_rows}")
+    return (experiment.values - mean) / std, mean, std
+
+
+class Skab(RecordedData):
+    """SKAB's experiments as calibration, training and test splits (``data=skab``; docs/systems/skab.md).
+
+    * every experiment is standardised by its own fit part (:func:`standardise`): the monitored
+      variables are ``Accelerometer1RMS_z`` ...; one detector is then fitted on the pooled,
+      standardised fit parts (the pipeline fits one model; module docstring of the preset);
+    * ``calibration``: the first :data:`FIT_ROWS` rows of every experiment, training and test
+      alike (SKAB's fit parts; rows labelled anomalous there are left out, as in data=table);
+    * ``training``: the test parts of the training experiments, cut into runs of ``run_rows``;
+    * ``test``: the test parts of the held-out experiments, cut alike.
+
+    The rows after the last whole run of a test part are in no split (the scored splits need one
+    run length); :meth:`describe` lists every run.
+
+    Parameters
+    ----------
+    root : str
+        SKAB's data folder (required).
+    groups : sequence of str, optional
+        Folders among valve1, valve2, other; None: the three.
+    test_share : float
+        Share of each folder's experiments held out for the test split, in (0, 1).
+    split_seed : int
+        Seeds the generator of the hold-out draw (:func:`split_experiments`).
+    test_experiments : sequence of str, optional
+        The held-out experiments by name (``valve1/3``); replaces the draw.
+    run_rows : int
+        Rows of each scored run, 2 .. the shortest test part.
+    """
+
+    dt = 1.0
+    fault_names = ("anomaly",)
+
+    def __init__(self, root: str | None = None, groups: Sequence[str] | None = None, test_share: float = 0.5,
+                 split_seed: int = 0, test_experiments: Sequence[str] | None = None, run_rows: int = RUN_ROWS):
+        from ..validation import check_int
+
+        chosen = check_groups(groups, "data.groups")
+        if FREE in chosen:
+            raise ConfigError(f"data.groups: {FREE!r} has no labels to score; allowed: {', '.join(ANOMALY_GROUPS)}")
+        self.root = str(root) if root is not None else None
+        self.groups = list(chosen)
+        experiments = read_experiments(root, chosen, key="data.root")
+        self.run_rows = check_int("data.run_rows", run_rows, 2)
+        self.split_seed = check_int("data.split_seed", split_seed, 0, 2**63 - 1)
+        try:
+            share = float(test_share)
+        except (TypeError, ValueError):
+            share = float("nan")
+        if not 0.0 < share < 1.0:
+            raise ConfigError(f"data.test_share={test_share!r} is not allowed; allowed: a number in (0, 1)")
+        self.test_share = share
+        names = [e.name for e in experiments]
+        if test_experiments is None:
+            train, test = split_experiments(experiments, share, np.random.default_rng(self.split_seed))
+        else:
+            held = [str(n) for n in ([test_experiments] if isinstance(test_experiments, str) else test_experiments)]
+            for name in held:
+                if name not in names:
+                    raise ConfigError(f"data.test_experiments: {name!r} is not an experiment of data.groups; "
+                                      f"allowed: names such as {', '.join(names[:3])}, ...")
+            if not held or len(held) == len(names) or len(set(held)) != len(held):
+                raise ConfigError(f"data.test_experiments={held} is not allowed; allowed: distinct experiments, at "
+                                  "least one, not all (the rest tune the detector)")
+            train = tuple(n for n in names if n not in held)
+            test = tuple(n for n in names if n in held)
+        self.test_experiments = list(test)
+        self.train_experiments, self.held_out = train, test
+        self.experiments = {e.name: e for e in experiments}
+        shortest = min(experiments, key=lambda e: e.n_rows - e.fit_rows)
+        if self.run_rows > shortest.n_rows - shortest.fit_rows:
+            raise ConfigError(f"data.run_rows={self.run_rows} is longer than the test part of {shortest.name} "
+                              f"({shortest.n_rows - shortest.fit_rows} rows); allowed: 2..{shortest.n_rows - shortest.fit_rows}")
+        self._values = {e.name: standardise(e)[0] for e in experiments}
+        self.output_names = tuple(f"{t}{SUFFIX}" for t in TAGS)
+        self.check_disjoint()
+
+    def __repr__(self) -> str:
+        return (f"Skab({self.root}, {len(self.train_experiments)} training and {len(self.held_out)} test "
+                f"experiments, runs of {self.run_rows} rows)")
+
+    def values(self, source: str) -> np.ndarray:
+        return self._values[source]
+
+    def _runs(self, names: Sequence[str]) -> list[Segment]:
+        out = []
+        for name in names:
+            e = self.experiments[name]
+            for start in range(e.fit_rows, e.n_rows - self.run_rows + 1, self.run_rows):
+                stop = start + self.run_rows
+                out.append(Segment(name, start, stop, labels=e.anomaly[start:stop].astype(int)))
+        return out
+
+    def segments(self, split: str) -> list[Segment]:
+        if split == "calibration":
+            return [Segment(n, 0, e.fit_rows, labels=e.anomaly[: e.fit_rows].astype(int))
+                    for n, e in self.experiments.items()]
+        if split == "training":
+            return self._runs(self.train_experiments)
+        if split == "test":
+            return self._runs(self.held_out)
+        return []
+
+    def trace(self, split: str) -> Trace:
+        """As :meth:`RecordedData.trace`; the calibration's labelled rows are left out (set missing)."""
+        from dataclasses import replace
+
+        trace = super().trace(split)
+        if split != "calibration" or not trace.fault_mask.any():
+            return trace
+        y = np.where(trace.fault_label[..., None] > 0, np.nan, trace.y)
+        labels = np.zeros_like(trace.fault_label)
+        return replace(trace, y=y, fault_mask=labels > 0, fault_label=labels)
