@@ -72,6 +72,14 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def _command(argv: list[str], from_command_line: bool) -> int:
     started = time.perf_counter()
+    if argv[:1] in (["--version"], ["-V"]):  # Hydra's own --version prints Hydra's
+        from importlib.metadata import PackageNotFoundError, version
+
+        try:
+            print(f"mosd {version('mosd')}")
+        except PackageNotFoundError:  # a checkout on PYTHONPATH, never installed
+            print("mosd (not installed: a source checkout)")
+        return 0
     if argv[:1] == ["report"]:
         from .report import main as report_main
 

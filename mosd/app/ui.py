@@ -175,14 +175,51 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"runs table   {runs_address(base, eid)}")
     if args.print_only:
         return 0
-    import subprocess
-
     env = {**os.environ, VIEWS_ENV: json.dumps(views), "MLFLOW_SERVER_ENABLE_JOB_EXECUTION": "false"}
-    print("mosd ui: serving (Ctrl-C stops it)", flush=True)
+    print("mosd ui: serving (Ctrl-C or kill stops it)", flush=True)
+    return run_server(server_command(args.tracking_uri, args.host, args.port), env)
+
+
+#: the signals that stop ``mosd ui`` and, with it, the whole server (MLflow's CLI and the uvicorn it starts)
+STOP_SIGNALS = ("SIGINT", "SIGTERM", "SIGHUP")
+#: seconds the server has to end after the signal before its group is SIGKILLed
+SERVER_GRACE_S = 10.0
+
+
+def run_server(command: list[str], env: dict) -> int:
+    """Run the server in a process group of its own and end that group when this process is told to stop.
+
+    ``kill PID`` (SIGTERM) or a closed terminal (SIGHUP) used to end ``mosd ui`` alone: MLflow's server and its
+    uvicorn process, children that never heard the signal, kept answering on the port until SIGKILLed. The
+    signal is passed on to the server's group; the exit code is 128 + the signal's number.
+    """
+    import signal
+    import subprocess
+    import time
+
+    child = subprocess.Popen(command, env=env, start_new_session=True)
+    received: list[tuple[int, float]] = []
+
+    def stop(signum, _frame):
+        received.append((signum, time.monotonic()))
+        try:
+            os.killpg(child.pid, signal.SIGINT if signum == signal.SIGINT else signal.SIGTERM)
+        except ProcessLookupError:  # already gone
+            pass
+
+    previous = {name: signal.signal(getattr(signal, name), stop) for name in STOP_SIGNALS if hasattr(signal, name)}
     try:
-        return subprocess.call(server_command(args.tracking_uri, args.host, args.port), env=env)
-    except KeyboardInterrupt:
-        return 130
+        while True:
+            try:
+                code = child.wait(timeout=0.5)
+                break
+            except subprocess.TimeoutExpired:
+                if received and time.monotonic() - received[0][1] > SERVER_GRACE_S:  # it ignored the signal
+                    os.killpg(child.pid, signal.SIGKILL)
+    finally:
+        for name, handler in previous.items():
+            signal.signal(getattr(signal, name), handler)
+    return 128 + received[0][0] if received else code
 
 
 if __name__ == "__main__":
