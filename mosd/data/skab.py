@@ -421,3 +421,67 @@ class Skab(RecordedData):
         y = np.where(trace.fault_label[..., None] > 0, np.nan, trace.y)
         labels = np.zeros_like(trace.fault_label)
         return replace(trace, y=y, fault_mask=labels > 0, fault_label=labels)
+
+
+def write_example(root: str | Path, rng: np.random.Generator, sizes: dict[str, int] | None = None,
+                  test_rows: int = 300) -> Path:
+    """Write a small folder of SKAB's layout (not SKAB's numbers) for tests and bug reports.
+
+    Two latent factors drive the 8 tags around an operating point drawn per experiment (as SKAB's
+    moves between experiments); in each experiment with anomalies, Current and Pressure shift by
+    4 of their standard deviations from row ``fit_rows + 20`` (sooner in a short test part) for 180 rows (``anomaly`` 1 there,
+    ``changepoint`` 1 at both ends). ``anomaly-free/anomaly-free.csv`` has no label columns.
+
+    Parameters
+    ----------
+    root : str or Path
+        The folder to write (created).
+    rng : numpy.random.Generator
+        Every number of the files is drawn from it.
+    sizes : dict, optional
+        Experiments per folder; default ``{valve1: 3, valve2: 2, other: 2}``.
+    test_rows : int
+        Rows after the fit part (each experiment gets 0-9 more, so that the lengths differ), at least 2.
+    """
+    import pandas as pd
+
+    if int(test_rows) < 2:
+        raise ConfigError(f"test_rows={test_rows!r} is not allowed; allowed: integers >= 2")
+
+    root = Path(root)
+    sizes = sizes or {"valve1": 3, "valve2": 2, "other": 2}
+    loadings = rng.normal(size=(2, len(TAGS)))
+    start = np.datetime64("2020-03-09T10:00:00")
+
+    def table(n: int, hour: int) -> pd.DataFrame:
+        level = rng.normal(size=len(TAGS)) * 5.0 + 50.0
+        scale = rng.uniform(0.5, 2.0, size=len(TAGS))
+        values = level + scale * (rng.normal(size=(n, 2)) @ loadings + 0.3 * rng.normal(size=(n, len(TAGS))))
+        frame = pd.DataFrame(values, columns=list(TAGS))
+        stamps = start + np.timedelta64(hour, "h") + np.arange(n).astype("timedelta64[s]")
+        frame.insert(0, TIME, pd.to_datetime(stamps).strftime("%Y-%m-%d %H:%M:%S"))
+        return frame
+
+    hour = 0
+    for group, count in sizes.items():
+        folder = root / group
+        folder.mkdir(parents=True, exist_ok=True)
+        first = 0 if group != "other" else 1  # SKAB numbers other/ from 1
+        for number in range(first, first + count):
+            n = FIT_ROWS + test_rows + int(rng.integers(0, 10))
+            frame = table(n, hour)
+            hour += 1
+            onset = FIT_ROWS + min(20, (n - FIT_ROWS) // 2)
+            stop = min(n, onset + 180)
+            anomaly = np.zeros(n)
+            anomaly[onset:stop] = 1.0
+            changepoint = np.zeros(n)
+            changepoint[[onset, stop - 1]] = 1.0
+            for tag in ("Current", "Pressure"):
+                spread = frame[tag].iloc[:FIT_ROWS].std()
+                frame.loc[onset:stop - 1, tag] += 4.0 * spread
+            frame["anomaly"], frame["changepoint"] = anomaly, changepoint
+            frame.to_csv(folder / f"{number}.csv", sep=SEP, index=False)
+    (root / FREE).mkdir(parents=True, exist_ok=True)
+    table(2 * FIT_ROWS, hour).to_csv(root / FREE / f"{FREE}.csv", sep=SEP, index=False)
+    return root
