@@ -6,8 +6,11 @@ What a run leaves when it does not end normally:
   :class:`~mosd.app.signals.Interrupted` at once, after killing the evaluation workers; the MLflow run
   is marked KILLED, ``summary.json`` says ``"status": "killed"``, one line is
   printed and the process exits with 128 + the signal number (a job in a joblib-launcher worker
-  reports to its launcher instead, :func:`mosd.app.signals.end_job_worker`). Once the run is
-  complete (ended FINISHED, or kept for ``mosd log``) a signal no longer changes it;
+  reports to its launcher instead, :func:`mosd.app.signals.end_job_worker`). Once the results are
+  printed, a signal waits until ``summary.json`` holds them and then cuts only what follows (figures,
+  model): the run ends FINISHED, ``summary.json`` keeps its results and lists what it lacks, one line
+  says so (:func:`_keep_results`). Once the run is complete (ended FINISHED, or kept for ``mosd log``)
+  a signal no longer changes it;
 * an error: the run is marked FAILED and ``summary.json`` says ``"status": "failed"``;
 * MLflow fails after the work: the summary is printed, the run directory is
   complete, ``mlflow_pending.json`` holds what was to be logged (:mod:`mosd.app.pending`),
@@ -153,6 +156,8 @@ def run(cfg, started: float | None = None, checked=None):
     result = None
     writing = False  # an OSError while True: the run directory cannot be written (disk full, quota)
     done = False  # the run is complete (FINISHED, or its files kept for `mosd log`): a signal no longer changes it
+    holding = False  # the results are printed, not yet in summary.json: a signal waits (signals.hold)
+    results_kept = False  # summary.json holds the results and MLflow has them: a signal ends the run FINISHED
     try:
         setup = checked.take(cfg) if checked is not None else None
         if setup is None:  # a job in another process: built here, its component count bounded as preflight does
@@ -217,6 +222,9 @@ def run(cfg, started: float | None = None, checked=None):
         if undefined:  # the last guard behind preflight: a NaN rate is no result, whatever the exit code said
             raise UndefinedResult(f"the run's metrics {', '.join(undefined)} are NaN (no points to score them on); "
                                   f"the run is not finished")
+        # from here the results exist: a stop signal waits until summary.json holds them (a few file writes)
+        signals.hold()
+        holding = True
         if not multirun:
             # the results as soon as they exist; where the files and the MLflow run are, once they are
             # (a sweep prints each job's summary whole: jobs may run at once)
@@ -244,7 +252,11 @@ def run(cfg, started: float | None = None, checked=None):
         found = []
 
         def while_figures_are_drawn(text_files: list[Path]) -> None:
+            nonlocal holding, results_kept
             log_early(text_files)
+            # summary.json holds the results and MLflow has them: a stop from now on cuts the extras only
+            results_kept, holding = True, False
+            signals.release()
             # the deployable pipeline and its test stream are built (and pyarrow imported to write it) while
             # the figure process draws; they are written after the figures (below)
             found.append(deployable(setup, result))
@@ -327,6 +339,8 @@ def run(cfg, started: float | None = None, checked=None):
                   f"{run_dir}; log it later with: python -m mosd log {run_dir}", file=sys.stderr, flush=True)
         return result
     except BaseException as exc:
+        if holding:  # a failure while the results were being written: a stop signal is handled below
+            signals.release(raise_now=False)
         if progress is not None:
             progress.close()
         if figures is not None:
@@ -341,6 +355,9 @@ def run(cfg, started: float | None = None, checked=None):
                 print(f"mosd: stopped by {name(signum)} after the run was complete ({run_dir})",
                       file=sys.stderr, flush=True)
                 _stopped(exc, signum, job_worker)
+            if results_kept:  # the results are in summary.json and MLflow: the stop cut only the extras
+                _keep_results(exc, signum, job_worker, started, run_dir, (result, setup, labels), tracker,
+                              (params, logged, sent))
         status = "KILLED" if killed else "FAILED"
         error = f"stopped by {name(signum)}" if killed else f"{type(exc).__name__}: {redacted(one_line(exc))}"
         not_written = writing and not killed and isinstance(exc, OSError)
@@ -399,6 +416,48 @@ def to_log_file(text: str) -> None:
         if isinstance(handler, logging.FileHandler):
             record = logging.LogRecord("mosd.app", logging.INFO, __file__, 0, "%s", (text,), None)
             handler.handle(record)
+
+
+def _keep_results(exc: BaseException, signum: int, job_worker: bool, started: float, run_dir: Path, run, tracker,
+                  logging_state) -> None:
+    """A stop after ``summary.json`` holds the results: they stay, the run ends FINISHED, one line says so.
+
+    What the stop cuts short is only what follows the results (the figures, the deployable model):
+    ``summary.json`` keeps its results and gains ``stopped`` (the signal) and ``missing`` (the files the
+    directory lacks); MLflow gets that summary and whatever files exist, and the run is ended FINISHED,
+    as its ``summary.json`` artifact says, so that its results count wherever finished runs are read.
+    ``run``: ``(result, setup, labels)``; ``logging_state``: ``(params, metrics logged, artifacts sent)``.
+    """
+    from .atomic import write_json
+    from .store import TrackingError
+
+    result, setup, labels = run
+    params, logged, sent = logging_state
+    expected = expected_files(run_dir, result, setup, labels)
+    missing = lacking(run_dir, expected)
+    summary_file = run_dir / "summary.json"
+    try:
+        summary = json.loads(summary_file.read_text())
+        summary.update(stopped=name(signum), missing=missing)
+        write_json(summary_file, summary)
+    except (OSError, ValueError):
+        pass  # the summary as written with the results: whole, without the note
+    ended = ""
+    if tracker is not None and tracker.open:
+        present = [p for p in expected if p.exists() and (p not in sent or p == summary_file)]
+        tracker.log(tags={"mosd.stopped": name(signum)}, artifacts=present)
+        try:
+            run_id = tracker.finish("FINISHED", timeout=ABORT_WAIT_S)
+            ended = (f"; MLflow run {run_id} ended FINISHED" if run_id
+                     else "; the tracking process ends the MLflow run FINISHED")
+        except TrackingError as tracking_exc:
+            error = redacted(one_line(tracking_exc))
+            mark_not_logged(run_dir, error, pending_request(tracker, params, logged, present), tracker.status)
+            ended = f"; the MLflow run was not logged ({error}): python -m mosd log {run_dir} completes it"
+    lacks = f", lacking {', '.join(missing)}" if missing else ""
+    print(f"mosd: stopped by {name(signum)} after {time.perf_counter() - started:.1f} s, once the results were "
+          f"complete: {summary_file} keeps them (status 'finished'{lacks}){ended}", file=sys.stderr, flush=True)
+    _stopped(exc, signum, job_worker)
 
 
 def _stopped(exc: BaseException, signum: int, job_worker: bool):

@@ -16,7 +16,8 @@ Where the signal may not raise at once:
   marking its run KILLED, it reports and waits (:func:`end_job_worker`);
 * in a job worker between two runs there is nothing to mark: it reports at once; a job that
   starts after the sweep was stopped does not start its run (:func:`sweep_stopped`);
-* inside :func:`deferred` (creating the MLflow run) it is raised when the section ends;
+* inside :func:`deferred` (creating the MLflow run) or between :func:`hold` and :func:`release` (a run's
+  results, printed but not yet in ``summary.json``) it is raised when the section ends;
 * inside numba's unpickling hook, which compiled code calls to box its results and which does
   not expect an exception (one raised there crashes the process with a segmentation fault), it
   is raised again a few milliseconds later, once control is back in ordinary Python code.
@@ -287,12 +288,28 @@ def end_job_worker(signum: int) -> None:
 @contextmanager
 def deferred():
     """A section a stop signal must not cut (creating the MLflow run): it is raised when the section ends."""
-    _State.deferring += 1
+    hold()
     try:
         yield
     finally:
-        _State.deferring -= 1
+        release(raise_now=False)
     raise_pending()
+
+
+def hold() -> None:
+    """Begin a section a stop signal must not cut that ends elsewhere than it begins (:func:`release`).
+
+    For a section that ends inside a callback: a run's results, from the moment they are
+    printed until ``summary.json`` holds them (:func:`mosd.app.run.run`).
+    """
+    _State.deferring += 1
+
+
+def release(raise_now: bool = True) -> None:
+    """End a :func:`hold` section; ``raise_now``: raise a stop signal that arrived meanwhile."""
+    _State.deferring = max(_State.deferring - 1, 0)
+    if raise_now:
+        raise_pending()
 
 
 def raise_pending() -> None:
