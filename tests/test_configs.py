@@ -4,8 +4,12 @@ Uses Hydra's compose API in-process (no run directory, no MLflow).
 """
 from __future__ import annotations
 
+import atexit
+import functools
 import io
 import re
+import shutil
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -57,8 +61,20 @@ def _preset_choices() -> dict[str, dict[str, str]]:
 PRESETS = _preset_choices()
 
 
+@functools.lru_cache(maxsize=1)
+def _skab_folder() -> Path:
+    """A small folder of SKAB's layout (seeded numbers, not SKAB's), written once, removed at exit."""
+    from mosd.data.skab import write_example
+
+    folder = Path(tempfile.mkdtemp(prefix="mosd-skab-"))
+    atexit.register(shutil.rmtree, folder, ignore_errors=True)
+    return write_example(folder / "data", np.random.default_rng(0))
+
+
 def _fault_override(group, option):
     """The context an option is composed in: the paper-000 default, or the preset that uses the option."""
+    if option == "skab" and group in ("data", "experiment"):  # SKAB reads a folder of its layout
+        return [*(["+experiment=skab"] if group == "data" else []), f"data.root={_skab_folder()}"]
     if group == "data":  # recorded data replace plant/noise/fault: the TE preset; a table needs a file
         from mosd.data.tep import bibmon_directory
 
@@ -69,7 +85,7 @@ def _fault_override(group, option):
     if group in ("experiment", "denoise", "optimizer", "tracking"):
         return [] if group == "experiment" else ["+fault=offset_var"]
     for preset, choices in PRESETS.items():
-        if preset not in ("paper000", "table") and choices.get(group) == option:
+        if preset not in ("paper000", "table", "skab") and choices.get(group) == option:  # no data file needed
             return [f"+experiment={preset}"]
     return [] if group == "fault" else ["+fault=offset_var"]
 

@@ -80,6 +80,12 @@ def test_every_system_runs_end_to_end_with_debug_tiny(tmp_path, command):
     argv = command if "debug=tiny" in command else [*command, "debug=tiny"]
     if "+experiment=table" in argv:  # any labelled export: the test writes one
         argv = [*argv, *_table(tmp_path / "plant.csv")]
+    if "+experiment=skab" in argv:  # a folder of SKAB's layout (seeded numbers, not SKAB's): the test writes one
+        import numpy as np
+
+        from mosd.data.skab import write_example
+
+        argv = [*argv, f"data.root={write_example(tmp_path / 'skab', np.random.default_rng(0))}"]
     env = {**os.environ, "MOSD_OUTPUTS": str(tmp_path / "outputs"), "PYTHONPATH": str(ROOT)}
     started = time.perf_counter()
     done = subprocess.run([sys.executable, "-m", "mosd", *argv, "tracking=none"], cwd=tmp_path, env=env,

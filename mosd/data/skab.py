@@ -378,9 +378,10 @@ class Skab(RecordedData):
         self.train_experiments, self.held_out = train, test
         self.experiments = {e.name: e for e in experiments}
         shortest = min(experiments, key=lambda e: e.n_rows - e.fit_rows)
-        if self.run_rows > shortest.n_rows - shortest.fit_rows:
+        longest = shortest.n_rows - shortest.fit_rows
+        if self.run_rows > longest:
             raise ConfigError(f"data.run_rows={self.run_rows} is longer than the test part of {shortest.name} "
-                              f"({shortest.n_rows - shortest.fit_rows} rows); allowed: 2..{shortest.n_rows - shortest.fit_rows}")
+                              f"({longest} rows); allowed: 2..{longest}")
         self._values = {e.name: standardise(e)[0] for e in experiments}
         self.output_names = tuple(f"{t}{SUFFIX}" for t in TAGS)
         self.check_disjoint()
@@ -429,8 +430,8 @@ def write_example(root: str | Path, rng: np.random.Generator, sizes: dict[str, i
 
     Two latent factors drive the 8 tags around an operating point drawn per experiment (as SKAB's
     moves between experiments); in each experiment with anomalies, Current and Pressure shift by
-    4 of their standard deviations from row ``fit_rows + 20`` (sooner in a short test part) for 180 rows (``anomaly`` 1 there,
-    ``changepoint`` 1 at both ends). ``anomaly-free/anomaly-free.csv`` has no label columns.
+    4 of their standard deviations from row ``fit_rows + 20`` (sooner in a short test part) for 180
+    rows (``anomaly`` 1 there, ``changepoint`` 1 at both ends). ``anomaly-free/anomaly-free.csv`` has no label columns.
 
     Parameters
     ----------
