@@ -37,6 +37,7 @@ from __future__ import annotations
 import itertools
 import sys
 import time
+import warnings
 from dataclasses import dataclass, field
 from typing import Sequence
 
@@ -132,10 +133,21 @@ def prepare(experiment) -> Prepared:
                     experiment.seconds[fit:], fit)
 
 
-def family_statistics(family: str, prepared: Sequence[Prepared], seed: int) -> None:
+def family_statistics(family: str, prepared: Sequence[Prepared], seed: int, log=sys.stderr) -> None:
     """Every structure's statistics on every experiment (``Prepared.statistics``), one fit per fit key."""
     cls = detector_class(family)
     extra = {"seed": int(seed)} if family in ("ica", "autoencoder") else {}
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        _fit_all(family, cls, extra, prepared)
+    # one line per family, not one per fit (FastICA's non-convergence on short fit parts)
+    messages = dict.fromkeys(str(w.message).split(";")[0] for w in caught)
+    for message in messages:
+        n = sum(str(w.message).startswith(message) for w in caught)
+        print(f"skab: {family}: {n} fit(s) warned: {message}", file=log, flush=True)
+
+
+def _fit_all(family: str, cls, extra: dict, prepared: Sequence[Prepared]) -> None:
     for p in prepared:
         p.statistics = {}
         fits: dict = {}
@@ -225,7 +237,7 @@ def run_family(family: str, experiments, seed: int = 0, train: np.ndarray | None
     """
     t0 = time.perf_counter()
     prepared = [prepare(e) for e in experiments]
-    family_statistics(family, prepared, seed)
+    family_statistics(family, prepared, seed, log)
     per = [design_counts(p) for p in prepared]
     TP, FP = np.array([c[0] for c in per]), np.array([c[1] for c in per])
     pos = np.array([p.truth.sum() for p in prepared], float)

@@ -1,0 +1,217 @@
+"""SKAB scored by SKAB's own leaderboard rules: ``python -m mosd.systems.skab --root DIR [--families]``.
+
+Prints SKAB's published outlier-detection leaderboard with mosd's rows inserted (sorted by F1 as the
+leaderboard is): the literature row T²+Q reproduced with mosd's PCA (:mod:`mosd.systems.skab_t2q`), and each
+chosen family's front, five designs at 5, 10, 15, 20 and 25 % cross-validated FAR, tuned and scored under the
+protocol of :mod:`mosd.systems.skab_study` (fixed before any result; docs/systems/skab.md, "Benchmark"). Then
+the detection-delay table and each family's best row per folder.
+
+Keys (``--json`` prints them as one JSON object): ``skab_far_<family>_b<budget>``, ``skab_mar_<family>_b<budget>``
+(%), ``skab_f1_<family>_b<budget>`` (budget 5, 10, 15, 20, 25), ``skab_lit_t2q_far``, ``skab_lit_t2q_mar``,
+``skab_lit_t2q_f1``. ``--out DIR`` writes ``skab_front.png`` (FAR against MAR: the leaderboard's points and each
+family's front) and ``skab_benchmark.json`` (every row with its designs per fold). The data are SKAB's
+``data/`` folder (GPL-3.0, never shipped: :mod:`mosd.data.skab` reads it).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from ..data.skab import ANOMALY_GROUPS, check_groups, check_root, read_experiments
+from ..validation import ConfigError
+from .skab_study import BUDGETS, FAMILIES, check_families, run_family
+from .skab_t2q import literature_rows
+
+#: SKAB's published outlier-detection leaderboard (README at b2c0d46): name, F1, FAR %, MAR %
+LEADERBOARD = (
+    ("Conv-AE", 0.78, 13.55, 28.02), ("MSET", 0.78, 39.73, 14.13),
+    ("T²+Q (PCA, scaled, 85 % variance, p 0.999, rolling median of 5)", 0.76, 26.62, 24.92),
+    ("LSTM-AE", 0.74, 29.96, 25.92), ("T²", 0.66, 19.21, 42.60), ("LSTM-VAE", 0.56, 9.13, 55.03),
+    ("Vanilla LSTM", 0.54, 12.54, 59.53), ("MSCRED", 0.36, 49.94, 69.88), ("Vanilla AE", 0.39, 2.59, 75.15),
+    ("Isolation forest", 0.29, 2.56, 82.89),
+)
+LIT_PUBLISHED = "mosd: T²+Q, SKAB's limits (literature row reproduced)"
+LIT_TEXTBOOK = "mosd: T²+Q, textbook Jackson–Mudholkar Q limit (labelled variant)"
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with one-line errors (exit 2)."""
+
+    def error(self, message):
+        usage = " ".join(self.format_usage().split()).removeprefix("usage: ")
+        raise ConfigError(f"{message}; allowed: {usage}")
+
+
+def parser() -> argparse.ArgumentParser:
+    p = _Parser(prog="python -m mosd.systems.skab", description=__doc__.splitlines()[0])
+    p.add_argument("--root", required=True, help="SKAB's data/ folder (a clone of github.com/waico/SKAB)")
+    p.add_argument("--families", action="store_true", help=f"every family: {', '.join(FAMILIES)}")
+    p.add_argument("--family", action="append", nargs="+", default=[], metavar="NAME", help="one or more families")
+    p.add_argument("--seed", type=int, default=0, help="the folds', FastICA's and the autoencoder's seed")
+    p.add_argument("--json", action="store_true", help="print the keys as one JSON object (no tables)")
+    p.add_argument("--out", help="folder for skab_front.png and skab_benchmark.json")
+    p.add_argument("--train-groups", help="tune on these folders only (comma-separated), no cross-validation")
+    p.add_argument("--test-groups", help="score these folders only (comma-separated)")
+    return p
+
+
+def _groups(text: str | None, option: str) -> tuple[str, ...] | None:
+    if text is None:
+        return None
+    names = [g.strip() for g in text.split(",") if g.strip()]
+    for name in names:
+        if name not in ANOMALY_GROUPS:
+            raise ConfigError(f"{option}: {name!r} is not a SKAB folder with anomalies; allowed: "
+                              f"{', '.join(ANOMALY_GROUPS)} (comma-separated)")
+    return check_groups(names, option)
+
+
+def study(root, families: Sequence[str] = (), seed: int = 0, train_groups=None, test_groups=None,
+          log=sys.stderr) -> dict:
+    """Everything the CLI prints: ``{"literature", "families", "keys", "seconds", "scored"}`` (module docstring)."""
+    experiments = read_experiments(root, key="--root")
+    if (train_groups is None) != (test_groups is None):
+        raise ConfigError("--train-groups and --test-groups go together; allowed: both (disjoint folders) or "
+                          "neither (5-fold cross-validation over every experiment)")
+    train = test = None
+    if train_groups is not None:
+        if set(train_groups) & set(test_groups):
+            raise ConfigError(f"--train-groups and --test-groups share {sorted(set(train_groups) & set(test_groups))}"
+                              f"; allowed: disjoint folders among {', '.join(ANOMALY_GROUPS)}")
+        train = np.array([e.group in train_groups for e in experiments])
+        test = np.array([e.group in test_groups for e in experiments])
+    scored = [e for i, e in enumerate(experiments) if test is None or test[i]]
+    t0 = time.perf_counter()
+    literature = literature_rows(scored)
+    print(f"skab: literature T²+Q on {len(scored)} experiments", file=log, flush=True)
+    rows = {f: run_family(f, experiments, seed, train, test, log) for f in families}
+    return {"literature": literature, "families": rows, "keys": keys(literature, rows),
+            "seconds": time.perf_counter() - t0, "scored": [e.name for e in scored],
+            "load_average": os.getloadavg()}
+
+
+def keys(literature: dict, rows: dict) -> dict:
+    """The benchmark's keys (module docstring)."""
+    out = {f"skab_lit_t2q_{m}": float(literature["published"][m]) for m in ("far", "mar", "f1")}
+    for family, result in rows.items():
+        for budget, row in result["budgets"].items():
+            for m in ("far", "mar", "f1"):
+                out[f"skab_{m}_{family}_b{budget}"] = float(row[m])
+    return out
+
+
+def table_rows(result: dict) -> list[tuple[str, float, float, float]]:
+    """The leaderboard with mosd's rows, sorted by F1 (two decimals, as published; stable)."""
+    rows = [(f"SKAB: {name}", f1, far, mar) for name, f1, far, mar in LEADERBOARD]
+    for label, name in ((LIT_PUBLISHED, "published"), (LIT_TEXTBOOK, "textbook")):
+        r = result["literature"][name]
+        rows.append((label, r["f1"], r["far"], r["mar"]))
+    for family, res in result["families"].items():
+        for budget, r in res["budgets"].items():
+            rows.append((f"mosd: {family}, CV FAR budget {budget} %", r["f1"], r["far"], r["mar"]))
+    return sorted(rows, key=lambda r: -round(r[1], 2))
+
+
+def report(result: dict) -> str:
+    """The three tables as Markdown."""
+    lines = ["| algorithm | F1 | FAR % | MAR % |", "|---|---|---|---|"]
+    lines += [f"| {name} | {f1:.2f} | {far:.2f} | {mar:.2f} |" for name, f1, far, mar in table_rows(result)]
+    lines += ["", "Detection delay after each changepoint (SKAB's average_time, 60 s window to the right):", "",
+              "| row | mean delay s | missed / changepoints | false change points |", "|---|---|---|---|"]
+    named = [(LIT_PUBLISHED, result["literature"]["published"]), (LIT_TEXTBOOK, result["literature"]["textbook"])]
+    named += [(f"mosd: {f}, budget {b} %", r) for f, res in result["families"].items()
+              for b, r in res["budgets"].items()]
+    for name, r in named:
+        d = r["delay"]
+        lines.append(f"| {name} | {d['mean_s']:.1f} | {d['missed']} / {d['changepoints']} | {d['false']} |")
+    if result["families"]:
+        folders = list(dict.fromkeys(g for res in result["families"].values() for r in res["budgets"].values()
+                                     for g in r["folders"]))
+        lines += ["", "Each family's best row (highest F1) per folder, FAR % / MAR %:", "",
+                  "| row | " + " | ".join(folders) + " |", "|---|" + "---|" * len(folders)]
+        for family, res in result["families"].items():
+            budget, r = max(res["budgets"].items(), key=lambda item: item[1]["f1"])
+            cells = [f"{r['folders'][g]['far']:.2f} / {r['folders'][g]['mar']:.2f}" if g in r["folders"] else "-"
+                     for g in folders]
+            lines.append(f"| {family}, budget {budget} % | " + " | ".join(cells) + " |")
+    seconds = sum(res["seconds"] for res in result["families"].values())
+    load = ", ".join(f"{v:.2f}" for v in result["load_average"])
+    lines += ["", f"Scored experiments: {len(result['scored'])}; wall time {result['seconds']:.1f} s "
+              f"(families {seconds:.1f} s); load average {load}"]
+    return "\n".join(lines)
+
+
+def figure(result: dict, path: Path) -> Path:
+    """FAR against MAR: the leaderboard's points, the reproduced T²+Q and each family's front."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(8, 6))
+    for name, _, far, mar in LEADERBOARD:
+        ax.scatter(far, mar, color="0.5", marker="s")
+        ax.annotate(name.split(" (")[0], (far, mar), fontsize=7, xytext=(3, 3), textcoords="offset points")
+    lit = result["literature"]["published"]
+    ax.scatter(lit["far"], lit["mar"], color="k", marker="x", s=60, label="T²+Q reproduced (mosd)")
+    for family, res in result["families"].items():
+        pts = np.array([(r["far"], r["mar"]) for r in res["budgets"].values()])
+        ax.plot(pts[:, 0], pts[:, 1], marker="o", label=f"{family} (CV front)")
+    ax.set_xlabel("FAR %")
+    ax.set_ylabel("MAR %")
+    ax.set_title("SKAB: FAR against MAR (SKAB's binary metric, test rows of every experiment)")
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def _clean(value):
+    """JSON-ready copy (NumPy scalars and arrays to Python)."""
+    if isinstance(value, dict):
+        return {str(k): _clean(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_clean(v) for v in value]
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    return value
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    try:
+        args = parser().parse_args(argv)
+        check_root(args.root, "--root")
+        families = FAMILIES if args.families else check_families([n for group in args.family for n in group])
+        train = _groups(args.train_groups, "--train-groups")
+        test = _groups(args.test_groups, "--test-groups")
+        out = Path(args.out) if args.out else None
+        if out is not None and out.exists() and not out.is_dir():
+            raise ConfigError(f"--out={args.out!r} is a file; allowed: a folder (created if missing)")
+        result = study(args.root, families, args.seed, train, test)
+    except ConfigError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    if out is not None:
+        out.mkdir(parents=True, exist_ok=True)
+        figure(result, out / "skab_front.png")
+        (out / "skab_benchmark.json").write_text(json.dumps(_clean(result), indent=1))
+    if args.json:
+        print(json.dumps(result["keys"], indent=1, sort_keys=True))
+    else:
+        print(report(result))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
