@@ -313,14 +313,16 @@ class Skab(RecordedData):
 
     * every experiment is standardised by its own fit part (:func:`standardise`): the monitored
       variables are ``Accelerometer1RMS_z`` ...; one detector is then fitted on the pooled,
-      standardised fit parts (the pipeline fits one model; module docstring of the preset);
+      standardised fit parts (the pipeline fits one model: conf/experiment/skab.yaml);
     * ``calibration``: the first :data:`FIT_ROWS` rows of every experiment, training and test
       alike (SKAB's fit parts; rows labelled anomalous there are left out, as in data=table);
     * ``training``: the test parts of the training experiments, cut into runs of ``run_rows``;
     * ``test``: the test parts of the held-out experiments, cut alike.
 
     The rows after the last whole run of a test part are in no split (the scored splits need one
-    run length); :meth:`describe` lists every run.
+    run length); :meth:`describe` lists every run. ``dt`` is 1 s, SKAB's median step: the rows are
+    taken as they come, the few longer steps (up to 247 s, in ``other/2``) are not filled in, so a
+    delay in seconds is a delay in rows.
 
     Parameters
     ----------
