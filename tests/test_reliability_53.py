@@ -66,3 +66,116 @@ def test_a_stop_after_the_results_are_printed_keeps_them_finished(tmp_path, sig,
     logged = json.loads(artifact.read_text())
     assert logged["status"] == "finished" and logged["test"] == summary["test"]
     assert runs[0].data.metrics["far"] == pytest.approx(summary["test"]["far"]["mean"])
+
+
+# ---------------------------------------------------------------------------------------
+# items 2 and 3: labels and gaps of a table (mosd.data.table)
+# ---------------------------------------------------------------------------------------
+TAB = ["+experiment=table", "data.time_column=time", "data.label_column=fault", "debug=tiny", "tracking=none"]
+
+
+def _labelled_csv(path: Path, change=None, **csv) -> Path:
+    from test_table_data import labelled_frame
+
+    frame = labelled_frame()
+    if change is not None:
+        change(frame)
+    frame.to_csv(path, index=False, **csv)
+    return path
+
+
+def _mosd(cwd: Path, *args: str, limit_bytes: int | None = None) -> subprocess.CompletedProcess:
+    def limited():
+        import resource
+
+        resource.setrlimit(resource.RLIMIT_AS, (limit_bytes, limit_bytes))
+
+    return subprocess.run([sys.executable, "-m", "mosd", *args], cwd=cwd, env=_env(), capture_output=True, text=True,
+                          timeout=300, preexec_fn=limited if limit_bytes else None)
+
+
+def _set_label(row: int, value):
+    def change(frame):
+        frame["fault"] = frame["fault"].astype(object)
+        frame.loc[row, "fault"] = value
+    return change
+
+
+@pytest.mark.parametrize("value, shown", [(1e30, "1e+30"), (-1, "-1"), (2.5, "2.5"), (float("inf"), "inf"),
+                                          (32768, "32768")])
+def test_a_label_that_is_no_fault_id_is_one_line_naming_the_key_row_and_range(tmp_path, value, shown):
+    """Before: 1e30 was cast to int64's minimum and counted as faulty (rc 0, the FAR moved)."""
+    from mosd.data.table import MAX_LABEL, Table
+    from mosd.validation import ConfigError
+
+    path = _labelled_csv(tmp_path / "plant.csv", _set_label(1000, value))
+    with pytest.raises(ConfigError) as caught:
+        Table(str(path), time_column="time", label_column="fault")
+    message = str(caught.value)
+    assert "\n" not in message and message.startswith("data.label_column='fault'"), message
+    assert f"row 1000 holds '{shown}'" in message and f"0..{MAX_LABEL}" in message, message
+
+
+def test_the_largest_label_is_a_fault_id(tmp_path):
+    from mosd.data.table import MAX_LABEL, Table
+
+    table = Table(str(_labelled_csv(tmp_path / "plant.csv", _set_label(1000, MAX_LABEL))), time_column="time",
+                  label_column="fault")
+    assert int(table.trace("test").fault_label.max()) == MAX_LABEL  # the id itself, not a wrapped one
+
+
+def test_a_huge_integer_label_is_refused_without_allocating_for_it(tmp_path):
+    """Before: a label of 1,000,000,000 exhausted memory (MemoryError at 4.4 GB naming no column)."""
+    _labelled_csv(tmp_path / "plant.csv", _set_label(1000, 1_000_000_000))
+    result = _mosd(tmp_path, *TAB, "data.path=plant.csv", limit_bytes=3 << 30)
+    assert result.returncode == 2, result.stderr[-3000:]
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in result.stderr, result.stderr[-3000:]
+    assert "data.label_column" in lines[0] and "row 1000 holds '1000000000'" in lines[0], lines[0]
+    assert not (tmp_path / "outputs" / "runs").exists() or not any((tmp_path / "outputs" / "runs").iterdir())
+
+
+def _gaps(frame, seed=1, n=300):
+    import numpy as np
+
+    rows = np.random.default_rng(seed).choice(len(frame), n, replace=False)
+    frame.loc[rows, "TI-2"] = float("nan")
+
+
+def test_fill_drop_records_the_files_rows_and_clock(tmp_path):
+    """Before: test rows 675-899 for file rows 900-1199, and t from 0 by dt (13,440 s for 71,940 s)."""
+    import numpy as np
+    import pandas as pd
+
+    from mosd.data.table import Table
+
+    path = _labelled_csv(tmp_path / "gaps.csv", _gaps)
+    frame = pd.read_csv(path)
+    clock = (pd.to_datetime(frame["time"]) - pd.to_datetime(frame["time"].iloc[0])).dt.total_seconds().to_numpy()
+    kept = frame.dropna().index.to_numpy()  # the oracle: pandas' own dropna
+    table = Table(str(path), time_column="time", label_column="fault", fill="drop")
+    for split in ("calibration", "training", "test"):
+        (start, stop), = [(s.start, s.stop) for s in table.segments(split)]
+        rows = kept[start:stop]
+        described = table.describe()[split][0]
+        assert f"gaps.csv rows {rows[0]}-{rows[-1]} (" in described, described
+        dropped = rows[-1] - rows[0] + 1 - len(rows)
+        assert f"{dropped} rows with a missing tag dropped" in described, described
+        np.testing.assert_array_equal(table.trace(split).t, clock[rows])
+
+
+def test_fill_drop_run_records_the_files_rows_and_its_stream_the_files_clock(tmp_path):
+    import pandas as pd
+
+    path = _labelled_csv(tmp_path / "gaps.csv", _gaps)
+    result = _mosd(tmp_path, *TAB, "data.path=gaps.csv", "data.fill=drop", "hydra.run.dir=run")
+    assert result.returncode == 0, result.stderr[-3000:]
+    frame = pd.read_csv(path)
+    clock = (pd.to_datetime(frame["time"]) - pd.to_datetime(frame["time"].iloc[0])).dt.total_seconds().to_numpy()
+    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
+    test_rows = summary["data"]["test"][0].split(" rows ")[1].split(" ")[0]
+    first, last = map(int, test_rows.split("-"))
+    assert last == len(frame) - 1  # the last quarter of the rows kept ends at the file's last row
+    stream = pd.read_parquet(tmp_path / "run" / "test_stream.parquet")
+    assert stream["t"].iloc[0] == clock[first] and stream["t"].iloc[-1] == clock[last]
+    assert len(stream) == len(frame.iloc[first:last + 1].dropna())

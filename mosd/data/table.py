@@ -17,7 +17,8 @@ number becomes missing, and ``fill`` decides what happens next:
   convention; leading gaps take the first valid value);
 * ``interpolate``: linear in the row number between the valid neighbours
   (held at the ends);
-* ``drop``: rows with any missing tag are removed;
+* ``drop``: rows with any missing tag are removed (the splits are fractions of the rows kept; what is
+  recorded of them, in ``summary.json`` and the test stream, is the file's rows and the file's clock);
 * ``none``: left missing (a PCA detector skips incomplete rows: no alarm there).
 
 A tag that is constant over the calibration rows (after filling) carries no
@@ -31,6 +32,7 @@ What is checked before any work (one line each, naming the file, the row and the
   strictly increases: a shuffled export would give a wrong sample step, hence wrong delays,
   reported as right. ``sort=True`` sorts the rows by time instead, and says so on stdout;
   a repeated time is refused either way;
+* every label is a fault id: an integer in 0..:data:`MAX_LABEL` (0 or empty = normal);
 * the table has data rows, and every split at least :data:`MIN_SPLIT_ROWS` of them;
 * the calibration has more fault-free rows than tags (:data:`MIN_ROWS_PER_TAG`): with
   ``n <= m`` rows for ``m`` tags the sample covariance is singular (rank ``n - 1 < m``), the
@@ -44,6 +46,7 @@ from __future__ import annotations
 
 import logging
 import warnings
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Mapping, Sequence
 
@@ -66,6 +69,10 @@ MIN_ROWS_PER_TAG = 1
 WARN_ROWS_PER_TAG = 5
 #: a cell beyond ±MAX_ABS is an error code, not a measurement: its square (the variance, T², SPE) would overflow
 MAX_ABS = 1e150
+#: the largest fault id a label may hold: recorded-data traces keep their labels as int16 (mosd.data.base), and
+#: a larger one was cast to a negative id (1e30: counted as faulty, neither normal nor any fault) or made a
+#: name per id up to it (1,000,000,000: out of memory)
+MAX_LABEL = int(np.iinfo(np.int16).max)
 
 
 class Table(RecordedData):
@@ -107,6 +114,7 @@ class Table(RecordedData):
         if not isinstance(sort, bool):
             raise ConfigError(f"data.sort={sort!r} is not allowed; allowed: true, false")
         self.time_column, self.label_column, self.sort = time_column, label_column, sort
+        self._order = None  # data.sort=true: the file's data-row number of each row in time order
         frame = _read(Path(self.path).expanduser())
         columns = [str(c) for c in frame.columns]
         frame.columns = columns
@@ -137,7 +145,10 @@ class Table(RecordedData):
         labels = self._labels(frame[label_name], label_name) if label_name else np.zeros(len(frame), int)
         self.dt = float(np.median(np.diff(seconds))) if time_name else _positive("data.dt", dt)
         values, labels, kept = _fill(values, labels, self.fill)
-        self._rows = kept  # the file's data-row number of every row kept
+        # what is recorded of a row is the file's: its data-row number and its time on the file's clock (seconds
+        # from the first row; row x dt without a time column), whatever rows data.fill=drop left out before it
+        self._rows = kept if self._order is None else self._order[kept]
+        self._times = seconds[kept] if time_name else self._rows * self.dt
         self._ranges = self._split_ranges(splits or DEFAULT_SPLITS, len(values))
         calibration = slice(*self._ranges["calibration"])
         normal = labels[calibration] == 0
@@ -197,9 +208,9 @@ class Table(RecordedData):
             bad = (converted.isna() & column.notna() & (text != "")).to_numpy(dtype=bool) | (np.abs(numbers) > MAX_ABS)
         if bad.any() and self.errors == "strict":
             row = int(np.flatnonzero(bad)[0])
-            raise ConfigError(f"{self.path}: column {name!r} row {row} holds {str(column.iloc[row])!r}, not a number "
-                              f"within ±{MAX_ABS:g}; allowed: numbers (data.errors=nan reads historian error codes "
-                              "and such values as missing values)")
+            raise ConfigError(f"{self.path}: column {name!r} row {self._file_row(row)} holds "
+                              f"{str(column.iloc[row])!r}, not a number within ±{MAX_ABS:g}; allowed: numbers "
+                              "(data.errors=nan reads historian error codes and such values as missing values)")
         if bad.any():
             numbers = np.where(bad, np.nan, numbers)
         return numbers
@@ -209,12 +220,18 @@ class Table(RecordedData):
 
         numbers = pd.to_numeric(column, errors="coerce")
         text = column.astype("string").str.strip()
-        bad = (numbers.isna() & column.notna() & (text != "")) | (numbers.notna() & (numbers % 1 != 0)) | (numbers < 0)
+        # checked as floats before any cast: an integral 1e30 passes `% 1` and casts to int64's minimum
+        values = numbers.to_numpy(dtype=float, na_value=np.nan)
+        with np.errstate(invalid="ignore"):  # inf % 1 is NaN: not an integer, refused below
+            fractional = np.isfinite(values) & (values % 1 != 0)
+        out_of_range = ~np.isnan(values) & ~((values >= 0) & (values <= MAX_LABEL))
+        bad = (numbers.isna() & column.notna() & (text != "")).to_numpy(dtype=bool) | fractional | out_of_range
         if bad.any():
-            row = int(np.flatnonzero(bad.to_numpy())[0])
-            raise ConfigError(f"{self.path}: column {name!r} row {row} holds {str(column.iloc[row])!r}, "
-                              "not a fault id; allowed: integers >= 0 (0 or empty = normal)")
-        return numbers.fillna(0).to_numpy(dtype=float).astype(int)
+            row = int(np.flatnonzero(bad)[0])
+            raise ConfigError(f"data.label_column={name!r}: {self.path}: column {name!r} row {self._file_row(row)} "
+                              f"holds {str(column.iloc[row])!r}, not a fault id; allowed: integers 0..{MAX_LABEL} "
+                              "(0 or empty = normal)")
+        return np.nan_to_num(values, nan=0.0).astype(np.int64)
 
     def _seconds(self, column, name: str) -> np.ndarray:
         """The time column as seconds from its first row: numbers as they are, or timestamps (one line naming
@@ -258,6 +275,7 @@ class Table(RecordedData):
             return frame, seconds
         if self.sort:
             order = np.argsort(seconds, kind="stable")
+            self._order = order
             moved = int(np.count_nonzero(order != np.arange(len(order))))
             frame, seconds = frame.iloc[order].reset_index(drop=True), seconds[order]
             if moved:
@@ -319,13 +337,18 @@ class Table(RecordedData):
 
     def segments(self, split: str) -> list[Segment]:
         start, stop = self._ranges[split]
-        return [Segment(self.path, start, stop, labels=self._labels[start:stop])]
+        first, last = self.file_rows(split)
+        return [TableSegment(self.path, start, stop, labels=self._labels[start:stop], first_row=first, last_row=last,
+                             dropped=last - first + 1 - (stop - start) if self._order is None else 0)]
 
     def trace(self, split: str) -> Trace:
-        """As :meth:`RecordedData.trace`; the calibration's labelled rows are left out (set missing)."""
+        """As :meth:`RecordedData.trace`, on the file's clock; the calibration's labelled rows are left out (set
+        missing)."""
         from dataclasses import replace
 
-        trace = super().trace(split)
+        start, stop = self._ranges[split]
+        # the rows' own times: k x dt from the split's start was off wherever data.fill=drop left rows out
+        trace = replace(super().trace(split), t=np.asarray(self._times[start:stop], float))
         if split != "calibration" or not trace.fault_mask.any():
             return trace
         y = np.where(trace.fault_label[..., None] > 0, np.nan, trace.y)
@@ -336,6 +359,26 @@ class Table(RecordedData):
         """The first and last data row of the file a split covers (after ``fill="drop"``)."""
         start, stop = self._ranges[split]
         return int(self._rows[start]), int(self._rows[stop - 1])
+
+    def _file_row(self, row: int) -> int:
+        """The file's data-row number of row ``row`` of the table as read (in time order under data.sort=true)."""
+        return int(self._order[row]) if self._order is not None else int(row)
+
+
+@dataclass(frozen=True)
+class TableSegment(Segment):
+    """A table's split: ``start``/``stop`` count the rows kept (:meth:`Table.values`), ``first_row``..``last_row``
+    are the file's data rows it covers, of which ``dropped`` were left out (``data.fill=drop``)."""
+
+    first_row: int = 0
+    last_row: int = 0
+    dropped: int = 0
+
+    def describe(self) -> str:
+        """``plant.csv rows 900-1199 (75 rows with a missing tag dropped; 87 labelled faulty)``: the file's rows."""
+        notes = [f"{self.dropped} rows with a missing tag dropped by data.fill=drop"] if self.dropped else []
+        notes.append(f"{int(np.count_nonzero(self.row_labels()))} labelled faulty")
+        return f"{self.source} rows {self.first_row}-{self.last_row} ({'; '.join(notes)})"
 
 
 def _read(path: Path):
