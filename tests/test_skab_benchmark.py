@@ -181,3 +181,15 @@ def test_pca_study_on_real_files_keeps_each_folds_budget():
             assert fold["tuning"]["infeasible"] or fold["tuning"]["far"] <= budget
         assert sum(len(f["scored"]) for f in row["designs"]) == 34
     assert result["budgets"][25]["far"] > result["budgets"][5]["far"]
+
+
+def test_wide_box_rows_are_labelled_and_leave_the_headline_alone(folder, capsys):
+    assert skab.main(["--root", str(folder), "--family", "tag_cusum", "--json"]) == 0
+    headline = json.loads(capsys.readouterr().out)
+    assert skab.main(["--root", str(folder), "--family", "tag_cusum", "--json", "--wide-box"]) == 0
+    both = json.loads(capsys.readouterr().out)
+    assert {k: both[k] for k in headline} == headline
+    assert {f"skab_f1_tag_cusum_wide_b{b}" for b in skab_study.BUDGETS} <= set(both)
+    assert len(skab_study.design_grid("tag_cusum", skab_study.WIDE)) > len(skab_study.design_grid("tag_cusum"))
+    assert skab.main(["--root", str(folder), "--family", "pca", "--wide-box"]) == 0
+    assert "mosd: pca_wide (labelled: box widened after the first results)" in capsys.readouterr().out

@@ -9,7 +9,9 @@ the detection-delay table and each family's best row per folder.
 Keys (``--json`` prints them as one JSON object): ``skab_far_<family>_b<budget>``, ``skab_mar_<family>_b<budget>``
 (%), ``skab_f1_<family>_b<budget>`` (budget 5, 10, 15, 20, 25), ``skab_lit_t2q_far``, ``skab_lit_t2q_mar``,
 ``skab_lit_t2q_f1``. ``--out DIR`` writes ``skab_front.png`` (FAR against MAR: the leaderboard's points and each
-family's front) and ``skab_benchmark.json`` (every row with its designs per fold). The data are SKAB's
+family's front) and ``skab_benchmark.json`` (every row with its designs per fold). ``--wide-box`` adds the
+labelled rows ``<family>_wide`` (keys ``skab_far_<family>_wide_b<budget>`` ...): a box widened after the first
+results were seen, :data:`mosd.systems.skab_study.WIDE`, never a headline row. The data are SKAB's
 ``data/`` folder (GPL-3.0, never shipped: :mod:`mosd.data.skab` reads it).
 """
 from __future__ import annotations
@@ -26,7 +28,7 @@ import numpy as np
 
 from ..data.skab import ANOMALY_GROUPS, check_groups, check_root, read_experiments
 from ..validation import ConfigError
-from .skab_study import BUDGETS, FAMILIES, check_families, run_family
+from .skab_study import BUDGETS, FAMILIES, WIDE, WIDE_LABEL, check_families, run_family
 from .skab_t2q import literature_rows
 
 #: SKAB's published outlier-detection leaderboard (README at b2c0d46): name, F1, FAR %, MAR %
@@ -59,6 +61,8 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--out", help="folder for skab_front.png and skab_benchmark.json")
     p.add_argument("--train-groups", help="tune on these folders only (comma-separated), no cross-validation")
     p.add_argument("--test-groups", help="score these folders only (comma-separated)")
+    p.add_argument("--wide-box", action="store_true", help="also the labelled rows <family>_wide: "
+                   + WIDE_LABEL)
     return p
 
 
@@ -74,7 +78,7 @@ def _groups(text: str | None, option: str) -> tuple[str, ...] | None:
 
 
 def study(root, families: Sequence[str] = (), seed: int = 0, train_groups=None, test_groups=None,
-          log=sys.stderr) -> dict:
+          log=sys.stderr, wide: bool = False) -> dict:
     """Everything the CLI prints: ``{"literature", "families", "keys", "seconds", "scored"}`` (module docstring)."""
     experiments = read_experiments(root, key="--root")
     if (train_groups is None) != (test_groups is None):
@@ -92,6 +96,10 @@ def study(root, families: Sequence[str] = (), seed: int = 0, train_groups=None, 
     literature = literature_rows(scored)
     print(f"skab: literature T²+Q on {len(scored)} experiments", file=log, flush=True)
     rows = {f: run_family(f, experiments, seed, train, test, log) for f in families}
+    if wide:
+        # the labelled variant (skab_study.WIDE): after the headline rows, never in their place
+        rows.update({f"{f}_wide": {**run_family(f, experiments, seed, train, test, log, WIDE), "label": WIDE_LABEL}
+                     for f in families})
     return {"literature": literature, "families": rows, "keys": keys(literature, rows),
             "seconds": time.perf_counter() - t0, "scored": [e.name for e in scored],
             "load_average": os.getloadavg()}
@@ -115,7 +123,8 @@ def table_rows(result: dict) -> list[tuple[str, float, float, float]]:
         rows.append((label, r["f1"], r["far"], r["mar"]))
     for family, res in result["families"].items():
         for budget, r in res["budgets"].items():
-            rows.append((f"mosd: {family}, CV FAR budget {budget} %", r["f1"], r["far"], r["mar"]))
+            note = " (labelled: box widened after the first results)" if "label" in res else ""
+            rows.append((f"mosd: {family}{note}, CV FAR budget {budget} %", r["f1"], r["far"], r["mar"]))
     return sorted(rows, key=lambda r: -round(r[1], 2))
 
 
@@ -198,7 +207,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         out = Path(args.out) if args.out else None
         if out is not None and out.exists() and not out.is_dir():
             raise ConfigError(f"--out={args.out!r} is a file; allowed: a folder (created if missing)")
-        result = study(args.root, families, args.seed, train, test)
+        result = study(args.root, families, args.seed, train, test, wide=args.wide_box)
     except ConfigError as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
