@@ -100,7 +100,8 @@ def study(root, families: Sequence[str] = (), seed: int = 0, train_groups=None, 
         # the labelled variant (skab_study.WIDE): after the headline rows, never in their place
         rows.update({f"{f}_wide": {**run_family(f, experiments, seed, train, test, log, WIDE), "label": WIDE_LABEL}
                      for f in families})
-    return {"literature": literature, "families": rows, "keys": keys(literature, rows),
+    mode = "CV" if train is None else f"tuned on {','.join(train_groups)},"
+    return {"literature": literature, "families": rows, "keys": keys(literature, rows), "mode": mode,
             "seconds": time.perf_counter() - t0, "scored": [e.name for e in scored],
             "load_average": os.getloadavg()}
 
@@ -124,7 +125,8 @@ def table_rows(result: dict) -> list[tuple[str, float, float, float]]:
     for family, res in result["families"].items():
         for budget, r in res["budgets"].items():
             note = " (labelled: box widened after the first results)" if "label" in res else ""
-            rows.append((f"mosd: {family}{note}, CV FAR budget {budget} %", r["f1"], r["far"], r["mar"]))
+            rows.append((f"mosd: {family}{note}, {result.get('mode', 'CV')} FAR budget {budget} %", r["f1"], r["far"],
+                         r["mar"]))
     return sorted(rows, key=lambda r: -round(r[1], 2))
 
 
