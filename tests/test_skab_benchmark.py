@@ -149,6 +149,7 @@ def test_cli_keys_figure_and_train_test_groups(folder, tmp_path, capsys):
     (["--train-groups", "valve1", "--test-groups", "valve1"], ["disjoint"]),
     (["--train-groups", "valve1"], ["--test-groups"]),
     (["--seed", "x"], ["--seed"]),
+    (["--out", __file__], ["--out", "allowed"]),
 ])
 def test_bad_arguments_one_line_exit_2(folder, capsys, args, words):
     argv = args if args[0] == "--root" else ["--root", str(folder), *args]

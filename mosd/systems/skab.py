@@ -207,14 +207,17 @@ def main(argv: Sequence[str] | None = None) -> int:
         train = _groups(args.train_groups, "--train-groups")
         test = _groups(args.test_groups, "--test-groups")
         out = Path(args.out) if args.out else None
-        if out is not None and out.exists() and not out.is_dir():
-            raise ConfigError(f"--out={args.out!r} is a file; allowed: a folder (created if missing)")
+        if out is not None:
+            try:
+                out.mkdir(parents=True, exist_ok=True)
+            except OSError as error:
+                raise ConfigError(f"--out={args.out!r} cannot be a folder ({error.strerror}); allowed: a folder "
+                                  "this user can create or write") from None
         result = study(args.root, families, args.seed, train, test, wide=args.wide_box)
     except ConfigError as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
     if out is not None:
-        out.mkdir(parents=True, exist_ok=True)
         figure(result, out / "skab_front.png")
         (out / "skab_benchmark.json").write_text(json.dumps(_clean(result), indent=1))
     if args.json:
