@@ -179,3 +179,75 @@ def test_fill_drop_run_records_the_files_rows_and_its_stream_the_files_clock(tmp
     stream = pd.read_parquet(tmp_path / "run" / "test_stream.parquet")
     assert stream["t"].iloc[0] == clock[first] and stream["t"].iloc[-1] == clock[last]
     assert len(stream) == len(frame.iloc[first:last + 1].dropna())
+
+
+# ---------------------------------------------------------------------------------------
+# item 4: a healthy store another process holds is locked, not damaged
+# ---------------------------------------------------------------------------------------
+def _hold(db: Path) -> sqlite3.Connection:
+    """Another holder of the store: an open exclusive transaction, as a process writing to it for long."""
+    con = sqlite3.connect(db, isolation_level=None, check_same_thread=False)
+    con.execute("BEGIN EXCLUSIVE")
+    return con
+
+
+def test_a_locked_healthy_store_is_locked_never_damaged(tmp_path):
+    """Before: '… is damaged (OperationalError: database is locked); allowed: … move the file aside'."""
+    from mosd.app import store
+    from test_reliability import make_store
+
+    db = make_store(tmp_path / "mlflow.db", n_runs=3)
+    holder = _hold(db)
+    try:
+        state = store.sqlite_store_state(db, wait=0.2)
+        assert state.state == "locked", state
+        line = store.refusal(db, state)
+        assert "locked by another process" in line and "\n" not in line, line
+        assert "damaged" not in line and "aside" not in line, line
+    finally:
+        holder.close()
+    assert store.sqlite_store_state(db).state == "ok"
+
+
+def test_a_run_never_moves_a_locked_store_aside(tmp_path, monkeypatch):
+    from mosd.app import store
+    from test_reliability import make_store
+
+    db = make_store(tmp_path / "mlflow.db", n_runs=3)
+    monkeypatch.setattr(store, "LOCKED_WAIT_S", 0.2)
+    holder = _hold(db)
+    try:
+        with pytest.raises(store.TrackingError, match="locked by another process"):
+            store.prepare_sqlite_store(db)
+    finally:
+        holder.close()
+    assert [p.name for p in tmp_path.iterdir()] == ["mlflow.db"]  # nothing moved aside, nothing created
+    assert store.sqlite_store_state(db).n_runs == 3
+
+
+def test_a_lock_released_within_the_wait_is_a_healthy_store(tmp_path):
+    import threading
+
+    from mosd.app import store
+    from test_reliability import make_store
+
+    db = make_store(tmp_path / "mlflow.db", n_runs=1)
+    holder = _hold(db)
+    threading.Timer(0.5, holder.close).start()  # another run's write transaction, ending shortly
+    assert store.sqlite_store_state(db, wait=10).state == "ok"
+
+
+def test_monitor_on_a_locked_store_is_one_line_saying_so(tmp_path):
+    from test_reliability import make_store
+
+    db = make_store(tmp_path / "mlflow.db", n_runs=1)
+    (tmp_path / "stream.csv").write_text("a\n1\n")
+    holder = _hold(db)
+    try:
+        result = _mosd(tmp_path, "monitor", "--model", "models:/m-0", "--tracking-uri", f"sqlite:///{db}",
+                       "stream.csv")
+    finally:
+        holder.close()
+    assert result.returncode == 2, result.stderr[-3000:]
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and "locked by another process" in lines[0] and "damaged" not in lines[0], lines

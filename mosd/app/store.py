@@ -6,7 +6,9 @@ creates or opens a sqlite store under an exclusive lock on ``<db>.lock``
 (:func:`store_lock`): the first creates and migrates it, the others find it at
 the head revision. A store that a killed migration left half-built and that
 holds no run is moved aside and recreated (:func:`prepare_sqlite_store`); one that
-holds runs is refused with one line naming the file (:func:`sqlite_store_state`).
+holds runs is refused with one line naming the file (:func:`sqlite_store_state`). A healthy store that
+another process holds locked (an open write transaction, ``BEGIN EXCLUSIVE``) is waited for a few seconds,
+then reported as locked, never as damaged: moving it aside would orphan every run it holds.
 What this module knows of MLflow's schema (table names) comes from
 :mod:`mosd.app.compat`.
 """
@@ -28,6 +30,9 @@ from .config import described
 LOCK_TIMEOUT_S = 300.0
 #: Seconds a read of the store waits for a writer (preflight: a few seconds at most).
 READ_TIMEOUT_S = 3.0
+#: Seconds the tracking process waits for another process's lock on the store before it gives up (it runs
+#: beside the run, so it may wait longer than preflight; the run keeps its results for ``mosd log`` then).
+LOCKED_WAIT_S = 20.0
 
 
 class TrackingError(RuntimeError):
@@ -77,18 +82,20 @@ def store_lock(uri: str, shared: bool = False, timeout: float = LOCK_TIMEOUT_S):
 
 @dataclass(frozen=True)
 class StoreState:
-    """What :func:`sqlite_store_state` found: ``missing``, ``empty``, ``ok``, ``incomplete`` or ``corrupt``."""
+    """What :func:`sqlite_store_state` found: ``missing``, ``empty``, ``ok``, ``incomplete``, ``corrupt`` or
+    ``locked`` (healthy as far as anyone can tell, but another process holds it)."""
 
     state: str
     detail: str = ""
     n_runs: int = 0
 
 
-def sqlite_store_state(path: str | os.PathLike) -> StoreState:
+def sqlite_store_state(path: str | os.PathLike, wait: float = READ_TIMEOUT_S) -> StoreState:
     """Health of a sqlite MLflow store, read with the standard library only (fast, read-only).
 
     ``incomplete``: some MLflow tables exist but the creation or a migration did
     not finish (a killed process; ``_alembic_tmp_*`` tables, no version row).
+    ``locked``: another process held the store for ``wait`` seconds (sqlite's busy timeout).
     """
     path = Path(path)
     if not path.exists():
@@ -98,9 +105,9 @@ def sqlite_store_state(path: str | os.PathLike) -> StoreState:
     if path.stat().st_size == 0:
         return StoreState("empty")
     try:
-        con = sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro", uri=True, timeout=READ_TIMEOUT_S)
+        con = sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro", uri=True, timeout=wait)
     except sqlite3.Error as exc:
-        return StoreState("corrupt", described(exc))
+        return _failed(exc, wait)
     try:
         check = con.execute("PRAGMA quick_check").fetchone()
         if not check or check[0] != "ok":
@@ -119,9 +126,18 @@ def sqlite_store_state(path: str | os.PathLike) -> StoreState:
             return StoreState("incomplete", "an interrupted creation or migration (no schema version)", n_runs)
         return StoreState("ok", n_runs=n_runs)
     except sqlite3.Error as exc:
-        return StoreState("corrupt", described(exc))
+        return _failed(exc, wait)
     finally:
         con.close()
+
+
+def _failed(exc: sqlite3.Error, wait: float) -> StoreState:
+    """What a failed read says of the store: locked by another process (busy), else damaged."""
+    busy = (getattr(exc, "sqlite_errorcode", None) in (sqlite3.SQLITE_BUSY, sqlite3.SQLITE_LOCKED)
+            or "locked" in str(exc).lower())  # Python < 3.11 has no error code on the exception
+    if busy:
+        return StoreState("locked", f"{described(exc)}, for {wait:g} s")
+    return StoreState("corrupt", described(exc))
 
 
 def template_directory() -> Path | None:
@@ -140,7 +156,10 @@ def template_directory() -> Path | None:
 
 
 def refusal(path: Path, state: StoreState) -> str:
-    """The one line that refuses a damaged store, with what to do about it."""
+    """The one line that refuses a damaged (or locked) store, with what to do about it."""
+    if state.state == "locked":  # a healthy store: nothing to repair, and moving it aside orphans its runs
+        return (f"tracking store {path} is locked by another process ({state.detail}); allowed: wait until that process "
+                f"has released it (fuser {path} names it), point tracking.uri elsewhere, or tracking=none")
     return (f"tracking store {path} is damaged ({state.detail}); allowed: a healthy MLflow store: move the file "
             f"aside (mosd then creates a new one), point tracking.uri elsewhere, or tracking=none")
 
@@ -148,9 +167,10 @@ def refusal(path: Path, state: StoreState) -> str:
 def prepare_sqlite_store(path: Path) -> str | None:
     """Under the store lock: move aside a store a killed creation left without runs; refuse a damaged one.
 
-    Returns a note for the user when a store was moved aside.
+    Returns a note for the user when a store was moved aside. A store another process holds is waited for
+    (:data:`LOCKED_WAIT_S`), then refused as locked.
     """
-    state = sqlite_store_state(path)
+    state = sqlite_store_state(path, wait=LOCKED_WAIT_S)
     if state.state in ("missing", "empty", "ok"):
         return None
     if state.state == "incomplete" and not state.n_runs:
