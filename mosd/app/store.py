@@ -158,8 +158,8 @@ def template_directory() -> Path | None:
 def refusal(path: Path, state: StoreState) -> str:
     """The one line that refuses a damaged (or locked) store, with what to do about it."""
     if state.state == "locked":  # a healthy store: nothing to repair, and moving it aside orphans its runs
-        return (f"tracking store {path} is locked by another process ({state.detail}); allowed: wait until that process "
-                f"has released it (fuser {path} names it), point tracking.uri elsewhere, or tracking=none")
+        return (f"tracking store {path} is locked by another process ({state.detail}); allowed: wait until that "
+                f"process has released it (fuser {path} names it), point tracking.uri elsewhere, or tracking=none")
     return (f"tracking store {path} is damaged ({state.detail}); allowed: a healthy MLflow store: move the file "
             f"aside (mosd then creates a new one), point tracking.uri elsewhere, or tracking=none")
 
