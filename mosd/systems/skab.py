@@ -28,7 +28,7 @@ import numpy as np
 
 from ..data.skab import ANOMALY_GROUPS, check_groups, check_root, read_experiments
 from ..validation import ConfigError
-from .skab_study import BUDGETS, FAMILIES, WIDE, WIDE_LABEL, check_families, run_family
+from .skab_study import FAMILIES, WIDE, WIDE_LABEL, check_families, run_family
 from .skab_t2q import literature_rows
 
 #: SKAB's published outlier-detection leaderboard (README at b2c0d46): name, F1, FAR %, MAR %
@@ -134,8 +134,9 @@ def report(result: dict) -> str:
     """The three tables as Markdown."""
     lines = []
     if result.get("mode", "CV") != "CV":
-        lines += [f"SKAB's published rows score all 34 experiments; mosd's rows score only {', '.join(result['scored'])}"
-                  " (not comparable with the published ones)", ""]
+        scored = ", ".join(result["scored"])
+        lines += [f"SKAB's published rows score all 34 experiments; mosd's rows score only {scored} (not comparable "
+                  "with the published ones)", ""]
     lines += ["| algorithm | F1 | FAR % | MAR % |", "|---|---|---|---|"]
     lines += [f"| {name} | {f1:.2f} | {far:.2f} | {mar:.2f} |" for name, f1, far, mar in table_rows(result)]
     lines += ["", "Detection delay after each changepoint (SKAB's average_time, 60 s window to the right):", "",
