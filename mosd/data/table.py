@@ -141,7 +141,9 @@ class Table(RecordedData):
         if not names:
             raise ConfigError(f"data.tags selects no column of {self.path}; allowed: column names besides the "
                               "time and label columns")
+        self._not_numbers = {}  # tag -> counts of its texts read as missing (_numeric): said in one line
         values = np.column_stack([self._numeric(frame[name], name) for name in names])
+        self._say_not_numbers()
         labels = self._labels(frame[label_name], label_name) if label_name else np.zeros(len(frame), int)
         self.dt = float(np.median(np.diff(seconds))) if time_name else _positive("data.dt", dt)
         values, labels, kept = _fill(values, labels, self.fill)
@@ -213,7 +215,27 @@ class Table(RecordedData):
                               "(data.errors=nan reads historian error codes and such values as missing values)")
         if bad.any():
             numbers = np.where(bad, np.nan, numbers)
+            # counted, not only replaced: a status code read as missing is said on stdout (_say_not_numbers)
+            self._not_numbers[name] = column.iloc[np.flatnonzero(bad)].astype("string").str.strip().value_counts()
         return numbers
+
+    def _say_not_numbers(self, shown: int = 5) -> None:
+        """One stdout line: the cells that were not numbers, per tag (most first, ``shown`` of them) and their
+        texts, e.g. ``data: 498 cells of plant.csv were not numbers (read as missing; data.fill=hold): tag70
+        326 "Bad", ...``; nothing when every cell was a number."""
+        if not self._not_numbers:
+            return
+        counts = sorted(self._not_numbers.items(), key=lambda item: -int(item[1].sum()))
+        total = sum(int(c.sum()) for _, c in counts)
+        parts = []
+        for name, texts in counts[:shown]:
+            said = ", ".join(f'"{t}" {n}' for t, n in texts.iloc[:2].items())
+            said = f'"{texts.index[0]}"' if len(texts) == 1 else f"({said}{', ...' * (len(texts) > 2)})"
+            parts.append(f"{name} {int(texts.sum())} {said}")
+        if len(counts) > shown:
+            parts.append(f"{len(counts) - shown} more tags {sum(int(c.sum()) for _, c in counts[shown:])}")
+        print(f"data: {total} cells of {self.path} were not numbers (read as missing; data.fill={self.fill}): "
+              + ", ".join(parts))
 
     def _labels(self, column, name: str) -> np.ndarray:
         import pandas as pd
