@@ -251,3 +251,68 @@ def test_monitor_on_a_locked_store_is_one_line_saying_so(tmp_path):
     assert result.returncode == 2, result.stderr[-3000:]
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and "locked by another process" in lines[0] and "damaged" not in lines[0], lines
+
+
+# ---------------------------------------------------------------------------------------
+# item 5: `mosd monitor` on every family's model
+# ---------------------------------------------------------------------------------------
+FAMILIES = ["pca", "dpca", "cva", "ica", "kpca", "sfa", "autoencoder", "tag_cusum", "tag_ewma"]
+
+
+def _monitor_a_runs_own_stream(tmp_path: Path, *run_args: str) -> None:
+    """Run with MLflow on, then re-score the run's test_stream.parquet with its logged model, as the README does."""
+    import re
+
+    import pandas as pd
+
+    run = _mosd(tmp_path, *run_args, "hydra.run.dir=run", "progress=false")
+    assert run.returncode == 0, run.stderr[-3000:]
+    model = re.search(r"model (models:/\S+)", run.stdout)
+    assert model, run.stdout[-3000:]
+    scored = _mosd(tmp_path / "run", "monitor", "--model", model.group(1), "--tracking-uri",
+                   f"sqlite:///{tmp_path / 'outputs' / 'mlflow.db'}", "--out", "scored.csv", "test_stream.parquet")
+    assert scored.returncode == 0 and "Traceback" not in scored.stderr, scored.stderr[-3000:]
+    stream = pd.read_parquet(tmp_path / "run" / "test_stream.parquet")
+    out = pd.read_csv(tmp_path / "run" / "scored.csv")
+    assert len(out) == len(stream) and f"{len(stream)} of {len(stream)} rows agree" in scored.stdout, scored.stdout
+    # the run's own alarms, row by row, and the first one named with its statistics beside their limits
+    assert out["alarm"].to_numpy(bool).tolist() == stream["alarm"].to_numpy(bool).tolist()
+    if stream["alarm"].any():
+        first = int(stream["alarm"].to_numpy(bool).argmax())
+        line = re.search(rf"first alarm at row {first}: (.+)", scored.stdout)
+        assert line and "(limit " in line.group(1), scored.stdout
+
+
+def test_monitor_rescores_a_cva_runs_own_stream(tmp_path):
+    """Before: rc 1, KeyError: 't2_smoothed' after scoring, --out never written."""
+    _labelled_csv(tmp_path / "plant.csv")
+    _monitor_a_runs_own_stream(tmp_path, *[a for a in TAB if a != "tracking=none"], "data.path=plant.csv",
+                               "detector=cva")
+
+
+def test_the_first_alarm_line_reads_each_familys_own_columns():
+    import pandas as pd
+
+    from mosd.app.monitor import first_alarm
+
+    cva = pd.DataFrame({"t2s": [1.0, 50.0], "t2s_smoothed": [1.0, 45.0], "t2s_limit": [43.6, 43.6],
+                        "q": [2.0, 30.0], "q_smoothed": [2.0, 20.0], "q_limit": [23.7, 23.7], "alarm": [False, True]})
+    assert first_alarm(cva, 1) == "first alarm at row 1: T2S 45 (limit 43.6), Q 20 (limit 23.7)"
+    pca = pd.DataFrame({"t2": [9.0], "t2_smoothed": [8.0], "t2_limit": [7.0], "spe": [1.0], "spe_smoothed": [0.5],
+                        "spe_limit": [2.0], "top_t2": ["TI-1"], "top_spe": ["TI-2"], "alarm": [True]})
+    assert first_alarm(pca, 0) == ("first alarm at row 0: T² 8 (limit 7), SPE 0.5 (limit 2); top T² TI-1, "
+                                   "top SPE TI-2")
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("family", FAMILIES)
+def test_monitor_rescores_every_familys_run_on_a_table(tmp_path, family):
+    _labelled_csv(tmp_path / "plant.csv")
+    _monitor_a_runs_own_stream(tmp_path, *[a for a in TAB if a != "tracking=none"], "data.path=plant.csv",
+                               f"detector={family}")
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("family", ["cva", "tag_ewma"])
+def test_monitor_rescores_a_te_run(tmp_path, family):
+    _monitor_a_runs_own_stream(tmp_path, "+experiment=tep", "debug=tiny", f"detector={family}")

@@ -190,6 +190,34 @@ def score_file(model, frame, chunk: int = 1000, progress: bool = False):
     return pd.concat(parts) if parts else model.predict(frame)
 
 
+#: how the first-alarm line names a statistic (the rest by their column name, upper case: T2S, Q, I2E, CUSUM)
+STATISTIC_NAMES = {"t2": "T²", "spe": "SPE"}
+
+
+def first_alarm(out, first: int) -> str:
+    """The line on the first alarm: each statistic beside its limit, and the tags behind it where the model names them.
+
+    Read from the output's columns, whatever the family: a chart's ``statistic``/``limit`` (and its subgroup),
+    else every ``<name>_limit`` with the statistic it applies to, ``<name>_smoothed`` where the design smooths
+    (λ < 1) else ``<name>`` (PCA's T² and SPE, CVA's T2S, T2R and Q, a per-tag chart's EWMA or CUSUM, ...),
+    then every ``top_<name>`` column. Naming PCA's columns here crashed on every other family's model.
+    """
+    row = out.iloc[first]
+    if "statistic" in out.columns:  # a chart, a threshold or a CUSUM on a stream
+        where = f" (subgroup {row['subgroup']})" if "subgroup" in out.columns else ""
+        return f"first alarm at row {first}{where}: statistic {row['statistic']:.4g} (limit {row['limit']:.4g})"
+    columns = list(out.columns)
+    shown = []
+    for column in columns:
+        name = column.removesuffix("_limit")
+        statistic = next((c for c in (f"{name}_smoothed", name) if c in columns), None)
+        if column.endswith("_limit") and statistic is not None:
+            shown.append(f"{STATISTIC_NAMES.get(name, name.upper())} {row[statistic]:.4g} (limit {row[column]:.4g})")
+    tops = [f"top {STATISTIC_NAMES.get(c[4:], c[4:].upper())} {row[c]}" for c in columns if c.startswith("top_")]
+    return (f"first alarm at row {first}" + (": " + ", ".join(shown) if shown else "")
+            + ("; " + ", ".join(tops) if tops else ""))
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     args = parser().parse_args(argv)
     try:
@@ -258,15 +286,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     else:
         print(f"{path}: {len(out)} rows, {int(alarms.sum())} alarms ({alarms.mean() if len(out) else 0:.4f} of rows)")
     if alarms.any():
-        first = int(alarms.argmax())
-        row = out.iloc[first]
-        if "statistic" in out.columns:  # a chart, a threshold or a CUSUM on a stream
-            where = f" (subgroup {row['subgroup']})" if "subgroup" in out.columns else ""
-            print(f"first alarm at row {first}{where}: statistic {row['statistic']:.4g} (limit {row['limit']:.4g})")
-        else:  # the statistics the limits apply to: smoothed when the design smooths (λ < 1)
-            print(f"first alarm at row {first}: T² {row['t2_smoothed']:.4g} (limit {row['t2_limit']:.4g}), SPE "
-                  f"{row['spe_smoothed']:.4g} (limit {row['spe_limit']:.4g}); top T² {row['top_t2']}, "
-                  f"top SPE {row['top_spe']}")
+        print(first_alarm(out, int(alarms.argmax())))
     if "alarm" in reference:
         same = int(np.sum(out["run_alarm"].to_numpy(bool) == alarms))
         print(f"the run's own alarms: {same} of {len(out)} rows agree"
