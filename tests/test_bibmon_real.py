@@ -59,7 +59,7 @@ def test_export_labels_the_tutorials_fault_window_and_keeps_every_cell(source, e
 
 def test_tutorial_rows_match_bibmons_own_split(source, exported):
     bibmon = pytest.importorskip("bibmon")
-    data = bibmon.load_real_data()
+    data = pd.read_csv(source, index_col=0, parse_dates=True)  # what bibmon.load_real_data reads
     t = bibmon_real.TUTORIAL
     train, validation, test = bibmon.train_val_test_split(data, t["start"], t["training"], t["validation"],
                                                           t["test"], tags_Y=data.columns[0])[:3]
