@@ -316,3 +316,27 @@ def test_monitor_rescores_every_familys_run_on_a_table(tmp_path, family):
 @pytest.mark.parametrize("family", ["cva", "tag_ewma"])
 def test_monitor_rescores_a_te_run(tmp_path, family):
     _monitor_a_runs_own_stream(tmp_path, "+experiment=tep", "debug=tiny", f"detector={family}")
+
+
+@pytest.mark.slow
+def test_a_run_on_a_locked_store_keeps_its_results_and_mosd_log_completes_it(tmp_path):
+    """Before: rc 2 '… is damaged (OperationalError: database is locked); allowed: … move the file aside'."""
+    _labelled_csv(tmp_path / "plant.csv")
+    tab = [a for a in TAB if a != "tracking=none"]
+    assert _mosd(tmp_path, *tab, "data.path=plant.csv").returncode == 0  # a healthy store with one run
+    db = tmp_path / "outputs" / "mlflow.db"
+    holder = _hold(db)
+    try:
+        result = _mosd(tmp_path, *tab, "data.path=plant.csv", "hydra.run.dir=locked")
+    finally:
+        holder.close()
+    assert result.returncode == 3, result.stderr[-3000:]
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and "locked by another process" in lines[0], result.stderr[-3000:]
+    assert "damaged" not in result.stderr + result.stdout and "aside" not in result.stderr + result.stdout
+    summary = json.loads((tmp_path / "locked" / "summary.json").read_text())
+    assert summary["status"] == "finished" and summary["test"] and summary["tracking"]["logged"] is False
+    logged = _mosd(tmp_path, "log", "locked")
+    assert logged.returncode == 0, logged.stderr[-3000:]
+    _, runs = _runs(f"sqlite:///{db}")
+    assert sorted(r.info.status for r in runs) == ["FINISHED", "FINISHED"]
