@@ -72,7 +72,7 @@ import numpy as np
 
 from .timing import best_of
 
-SECTIONS = ("candidates", "filter", "parallel", "main", "tuning", "zdt", "tep", "serve", "scale")
+SECTIONS = ("candidates", "filter", "parallel", "main", "tuning", "zdt", "tep", "skab", "serve", "scale")
 DEFAULT_SECTIONS = ("candidates", "filter", "parallel", "tuning")
 #: what ``--json`` runs by default: every section that feeds a JSON key
 JSON_SECTIONS = ("candidates", "filter", "parallel", "main", "tep", "serve")
@@ -656,6 +656,32 @@ def _with_monitor(r: dict, quick: bool) -> tuple[list, dict]:
                        t2_spe_floor_speedup_vs_bibmon=m["t2_spe_floor_rows_per_s"] / m["bibmon_rows_per_s"],
                        # the same SPE (a flag: the JSON's 6 decimals would print 2e-14 as 0)
                        bibmon_spe_agrees=int(m["bibmon_spe_max_relative_difference"] < 1e-9))
+    return rows, figures
+
+
+def bench_skab(quick: bool = False) -> tuple[list, dict]:
+    """SKAB under its protocol (mosd.systems.skab): every family's 5-fold CV and one family's, wall seconds.
+
+    Needs SKAB's data folder in ``MOSD_SKAB`` (GPL-3.0: never shipped); the issue's targets are all families
+    within 10 minutes and one within 2 on 2 cores. ``--quick``: DPCA alone.
+    """
+    import io
+
+    from .systems.skab import study
+    from .systems.skab_study import FAMILIES
+
+    root = os.environ.get("MOSD_SKAB", "").strip()
+    if not root or not os.path.isdir(root):
+        return [("skipped: MOSD_SKAB does not name SKAB's data folder", float("nan"), "")], {}
+    rows, figures = [], {}
+    for label, families in (("dpca", ("dpca",)), *(() if quick else (("families", FAMILIES),))):
+        t0 = time.perf_counter()
+        result = study(root, families, seed=0, log=io.StringIO())
+        seconds = time.perf_counter() - t0
+        load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+        rows.append((f"{label}: 34 experiments, 5-fold CV, 5 budgets, s", seconds,
+                     f"{len(families)} famil{'y' if len(families) == 1 else 'ies'} + the T²+Q row; load {load:.1f}"))
+        figures[f"skab_{label}_s"] = seconds
     return rows, figures
 
 

@@ -95,3 +95,23 @@ def test_json_line_leaves_out_what_is_not_a_finite_number(capsys, monkeypatch):
     result = json.loads(capsys.readouterr().out, parse_constant=lambda name: pytest.fail(f"bare {name} in the JSON"))
     assert result["tep_c"] == 1.234568 and result["tep_d"] == 3
     assert not {"tep_a", "tep_b", "load_average_1min"} & set(result)
+
+
+def test_the_skab_section_says_it_skipped_without_the_data_and_times_dpca_with_it(monkeypatch, capsys):
+    """``--only skab``: one row naming MOSD_SKAB when the folder is not given; with SKAB's files (as CI sets
+    MOSD_SKAB), ``--quick`` times DPCA's whole cross-validated study and writes ``skab_dpca_s``."""
+    import json
+    import os
+
+    from mosd import bench
+
+    real = os.environ.get("MOSD_SKAB", "")
+    monkeypatch.delenv("MOSD_SKAB", raising=False)
+    rows, figures = bench.bench_skab(quick=True)
+    assert figures == {} and "MOSD_SKAB" in rows[0][0]
+    if not real:
+        return
+    monkeypatch.setenv("MOSD_SKAB", real)
+    assert bench.main(["--json", "--only", "skab", "--quick"]) == 0
+    out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert 0 < out["skab_dpca_s"] < 600 and "skab_families_s" not in out
