@@ -209,6 +209,21 @@ def test_a_locked_healthy_store_is_locked_never_damaged(tmp_path):
     assert store.sqlite_store_state(db).state == "ok"
 
 
+def test_report_on_a_locked_store_says_locked_in_one_line(tmp_path, capsys):
+    """Before: 'the store … is damaged (OperationalError: database is locked …)'."""
+    from mosd.app import report
+    from test_reliability import make_store
+
+    db = make_store(tmp_path / "mlflow.db", n_runs=2)
+    holder = _hold(db)
+    try:
+        assert report.main(["--tracking-uri", f"sqlite:///{db}"]) == 2
+    finally:
+        holder.close()
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and "locked by another process" in lines[0] and "damaged" not in lines[0], lines
+
+
 def test_a_run_never_moves_a_locked_store_aside(tmp_path, monkeypatch):
     from mosd.app import store
     from test_reliability import make_store

@@ -350,15 +350,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         args = parser.parse_args(list(sys.argv[1:] if argv is None else argv))
         if args.tracking_uri.startswith("sqlite:///"):
-            from .store import sqlite_path, sqlite_store_state
+            from .store import refusal, sqlite_path, sqlite_store_state
 
             db = sqlite_path(args.tracking_uri)
             if db is None or not db.is_file():
                 raise ReportError(f"--tracking-uri={args.tracking_uri!r}: no such database (run mosd first)")
             state = sqlite_store_state(db)
-            if state.state not in ("ok", "empty"):
-                raise ReportError(f"--tracking-uri={args.tracking_uri!r}: the store {db} is damaged ({state.detail}); "
-                                  f"allowed: a healthy MLflow store")
+            if state.state not in ("ok", "empty"):  # a locked store is said to be locked, never damaged (issue 53)
+                raise ReportError(f"--tracking-uri={args.tracking_uri!r}: {refusal(db, state)}")
         rows = collect(args.tracking_uri, args.experiment, latest_only=not args.all)
         columns = select_columns(rows, args.metrics) if rows and args.metrics is not None else None
     except ReportError as exc:
