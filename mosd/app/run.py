@@ -108,6 +108,25 @@ def ui_line(uri: str, experiment_id: str) -> str:
             f"{runs_address('http://127.0.0.1:5000', experiment_id)}")
 
 
+def rescoring_command(model_uri: str, run_dir: Path, tracking_uri: str) -> str:
+    """The command that re-scores a run's own test stream, as typed from where the user stands (issue 51: the bare
+    file name failed there with 'no such file'); the store is named when it is not the default one."""
+    import os
+    import shlex
+
+    from .settings import default_tracking_uri
+
+    stream = Path(run_dir) / STREAM_FILE
+    try:
+        shown = os.path.relpath(stream)
+    except ValueError:  # another drive (Windows)
+        shown = str(stream)
+    command = f"python -m mosd monitor --model {model_uri} {shlex.quote(shown)}"
+    if tracking_uri != default_tracking_uri():
+        command += f" --tracking-uri {shlex.quote(redacted(tracking_uri))}"
+    return command
+
+
 def recorded_labels(labels: dict[str, str]) -> dict[str, str]:
     """A recorded-data run's labels without plant, noise and fault: the data took their place."""
     if not labels.get("data"):
@@ -313,7 +332,7 @@ def run(cfg, started: float | None = None, checked=None):
                 if tracker.model_uri:
                     record_model(run_dir, deployment, model_file, uri=tracker.model_uri)
                     tracking_line += (f"\n          model {tracker.model_uri} (runs:/{run_id}/detector): "
-                                      f"python -m mosd monitor --model {tracker.model_uri} {STREAM_FILE}")
+                                      f"{rescoring_command(tracker.model_uri, run_dir, tracker.settings.uri)}")
                 elif tracker.model_error:
                     tracking_line += f"\n          model NOT LOGGED: {tracker.model_error}"
                 elif deployment.reason:
