@@ -73,3 +73,13 @@ def test_the_tuning_keeps_a_fixed_parameter_at_its_value_and_refuses_a_reversed_
     assert np.all(np.atleast_2d(result.X)[:, column] == 2)
     with pytest.raises(ConfigError, match=r"bounds.n_components=\[3, 2\] is not allowed; allowed: low <= high"):
         TuningProblem(evaluator, bounds={"n_components": (3, 2)}, n_jobs=1)
+
+
+def test_tep_table_report_on_one_tag_is_one_line(tmp_path, capsys):
+    """Before: 'detector.n_components=0 is out of range' from ``python -m mosd.systems.tep --table``."""
+    from mosd.systems import tep
+
+    path = _table(tmp_path / "one.csv", n_tags=1)
+    assert tep.main(["--table", str(path), "--label-column", "fault", "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "1 tag(s)" in err and "detector=tag_ewma" in err and "n_components=0" not in err, err

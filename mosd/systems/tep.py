@@ -542,6 +542,10 @@ def main(argv=None) -> int:
         table = Table(args.table, time_column=time_column, label_column=args.label_column,
                       splits={"calibration": [0.0, 0.5], "training": [0.5, 0.75], "test": [0.75, 1.0]})
         a = min(LITERATURE["n_components"], len(table.output_names) - 1)
+        if a < 1:  # a PCA of one tag has no residual space (issue 53: 'detector.n_components=0 is out of range')
+            raise ConfigError(f"--table {args.table}: {len(table.output_names)} tag(s) ({', '.join(table.output_names)}"
+                              "); allowed: a table of two or more tags (PCA's T² and SPE need a residual space), or "
+                              "a per-tag detector: python -m mosd +experiment=table detector=tag_ewma")
         detector = PCADetector(**{**LITERATURE, "n_components": a})
         result = monitor_table(table, detector)
         print(f"{table!r}: fitted on rows {table.file_rows('calibration')[0]}-{table.file_rows('calibration')[1]} "
