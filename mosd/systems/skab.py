@@ -11,8 +11,11 @@ Keys (``--json`` prints them as one JSON object): ``skab_far_<family>_b<budget>`
 ``skab_lit_t2q_f1``. ``--out DIR`` writes ``skab_front.png`` (FAR against MAR: the leaderboard's points and each
 family's front) and ``skab_benchmark.json`` (every row with its designs per fold). ``--wide-box`` adds the
 labelled rows ``<family>_wide`` (keys ``skab_far_<family>_wide_b<budget>`` ...): a box widened after the first
-results were seen, :data:`mosd.systems.skab_study.WIDE`, never a headline row. The data are SKAB's
-``data/`` folder (GPL-3.0, never shipped: :mod:`mosd.data.skab` reads it).
+results were seen, :data:`mosd.systems.skab_study.WIDE`, never a headline row. ``--ideas`` (default off, so the
+headline command's output is unchanged) adds the labelled rows of :data:`mosd.systems.skab_ideas.IDEAS`, design
+ideas tried after the first results (keys ``skab_far_<idea>_b<budget>`` ..., each row marked "added after the
+first results, 2026-11-29", dashed in the figure). The data are SKAB's ``data/`` folder (GPL-3.0, never shipped:
+:mod:`mosd.data.skab` reads it).
 """
 from __future__ import annotations
 
@@ -28,6 +31,7 @@ import numpy as np
 
 from ..data.skab import ANOMALY_GROUPS, check_groups, check_root, read_experiments
 from ..validation import ConfigError
+from .skab_ideas import ADDED, IDEAS, run_idea
 from .skab_study import FAMILIES, WIDE, WIDE_LABEL, check_families, run_family
 from .skab_t2q import literature_rows
 
@@ -63,6 +67,7 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--test-groups", help="score these folders only (comma-separated)")
     p.add_argument("--wide-box", action="store_true", help="also the labelled rows <family>_wide: "
                    + WIDE_LABEL)
+    p.add_argument("--ideas", action="store_true", help=f"also the labelled rows {', '.join(IDEAS)}: {ADDED}")
     return p
 
 
@@ -78,8 +83,11 @@ def _groups(text: str | None, option: str) -> tuple[str, ...] | None:
 
 
 def study(root, families: Sequence[str] = (), seed: int = 0, train_groups=None, test_groups=None,
-          log=sys.stderr, wide: bool = False) -> dict:
-    """Everything the CLI prints: ``{"literature", "families", "keys", "seconds", "scored"}`` (module docstring)."""
+          log=sys.stderr, wide: bool = False, ideas: Sequence[str] = ()) -> dict:
+    """Everything the CLI prints: ``{"literature", "families", "keys", "seconds", "scored"}`` (module docstring).
+
+    ``ideas``: names among :data:`mosd.systems.skab_ideas.IDEAS`, run after the families, their rows labelled.
+    """
     experiments = read_experiments(root, key="--root")
     if (train_groups is None) != (test_groups is None):
         raise ConfigError("--train-groups and --test-groups go together; allowed: both (disjoint folders) or "
@@ -100,6 +108,8 @@ def study(root, families: Sequence[str] = (), seed: int = 0, train_groups=None, 
         # the labelled variant (skab_study.WIDE): after the headline rows, never in their place
         rows.update({f"{f}_wide": {**run_family(f, experiments, seed, train, test, log, WIDE), "label": WIDE_LABEL}
                      for f in families})
+    # the labelled ideas (skab_ideas): after every other row, never in their place
+    rows.update({name: run_idea(name, experiments, seed, train, test, log) for name in ideas})
     mode = "CV" if train is None else f"tuned on {','.join(train_groups)},"
     return {"literature": literature, "families": rows, "keys": keys(literature, rows), "mode": mode,
             "seconds": time.perf_counter() - t0, "scored": [e.name for e in scored],
@@ -124,7 +134,8 @@ def table_rows(result: dict) -> list[tuple[str, float, float, float]]:
         rows.append((label, r["f1"], r["far"], r["mar"]))
     for family, res in result["families"].items():
         for budget, r in res["budgets"].items():
-            note = " (labelled: box widened after the first results)" if "label" in res else ""
+            note = (f" ({res['added']})" if "added" in res
+                    else " (labelled: box widened after the first results)" if "label" in res else "")
             rows.append((f"mosd: {family}{note}, {result.get('mode', 'CV')} FAR budget {budget} %", r["f1"], r["far"],
                          r["mar"]))
     return sorted(rows, key=lambda r: -round(r[1], 2))
@@ -179,12 +190,14 @@ def figure(result: dict, path: Path) -> Path:
     ax.scatter(lit["far"], lit["mar"], color="k", marker="x", s=60, label="T²+Q reproduced (mosd)")
     for family, res in result["families"].items():
         pts = np.array([(r["far"], r["mar"]) for r in res["budgets"].values()])
-        ax.plot(pts[:, 0], pts[:, 1], marker="o", label=f"{family} (CV front)")
+        added = "added" in res  # the labelled ideas: dashed, marked in the legend
+        ax.plot(pts[:, 0], pts[:, 1], marker="o", linestyle="--" if added else "-",
+                label=f"{family} ({'added 2026-11-29, ' if added else ''}CV front)")
     ax.set_xlabel("FAR %")
     ax.set_ylabel("MAR %")
     ax.set_title("SKAB: FAR against MAR (SKAB's binary metric, test rows of every experiment)")
     ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=7)
+    ax.legend(fontsize=7 if len(result["families"]) < 12 else 5)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
@@ -218,7 +231,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             except OSError as error:
                 raise ConfigError(f"--out={args.out!r} cannot be a folder ({error.strerror}); allowed: a folder "
                                   "this user can create or write") from None
-        result = study(args.root, families, args.seed, train, test, wide=args.wide_box)
+        result = study(args.root, families, args.seed, train, test, wide=args.wide_box,
+                       ideas=tuple(IDEAS) if args.ideas else ())
     except ConfigError as error:
         print(f"error: {error}", file=sys.stderr)
         return 2

@@ -258,15 +258,17 @@ def choose(tp: np.ndarray, fp: np.ndarray, pos: float, neg: float, budget: float
 
 
 def run_family(family: str, experiments, seed: int = 0, train: np.ndarray | None = None,
-               test: np.ndarray | None = None, log=sys.stderr, box: Box = HEADLINE) -> dict:
+               test: np.ndarray | None = None, log=sys.stderr, box: Box = HEADLINE, statistics=None) -> dict:
     """The protocol on one family: ``{"budgets": {b: row}, "seconds": wall time}`` (module docstring).
 
     ``train``/``test``: boolean masks over ``experiments`` (protocol item 6); None: 5-fold cross-validation.
     Each row: SKAB's binary scores, per-folder scores, the delay table's entry and each fold's design.
+    ``statistics``: a callable with :func:`family_statistics`' signature filling ``Prepared.statistics`` for a
+    family outside :data:`FAMILIES` (the labelled ideas of :mod:`mosd.systems.skab_ideas`); None: that function.
     """
     t0 = time.perf_counter()
     prepared = [prepare(e) for e in experiments]
-    family_statistics(family, prepared, seed, log, box)
+    (statistics or family_statistics)(family, prepared, seed, log, box)
     per = [design_counts(p, box) for p in prepared]
     TP, FP = np.array([c[0] for c in per]), np.array([c[1] for c in per])
     pos = np.array([p.truth.sum() for p in prepared], float)
@@ -288,7 +290,7 @@ def run_family(family: str, experiments, seed: int = 0, train: np.ndarray | None
                            "scored": [prepared[i].name for i in np.flatnonzero(te)]})
         out[budget] = _scored_row(prepared, chosen, tuning, box)
     seconds = time.perf_counter() - t0
-    name = family if box is HEADLINE else f"{family} (wide box)"
+    name = f"{family} (wide box)" if box is WIDE else family
     print(f"skab: {name}: {len(grid)} designs x {len(prepared)} experiments, {len(splits)} tuning split(s), "
           f"{seconds:.1f} s", file=log, flush=True)
     return {"budgets": out, "seconds": seconds}
