@@ -129,6 +129,17 @@ def kth_largest(x: np.ndarray, k: int, n: int) -> np.ndarray:
 
     A value above a limit ⇔ at least ``k`` of the last ``n`` values above it, so a limit on this series is a
     k-of-n vote over the statistic's own exceedances; NaN (a row not scored) counts as below every limit.
+
+    Parameters
+    ----------
+    x : ndarray, shape (K,)
+        A statistic over an experiment's rows (NaN where not scored).
+    k, n : int
+        1 ≤ k ≤ n: the rank from the top and the trailing window's rows.
+
+    Returns
+    -------
+    ndarray, shape (K,)
     """
     x = np.asarray(x, float)
     padded = np.concatenate([np.full(n - 1, -np.inf), np.where(np.isfinite(x), x, -np.inf)])
@@ -142,6 +153,19 @@ def cusum(x: np.ndarray, fit: int, allowance: float) -> np.ndarray:
 
     Upward only: T², SPE and the other statistics here alarm on large values. A NaN row (no lagged past yet)
     leaves S unchanged and stays NaN (not scored).
+
+    Parameters
+    ----------
+    x : ndarray, shape (K,)
+        A statistic over an experiment's rows.
+    fit : int
+        The fit rows (the first ``fit``), the only ones the mean and standard deviation (ddof = 1) come from.
+    allowance : float
+        k, in standard deviations.
+
+    Returns
+    -------
+    ndarray, shape (K,)
     """
     x = np.asarray(x, float)
     on_fit = x[:fit][np.isfinite(x[:fit])]
@@ -233,8 +257,26 @@ def idea_statistics(family: str, prepared: Sequence, seed: int, log=sys.stderr, 
 
 def run_idea(name: str, experiments, seed: int = 0, train: np.ndarray | None = None,
              test: np.ndarray | None = None, log=sys.stderr) -> dict:
-    """The headline protocol on one idea of :data:`IDEAS`: :func:`~mosd.systems.skab_study.run_family`'s result
-    with ``label`` (what the idea changes) and ``added`` (:data:`ADDED`)."""
+    """The headline protocol on one idea of :data:`IDEAS`.
+
+    Parameters
+    ----------
+    name : str
+        A key of :data:`IDEAS`.
+    experiments : sequence of mosd.data.skab.SkabExperiment
+    seed : int
+        The folds' seed.
+    train, test : ndarray of bool, optional
+        As :func:`~mosd.systems.skab_study.run_family` takes them (None: 5-fold cross-validation).
+    log : file
+        One progress line per idea.
+
+    Returns
+    -------
+    dict
+        :func:`~mosd.systems.skab_study.run_family`'s result with ``label`` (:data:`ADDED` and what the idea
+        changes) and ``added`` (:data:`ADDED`).
+    """
     idea = IDEAS[name]
     tags = {e.name: [t for t, k in zip(e.tags, varying_columns(e.values[: e.fit_rows])) if k] for e in experiments}
     out = run_family(name, experiments, seed, train, test, log, idea.box,
