@@ -61,7 +61,7 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--families", action="store_true", help=f"every family: {', '.join(FAMILIES)}")
     p.add_argument("--family", action="append", nargs="+", default=[], metavar="NAME", help="one or more families")
     p.add_argument("--seed", type=int, default=0, help="the folds', FastICA's and the autoencoder's seed")
-    p.add_argument("--json", action="store_true", help="print the keys as one JSON object (no tables)")
+    p.add_argument("--json", action="store_true", help="print the keys as one JSON object on stdout, the tables on stderr")
     p.add_argument("--out", help="folder for skab_front.png and skab_benchmark.json")
     p.add_argument("--train-groups", help="tune on these folders only (comma-separated), no cross-validation")
     p.add_argument("--test-groups", help="score these folders only (comma-separated)")
@@ -239,7 +239,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     if out is not None:
         figure(result, out / "skab_front.png")
         (out / "skab_benchmark.json").write_text(json.dumps(_clean(result), indent=1))
-    if args.json:
+    if args.json:  # the keys on stdout for a pipe, the tables on stderr for the reader (as mosd.bench --json)
+        print(report(result), file=sys.stderr)
         print(json.dumps(result["keys"], indent=1, sort_keys=True))
     else:
         print(report(result))
