@@ -110,7 +110,8 @@ def ui_line(uri: str, experiment_id: str) -> str:
 
 def rescoring_command(model_uri: str, run_dir: Path, tracking_uri: str) -> str:
     """The command that re-scores a run's own test stream, as typed from where the user stands (issue 51: the bare
-    file name failed there with 'no such file'); the store is named when it is not the default one."""
+    file name failed there with 'no such file'); the store is named when it is not the one ``mosd monitor`` reads
+    by default."""
     import os
     import shlex
 
@@ -122,7 +123,8 @@ def rescoring_command(model_uri: str, run_dir: Path, tracking_uri: str) -> str:
     except ValueError:  # another drive (Windows)
         shown = str(stream)
     command = f"python -m mosd monitor --model {model_uri} {shlex.quote(shown)}"
-    if tracking_uri != default_tracking_uri():
+    # the store mosd monitor reads without --tracking-uri: $MLFLOW_TRACKING_URI, else the default one
+    if tracking_uri != (os.environ.get("MLFLOW_TRACKING_URI") or default_tracking_uri()):
         command += f" --tracking-uri {shlex.quote(redacted(tracking_uri))}"
     return command
 
