@@ -163,8 +163,9 @@ class Table(RecordedData):
             reference = values[calibration][normal]
             spread = np.nanstd(reference, axis=0, ddof=1)
             level = np.nanmean(np.abs(reference), axis=0)
-        # relative: the std of a constant 0.0888 comes out as 1e-17, not 0
-        constant = ~(spread > 1e-12 * np.maximum(1.0, level))
+        # relative to the tag's own level: the std of a constant 0.0888 comes out as 1e-17, not 0, while a tag in
+        # units of 1e-14 varies by 1e-14 (issue 53: an absolute floor of 1e-12 called it constant and dropped it)
+        constant = ~(spread > 1e-12 * level)
         if constant.all():
             raise ConfigError(f"data.tags: every tag of {self.path} is constant over the calibration rows; "
                               "allowed: tags that vary")
@@ -420,13 +421,27 @@ def _read(path: Path):
                 raise ConfigError('data=table needs pyarrow for Parquet files: pip install ".[table]"') from None
             return pd.read_parquet(path)
         if path.suffix.lower() == ".csv" or suffixes.endswith((".csv.gz", ".csv.bz2", ".csv.zip")):
-            return pd.read_csv(path)
+            frame = pd.read_csv(path)
+            _check_unique_header(pd.read_csv(path, header=None, nrows=1, dtype=str).iloc[0].tolist(), path)
+            return frame
     except ConfigError:
         raise
     except Exception as exc:
         raise ConfigError(f"data.path={str(path)!r} cannot be read: {type(exc).__name__}: "
                           f"{' '.join(str(exc).split())}") from None
     raise ConfigError(f"data.path={str(path)!r} is neither CSV nor Parquet; allowed: .csv, .csv.gz, .parquet")
+
+
+def _check_unique_header(names: list, path: Path) -> None:
+    """A column named twice is refused: pandas would rename the second ``TI-0.1`` and run it as another tag."""
+    seen: set = set()
+    for position, name in enumerate(names):
+        if not isinstance(name, str):  # an empty cell: pandas names it "Unnamed: N", unique by position
+            continue
+        if name in seen:
+            raise ConfigError(f"data.path={str(path)!r}: column {name!r} is named twice (again at position {position}); "
+                              "allowed: a header whose column names are unique")
+        seen.add(name)
 
 
 def _fill(values: np.ndarray, labels: np.ndarray, fill: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
