@@ -39,3 +39,20 @@ def test_a_column_named_twice_is_refused_in_one_line(tmp_path):
     with pytest.raises(ConfigError, match=r"column 'TI-0' is named twice \(again at position 2\); allowed") as info:
         Table(path, label_column="fault")
     assert "\n" not in str(info.value)
+
+
+def test_iso_times_whose_offset_changes_at_dst_are_one_clock(tmp_path):
+    """Before: 'row 0 holds '2024-03-31T01:00:00+01:00', not a time' (Europe's spring change, +01:00 -> +02:00)."""
+    utc = pd.date_range("2024-03-31T00:00:00Z", periods=600, freq="60s")
+    local = utc.tz_convert("Europe/Berlin")
+    frame = _frame()
+    frame.insert(0, "time", [t.isoformat() for t in local])
+    assert frame["time"].str.endswith("+01:00").any() and frame["time"].str.endswith("+02:00").any()
+    frame.to_csv(tmp_path / "dst.csv", index=False)
+    table = Table(tmp_path / "dst.csv", time_column="time", label_column="fault")
+    assert table.dt == pytest.approx(60.0)
+    # a column mixing stamps with and without an offset has no one clock: still refused, naming the row
+    frame.loc[5, "time"] = "2024-03-31T00:05:00"
+    frame.to_csv(tmp_path / "mixed.csv", index=False)
+    with pytest.raises(ConfigError, match=r"column 'time' row 0 holds .* not a time"):
+        Table(tmp_path / "mixed.csv", time_column="time", label_column="fault")

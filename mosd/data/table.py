@@ -275,7 +275,7 @@ class Table(RecordedData):
                 try:
                     stamps = pd.to_datetime(column, errors="coerce")
                 except (ValueError, TypeError, OverflowError):  # mixed time zones, and the like
-                    stamps = pd.Series(pd.NaT, index=column.index)
+                    stamps = _offset_stamps(column)
             bad = stamps.isna().to_numpy()
             seconds = None
             if not bad.all():
@@ -430,6 +430,28 @@ def _read(path: Path):
         raise ConfigError(f"data.path={str(path)!r} cannot be read: {type(exc).__name__}: "
                           f"{' '.join(str(exc).split())}") from None
     raise ConfigError(f"data.path={str(path)!r} is neither CSV nor Parquet; allowed: .csv, .csv.gz, .parquet")
+
+
+#: an ISO-8601 time's UTC offset at its end: Z, +01:00, -0500
+_OFFSET = r"(?:Z|[+-]\d{2}:?\d{2})$"
+
+
+def _offset_stamps(column):
+    """Timestamps whose UTC offsets differ from row to row (a DST change: +01:00, then +02:00) on one clock, UTC.
+
+    pandas refuses a column of mixed offsets unless told to convert to UTC; that is right only when every stamp
+    carries its offset (a naive stamp's zone is unknown), so a column mixing both stays unparsed (refused).
+    """
+    import pandas as pd
+
+    text = column.astype("string").str.strip()
+    given = text.notna() & (text != "")
+    if not text[given].str.contains(_OFFSET, regex=True).all():
+        return pd.Series(pd.NaT, index=column.index)
+    try:
+        return pd.to_datetime(column, errors="coerce", utc=True, format="ISO8601")
+    except (ValueError, TypeError, OverflowError):
+        return pd.Series(pd.NaT, index=column.index)
 
 
 def _check_unique_header(names: list, path: Path) -> None:
