@@ -83,3 +83,18 @@ def test_tep_table_report_on_one_tag_is_one_line(tmp_path, capsys):
     assert tep.main(["--table", str(path), "--label-column", "fault", "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and "1 tag(s)" in err and "detector=tag_ewma" in err and "n_components=0" not in err, err
+
+
+def test_report_commands_check_their_output_folders_before_the_work(tmp_path, capsys):
+    """Before: ``tep --export /proc/te_csv`` and ``tep --families --out /proc/fam`` ended in a FileNotFoundError
+    traceback, the second after its tuning had run."""
+    import time
+
+    from mosd.systems import tep
+
+    for argv in (["--export", "/proc/te_csv"], ["--families", "--family", "pca", "--out", "/proc/fam"]):
+        t0 = time.perf_counter()
+        assert tep.main(argv) == 2
+        err = capsys.readouterr().err.strip()
+        assert "\n" not in err and "cannot be written" in err and argv[-1] in err, err
+        assert time.perf_counter() - t0 < 5.0  # refused before any tuning (the tuning takes minutes)
