@@ -206,3 +206,17 @@ def test_d00_te_lead_in_calibrates_no_test_far(tmp_path):
         scores.append(tep.at_operating_point(experiment, tep.literature_design(experiment, "pca")))
     assert scores[0]["params"]["alpha"] == scores[1]["params"]["alpha"]
     assert scores[0]["far"] == scores[1]["far"] and scores[0]["train"] == scores[1]["train"]
+
+
+def test_a_flatline_ablation_below_the_floor_is_refused_before_any_tuning(tmp_path, capsys):
+    """Before: ``--flatline 0.05`` was refused ('detector.flatline=0.05 is out of range') after the headline tuning."""
+    import time
+
+    from mosd.detectors.latent import lam_floor
+    from mosd.systems import tep
+
+    t0 = time.perf_counter()
+    assert tep.main(["--families", "--family", "pca", "--flatline", "0.05", "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "--flatline=0.05" in err and f"({lam_floor(160):g}, 1]" in err, err
+    assert time.perf_counter() - t0 < 5.0 and not (tmp_path / "o").exists()

@@ -381,6 +381,19 @@ def flatline_value(text: str) -> float | None:
     return value
 
 
+def check_flatline_floor(values) -> None:
+    """Refuse an ablation λ_f below the floor the held-back calibration runs (TE's 160-row lead-ins) can judge
+    before any tuning, not after the headline rows' (issue 53: ``--flatline 0.05`` was refused minutes in)."""
+    from ..data.tep import SEGMENT
+    from ..detectors.latent import lam_floor
+
+    floor = min(lam_floor(SEGMENT), 1.0)
+    low = next((v for v in values if v is not None and v <= floor), None)
+    if low is not None:
+        raise ConfigError(f"--flatline={low:g} is below what the {SEGMENT}-row held-back calibration runs can judge; "
+                          f"allowed: off or a number in ({floor:g}, 1]")
+
+
 def headline(results: Mapping[str, dict]) -> dict[str, dict]:
     """The headline designs of a family table: tuned and literature, none with the frozen-tag statistic."""
     return {n: r for n, r in results.items() if "label" not in r and "ablation" not in r}
@@ -392,6 +405,7 @@ def families_report(args) -> list[Path]:
     check_int("--pop-size", args.pop_size, 2, 10_000)
     check_int("--n-gen", args.n_gen, 1, 10_000)
     ablation = tuple(flatline_value(v) for v in args.flatline or ())
+    check_flatline_floor(ablation)
     results = family_study(args.directory, tuple(args.family or FAMILIES), args.pop_size, args.n_gen,
                            seed=args.seed, flat=not args.no_flatline_rows, flatline_ablation=ablation)
     main_rows = headline(results)
