@@ -165,6 +165,18 @@ class RecordedData:
         return self.fault_names[label - 1] if 0 < label <= len(self.fault_names) else f"fault {label}"
 
 
+def without_labelled_rows(trace: Trace) -> Trace:
+    """``trace`` with its rows labelled faulty set missing and unlabelled: what a calibration split keeps of a
+    recording whose fit part holds labelled rows (the calibration is fault-free by definition)."""
+    from dataclasses import replace
+
+    if not trace.fault_mask.any():
+        return trace
+    y = np.where(trace.fault_label[..., None] > 0, np.nan, trace.y)
+    labels = np.zeros_like(trace.fault_label)
+    return replace(trace, y=y, fault_mask=labels > 0, fault_label=labels)
+
+
 def check_names(key: str, names: Sequence[str], allowed: Sequence[str]) -> tuple[str, ...]:
     """Variable names against the allowed ones (one line naming the first unknown)."""
     names = tuple(str(n) for n in names)

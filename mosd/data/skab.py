@@ -36,7 +36,7 @@ import numpy as np
 
 from ..types import Trace
 from ..validation import ConfigError
-from .base import RecordedData, Segment
+from .base import RecordedData, Segment, without_labelled_rows
 
 #: The 8 sensor columns, in file order.
 TAGS = ("Accelerometer1RMS", "Accelerometer2RMS", "Current", "Pressure", "Temperature", "Thermocouple",
@@ -416,14 +416,8 @@ class Skab(RecordedData):
 
     def trace(self, split: str) -> Trace:
         """As :meth:`RecordedData.trace`; the calibration's labelled rows are left out (set missing)."""
-        from dataclasses import replace
-
         trace = super().trace(split)
-        if split != "calibration" or not trace.fault_mask.any():
-            return trace
-        y = np.where(trace.fault_label[..., None] > 0, np.nan, trace.y)
-        labels = np.zeros_like(trace.fault_label)
-        return replace(trace, y=y, fault_mask=labels > 0, fault_label=labels)
+        return without_labelled_rows(trace) if split == "calibration" else trace
 
 
 def write_example(root: str | Path, rng: np.random.Generator, sizes: dict[str, int] | None = None,

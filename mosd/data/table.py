@@ -54,7 +54,7 @@ import numpy as np
 
 from ..types import Trace
 from ..validation import ConfigError, check_choice
-from .base import SPLITS, RecordedData, Segment
+from .base import SPLITS, RecordedData, Segment, without_labelled_rows
 
 log = logging.getLogger("mosd.data")
 
@@ -372,11 +372,7 @@ class Table(RecordedData):
         start, stop = self._ranges[split]
         # the rows' own times: k x dt from the split's start was off wherever data.fill=drop left rows out
         trace = replace(super().trace(split), t=np.asarray(self._times[start:stop], float))
-        if split != "calibration" or not trace.fault_mask.any():
-            return trace
-        y = np.where(trace.fault_label[..., None] > 0, np.nan, trace.y)
-        labels = np.zeros_like(trace.fault_label)
-        return replace(trace, y=y, fault_mask=labels > 0, fault_label=labels)
+        return without_labelled_rows(trace) if split == "calibration" else trace
 
     def file_rows(self, split: str) -> tuple[int, int]:
         """The first and last data row of the file a split covers (after ``fill="drop"``)."""
@@ -421,9 +417,9 @@ def _read(path: Path):
                 raise ConfigError('data=table needs pyarrow for Parquet files: pip install ".[table]"') from None
             return pd.read_parquet(path)
         if path.suffix.lower() == ".csv" or suffixes.endswith((".csv.gz", ".csv.bz2", ".csv.zip")):
-            frame = pd.read_csv(path)
+            # the header first: a refused file is not read whole
             _check_unique_header(pd.read_csv(path, header=None, nrows=1, dtype=str).iloc[0].tolist(), path)
-            return frame
+            return pd.read_csv(path)
     except ConfigError:
         raise
     except Exception as exc:
