@@ -77,44 +77,27 @@ def run_report(parser: argparse.ArgumentParser, argv: Sequence[str] | None,
     """
     args = parser.parse_args(argv)
     t0 = time.perf_counter()
-    created: list[Path] = []
     try:
         for option in ("out", "export"):  # before the work, not after it (issue 53: /proc/fam after the tuning)
             if getattr(args, option, None):
-                created += check_writable_folder(getattr(args, option), f"--{option}")
+                check_writable_folder(getattr(args, option), f"--{option}")
         files = list(body(args))
     except ConfigError as exc:
-        for folder in reversed(created):  # bad input leaves nothing behind: the folders made for it go again
-            try:
-                folder.rmdir()
-            except OSError:  # not empty, or gone: left as it is
-                pass
         print(f"error: {exc}", file=sys.stderr)
         return 2
     print(f"wrote: {', '.join(str(p) for p in files)}  ({time.perf_counter() - t0:.1f} s)")
     return 0
 
 
-def check_writable_folder(folder, option: str) -> list[Path]:
-    """Create ``folder`` (and its parents) and check this user can write in it; the folders it created, outermost
-    first. One-line ConfigError when it cannot (nothing created is left behind then)."""
-    import tempfile
+def check_writable_folder(folder, option: str) -> None:
+    """One-line ConfigError unless ``folder`` can be (created as) a folder this user writes in, with room for a
+    report; creates nothing (the preflight's own check, :func:`mosd.app.checks.writable_dir_problem`)."""
+    from ..app.checks import writable_dir_problem
 
-    path = Path(folder).absolute()
-    created = [p for p in (path, *path.parents) if not p.exists()][::-1]
-    try:
-        path.mkdir(parents=True, exist_ok=True)
-        with tempfile.TemporaryFile(dir=path):
-            pass
-    except OSError as exc:
-        for made in reversed(created):
-            try:
-                made.rmdir()
-            except OSError:
-                pass
-        raise ConfigError(f"{option}={str(folder)!r} cannot be written ({exc.strerror or type(exc).__name__}); "
-                          "allowed: a folder this user can create or write") from None
-    return created
+    problem = writable_dir_problem(Path(folder))
+    if problem is not None:
+        raise ConfigError(f"{option}={str(folder)!r} cannot be written ({problem}); allowed: a folder this user "
+                          "can create or write")
 
 
 def preset(name: str, overrides: Sequence[str] = ()):

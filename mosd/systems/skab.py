@@ -31,6 +31,7 @@ import numpy as np
 
 from ..data.skab import ANOMALY_GROUPS, check_groups, check_root, read_experiments
 from ..validation import ConfigError
+from .cli import check_writable_folder
 from .skab_ideas import ADDED, IDEAS, run_idea
 from .skab_study import FAMILIES, WIDE, WIDE_LABEL, check_families, run_family
 from .skab_t2q import literature_rows
@@ -226,17 +227,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         test = _groups(args.test_groups, "--test-groups")
         out = Path(args.out) if args.out else None
         if out is not None:
-            try:
-                out.mkdir(parents=True, exist_ok=True)
-            except OSError as error:
-                raise ConfigError(f"--out={args.out!r} cannot be a folder ({error.strerror}); allowed: a folder "
-                                  "this user can create or write") from None
+            check_writable_folder(out, "--out")
         result = study(args.root, families, args.seed, train, test, wide=args.wide_box,
                        ideas=tuple(IDEAS) if args.ideas else ())
     except ConfigError as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
     if out is not None:
+        out.mkdir(parents=True, exist_ok=True)
         figure(result, out / "skab_front.png")
         (out / "skab_benchmark.json").write_text(json.dumps(_clean(result), indent=1))
     if args.json:  # the keys on stdout for a pipe, the tables on stderr for the reader (as mosd.bench --json)
