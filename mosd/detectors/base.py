@@ -123,19 +123,18 @@ def persistent(condition: np.ndarray, length: np.ndarray | int) -> np.ndarray:
         runs = persistence(rows, np.ascontiguousarray(lengths, dtype=np.int64), np.empty(rows.shape, bool))
         return runs.reshape(condition.shape)
     # run length of consecutive True ending at k, by cumulative counting (the reference)
-    counts = np.cumsum(condition, axis=-1)
-    reset = np.where(~condition, counts, 0)
-    run = counts - np.maximum.accumulate(reset, axis=-1)
-    return run >= lengths.reshape((-1,) + (1,) * (condition.ndim - 1))
+    return run_lengths(condition) >= lengths.reshape((-1,) + (1,) * (condition.ndim - 1))
 
 
 def run_lengths(condition: np.ndarray, carried: int = 0) -> np.ndarray:
-    """Consecutive True values ending at each k of a 1-D ``condition``, continuing a run of ``carried``.
+    """Consecutive True values ending at each k of ``condition``, along its last axis, continuing a run of
+    ``carried``.
 
     The causal form of :func:`persistent`'s count (``persistent`` is ``run_lengths(...) >= L`` per
     design): a stream scored in parts, each given the last count of the one before, counts as in one call.
     """
     condition = np.asarray(condition, bool)
-    counts = np.cumsum(condition)
-    run = counts - np.maximum.accumulate(np.where(~condition, counts, 0)) if len(condition) else counts
-    return (run + np.where(np.cumsum(~condition) == 0, int(carried), 0)).astype(np.int64)
+    counts = np.cumsum(condition, axis=-1)
+    run = (counts - np.maximum.accumulate(np.where(~condition, counts, 0), axis=-1) if condition.shape[-1]
+           else counts)
+    return (run + np.where(np.cumsum(~condition, axis=-1) == 0, int(carried), 0)).astype(np.int64)

@@ -47,6 +47,7 @@ from typing import Sequence
 
 import numpy as np
 
+from ..detectors.base import run_lengths
 from ..detectors.latent import smoothed_values
 from ..validation import ConfigError
 from .skab_t2q import binary_scores, changepoint_delays, counts, varying_columns
@@ -206,12 +207,6 @@ def _above(stats: dict, fit: int, lam: float, box: Box) -> np.ndarray:
     return above
 
 
-def _run_lengths(above: np.ndarray) -> np.ndarray:
-    """Consecutive True values ending at each row, along the last axis (the persistence's count)."""
-    total = np.cumsum(above, axis=-1)
-    return total - np.maximum.accumulate(np.where(~above, total, 0), axis=-1)
-
-
 def design_grid(family: str, box: Box = HEADLINE) -> list[dict]:
     """Every design of the family's box, in the grid's order (structure, λ, level, persistence)."""
     return [{**s, "lam": lam, "level": level, "persistence": p}
@@ -224,7 +219,7 @@ def design_counts(p: Prepared, box: Box = HEADLINE) -> tuple[np.ndarray, np.ndar
     persistence = np.array(box.persistence)[:, None, None]
     for index in sorted(p.statistics):
         for lam in box.lams:
-            run = _run_lengths(_above(p.statistics[index], p.fit, lam, box))[:, p.fit:]
+            run = run_lengths(_above(p.statistics[index], p.fit, lam, box))[:, p.fit:]
             alarm = run[None, :, :] >= persistence                        # (P, levels, Kt)
             tp.append(np.sum(alarm & p.truth, axis=-1).T.ravel())
             fp.append(np.sum(alarm & ~p.truth, axis=-1).T.ravel())
@@ -238,7 +233,7 @@ def alarm_of(p: Prepared, design_index: int, box: Box = HEADLINE) -> np.ndarray:
     lam_i, rest = divmod(rest, n_l * n_p)
     level, pers = divmod(rest, n_p)
     stats = p.statistics[sorted(p.statistics)[structure]]
-    run = _run_lengths(_above(stats, p.fit, box.lams[lam_i], box))[level, p.fit:]
+    run = run_lengths(_above(stats, p.fit, box.lams[lam_i], box))[level, p.fit:]
     return run >= box.persistence[pers]
 
 
