@@ -72,3 +72,18 @@ def test_numba_disable_jit_takes_the_numpy_path(tmp_path):
     run = _python({"NUMBA_DISABLE_JIT": "1"}, tmp_path)
     assert run.returncode == 0, run.stderr[-2000:]
     assert run.stdout.split() == ["False", *EXPECTED.split()]
+
+
+def test_a_shared_numba_cache_dir_is_read_for_mosds_modules_only(tmp_path, monkeypatch):
+    package = tmp_path / "pkg"
+    (package / "__pycache__").mkdir(parents=True)
+    (package / "ewma.py").write_text("")
+    shared = tmp_path / "shared-cache" / "x_123"
+    shared.mkdir(parents=True)
+    ours, theirs = shared / "ewma.f-3.py311.nbi", shared / "otherproject.g-9.py311.nbi"
+    for path in (ours, theirs):
+        path.write_bytes(b"garbage")
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "shared-cache"))
+    assert cache_files(package) == [ours]
+    repair(package, stream=type("S", (), {"write": lambda self, t: None})())
+    assert not ours.exists() and theirs.exists()

@@ -25,16 +25,18 @@ SUFFIXES = (".nbi", ".nbc")
 
 
 def cache_files(package_dir: Path | None = None) -> list[Path]:
-    """mosd's numba cache files: in the ``__pycache__`` folders of the package and under ``NUMBA_CACHE_DIR``."""
+    """mosd's numba cache files: in the ``__pycache__`` folders of the package, and those of its modules under
+    ``NUMBA_CACHE_DIR``."""
     package_dir = Path(package_dir or Path(__file__).resolve().parents[1])
-    places = list(package_dir.rglob("__pycache__"))
+    found = {path for place in package_dir.rglob("__pycache__") for suffix in SUFFIXES
+             for path in place.rglob(f"*{suffix}") if path.is_file()}
     override = os.environ.get("NUMBA_CACHE_DIR", "").strip()
     if override and Path(override).is_dir():
-        places.append(Path(override))
-    found = set()
-    for place in places:
-        for suffix in SUFFIXES:
-            found.update(path for path in place.rglob(f"*{suffix}") if path.is_file())
+        # a shared cache holds other projects' files too: only those named after one of mosd's modules
+        # (numba names a file <module>.<function>-<line>.pyXY...)
+        modules = {path.stem for path in package_dir.rglob("*.py")}
+        found.update(path for suffix in SUFFIXES for path in Path(override).rglob(f"*{suffix}")
+                     if path.is_file() and path.name.split(".", 1)[0] in modules)
     return sorted(found)
 
 
