@@ -24,6 +24,7 @@ class ActuatorFault(Fault):
         "amplitude": Param(Interval(-1e6, 1e6), "f, in the units of the input (paper: 2).", nonzero=True),
     }
     relative = False  # amplitudes are in input units, not in residual σ
+    acts_on = "actuator"  # f added to input `actuator` (1-based)
 
     def __init__(self, actuator: int = 2, amplitude: float = 2.0, onset: float = 16.5, role: str = "target"):
         super().__init__(onset=onset, role=role)

@@ -8,8 +8,20 @@ monitored residual's in-control σ from calibration (paper 000): the experiment
 computes it (:meth:`mosd.experiment.Experiment.fault_scale`) and passes it to the
 plant as ``fault_scale``, and a relative fault simulated without it is refused;
 absolute faults ignore it.
-How a fault acts (on a sensor, an actuator, the state) is the plant's business:
-each plant documents the fault classes it accepts.
+A fault declares where it acts, ``acts_on`` (one of :data:`ACTS_ON`), and with
+it the interface the plants call:
+
+* ``"sensor"``: an additive signal on one output channel: ``channel`` (0-based,
+  into the plant's ``output_names``) and ``signal(t, scale, rng) -> (N,)``
+  (:func:`mosd.faults.sensor.sensor_fault_signals` injects it);
+* ``"actuator"``: an additive input on one actuator: ``actuator`` (1-based, into
+  the plant's ``input_names``) and ``signal(t) -> (N,)``;
+* ``"state"``: an additive input of the state equation: ``signal(t, scale, rng) -> (N,)``.
+
+A plant declares where its ``simulate`` injects faults (``Plant.fault_targets``)
+and :meth:`mosd.plants.base.Plant.check_fault` follows from the two
+declarations: a fault acting where the plant takes none, or on a channel or
+actuator the plant does not have, is refused in one line before any simulation.
 
 :class:`FaultSet` runs several faults side by side: replication r of a stream
 gets fault ``r mod n`` — e.g. a target fault on even and a nuisance fault on odd
@@ -26,6 +38,9 @@ import numpy as np
 from ..types import ROLES
 from ..validation import Component, ConfigError, Interval, Param
 
+#: where a fault can act (``Fault.acts_on``), in the words of the module docstring
+ACTS_ON = ("state", "actuator", "sensor")
+
 
 class Fault(Component):
     """Base class of every fault (module docstring)."""
@@ -36,6 +51,8 @@ class Fault(Component):
         "role": Param(ROLES, "target: to be detected; nuisance: an alarm on it is a false alarm."),
     }
     relative: bool = False
+    #: where the fault acts: one of ACTS_ON (every fault class declares it; "" refuses it on every plant)
+    acts_on: str = ""
 
     def __init__(self, onset: float = 0.0, role: str = "target"):
         self._assign(locals())
@@ -72,6 +89,8 @@ class FaultSet(Fault):
         self.onset = min(f.onset for f in faults)
         self.role = "target"
         self.relative = any(f.relative for f in faults)
+        # where the members act (a plant checks each member: Plant.check_fault)
+        self.acts_on = ", ".join(dict.fromkeys(f.acts_on for f in faults))
 
     @property
     def members(self) -> tuple[Fault, ...]:

@@ -26,6 +26,7 @@ class RampFault(Fault):
                          "(flapping-wing plant: 0, the GPS altitude)."),
     }
     relative = False  # the rate is in absolute units
+    acts_on = "sensor"  # g added to output `channel` (sensor_fault_signals)
 
     def __init__(self, rate: float = 0.5, channel: int = 0, onset: float = 100.0, role: str = "target"):
         super().__init__(onset=onset, role=role)

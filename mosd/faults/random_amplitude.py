@@ -105,6 +105,7 @@ class RandomAmplitudeFault(Fault):
         "draw": Param(DRAWS, "One amplitude per run held from the onset, or a new one at every step."),
     }
     relative = False  # amplitudes are in the state's own units
+    acts_on = "state"  # added to the state equation
 
     def __init__(self, law: str = "sine", low: float | None = None, width: float | None = None,
                  draw: str = "per_run", onset: float = 5.0, role: str = "target"):

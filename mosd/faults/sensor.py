@@ -85,6 +85,7 @@ class SensorFault(Fault):
         "b": Param(Interval(1.0, 1e6), "Standard-deviation factor."),
     }
     relative = True  # magnitudes in units of the channel's in-control residual σ
+    acts_on = "sensor"  # g added to output `channel` (sensor_fault_signals)
 
     def __init__(self, kind: str = "offset", channel: int = 0, onset: float = 2.7, a: float = 2.0, b: float = 1.0,
                  role: str = "target"):

@@ -12,7 +12,7 @@ A plant has its parameters in ``__init__`` and two verbs:
 
 :class:`ClosedLoopPlant` is the discrete-time loop y_k = h(x_k) + v_k (+ g_k),
 u_k = controller(y_k), x_{k+1} = f(x_k, u_k) + w_k with an additive sensor fault
-g_k; plants of that form (paper 000's mould oscillator) implement f, h, the
+g_k (``fault_targets = ("sensor",)``); plants of that form (paper 000's mould oscillator) implement f, h, the
 initial state and the controller and inherit ``simulate``.
 """
 from __future__ import annotations
@@ -34,6 +34,8 @@ class Plant(Component):
     state_names: tuple[str, ...] = ()
     input_names: tuple[str, ...] = ()
     output_names: tuple[str, ...] = ()
+    #: where ``simulate`` injects a fault (values of :data:`mosd.faults.base.ACTS_ON`); check_fault refuses the rest
+    fault_targets: tuple[str, ...] = ("sensor",)
 
     def simulate(self, n_samples: int, noise, fault, rngs: Sequence[np.random.Generator],
                  fault_scale: float | None = None) -> Trace:
@@ -50,11 +52,44 @@ class Plant(Component):
         raise NotImplementedError
 
     def check_fault(self, fault) -> None:
-        """Raise ConfigError when ``fault`` cannot act on this plant (default: a sensor channel in range)."""
-        channel = getattr(fault, "channel", None)
-        if channel is not None and channel >= len(self.output_names):
-            raise ConfigError(f"fault.channel={channel} is out of range; "
-                              f"allowed: 0..{len(self.output_names) - 1} ({', '.join(self.output_names)})")
+        """Raise ConfigError when ``fault`` (or a member of a fault set) cannot act on this plant.
+
+        Follows from two declarations: the fault's ``acts_on`` (:mod:`mosd.faults.base`) must be one
+        of this plant's ``fault_targets``, and the channel (sensor) or actuator it names must be one of
+        ``output_names`` or ``input_names``. A plant with more to check (an onset on its grid)
+        extends this method.
+        """
+        for member in getattr(fault, "members", (fault,)):
+            acts_on = getattr(member, "acts_on", "")
+            if acts_on not in self.fault_targets:
+                raise ConfigError(_wrong_target(self, member, acts_on))
+            if acts_on == "sensor" and not 0 <= member.channel < len(self.output_names):
+                raise ConfigError(f"fault.channel={member.channel} is out of range; "
+                                  f"allowed: 0..{len(self.output_names) - 1} ({', '.join(self.output_names)})")
+            if acts_on == "actuator" and not 1 <= member.actuator <= len(self.input_names):
+                raise ConfigError(f"fault.actuator={member.actuator} is out of range; allowed: "
+                                  f"1..{len(self.input_names)} ({', '.join(self.input_names)})")
+
+
+def fault_classes(targets: Sequence[str]) -> list[str]:
+    """Names of the fault classes of :mod:`mosd.faults` that act on one of ``targets`` (found, not listed)."""
+    from .. import faults
+    from ..faults.base import Fault
+
+    found = (getattr(faults, name) for name in faults.__all__)
+    return sorted(cls.__name__ for cls in found
+                  if isinstance(cls, type) and issubclass(cls, Fault) and cls.acts_on in targets)
+
+
+def _wrong_target(plant: Plant, fault, acts_on: str) -> str:
+    """The one line refusing ``fault`` on ``plant``: where it acts, where the plant takes faults, which fit."""
+    name = type(plant).__module__.rpartition(".")[2]
+    phrase = {"sensor": "a sensor", "actuator": "an actuator", "state": "the state"}
+    where = f"acts on {phrase.get(acts_on, repr(acts_on))}" if acts_on else "declares no acts_on"
+    classes = ", ".join(fault_classes(plant.fault_targets)) or "none"
+    return (f"fault={fault!r} {where}, but plant {name} takes faults acting on "
+            f"{' or '.join(plant.fault_targets)} only; "
+            f"allowed: {classes} (`mosd options fault` lists each option's acts_on)")
 
 
 class ClosedLoopPlant(Plant):
@@ -65,6 +100,8 @@ class ClosedLoopPlant(Plant):
     and ``__call__(y) -> u``) and the name tuples; the noise model provides
     ``draw(rng, n_samples) -> (w, v)``; the fault ``signal(t, scale, rng)``.
     """
+
+    fault_targets = ("sensor",)  # the loop adds g_k to the measured outputs only
 
     def simulate(self, n_samples: int, noise, fault, rngs: Sequence[np.random.Generator],
                  fault_scale: float | None = None) -> Trace:

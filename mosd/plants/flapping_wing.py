@@ -150,6 +150,7 @@ class FlappingWingMAV(Plant):
     state_names = ("u", "w", "q", "theta", "h", "gps_bias")
     input_names = ("throttle", "tail_deflection")
     output_names = ("gps_altitude", "down_velocity", "pitch", "throttle", "tail_deflection")
+    fault_targets = ("sensor",)  # a logged fault never enters the loop (class docstring)
 
     @property
     def nyquist(self) -> float:

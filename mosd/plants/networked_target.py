@@ -222,6 +222,7 @@ class NetworkedTarget(Plant):
     state_names = ("x1", "x2")
     input_names = ("u1", "u2")
     output_names = ("x1", "x2")
+    fault_targets = ("actuator",)  # f e_m is added to the command u (ActuatorFault)
 
     def __init__(
         self,
@@ -257,13 +258,10 @@ class NetworkedTarget(Plant):
                                   f"allowed: multiples of plant.resolution")
 
     def check_fault(self, fault) -> None:
-        """Only actuator faults on an existing actuator, with the onset on the simulation grid."""
-        actuator = getattr(fault, "actuator", None)
-        if actuator is None or not hasattr(fault, "signal"):
-            raise ConfigError(f"fault={fault!r} cannot act on plant networked_target; allowed: ActuatorFault")
-        if not 1 <= actuator <= len(self.input_names):
-            raise ConfigError(f"fault.actuator={actuator} is out of range; allowed: 1..{len(self.input_names)}")
-        self._check_on_grid("fault.onset", [fault.onset])
+        """An actuator fault on an existing actuator (Plant.check_fault), with the onset on the simulation grid."""
+        super().check_fault(fault)
+        for member in getattr(fault, "members", (fault,)):
+            self._check_on_grid("fault.onset", [member.onset])
 
     def model(self, noise) -> ContinuousLinearModel:
         """The continuous-time model with every sensor's H = I₂ and the noise model's Q_c and R."""

@@ -23,7 +23,6 @@ from typing import Sequence
 
 import numpy as np
 
-from ..faults.random_amplitude import RandomAmplitudeFault
 from ..faults.sensor import unit_of
 from ..types import Trace
 from ..validation import ConfigError, Interval, Param
@@ -62,7 +61,7 @@ class ScalarNonlinearModel:
 class ScalarNonlinearPlant(Plant):
     """x_{k+1} = a x_k + b sin x_k + δ_k + η_k + ω_k, y_k = x_k + σ_v v_k, MCAR outputs (module docstring).
 
-    Accepted faults: :class:`~mosd.faults.random_amplitude.RandomAmplitudeFault`
+    Accepted faults: those acting on the state, e.g. :class:`~mosd.faults.random_amplitude.RandomAmplitudeFault`
     (target δ or nuisance η; both add to the state equation).
     """
 
@@ -85,6 +84,7 @@ class ScalarNonlinearPlant(Plant):
     state_names = ("x",)
     input_names = ()
     output_names = ("y",)
+    fault_targets = ("state",)  # δ_k and η_k enter the state equation (RandomAmplitudeFault)
 
     def __init__(self, a: float = 0.5, b: float = 0.2, dt: float = 0.1, missing_rate: float = 0.0,
                  x0_low: float = 0.0, x0_high: float = 1.0, missing_mechanism: str = "mcar",
@@ -101,11 +101,6 @@ class ScalarNonlinearPlant(Plant):
         """f, h, the noise densities and the law of x_0 (the paper's assumptions 1–2)."""
         return ScalarNonlinearModel(a=self.a, b=self.b, dt=self.dt, noise=noise, x0_low=self.x0_low,
                                     x0_high=self.x0_high)
-
-    def check_fault(self, fault) -> None:
-        if not isinstance(fault, RandomAmplitudeFault):
-            raise ConfigError(f"fault={fault!r} cannot act on plant scalar_nonlinear; "
-                              "allowed: RandomAmplitudeFault (mosd.faults.random_amplitude)")
 
     def simulate(self, n_samples: int, noise, fault, rngs: Sequence[np.random.Generator],
                  fault_scale: float | None = None) -> Trace:
