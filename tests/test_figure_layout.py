@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mosd.app import plots
+from mosd.app import figures as plots
 
 LONG = "pca on data=table: " + ", ".join(f"parameter_{i} = {0.1 * i + 1e-4:.4g}" for i in range(9))
 

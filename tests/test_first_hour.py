@@ -216,7 +216,7 @@ def test_the_report_csv_leaves_missing_values_empty(three_systems):
 
 # -- 4. the figures ----------------------------------------------------------------------------------
 def _drawn(monkeypatch):
-    from mosd.app import plots
+    from mosd.app import figures as plots
 
     figures = []
     monkeypatch.setattr(plots, "_save", lambda fig, path: figures.append(fig) or Path(path))

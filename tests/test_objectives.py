@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from hydra import compose, initialize_config_dir
 
-from mosd.app import plots
+from mosd.app import figures as plots
 from mosd.app.build import build
 from mosd.app.config import CONFIG_DIR
 from mosd.app.summary import on_bound

@@ -1038,7 +1038,7 @@ def test_a_real_mlflow_server_takes_a_sweep_and_concurrent_runs(tmp_path, stop_p
 # 9. plots that show what matters
 # ---------------------------------------------------------------------------------------
 def _capture_figures(monkeypatch):
-    from mosd.app import plots
+    from mosd.app import figures as plots
 
     figures = []
     real = plots._save

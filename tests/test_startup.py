@@ -204,7 +204,7 @@ def test_figure_writer_reports_a_bad_job_and_draws_it_here(tmp_path):
 def test_a_figure_that_fails_while_saving_leaves_no_file(tmp_path, monkeypatch):
     from matplotlib.figure import Figure
 
-    from mosd.app import plots
+    from mosd.app import figures as plots
 
     def broken(self, *args, **kwargs):
         raise RuntimeError("disk full")

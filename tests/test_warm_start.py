@@ -98,7 +98,7 @@ def test_the_figure_process_imports_matplotlib_before_lowering_its_priority():
 
 def test_the_warm_up_draws_one_small_figure_not_each_kind(monkeypatch):
     # each kind drawn once cost 1.1-1.7 s of CPU for 0.1-0.3 s saved on the real figures
-    from mosd.app import plots
+    from mosd.app import figures as plots
 
     def refuse(*args, **kwargs):
         raise AssertionError("the warm-up drew a run's figure")
