@@ -6,8 +6,10 @@ the options are the files in ``conf/<group>/``, the class is each YAML's
 key shows its default (the YAML's value), the YAML's comment on it and the
 allowed values the class declares (:class:`mosd.validation.Param`). A new
 component (one module and one YAML) is listed without touching any other file;
-the README's option tables are a selection that ``tests/test_configs.py``
-checks against :func:`listing`.
+the README's curated option tables are a selection that ``tests/test_configs.py``
+checks against :func:`listing`, and its index of every option (:func:`readme_index`,
+between :data:`BEGIN` and :data:`END`) is generated: ``mosd options --readme README.md``
+rewrites it and ``tests/test_readme_tables.py`` fails while it is stale.
 """
 from __future__ import annotations
 
@@ -18,7 +20,7 @@ import sys
 from dataclasses import dataclass, field
 from typing import Sequence
 
-from .config import CONFIG_DIR, groups, options
+from .config import CONFIG_DIR, CONFIG_NAME, groups, options
 
 #: a top-level key of a YAML and its trailing comment
 _KEY = re.compile(r"^(?P<key>[A-Za-z_]\w*):(?P<value>[^#]*)(#\s?(?P<comment>.*))?$")
@@ -44,6 +46,8 @@ class Option:
     description: str
     keys: list[Key] = field(default_factory=list)
     note: str = ""
+    #: a fault: where it acts (mosd.faults.base.ACTS_ON; a fault set's members'); a plant: where it takes faults
+    acts_on: str = ""
 
 
 def _leading_comment(lines: list[str]) -> str:
@@ -67,6 +71,38 @@ def _declaration(target: str | None) -> tuple[dict, str]:
     except ImportError as exc:  # an optional dependency (PyTorch, pandas) that is not installed
         return {}, f"keys' allowed values need {exc.name or 'an optional dependency'} installed"
     return dict(getattr(cls, "params", {}) or {}), ""
+
+
+def _class(target: str | None):
+    """The class a ``_target_`` names, or None (not mosd's, or an optional dependency missing)."""
+    if not target or not target.startswith("mosd."):
+        return None
+    module, _, name = target.rpartition(".")
+    try:
+        return getattr(importlib.import_module(module), name, None)
+    except ImportError:
+        return None
+
+
+def fault_acts_on(spec) -> str:
+    """Where the fault of a YAML acts: its class's ``acts_on``, or its members' (a fault set), comma-separated."""
+    declared = getattr(_class(spec.get("_target_")), "acts_on", "")
+    if isinstance(declared, str) and declared:
+        return declared
+    members = [fault_acts_on(member) for member in spec.get("faults") or () if hasattr(member, "get")]
+    return ", ".join(dict.fromkeys(m for m in members if m))
+
+
+def plant_fault_targets(spec) -> str:
+    """Where the plant of a YAML takes faults (its class's ``fault_targets``), comma-separated."""
+    return ", ".join(getattr(_class(spec.get("_target_")), "fault_targets", ()))
+
+
+def faults_for(plant: str) -> list[str]:
+    """The fault options (``conf/fault``) that can act on the plant option ``plant``: every member's
+    ``acts_on`` among the plant's ``fault_targets`` (what :meth:`mosd.plants.base.Plant.check_fault` checks)."""
+    takes = set(option("plant", plant).acts_on.split(", "))
+    return [o.name for o in listing(["fault"])["fault"] if o.acts_on and set(o.acts_on.split(", ")) <= takes]
 
 
 def option(group: str, name: str) -> Option:
@@ -94,7 +130,9 @@ def option(group: str, name: str) -> Option:
             if param is not None and param.optional:
                 allowed += " or null"
             keys.append(Key(str(key), _short(value), comments.get(str(key), ""), allowed))
-    return Option(group, name, target, _leading_comment(lines), keys, note)
+    where = {"fault": fault_acts_on, "plant": plant_fault_targets}.get(group)
+    acts_on = where(OmegaConf.to_container(config, resolve=False)) if where else ""
+    return Option(group, name, target, _leading_comment(lines), keys, note, acts_on)
 
 
 def _short(value) -> str:
@@ -106,6 +144,66 @@ def listing(selected: Sequence[str] = ()) -> dict[str, list[Option]]:
     """group -> its options (every group when ``selected`` is empty)."""
     known = groups()
     return {group: [option(group, name) for name in options(group)] for group in (selected or known)}
+
+
+def defaults_choices(path) -> dict[str, str]:
+    """{group: option} of a YAML's defaults list (``/fault: offset``, ``override /plant: two_tank``)."""
+    from omegaconf import OmegaConf
+
+    choices = {}
+    for entry in OmegaConf.to_container(OmegaConf.load(path)).get("defaults") or ():
+        if isinstance(entry, dict):
+            for key, value in entry.items():
+                choices[key.replace("override ", "").strip("/ ")] = None if value is None else str(value)
+    return choices
+
+
+def presets() -> dict[str, dict[str, str]]:
+    """{preset: {group: option}}: each ``conf/experiment`` preset's choices over ``conf/config.yaml``'s defaults."""
+    base = defaults_choices(CONFIG_DIR / f"{CONFIG_NAME}.yaml")
+    return {name: {**base, **defaults_choices(CONFIG_DIR / "experiment" / f"{name}.yaml")}
+            for name in options("experiment")}
+
+
+#: the markers of the README's generated index (``mosd options --readme README.md`` rewrites what is between)
+BEGIN = "<!-- BEGIN generated by `mosd options --readme README.md`; edit conf/ and the classes, not this -->"
+END = "<!-- END generated -->"
+
+
+def readme_index() -> str:
+    """The README's index of every preset and every option, derived from conf/ and the classes."""
+    columns = ("plant", "fault", "estimator", "monitor", "detector")
+    out = ["| preset | " + " | ".join(columns) + " |", "|---" * (len(columns) + 1) + "|"]
+    for name, choices in presets().items():
+        cells = [f"`{choices[c]}`" if choices.get(c) else "—" for c in columns]
+        if choices.get("data"):  # recorded data replace plant, noise and fault
+            cells[0] = f"data `{choices['data']}`"
+        out.append(f"| `{name}` | " + " | ".join(cells) + " |")
+    out += ["", "| group | options |", "|---|---|"]
+    for group, opts in listing([g for g in groups() if g != "experiment"]).items():
+        names = ", ".join(f"`{o.name}`" + (f" ({_INDEX_WHERE[group].format(o.acts_on)})" if o.acts_on else "")
+                          for o in opts)
+        out.append(f"| `{group}` | {names} |")
+    return "\n".join(out)
+
+
+def with_index(text: str) -> str:
+    """``text`` (a README) with the block between BEGIN and END replaced by :func:`readme_index`.
+
+    Raises
+    ------
+    ValueError
+        When the markers are missing or out of order (one line naming them).
+    """
+    start, stop = text.find(BEGIN), text.find(END)
+    if start < 0 or stop < start:
+        raise ValueError(f"the README has no {BEGIN!r} ... {END!r} block; allowed: both markers, in that order")
+    return text[:start] + BEGIN + "\n" + readme_index() + "\n" + text[stop:]
+
+
+#: how the listing words Option.acts_on for each group that has it
+_WHERE = {"fault": "Acts on", "plant": "Takes faults acting on"}
+_INDEX_WHERE = {"fault": "on {}", "plant": "takes faults on {}"}
 
 
 def _cell(text: str) -> str:
@@ -120,7 +218,8 @@ def markdown(found: dict[str, list[Option]]) -> str:
             keys = "; ".join(f"`{k.name}` = `{_cell(k.default)}`" + (f" ({_cell(k.declared)})" if k.declared else "")
                              + (f": {_cell(k.comment)}" if k.comment else "") for k in opt.keys)
             note = f" ({opt.note})" if opt.note else ""
-            out.append(f"| `{opt.name}` | {f'`{opt.target}`' if opt.target else '—'} | {_cell(opt.description)} | "
+            acts = f" {_WHERE[group]}: {opt.acts_on}." if opt.acts_on else ""
+            out.append(f"| `{opt.name}` | {f'`{opt.target}`' if opt.target else '—'} | {_cell(opt.description)}{acts} | "
                        f"{keys or '—'}{note} |")
         out.append("")
     return "\n".join(out)
@@ -138,13 +237,35 @@ def main(argv: Sequence[str]) -> int:
         prog="mosd options", description="Every option of the config groups: class, description, keys with their "
         "defaults and allowed values (derived from conf/ and the classes' declarations).")
     parser.add_argument("groups", nargs="*", metavar="GROUP", help="config groups to list (default: all)")
+    parser.add_argument("--readme", metavar="FILE", help="rewrite FILE's generated index of every option instead")
     try:
         args = parser.parse_args(list(argv))
     except SystemExit as exc:
         return int(exc.code or 0)
+    if args.readme:
+        return _write_readme(args.readme)
     unknown = [g for g in args.groups if g not in groups()]
     if unknown:
         print(f"mosd: error: options group {unknown[0]!r} is unknown; allowed: {', '.join(groups())}", file=sys.stderr)
         return 2
     sys.stdout.write(markdown(listing(args.groups)))
+    return 0
+
+
+def _write_readme(path: str) -> int:
+    """Rewrite the index between BEGIN and END of the README at ``path``; bad input is one line, exit 2."""
+    from pathlib import Path
+
+    from .atomic import write_atomically
+
+    target = Path(path)
+    try:
+        text = target.read_text(encoding="utf-8")
+        updated = with_index(text)
+        if updated != text:
+            write_atomically(target, lambda out: out.write(updated))
+    except (OSError, ValueError) as exc:
+        print(f"mosd: error: options --readme {path}: {exc}", file=sys.stderr)
+        return 2
+    print(f"{path}: the option index is {'rewritten' if updated != text else 'up to date'}")
     return 0
