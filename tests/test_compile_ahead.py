@@ -147,6 +147,8 @@ from mosd.optim.mopso import MOPSO
 
 class Compiling:  # the second process's handle while it still compiles the move
     _done = {"swarm": threading.Event()}
+    def pending(self, part):
+        return not self._done[part].is_set()
 ahead._CURRENT.append(Compiling())
 algorithm = MOPSO(pop_size=12)
 algorithm.setup(get_problem("zdt1", n_var=3), termination=("n_gen", 10), seed=2)

@@ -164,25 +164,33 @@ def warm_up(modules: tuple[str, ...] = EVALUATION_MODULES) -> None:
 def cached(name: str) -> bool:
     """Whether kernel module ``name`` has compiled code in numba's on-disk cache for its current source.
 
-    Cheap: its kernels' indexes are read (the module is imported, which imports numba). numba keeps
-    an index per kernel with a stamp of the source it was compiled from (a hash of the file), and a kernel whose
-    file has changed since (an edit, a new version over an old cache) is compiled again where it is next called,
-    so such an index does not count: ``mosd.kernels.ahead`` then compiles the module in the second process, not
-    the run (a directory listing, as before, counted it, and the run compiled it).
+    Cheap: its kernels' index files are read (the module is imported, which imports numba). numba keeps an
+    index per kernel with a stamp of the source it was compiled from, and a kernel whose file has changed since
+    (an edit, a new version over an old cache) is compiled again where it is next called, so such an index does
+    not count: ``mosd.kernels.ahead`` then compiles the module in the second process, not the run. The files are
+    found by name and read with :mod:`pickle` (:func:`mosd.kernels.cache.fresh_index`), not through numba's
+    objects.
     """
     import importlib
+
+    import numba
+
+    from .cache import fresh_index
 
     dispatchers = cached_dispatchers(importlib.import_module(f"{__name__}.{name}"))
     if not dispatchers:
         return True  # nothing cached by numba in this module
-    # numba's own check (the index file's version and the source's stamp): {} when absent or stale
-    return any(dispatcher._cache._cache_file._load_index() for dispatcher in dispatchers)
+    return any(fresh_index(dispatcher.py_func, numba.__version__) for dispatcher in dispatchers)
 
 
 def cached_dispatchers(module) -> list:
-    """The numba dispatchers ``module`` defines that keep their code in the on-disk cache."""
-    return [obj for obj in vars(module).values() if getattr(obj, "__module__", None) == module.__name__
-            and getattr(getattr(obj, "_cache", None), "_cache_path", None) is not None]
+    """The numba dispatchers ``module`` defines (every kernel of mosd's keeps its code in the on-disk cache:
+    ``cache=True``)."""
+    if not available():
+        return []
+    from numba.extending import is_jitted
+
+    return [obj for obj in vars(module).values() if is_jitted(obj) and obj.__module__ == module.__name__]
 
 
 def compile_module(name: str) -> tuple[str, float]:

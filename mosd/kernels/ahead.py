@@ -9,10 +9,12 @@ needed first. numba's on-disk cache is the hand-over: the second process saves e
 this process loads it from there where it first calls it.
 
 A kernel this process reaches while the second process still compiles it waits for it instead of compiling it
-too (:class:`Ahead`: each handed-over dispatcher's cache lookup waits for its part), so no kernel is compiled
-twice. If the second process fails on a part, dies or is stopped, every wait ends and this process compiles
-what is missing, as it would have without it: compiling ahead changes when a kernel is compiled, never what
-is computed.
+too (:class:`Ahead`: each handed-over dispatcher's public ``compile``, which numba calls on every lookup that
+misses its loaded code, is wrapped, on that instance only, to wait for its part first), so no kernel is compiled
+twice. If the second process fails on a part or dies, every wait ends and this process compiles what is missing,
+as it would have without it; one that is stopped (SIGSTOP) or gets no CPU for :data:`STALL_S` seconds is ended
+and the same happens: a wait never outlasts the second process's progress. Compiling ahead changes when a kernel
+is compiled, never what is computed.
 
 The parts (:data:`PARTS`) are whole modules (their ``warm_up``: the signatures a run calls) and, for the
 filter, its two helpers alone: :func:`mosd.kernels.cubature.filter_batch` compiles its own code before it asks
@@ -74,19 +76,21 @@ def _compile(part: str) -> None:
         importlib.import_module(f"{__package__}.{module_name}").warm_up()
 
 
-class _WaitingCache:
-    """A dispatcher's on-disk cache whose lookup first waits until the second process is done with the part."""
+def _waiting_compile(compile, wait):
+    """A dispatcher's own ``compile`` (its public method, bound) that first waits for the part (``wait()``)."""
 
-    def __init__(self, cache, done: threading.Event):
-        self.inner = cache
-        self._done = done
+    def waiting(sig):
+        wait()
+        return compile(sig)
 
-    def load_overload(self, sig, target_context):
-        self._done.wait()
-        return self.inner.load_overload(sig, target_context)
+    return waiting
 
-    def __getattr__(self, name):
-        return getattr(self.inner, name)
+
+#: seconds the second process may go without using any CPU while this process waits for it (stopped, swapped
+#: out, starved) before this process stops waiting, ends it and compiles the part itself
+STALL_S = 5.0
+#: seconds this process waits for one part at most, whatever the second process does
+WAIT_S = 300.0
 
 
 class Ahead:
@@ -104,15 +108,15 @@ class Ahead:
         self.ready: set[str] = set()
         self.failed: dict[str, str] = {}
         self._done = {part: threading.Event() for part in self.parts}
-        self._hooked: list[tuple[object, _WaitingCache]] = []
+        self._hooked: list[tuple[object, object]] = []
         from . import enabled
 
         if not enabled():
             raise RuntimeError("kernels are off (MOSD_KERNELS=numpy or no numba): nothing to compile")
         for part in self.parts:  # before the process starts: no lookup of a handed-over kernel escapes the wait
             for dispatcher in _dispatchers(part):
-                hook = _WaitingCache(dispatcher._cache, self._done[part])
-                dispatcher._cache = hook
+                hook = _waiting_compile(dispatcher.compile, lambda part=part: self.wait(part))
+                dispatcher.compile = hook  # an instance attribute: numba's lookups call self.compile
                 self._hooked.append((dispatcher, hook))
         package_parent = str(Path(__file__).resolve().parents[2])  # the directory holding mosd/
         try:
@@ -125,6 +129,48 @@ class Ahead:
             raise
         self._reader = threading.Thread(target=self._read, name="mosd-kernels-ahead", daemon=True)
         self._reader.start()
+
+    def pending(self, part: str) -> bool:
+        """Whether the second process has not yet reported on ``part`` (and may still compile it)."""
+        return part in self._done and not self._done[part].is_set()
+
+    def wait(self, part: str, stall_s: float | None = None, wait_s: float | None = None) -> bool:
+        """Wait until the second process has reported on ``part``; True when it compiled it.
+
+        The wait ends early, and the second process is ended (:meth:`close`), when it has used no CPU for
+        ``stall_s`` seconds (:data:`STALL_S`; a stopped process, SIGSTOP, uses none) or after ``wait_s``
+        (:data:`WAIT_S`): this process then compiles the part itself.
+        """
+        import time
+
+        done = self._done.get(part)
+        if done is None:
+            return False
+        stall_s = STALL_S if stall_s is None else stall_s
+        deadline = time.monotonic() + (WAIT_S if wait_s is None else wait_s)
+        used, since = self._cpu_seconds(), time.monotonic()
+        while not done.wait(0.1):
+            now, cpu = time.monotonic(), self._cpu_seconds()
+            if cpu is None or cpu != used:
+                used, since = cpu, now
+            if now >= deadline or now - since >= stall_s:
+                why = "stalled" if now - since >= stall_s else f"not done in {WAIT_S:.0f} s"
+                for other in self._done:
+                    if not self._done[other].is_set():
+                        self.failed.setdefault(other, f"the second process {why}: compiled here")
+                self.close()
+                break
+        return part in self.ready
+
+    def _cpu_seconds(self) -> float | None:
+        """The CPU seconds the second process has used so far (None when it cannot be read: ended)."""
+        import psutil
+
+        try:
+            times = psutil.Process(self._proc.pid).cpu_times()
+        except (psutil.Error, OSError):
+            return None
+        return times.user + times.system
 
     def _read(self) -> None:
         try:
@@ -144,8 +190,8 @@ class Ahead:
 
     def _unhook(self) -> None:
         for dispatcher, hook in self._hooked:
-            if getattr(dispatcher, "_cache", None) is hook:
-                dispatcher._cache = hook.inner
+            if vars(dispatcher).get("compile") is hook:
+                del dispatcher.compile  # numba's own method again
         self._hooked = []
 
     def close(self) -> None:
@@ -191,7 +237,7 @@ def close() -> None:
 
 def pending(part: str) -> bool:
     """Whether the second process is still compiling ``part`` (a lookup of its kernels here would wait for it)."""
-    return any(part in ahead._done and not ahead._done[part].is_set() for ahead in _CURRENT)
+    return any(ahead.pending(part) for ahead in _CURRENT)
 
 
 def finish(timeout: float) -> None:
@@ -205,8 +251,9 @@ def finish(timeout: float) -> None:
 
     deadline = time.monotonic() + max(0.0, timeout)
     for ahead in list(_CURRENT):
-        for done in ahead._done.values():
-            done.wait(max(0.0, deadline - time.monotonic()))
+        for part in ahead.parts:
+            # a part compiled at a lower priority (BACKGROUND) may get no CPU for a while on a busy machine
+            ahead.wait(part, stall_s=max(STALL_S, 30.0), wait_s=max(0.0, deadline - time.monotonic()))
     close()
 
 

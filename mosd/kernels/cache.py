@@ -11,11 +11,18 @@ damaged file is never one being written.
 which parses the stream without building any object (about 30 ms for the whole cache of 4 MB), and removes the
 files that do not parse: numba then finds no cached code for that kernel and compiles it again, as on an empty
 cache. One warning line says which files went and why. The check reads only mosd's own files (its package's ``__pycache__`` folders, and ``NUMBA_CACHE_DIR``).
+
+:func:`fresh_index` says whether a kernel has an entry in that cache for its current source, from the files alone
+(numba's documented ``cache=True`` files, found by name): no attribute of numba's dispatcher or cache objects is
+read, so a numba release that renames those cannot break it; one that changes the files makes it answer False
+(the kernel is then compiled ahead again, on the other core: slower, never wrong).
 """
 from __future__ import annotations
 
+import hashlib
 import io
 import os
+import pickle
 import pickletools
 import sys
 from pathlib import Path
@@ -85,3 +92,53 @@ def repair(package_dir: Path | None = None, stream=None) -> list[Path]:
             text += f"; {len(kept)} could not be removed (read-only): delete them by hand"
         print(text, file=stream or sys.stderr)
     return removed
+
+
+def index_name(function) -> str:
+    """The file name numba gives the index of cached kernel ``function`` (the Python function it compiles).
+
+    ``<module file's stem>.<qualified name>-<first line>.py<major><minor><abiflags>.nbi``, ``<`` and ``>`` left out.
+    """
+    stem = Path(function.__code__.co_filename).stem
+    qualname = function.__qualname__.replace("<", "").replace(">", "")
+    version = f"{sys.version_info[0]}{sys.version_info[1]}{getattr(sys, 'abiflags', '')}"
+    return f"{stem}.{qualname}-{function.__code__.co_firstlineno}.py{version}.nbi"
+
+
+def index_paths(function) -> list[Path]:
+    """Where an index of ``function`` may be: ``NUMBA_CACHE_DIR`` (any of its folders) when set, else the
+    ``__pycache__`` folder beside its source."""
+    name = index_name(function)
+    override = os.environ.get("NUMBA_CACHE_DIR", "").strip()
+    if override:
+        return sorted(Path(override).rglob(name)) if Path(override).is_dir() else []
+    path = Path(function.__code__.co_filename).parent / "__pycache__" / name
+    return [path] if path.is_file() else []
+
+
+def _source_stamps(source: Path) -> tuple:
+    """What numba's index may record of ``source`` to tell a stale entry: its SHA-256 (numba 0.61 on) or its
+    modification time and size (before)."""
+    data = source.read_bytes()
+    st = source.stat()
+    return hashlib.sha256(data).digest(), (st.st_mtime, st.st_size)
+
+
+def fresh_index(function, numba_version: str) -> bool:
+    """Whether ``function`` has an index in numba's cache written by ``numba_version`` for its current source, with
+    at least one compiled entry. Any file this cannot read counts as no entry (False)."""
+    try:
+        stamps = _source_stamps(Path(function.__code__.co_filename))
+    except OSError:
+        return False
+    for path in index_paths(function):
+        try:
+            with open(path, "rb") as stream:
+                if pickle.load(stream) != numba_version:  # an index is numba's version, then (stamp, entries)
+                    continue
+                stamp, entries = pickle.loads(stream.read())
+        except Exception:  # noqa: BLE001 - a damaged or foreign file: not an entry (repair() removes damaged ones)
+            continue
+        if stamp in stamps and entries:
+            return True
+    return False
