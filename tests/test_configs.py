@@ -17,7 +17,8 @@ import pytest
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
-from mosd.app import build as _build_module, config as _config_module, preflight as _preflight_module
+from mosd.app import build as _build_module, config as _config_module, options as _options_module
+from mosd.app import preflight as _preflight_module
 from mosd.detectors import EWMA, SSDEWMA
 from mosd.denoisers import NoDenoiser, WaveletDenoiser
 from mosd.estimators import CESCKF, DedicatedObserverResidual, InnovationResidual
@@ -47,18 +48,15 @@ def composer():
 
 
 def _preset_choices() -> dict[str, dict[str, str]]:
-    """{preset: {group: option}} from the defaults lists of conf/experiment/*.yaml."""
-    out = {}
-    for path in sorted((CONF / "experiment").glob("*.yaml")):
-        choices = {}
-        for entry in OmegaConf.load(path).get("defaults", []):
-            for key, value in dict(entry).items():
-                choices[key.replace("override ", "").strip("/ ")] = str(value)
-        out[path.stem] = choices
-    return out
+    """{preset: {group: option}} from the defaults lists of conf/experiment/*.yaml (the preset's own choices)."""
+    return {name: _options_module.defaults_choices(CONF / "experiment" / f"{name}.yaml")
+            for name in _config_module.options("experiment")}
 
 
 PRESETS = _preset_choices()
+#: plant option -> the fault options that act where it takes faults (found from the declarations)
+FAULTS_FOR = {plant: _options_module.faults_for(plant) for plant in _config_module.options("plant")}
+DEFAULT_PLANT = _options_module.defaults_choices(CONF / "config.yaml")["plant"]
 
 
 @functools.lru_cache(maxsize=1)
@@ -87,7 +85,17 @@ def _fault_override(group, option):
     for preset, choices in PRESETS.items():
         if preset not in ("paper000", "table", "skab") and choices.get(group) == option:  # no data file needed
             return [f"+experiment={preset}"]
-    return [] if group == "fault" else ["+fault=offset_var"]
+    if group == "fault":  # on the default plant if it takes the fault, else on a preset's plant that does
+        return [] if option in FAULTS_FOR[DEFAULT_PLANT] else _preset_taking(option)
+    return ["+fault=offset_var"]
+
+
+def _preset_taking(fault):
+    """``+experiment=P`` for the first simulated preset whose plant takes ``fault`` (where it acts)."""
+    for preset, choices in PRESETS.items():
+        if choices.get("plant") and not choices.get("data") and fault in FAULTS_FOR.get(choices["plant"], ()):
+            return [f"+experiment={preset}"]
+    raise AssertionError(f"no plant of conf/plant takes fault={fault}: its acts_on matches no plant's fault_targets")
 
 
 def test_groups_are_the_documented_ones():
@@ -165,14 +173,29 @@ def test_fault_is_not_in_defaults_and_null_in_body(composer):
         _build_module.build(composer())
 
 
-@pytest.mark.parametrize("kind,a,b", [("offset", 2.0, 1.0), ("variance", None, 2.0), ("offset_var", 2.0, 2.0),
-                                      ("drift", 2.0, 1.0)])
-def test_fault_options_match_the_issue(composer, kind, a, b):
+#: the issue's sizes of the sensor-fault options (paper 000): pinned values, not a list of the options
+ISSUE_SIZES = {"offset": (2.0, 1.0), "variance": (None, 2.0), "offset_var": (2.0, 2.0), "drift": (2.0, 1.0)}
+
+
+@pytest.mark.parametrize("kind", sorted(ISSUE_SIZES))
+def test_fault_options_match_the_issue(composer, kind):
+    a, b = ISSUE_SIZES[kind]
     fault = _build_module.build(composer(f"+fault={kind}")).experiment.fault
     assert isinstance(fault, SensorFault)
     assert (fault.kind, fault.channel, fault.onset, fault.b) == (kind, 0, 2.7, b)
     if a is not None:
         assert fault.a == a
+
+
+def test_every_fault_option_acts_somewhere_a_plant_takes_faults():
+    """Each fault option declares where it acts and some plant option takes it (conf/ and classes, no list)."""
+    from mosd.faults.base import ACTS_ON
+
+    for name in _config_module.options("fault"):
+        acts_on = _options_module.option("fault", name).acts_on
+        assert acts_on and set(acts_on.split(", ")) <= set(ACTS_ON), (name, acts_on)
+        assert any(name in faults for faults in FAULTS_FOR.values()), f"fault={name}: no plant takes it"
+    assert set(ISSUE_SIZES) <= set(FAULTS_FOR[DEFAULT_PLANT])
 
 
 def test_defaults_are_paper_scale(composer):
