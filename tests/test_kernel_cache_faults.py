@@ -87,3 +87,63 @@ def test_a_shared_numba_cache_dir_is_read_for_mosds_modules_only(tmp_path, monke
     assert cache_files(package) == [ours]
     repair(package, stream=type("S", (), {"write": lambda self, t: None})())
     assert not ours.exists() and theirs.exists()
+
+
+def _faulty(script: str, env_extra: dict, tmp_path, timeout=300) -> subprocess.CompletedProcess:
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "TMPDIR": str(tmp_path / "tmp"), **env_extra}
+    env.pop("MOSD_KERNELS", None)
+    (tmp_path / "tmp").mkdir(exist_ok=True)
+    return subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, cwd=tmp_path, env=env,
+                          timeout=timeout)
+
+
+def test_a_cache_folder_that_cannot_be_written_moves_the_cache_with_one_warning(tmp_path):
+    """NUMBA_CACHE_DIR where no folder can be made (under a file: refused even to root, like a read-only disk):
+    numba failed the kernel's first compile; the cache moves to the temporary directory, one warning line."""
+    (tmp_path / "a-file").write_text("")
+    run = _faulty(SCRIPT, {"NUMBA_CACHE_DIR": str(tmp_path / "a-file" / "cache")}, tmp_path)
+    assert run.returncode == 0, run.stderr[-2000:]
+    assert run.stdout.split() == ["True", *EXPECTED.split()]
+    warnings = [line for line in run.stderr.splitlines() if "kernel cache" in line]
+    assert len(warnings) == 1 and "kernels are cached in" in warnings[0], run.stderr[-2000:]
+    assert list((tmp_path / "tmp").rglob("*.nbi")), "nothing cached in the fallback folder"
+
+
+def test_a_cache_that_takes_no_file_takes_the_numpy_path_with_one_warning(tmp_path):
+    """A file-size limit (what a full disk does to a write: OSError) stopped the kernel's first compile with
+    'File too large' after its work; now the NumPy path, one warning line, the same booleans."""
+    script = ("import resource, signal; signal.signal(signal.SIGXFSZ, signal.SIG_IGN); "
+              "resource.setrlimit(resource.RLIMIT_FSIZE, (4096, 4096)); " + SCRIPT)
+    run = _faulty(script, {"NUMBA_CACHE_DIR": str(tmp_path / "cache")}, tmp_path)
+    assert run.returncode == 0, run.stderr[-2000:]
+    assert run.stdout.split() == ["False", *EXPECTED.split()]
+    warnings = [line for line in run.stderr.splitlines() if "kernel cache" in line]
+    assert len(warnings) == 1 and "NumPy path" in warnings[0], run.stderr[-2000:]
+
+
+_STOPPED = """
+import json, os, signal, time
+import numpy as np
+from mosd.kernels import ahead
+ahead.STALL_S = 1.0
+handle = ahead.start(["ewma"])
+os.kill(handle._proc.pid, signal.SIGSTOP)  # a stopped second process: it uses no CPU from now on
+t0 = time.monotonic()
+from mosd.kernels import ewma
+out = ewma.ewma_population(np.ones((40, 3)), np.array([0.2, 0.7]), np.zeros((2, 2)))
+print(json.dumps({"s": time.monotonic() - t0, "failed": handle.failed, "sum": float(out.sum()),
+                  "ended": handle._proc.poll() is not None}))
+"""
+
+
+def test_a_stopped_compile_ahead_process_cannot_hang_the_run(tmp_path):
+    """SIGSTOP to the second process hung the run until SIGCONT (323 s measured): the wait ends once the process has
+    used no CPU for STALL_S, the process is ended and the kernel is compiled here."""
+    import json
+
+    run = _faulty(_STOPPED, {"NUMBA_CACHE_DIR": str(tmp_path / "cache")}, tmp_path, timeout=240)
+    assert run.returncode == 0, run.stderr[-2000:]
+    found = json.loads(run.stdout.strip().splitlines()[-1])
+    assert "stalled" in found["failed"].get("ewma", ""), found
+    assert found["ended"] and found["sum"] > 0
+    assert found["s"] < 120, found  # the stall (1 s) and one compile of the EWMA kernel, not a hang

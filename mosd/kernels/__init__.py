@@ -68,7 +68,7 @@ def available() -> bool:
         try:
             import numba
 
-            _STATE["numba"] = not numba.config.DISABLE_JIT
+            _STATE["numba"] = not numba.config.DISABLE_JIT and _cache_usable(numba)
             if _STATE["numba"]:
                 from .cache import repair
 
@@ -76,6 +76,32 @@ def available() -> bool:
         except ImportError:  # pragma: no cover - numba is a dependency; this keeps the reference path usable
             _STATE["numba"] = False
     return _STATE["numba"]
+
+
+def _cache_usable(numba) -> bool:
+    """Check the folder numba will cache the kernels in (:func:`mosd.kernels.cache.usable_place`), before any
+    kernel module is imported (numba picks a kernel's folder when the module defines it); move the cache to a
+    usable folder, or say False (the NumPy path), with one warning line on stderr.
+
+    The choice goes to the processes this one starts through the environment (``NUMBA_CACHE_DIR``, documented
+    by numba; ``MOSD_KERNELS=numpy``), so that a worker neither probes again nor repeats the warning.
+    """
+    import sys
+    from pathlib import Path
+
+    from .cache import usable_place
+
+    place, warning = usable_place(Path(__file__).resolve().parent)
+    if warning:
+        print(warning, file=sys.stderr)
+    if place is not None:
+        os.environ["NUMBA_CACHE_DIR"] = place
+        numba.config.CACHE_DIR = place  # numba read its environment when imported: its documented setting too
+        return True
+    if warning:
+        os.environ["MOSD_KERNELS"] = "numpy"
+        return False
+    return True
 
 
 def enabled() -> bool:

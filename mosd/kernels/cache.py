@@ -12,6 +12,12 @@ which parses the stream without building any object (about 30 ms for the whole c
 files that do not parse: numba then finds no cached code for that kernel and compiles it again, as on an empty
 cache. One warning line says which files went and why. The check reads only mosd's own files (its package's ``__pycache__`` folders, and ``NUMBA_CACHE_DIR``).
 
+:func:`usable_place` checks, before any kernel module is imported, that the folder numba will write the kernels'
+files to takes a file of the size of the largest one (a full disk, a read-only folder, a file-size limit made the
+first compile fail with ``OSError`` after its work, and a package without any writable folder failed its import
+with numba's ``RuntimeError: no locator available``); when it does not, the kernels are cached in a folder of the
+temporary directory instead, or, without one, the NumPy path is taken: one warning line either way.
+
 :func:`fresh_index` says whether a kernel has an entry in that cache for its current source, from the files alone
 (numba's documented ``cache=True`` files, found by name): no attribute of numba's dispatcher or cache objects is
 read, so a numba release that renames those cannot break it; one that changes the files makes it answer False
@@ -25,6 +31,7 @@ import os
 import pickle
 import pickletools
 import sys
+import tempfile
 from pathlib import Path
 
 #: what numba names its cache files: the index and the code of one kernel
@@ -142,3 +149,43 @@ def fresh_index(function, numba_version: str) -> bool:
         if stamp in stamps and entries:
             return True
     return False
+
+
+#: bytes a cache folder must take to be used: a little over the largest file numba writes for mosd's kernels
+#: (paper 001's IMM filter, 0.55 MB)
+PROBE_BYTES = 1 << 20
+
+
+def _write_problem(folder: Path) -> str | None:
+    """Why ``folder`` cannot take a file of :data:`PROBE_BYTES` (None when it can); the probe is removed."""
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=folder) as probe:
+            # a local file system refuses the write itself when full (no fsync: 10 ms per process start)
+            probe.write(b"\0" * PROBE_BYTES)
+            probe.flush()
+    except OSError as exc:
+        return exc.strerror or type(exc).__name__
+    return None
+
+
+def usable_place(kernels_dir: Path, environ=os.environ) -> tuple[str | None, str | None]:
+    """Where numba should cache mosd's kernels: ``(folder or None, warning or None)``.
+
+    The folder is ``NUMBA_CACHE_DIR`` when set, else numba's own ``__pycache__`` beside the kernels
+    (``kernels_dir``): ``(None, None)`` when it takes :data:`PROBE_BYTES`. Otherwise a folder of the temporary
+    directory that does, with a one-line warning; ``(None, warning)`` when neither does (the caller takes the
+    NumPy path).
+    """
+    override = environ.get("NUMBA_CACHE_DIR", "").strip()
+    first = Path(override) if override else Path(kernels_dir) / "__pycache__"
+    why = _write_problem(first)
+    if why is None:
+        return None, None
+    uid = os.getuid() if hasattr(os, "getuid") else "user"
+    fallback = Path(tempfile.gettempdir()) / f"mosd-numba-cache-{uid}"
+    if fallback != first and _write_problem(fallback) is None:
+        return str(fallback), (f"mosd: warning: kernel cache {first} cannot be written ({why}); "
+                               f"kernels are cached in {fallback}")
+    return None, (f"mosd: warning: kernel cache {first} cannot be written ({why}) and neither can {fallback}: "
+                  "the NumPy path is used")
