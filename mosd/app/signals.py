@@ -136,11 +136,17 @@ def shutdown_workers() -> None:
 
 
 def _in_compiled_callback(frame) -> bool:
-    """True inside numba's unpickling hook, which compiled code calls and which must not raise."""
+    """True inside numba's unpickling hook, which compiled code calls and which must not raise.
+
+    Compiled code that returns an array calls back into numba's ``numba.core.serialize`` module to box it; an
+    exception raised there crashes the process (issue 22). Any frame of that module's file counts (found by the
+    module's public ``__file__`` and each frame's public ``f_code.co_filename``, not by the hook's private name):
+    a signal that lands in the module's other code, pickling a kernel for the cache, waits a few milliseconds too.
+    """
     serialize = sys.modules.get("numba.core.serialize")
-    hook = getattr(getattr(serialize, "_numba_unpickle", None), "__code__", None)
-    while hook is not None and frame is not None:
-        if frame.f_code is hook:
+    where = getattr(serialize, "__file__", None)
+    while where is not None and frame is not None:
+        if frame.f_code.co_filename == where:
             return True
         frame = frame.f_back
     return False
