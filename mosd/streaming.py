@@ -347,7 +347,13 @@ class OnlinePipeline:
         """What :meth:`save` wrote (a file or its directory). Only mosd's own stage classes are loaded."""
         arrays, meta = _read_arrays(path, cls.FILE)
         stages = []
+        from .detectors.step import legacy_stage
+
         for i, entry in enumerate(meta["stages"]):
+            older = legacy_stage(entry["class"], entry["fields"])  # a decision stage saved before the one step
+            if older is not None:
+                stages.append(older)
+                continue
             stage_cls = mosd_class(entry["class"], "model stage class")
             own = {k.split(".", 1)[1]: v for k, v in arrays.items() if k.startswith(f"s{i}.")}
             stages.append(stage_cls.from_fields(entry["fields"], own))

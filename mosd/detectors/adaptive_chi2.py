@@ -23,17 +23,16 @@ The threshold comes from α alone, so calibration data are not used.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 from scipy import stats
 
-from ..streaming import COUNT, FINITE, PointDecision, StateVar, points_of, spread
+from ..streaming import COUNT, FINITE, StateVar
 from ..validation import ConfigError, Interval, Param
-from .base import Decisions, Detector, persistent, run_lengths
+from .base import persistent
+from .step import StepDetector
 
 
-class AdaptiveChi2Detector(Detector):
+class AdaptiveChi2Detector(StepDetector):
     """λ_k > a·T_D(α) + b·(E_{k−d}/σ_N)² (module docstring; reconstruction of paper 003 §1.2)."""
 
     params = {
@@ -56,74 +55,49 @@ class AdaptiveChi2Detector(Detector):
         """T_D = F⁻¹_{χ²(dof)}(1 − α)."""
         return stats.chi2.ppf(1.0 - np.asarray(alpha, float), self.dof)
 
-    def online(self, calibration_z=None, inputs=None) -> "OnlineAdaptiveChi2":
-        """This design's causal form (the threshold comes from α alone: calibration data are not used)."""
-        return OnlineAdaptiveChi2(chi2_threshold=float(self.a * self.chi2_threshold(self.alpha)), b=float(self.b),
-                                  lag=int(self.lag), persistence=int(self.persistence))
-
-    def population(self, calibration_features: np.ndarray, features: np.ndarray, X: np.ndarray) -> Decisions:
-        """Decisions of every design (α, a, b) in X (P, 3) on z (R, K, 2) = [λ_k, E_k/σ_N].
-
-        NaN points (no prediction yet, a missing sample) never alarm, nor do the
-        first ``lag`` points (no E_{k−d} yet) unless b = 0; with b = 0 a NaN E is ignored.
-        """
+    # -- the one step (mosd.detectors.step) -------------------------------------------------
+    def step_params(self, X: np.ndarray, calibration_features=None) -> dict[str, np.ndarray]:
+        """a·T_D(α) and b per design of X (P, 3) = (α, a, b), and the persistence; calibration data are not used."""
         X = np.atleast_2d(np.asarray(X, float))
+        return {"chi2_threshold": X[:, 1] * self.chi2_threshold(X[:, 0]), "b": X[:, 2],
+                "persistence": np.full(X.shape[0], float(self.persistence))}
+
+    def step_state(self, n: int) -> dict:
+        out = {f"observer_{i}": (StateVar(f"E/σ_N of the point {i} back (null: none yet).", FINITE, missing=True),
+                                 np.nan) for i in range(1, self.lag + 1)}
+        out["run_length"] = (StateVar("Consecutive points above the threshold.", COUNT), 0)
+        return out
+
+    def scan(self, params, state, features, trajectory=False) -> dict[str, np.ndarray]:
+        """λ_k > a·T_D + b·(E_{k−d}/σ_N)² on z (R, K, 2) = [λ_k, E_k/σ_N], E_{k−d} carried from the points before.
+
+        NaN points (no prediction yet, a missing sample) never alarm, nor do the first ``lag`` points of a
+        stream's start (no E_{k−d} yet) unless b = 0; with b = 0 a NaN E is ignored.
+        """
         z = np.asarray(features, float)
         if z.ndim != 3 or z.shape[-1] != 2:
             raise ConfigError(f"detector adaptive_chi2 needs points z of shape (R, K, 2) = [chi2, observer_residual_scaled], "
                               f"got {z.shape}; allowed: monitor.outputs with two outputs")
-        alpha, a, b = X[:, 0], X[:, 1], X[:, 2]
-        statistic = np.broadcast_to(z[..., 0], (X.shape[0],) + z.shape[:2])
-        weight = b[:, None, None]
-        lagged = np.full(z.shape[:2], np.nan)  # E_{k−d}/σ_N: NaN before the first d points
-        lagged[:, self.lag:] = z[:, : z.shape[1] - self.lag, 1]
+        d, n_points = self.lag, z.shape[1]
+        weight = np.asarray(params["b"], float).reshape(-1, 1, 1)
+        # E_{k−d}/σ_N of each point: the carried E of the d points before (oldest first), then this run's
+        carried = [np.asarray(state[f"observer_{i}"], float) for i in range(d, 0, -1)]
+        batch = np.broadcast_shapes((1, z.shape[0]), *(c.shape for c in carried))
+        history = np.concatenate([*(np.broadcast_to(c, batch)[..., None] for c in carried),
+                                  np.broadcast_to(z[None, :, :, 1], batch + (n_points,))], axis=-1)
+        lagged = history[..., :n_points]
+        statistic = np.broadcast_to(z[..., 0], (weight.shape[0],) + z.shape[:2])
         # a design that ignores E (b = 0) must not inherit its NaNs (no prediction yet)
-        observer_term = np.where(weight > 0, weight * lagged[None] ** 2, 0.0)
-        threshold = (a * self.chi2_threshold(alpha))[:, None, None] + observer_term
-        exceed = statistic > threshold  # False wherever a NaN is involved
-        decision = persistent(exceed, self.persistence).astype(np.int8)
-        return Decisions(statistic=statistic, threshold=threshold, decision=decision)
-
-
-@dataclass
-class OnlineAdaptiveChi2(PointDecision):
-    """:class:`AdaptiveChi2Detector`'s causal form: points in (``point``, ``z_1`` = λ_k, ``z_2`` = E_k/σ_N);
-    ``statistic`` (λ_k), ``limit`` (a·T_D + b·(E_{k−d}/σ_N)²), ``decision`` and ``alarm`` out.
-
-    State: the last d scaled observer residuals (``observer_1`` = E_{k−1}/σ_N, ...; null before the first
-    points, as the population's NaN) and ``run_length`` (consecutive exceedances).
-    """
-
-    chi2_threshold: float   # a·T_D
-    b: float
-    lag: int
-    persistence: int
-
-    n = 2  # [λ_k, E_k/σ_N]
-
-    def state_vars(self) -> dict[str, StateVar]:
-        out = {f"observer_{i}": StateVar(f"E/σ_N of the point {i} back (null: none yet).", FINITE, missing=True)
-               for i in range(1, self.lag + 1)}
-        out["run_length"] = StateVar("Consecutive points above the threshold.", COUNT)
-        return out
-
-    def initial_state(self) -> dict:
-        return {**{f"observer_{i}": np.nan for i in range(1, self.lag + 1)}, "run_length": 0}
-
-    def update(self, columns, state) -> dict[str, np.ndarray]:
-        rows, at, z = points_of(columns, 2)
-        d = self.lag
-        carried = np.array([float(state[f"observer_{i}"]) for i in range(d, 0, -1)])   # oldest first
-        history = np.concatenate([carried, z[:, 1]])
-        lagged = history[:len(at)]                       # E_{k−d}/σ_N of each point
-        observer_term = self.b * lagged**2 if self.b > 0 else np.zeros(len(at))
-        threshold = self.chi2_threshold + observer_term
+        observer_term = np.where(weight > 0, weight * lagged**2, 0.0)
+        threshold = np.asarray(params["chi2_threshold"], float).reshape(-1, 1, 1) + observer_term
         with np.errstate(invalid="ignore"):
-            exceed = z[:, 0] > threshold
-        run = run_lengths(exceed, int(state["run_length"]))
-        alarm = run >= self.persistence
-        per_point = {"statistic": z[:, 0], "limit": threshold, "decision": alarm.astype(np.int64),
-                     "alarm": alarm, "run_length": run}
-        for i in range(1, d + 1):                        # E of the point i back, after each point
-            per_point[f"observer_{i}"] = history[d - i + 1: d - i + 1 + len(at)]
-        return spread(rows, at, per_point, state)
+            exceed = statistic > threshold  # False wherever a NaN is involved
+        held = persistent(exceed, np.asarray(params["persistence"]).astype(int), state["run_length"], trajectory)
+        decision, run = held if trajectory else (held, None)
+        out = {"statistic": statistic, "limit": threshold, "decision": decision.astype(np.int8)}
+        if trajectory:
+            out["run_length"] = run
+            for i in range(1, d + 1):  # E of the point i back, after each point
+                out[f"observer_{i}"] = np.broadcast_to(history[..., d - i + 1: d - i + 1 + n_points],
+                                                       statistic.shape)
+        return out

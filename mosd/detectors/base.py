@@ -102,39 +102,53 @@ class Detector(Component):
         return f"{type(self).__name__}({params})"
 
 
-def persistent(condition: np.ndarray, length: np.ndarray | int) -> np.ndarray:
+def persistent(condition: np.ndarray, length: np.ndarray | int, carried: np.ndarray | int = 0,
+               counts: bool = False):
     """True at k where ``condition`` held at k, k−1, ..., k−L+1 (L = ``length`` consecutive points).
+
+    The one persistence rule of every decision stage: a population of designs in tuning and test, and one
+    design's served stream (a run of ``carried`` points before the first, the count after each point
+    returned with ``counts=True``: the stream's carried state).
 
     Parameters
     ----------
     condition : ndarray of bool, shape (P, ..., K)
     length : int or ndarray of int, shape (P,)
         The persistence L >= 1 per design (a rule against isolated false alarms).
+    carried : int or ndarray of int, broadcastable to shape (P, ...)
+        Consecutive True before the first point (0: a stream's start).
+    counts : bool
+        Also return the run length after each point, shape (P, ..., K) (int64).
 
-    Compiled (:mod:`mosd.kernels.decisions`: one pass per row, no integer arrays); the NumPy
-    counting below is the reference, used with the kernels off.
+    Compiled (:func:`mosd.kernels.decisions.persistence`: one pass per row); :func:`run_lengths`'
+    cumulative counting is the reference, used with the kernels off.
     """
     condition = np.asarray(condition, bool)
     lengths = np.broadcast_to(np.asarray(length, int), condition.shape[:1])
+    before = np.broadcast_to(np.asarray(carried, np.int64), condition.shape[:-1])
     if condition.ndim >= 2 and condition.size and kernels.enabled():
         from ..kernels.decisions import persistence
 
         rows = np.ascontiguousarray(condition).reshape(condition.shape[0], -1, condition.shape[-1])
-        runs = persistence(rows, np.ascontiguousarray(lengths, dtype=np.int64), np.empty(rows.shape, bool))
-        return runs.reshape(condition.shape)
-    # run length of consecutive True ending at k, by cumulative counting (the reference)
-    return run_lengths(condition) >= lengths.reshape((-1,) + (1,) * (condition.ndim - 1))
+        run = np.empty(rows.shape if counts else (0, 0, 0), np.int64)
+        held = persistence(rows, np.ascontiguousarray(lengths, dtype=np.int64),
+                           np.ascontiguousarray(before.reshape(rows.shape[:2])), np.empty(rows.shape, bool), run)
+        held = held.reshape(condition.shape)
+        return (held, run.reshape(condition.shape)) if counts else held
+    run = run_lengths(condition, before)
+    held = run >= lengths.reshape((-1,) + (1,) * (condition.ndim - 1))
+    return (held, run) if counts else held
 
 
-def run_lengths(condition: np.ndarray, carried: int = 0) -> np.ndarray:
+def run_lengths(condition: np.ndarray, carried: np.ndarray | int = 0) -> np.ndarray:
     """Consecutive True values ending at each k of ``condition``, along its last axis, continuing a run of
-    ``carried``.
+    ``carried`` (broadcastable to ``condition.shape[:-1]``).
 
-    The causal form of :func:`persistent`'s count (``persistent`` is ``run_lengths(...) >= L`` per
-    design): a stream scored in parts, each given the last count of the one before, counts as in one call.
+    The reference of :func:`persistent`'s count (``persistent`` is ``run_lengths(...) >= L`` per design).
     """
     condition = np.asarray(condition, bool)
     counts = np.cumsum(condition, axis=-1)
     run = (counts - np.maximum.accumulate(np.where(~condition, counts, 0), axis=-1) if condition.shape[-1]
            else counts)
-    return (run + np.where(np.cumsum(~condition, axis=-1) == 0, int(carried), 0)).astype(np.int64)
+    before = np.asarray(carried, np.int64)[..., None] if np.ndim(carried) else int(carried)
+    return (run + np.where(np.cumsum(~condition, axis=-1) == 0, before, 0)).astype(np.int64)

@@ -9,13 +9,12 @@ fastest. A NaN point leaves the sums where they were.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
-from ..streaming import COUNT, PointDecision, StateVar, points_of, spread
+from ..streaming import COUNT, StateVar
 from ..validation import Interval, Param
-from .base import Decisions, Detector, persistent, run_lengths
+from .base import persistent
+from .step import StepDetector
 
 
 def scaled_mean(z: np.ndarray) -> np.ndarray:
@@ -32,7 +31,7 @@ def cusum_step(upper, lower, point, reference):
     return upper, lower
 
 
-class Cusum(Detector):
+class Cusum(StepDetector):
     """Two-sided CUSUM of the standardised subgroup mean with a persistence rule (module docstring)."""
 
     params = {
@@ -49,57 +48,38 @@ class Cusum(Detector):
         """x_k = √n · mean of the point's n values, (R, K, n) -> (R, K): N(0, 1) in control."""
         return scaled_mean(z)
 
-    def online(self, calibration_z=None, inputs=None) -> "OnlineCusum":
-        """This design's causal form on points of n values (calibration data are not used)."""
-        return OnlineCusum(k=float(self.k), h=float(self.h), persistence=int(self.persistence),
-                           n=int(np.shape(calibration_z)[-1]))
-
-    def population(self, calibration_features: np.ndarray, features: np.ndarray, X: np.ndarray) -> Decisions:
-        """Decisions of every design in X (P, 3) = (k, h, persistence); calibration data are not used."""
+    # -- the one step (mosd.detectors.step) -------------------------------------------------
+    def step_params(self, X: np.ndarray, calibration_features=None) -> dict[str, np.ndarray]:
+        """(k, h, persistence) per design of X (P, 3); calibration data are not used."""
         X = np.atleast_2d(np.asarray(X, float))
-        reference = X[:, 0].reshape(-1, 1)
-        limit = X[:, 1].reshape(-1, 1, 1)
-        lengths = self.tunable["persistence"].round(X[:, 2], clip=True).astype(int)
+        return {"k": X[:, 0], "h": X[:, 1], "persistence": self.tunable["persistence"].round(X[:, 2], clip=True)}
+
+    def step_state(self, n: int) -> dict:
+        return {"cusum_upper": (StateVar("S⁺ after the last point.", Interval(0.0, 1e150)), 0.0),
+                "cusum_lower": (StateVar("S⁻ after the last point.", Interval(0.0, 1e150)), 0.0),
+                "run_length": (StateVar("Consecutive points above h.", COUNT), 0)}
+
+    def scan(self, params, state, features, trajectory=False) -> dict[str, np.ndarray]:
+        """S⁺, S⁻ from the carried sums (:func:`cusum_step` per point), max(S⁺, S⁻) > h at ``persistence``
+        consecutive points."""
+        reference = np.asarray(params["k"], float).reshape(-1, 1)
+        limit = np.asarray(params["h"], float).reshape(-1, 1, 1)
         x = np.asarray(features, float)
-        upper = np.zeros((X.shape[0], x.shape[0]))
-        lower = np.zeros_like(upper)
-        statistic = np.empty((X.shape[0],) + x.shape)
+        batch = (reference.shape[0], x.shape[0])
+        upper = np.array(np.broadcast_to(state["cusum_upper"], batch), float)
+        lower = np.array(np.broadcast_to(state["cusum_lower"], batch), float)
+        statistic = np.empty(batch + x.shape[1:])
+        uppers = np.empty_like(statistic) if trajectory else None
+        lowers = np.empty_like(statistic) if trajectory else None
         for k in range(x.shape[1]):
             upper, lower = cusum_step(upper, lower, x[:, k], reference)
             statistic[:, :, k] = np.maximum(upper, lower)
-        decision = persistent(statistic > limit, lengths).astype(np.int8)
-        return Decisions(statistic=statistic, threshold=limit, decision=decision)
-
-
-@dataclass
-class OnlineCusum(PointDecision):
-    """:class:`Cusum`'s causal form: points in (``point``, ``z_1`` ... ``z_n``); ``statistic`` (max(S⁺, S⁻)),
-    ``limit`` (h), ``decision`` and ``alarm`` out. State: ``cusum_upper``, ``cusum_lower``, ``run_length``."""
-
-    k: float
-    h: float
-    persistence: int
-    n: int
-
-    def state_vars(self) -> dict[str, StateVar]:
-        return {"cusum_upper": StateVar("S⁺ after the last point.", Interval(0.0, 1e150)),
-                "cusum_lower": StateVar("S⁻ after the last point.", Interval(0.0, 1e150)),
-                "run_length": StateVar("Consecutive points above h.", COUNT)}
-
-    def initial_state(self) -> dict:
-        return {"cusum_upper": 0.0, "cusum_lower": 0.0, "run_length": 0}
-
-    def update(self, columns, state) -> dict[str, np.ndarray]:
-        rows, at, z = points_of(columns, self.n)
-        x = scaled_mean(z) if len(at) else np.empty(0)
-        upper, lower = np.array([float(state["cusum_upper"])]), np.array([float(state["cusum_lower"])])
-        uppers, lowers = np.empty(len(at)), np.empty(len(at))
-        for i, point in enumerate(x):
-            upper, lower = cusum_step(upper, lower, np.array([point]), self.k)
-            uppers[i], lowers[i] = upper[0], lower[0]
-        statistic = np.maximum(uppers, lowers)
-        run = run_lengths(statistic > self.h, int(state["run_length"]))
-        alarm = run >= self.persistence
-        return spread(rows, at, {"statistic": statistic, "limit": np.full(len(at), self.h),
-                                 "decision": alarm.astype(np.int64), "alarm": alarm, "cusum_upper": uppers,
-                                 "cusum_lower": lowers, "run_length": run}, state)
+            if trajectory:
+                uppers[:, :, k], lowers[:, :, k] = upper, lower
+        held = persistent(statistic > limit, np.asarray(params["persistence"]).astype(int), state["run_length"],
+                          trajectory)
+        decision, run = held if trajectory else (held, None)
+        out = {"statistic": statistic, "limit": limit, "decision": decision.astype(np.int8)}
+        if trajectory:
+            out.update(cusum_upper=uppers, cusum_lower=lowers, run_length=run)
+        return out

@@ -7,15 +7,15 @@ is ``persistence`` here). Its example uses μ_T = 0.5.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
 
 from .. import kernels
-from ..streaming import COUNT, PointDecision, StateVar, points_of, spread
+from ..streaming import COUNT, StateVar
 from ..validation import ConfigError, Interval, Param, check_int
-from .base import Decisions, Detector, persistent, run_lengths
+from .base import persistent
+from .step import StepDetector
 
 
 def _labels(key: str, value, detector):
@@ -24,7 +24,7 @@ def _labels(key: str, value, detector):
     return tuple(check_int(key, v, 1) for v in value)
 
 
-class ModeProbabilityDetector(Detector):
+class ModeProbabilityDetector(StepDetector):
     """Fault i when μ_i > μ_T at ``persistence`` consecutive points (paper 001, §4: L).
 
     Reads points z (R, K, M) — the mode probabilities of an IMM, column 0 the
@@ -57,35 +57,54 @@ class ModeProbabilityDetector(Detector):
                               f"(one per fault model)")
         return np.asarray(self.labels)
 
-    def online(self, calibration_z, inputs=None) -> "OnlineModeProbability":
-        """This design's causal form on M mode probabilities (calibration data are not used)."""
-        n = int(np.shape(calibration_z)[-1])
-        return OnlineModeProbability(mu_T=float(self.mu_T), persistence=int(self.persistence),
-                                     labels=tuple(int(v) for v in self._labels(n - 1)), n=n)
+    # -- the one step (mosd.detectors.step) -------------------------------------------------
+    def step_params(self, X: np.ndarray, calibration_features=None) -> dict[str, np.ndarray]:
+        """(μ_T, persistence) per design of X (P, 2); calibration data are not used."""
+        X = np.atleast_2d(np.asarray(X, float))
+        return {"mu_T": X[:, 0], "persistence": self.tunable["persistence"].round(X[:, 1], clip=True)}
 
-    def population(self, calibration_features: np.ndarray, features: np.ndarray, X: np.ndarray) -> Decisions:
-        """Decisions of every design (μ_T, persistence) in X (P, 2) on mode probabilities (R, K, M)."""
+    def step_state(self, n: int) -> dict:
+        return {f"run_length_{i}": (StateVar(f"Consecutive steps with fault model {i}'s probability above μ_T.",
+                                             COUNT), 0) for i in range(1, n)}
+
+    def scan(self, params, state, features, trajectory=False) -> dict[str, np.ndarray]:
+        """Fault i where μ_i > μ_T at ``persistence`` consecutive points (each model's run carried), the most
+        probable of those declared, on mode probabilities (R, K, M)."""
         mu = np.asarray(features, float)
         if mu.ndim != 3 or mu.shape[-1] < 2:
             raise ConfigError(f"detector: points of shape {mu.shape} are not mode probabilities; allowed: (R, K, M) "
                               f"with M >= 2 (normal model first), e.g. monitor.outputs=[mode_probabilities]")
-        X = np.atleast_2d(np.asarray(X, float))
-        threshold = X[:, 0]
-        lengths = self.tunable["persistence"].round(X[:, 1], clip=True).astype(int)
+        threshold = np.asarray(params["mu_T"], float)
+        lengths = np.asarray(params["persistence"]).astype(np.int64)
         # (R, M−1, K): time last for the persistence rule, copied (a few kB) so that the comparisons over all the
         # designs below read contiguous memory (over the moved view they took 30 times as long)
         faults = np.ascontiguousarray(np.moveaxis(mu[..., 1:], -1, -2))
-        labels = self._labels(faults.shape[-2])
-        statistic = faults.max(axis=-2)
+        n_designs, (n_runs, n_models, n_points) = threshold.shape[0], faults.shape
+        labels = self._labels(n_models)
+        carried = np.stack([np.broadcast_to(np.asarray(state[f"run_length_{i}"], np.int64), (n_designs, n_runs))
+                            for i in range(1, n_models + 1)], axis=-1)                      # (P, R, M−1)
+        statistic = faults.max(axis=-2) if n_models else np.zeros((n_runs, n_points))
         if kernels.enabled() and labels.dtype == np.int64:
             from ..kernels.decisions import mode_decisions
 
-            decision = mode_decisions(faults, np.ascontiguousarray(threshold), np.ascontiguousarray(lengths, np.int64),
-                                      labels, np.empty((X.shape[0],) + statistic.shape, np.int64))
-            return Decisions(statistic=np.broadcast_to(statistic, decision.shape), threshold=threshold[:, None, None],
-                             decision=decision)
+            runs = np.empty((n_designs, n_runs, n_models, n_points) if trajectory else (0, 0, 0, 0), np.int64)
+            decision = mode_decisions(faults, np.ascontiguousarray(threshold), np.ascontiguousarray(lengths), labels,
+                                      np.ascontiguousarray(carried), np.empty((n_designs, n_runs, n_points), np.int64),
+                                      runs)
+        else:
+            decision, runs = self._decide(faults, threshold, lengths, labels, carried)
+        out = {"statistic": np.broadcast_to(statistic, decision.shape), "limit": threshold[:, None, None],
+               "decision": decision}
+        if trajectory:
+            out.update({f"run_length_{i}": runs[:, :, i - 1] for i in range(1, n_models + 1)})
+        return out
+
+    @staticmethod
+    def _decide(faults, threshold, lengths, labels, carried):
+        """The NumPy form of :func:`mosd.kernels.decisions.mode_decisions` (the kernels off): decisions (P, R, K)
+        and each model's runs (P, R, M−1, K)."""
         above = faults[None] > threshold[:, None, None, None]  # (P, R, M−1, K)
-        held = persistent(above, lengths)
+        held, runs = persistent(above, lengths, carried, counts=True)
         # among the fault models that satisfy the rule, the most probable one is declared: np.argmax over the
         # models (the first of equal scores), one model at a time rather than along a strided axis of a
         # (P, R, M−1, K) score (half of paper 001's candidate evaluation)
@@ -98,39 +117,4 @@ class ModeProbabilityDetector(Detector):
             winner[better] = model
             np.maximum(best, score, out=best)
             declared |= held[:, :, model]
-        decision = np.where(declared, labels[winner], 0)
-        statistic = np.broadcast_to(statistic, decision.shape)
-        return Decisions(statistic=statistic, threshold=threshold[:, None, None], decision=decision)
-
-
-@dataclass
-class OnlineModeProbability(PointDecision):
-    """:class:`ModeProbabilityDetector`'s causal form: mode probabilities in (``point``, ``z_1`` = normal model,
-    ``z_{i+1}`` = fault model i); ``statistic`` (max_i μ_i), ``limit`` (μ_T), ``decision`` (the fault declared,
-    0 none) and ``alarm`` out. State: ``run_length_i``, consecutive steps with μ_i > μ_T, per fault model."""
-
-    mu_T: float
-    persistence: int
-    labels: tuple
-    n: int
-
-    def state_vars(self) -> dict[str, StateVar]:
-        return {f"run_length_{i}": StateVar(f"Consecutive steps with fault model {i}'s probability above μ_T.", COUNT)
-                for i in range(1, self.n)}
-
-    def initial_state(self) -> dict:
-        return {name: 0 for name in self.state_vars()}
-
-    def update(self, columns, state) -> dict[str, np.ndarray]:
-        rows, at, mu = points_of(columns, self.n)
-        faults = mu[:, 1:]                                                  # (k, M−1)
-        runs = np.column_stack([run_lengths(faults[:, i - 1] > self.mu_T, int(state[f"run_length_{i}"]))
-                                for i in range(1, self.n)]) if self.n > 1 else np.zeros((len(at), 0), np.int64)
-        held = runs >= self.persistence
-        # among the fault models that satisfy the rule, the most probable one is declared (as population does)
-        winner = np.argmax(np.where(held, faults, -1.0), axis=-1) if len(at) else np.zeros(0, np.int64)
-        decision = np.where(held.any(axis=-1), np.asarray(self.labels)[winner], 0).astype(np.int64)
-        per_point = {"statistic": faults.max(axis=-1) if len(at) else np.empty(0),
-                     "limit": np.full(len(at), float(self.mu_T)), "decision": decision, "alarm": decision > 0}
-        per_point.update({f"run_length_{i}": runs[:, i - 1] for i in range(1, self.n)})
-        return spread(rows, at, per_point, state)
+        return np.where(declared, labels[winner], 0), runs

@@ -11,13 +11,12 @@ exceedances.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
-from ..streaming import COUNT, PointDecision, StateVar, points_of, spread
+from ..streaming import COUNT, StateVar
 from ..validation import Interval, Param
-from .base import Decisions, Detector, persistent, run_lengths
+from .base import persistent
+from .step import StepDetector
 
 
 def largest_magnitude(z: np.ndarray) -> np.ndarray:
@@ -26,7 +25,7 @@ def largest_magnitude(z: np.ndarray) -> np.ndarray:
     return z[..., 0] if z.shape[-1] == 1 else np.max(z, axis=-1)
 
 
-class ThresholdDetector(Detector):
+class ThresholdDetector(StepDetector):
     """Alarm (decision 1) where max_j |z_j| > ``threshold`` at ``persistence`` consecutive points.
 
     The ranges of the two tunable parameters are per instance (``threshold_max``,
@@ -46,48 +45,29 @@ class ThresholdDetector(Detector):
                  persistence_max: int = 20):
         self._assign(locals())
 
-    def online(self, calibration_z, inputs=None) -> "OnlineThreshold":
-        """This design's causal form on points of ``calibration_z``'s width (calibration data are not used)."""
-        return OnlineThreshold(threshold=float(self.threshold), persistence=int(self.persistence),
-                               n=int(np.shape(calibration_z)[-1]))
-
     def features(self, z: np.ndarray) -> np.ndarray:
         """max_j |z_j| of points z (R, K, n) -> (R, K)."""
         return largest_magnitude(z)
 
-    def population(self, calibration_features: np.ndarray, features: np.ndarray, X: np.ndarray) -> Decisions:
-        """Decisions of every design in X (P, 2) = (threshold, persistence); calibration data are not used."""
+    # -- the one step (mosd.detectors.step) -------------------------------------------------
+    def step_params(self, X: np.ndarray, calibration_features=None) -> dict[str, np.ndarray]:
+        """(threshold, persistence) per design of X (P, 2); calibration data are not used."""
         X = np.atleast_2d(np.asarray(X, float))
-        threshold = X[:, 0].reshape(-1, 1, 1)
-        lengths = self.tunable["persistence"].round(X[:, 1], clip=True).astype(int)
-        statistic = np.broadcast_to(features, (X.shape[0],) + features.shape)
-        with np.errstate(invalid="ignore"):
+        return {"threshold": X[:, 0], "persistence": self.tunable["persistence"].round(X[:, 1], clip=True)}
+
+    def step_state(self, n: int) -> dict:
+        return {"run_length": (StateVar("Consecutive points above the threshold.", COUNT), 0)}
+
+    def scan(self, params, state, features, trajectory=False) -> dict[str, np.ndarray]:
+        """max_j |z_j| > threshold at ``persistence`` consecutive points, continuing ``run_length``."""
+        threshold = np.asarray(params["threshold"], float).reshape(-1, 1, 1)
+        features = np.asarray(features, float)
+        statistic = np.broadcast_to(features, (threshold.shape[0],) + features.shape)
+        with np.errstate(invalid="ignore"):  # a NaN point exceeds nothing: it breaks a run
             exceeds = statistic > threshold
-        decision = persistent(exceeds, lengths).astype(np.int8)
-        return Decisions(statistic=statistic, threshold=threshold, decision=decision)
-
-
-@dataclass
-class OnlineThreshold(PointDecision):
-    """:class:`ThresholdDetector`'s causal form: points in (``point``, ``z_1`` ... ``z_n``); ``statistic``
-    (max_j |z_j|), ``limit`` (the threshold), ``decision`` and ``alarm`` out. State: ``run_length`` (consecutive exceedances)."""
-
-    threshold: float
-    persistence: int
-    n: int
-
-    def state_vars(self) -> dict[str, StateVar]:
-        return {"run_length": StateVar("Consecutive points above the threshold.", COUNT)}
-
-    def initial_state(self) -> dict:
-        return {"run_length": 0}
-
-    def update(self, columns, state) -> dict[str, np.ndarray]:
-        rows, at, Z = points_of(columns, self.n)
-        statistic = largest_magnitude(Z) if len(Z) else np.empty(0)
-        with np.errstate(invalid="ignore"):
-            exceeds = statistic > self.threshold
-        run = run_lengths(exceeds, int(state["run_length"]))
-        alarm = run >= self.persistence
-        return spread(rows, at, {"statistic": statistic, "limit": np.full(len(at), float(self.threshold)),
-                                 "decision": alarm.astype(np.int64), "alarm": alarm, "run_length": run}, state)
+        held = persistent(exceeds, np.asarray(params["persistence"]).astype(int), state["run_length"], trajectory)
+        decision, run = held if trajectory else (held, None)
+        out = {"statistic": statistic, "limit": threshold, "decision": decision.astype(np.int8)}
+        if trajectory:
+            out["run_length"] = run
+        return out

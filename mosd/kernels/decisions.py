@@ -19,8 +19,11 @@ configure_compiler()  # before this module's first compile
 
 
 @njit(cache=True, nogil=True)
-def persistence(condition, lengths, out):
-    """out[p, m, k] = condition[p, m, j] for every j in k − L_p + 1 … k (L_p = ``lengths[p]``).
+def persistence(condition, lengths, carried, out, counts):
+    """out[p, m, k] = condition held at the L_p points k − L_p + 1 … k, continuing a run of ``carried[p, m]``.
+
+    The one persistence rule of every decision stage, a design population's (tuning, test) and a served
+    stream's alike (:func:`mosd.detectors.base.persistent`).
 
     Parameters
     ----------
@@ -28,25 +31,32 @@ def persistence(condition, lengths, out):
         Per design p, M rows (runs, outputs) of K points.
     lengths : ndarray of int64, shape (P,)
         The persistence L of each design (L <= 0: every point, as the reference's ``run >= L``).
+    carried : ndarray of int64, shape (P, M)
+        The run of consecutive True before each row's first point (0: a stream's start).
     out : ndarray of bool, shape (P, M, K)
         Written and returned.
+    counts : ndarray of int64, shape (P, M, K) or (0, 0, 0)
+        The run after each point (the carried state of a stream), written when not empty.
     """
     n_designs, n_rows, n_points = condition.shape
+    keep = counts.size > 0
     for p in range(n_designs):
         length = lengths[p]
         for m in range(n_rows):
-            run = 0
+            run = carried[p, m]
             for k in range(n_points):
                 if condition[p, m, k]:
                     run += 1
                 else:
                     run = 0
                 out[p, m, k] = run >= length
+                if keep:
+                    counts[p, m, k] = run
     return out
 
 
 @njit(cache=True, nogil=True)
-def mode_decisions(faults, thresholds, lengths, labels, out):  # pragma: no cover - compiled
+def mode_decisions(faults, thresholds, lengths, labels, carried, out, counts):  # pragma: no cover - compiled
     """Every design's decisions on mode probabilities: :meth:`mosd.detectors.mode_probability.ModeProbabilityDetector.population`.
 
     For design p, run r and point k, fault model m satisfies the rule where its probability exceeded
@@ -64,16 +74,21 @@ def mode_decisions(faults, thresholds, lengths, labels, out):  # pragma: no cove
     thresholds : ndarray of float64, shape (P,)
     lengths : ndarray of int64, shape (P,)
     labels : ndarray of int64, shape (M,)
+    carried : ndarray of int64, shape (P, R, M)
+        Each model's run above the threshold before the first point (0: a stream's start).
     out : ndarray of int64, shape (P, R, K)
         Written and returned.
+    counts : ndarray of int64, shape (P, R, M, K) or (0, 0, 0, 0)
+        Each model's run after each point (a stream's carried state), written when not empty.
     """
     n_designs = thresholds.shape[0]
     n_runs, n_models, n_points = faults.shape
     runs = np.zeros(n_models, np.int64)
+    keep = counts.size > 0
     for p in range(n_designs):
         threshold, length = thresholds[p], lengths[p]
         for r in range(n_runs):
-            runs[:] = 0
+            runs[:] = carried[p, r]
             for k in range(n_points):
                 declared = False
                 winner = 0
@@ -85,6 +100,8 @@ def mode_decisions(faults, thresholds, lengths, labels, out):  # pragma: no cove
                     else:
                         runs[m] = 0
                     held = runs[m] >= length
+                    if keep:
+                        counts[p, r, m, k] = runs[m]
                     declared = declared or held
                     score = value if held else -1.0
                     if m == 0:
@@ -97,6 +114,7 @@ def mode_decisions(faults, thresholds, lengths, labels, out):  # pragma: no cove
 
 def warm_up() -> None:
     """Load (or compile) the kernels."""
-    persistence(np.zeros((1, 1, 2), np.bool_), np.ones(1, np.int64), np.empty((1, 1, 2), np.bool_))
+    persistence(np.zeros((1, 1, 2), np.bool_), np.ones(1, np.int64), np.zeros((1, 1), np.int64),
+                np.empty((1, 1, 2), np.bool_), np.empty((0, 0, 0), np.int64))
     mode_decisions(np.zeros((1, 2, 2)), np.zeros(1), np.ones(1, np.int64), np.arange(1, 3, dtype=np.int64),
-                   np.empty((1, 1, 2), np.int64))
+                   np.zeros((1, 1, 2), np.int64), np.empty((1, 1, 2), np.int64), np.empty((0, 0, 0, 0), np.int64))

@@ -1,0 +1,186 @@
+"""One step per decision: a detector's recursion written once, run by tuning, test and serving alike.
+
+A :class:`StepDetector` defines its decision as one causal recursion over the monitor's points::
+
+    params = detector.step_params(X, calibration_features)   # per design, leading axis P
+    outputs = detector.scan(params, state, features)         # over leading batch axes (P, R)
+
+``scan`` takes the carried state (named arrays broadcastable to the batch: the designs × runs of a
+tuning or a test, or one design × one stream when served) and the points' features (R, K, ...), and
+returns per point the ``statistic``, its ``limit`` and the ``decision`` (0 none, i fault i); asked for
+the trajectory, also the value of every state variable after each point. The state is declared once,
+in :meth:`StepDetector.step_state` (names, domains, start values).
+
+:meth:`StepDetector.population` (tuning, the test evaluation) runs ``scan`` from the start state on a
+population of designs; :class:`StepStage` (``mosd monitor``, the served model) runs the very same
+``scan`` with one design's ``step_params`` on the rows it is given, from the state it is given. There
+is no second implementation of the decision to keep equal: a stream scored whole, in chunks or row by
+row gives the same decisions as the population (``tests/test_step.py``). Where the recursion has a
+compiled kernel (the persistence rule, :func:`mosd.detectors.base.persistent`), the scan calls it for
+both.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..streaming import PointDecision, StateVar, mosd_class, points_of, spread
+from .base import Decisions, Detector
+
+
+class StepDetector(Detector):
+    """A detector whose decision is one causal recursion (module docstring).
+
+    Subclasses implement :meth:`step_params`, :meth:`step_state` and :meth:`scan`; ``features`` (the
+    parameter-free part) as any detector.
+    """
+
+    def step_params(self, X: np.ndarray, calibration_features: np.ndarray | None = None) -> dict[str, np.ndarray]:
+        """Each design's parameters of the step, arrays with leading axis P (one per row of X (P, d))."""
+        raise NotImplementedError
+
+    def step_state(self, n: int) -> dict[str, tuple[StateVar, float]]:
+        """The carried state on points of ``n`` values: name → (declaration, value at a stream's start)."""
+        raise NotImplementedError
+
+    def scan(self, params: dict, state: dict, features: np.ndarray, trajectory: bool = False) -> dict[str, np.ndarray]:
+        """Statistic, limit and decision of every design (P) on every run (R) at every point (K).
+
+        Parameters
+        ----------
+        params : dict of ndarray
+            :meth:`step_params`, leading axis P.
+        state : dict of ndarray
+            Every declared state variable before the first point, broadcastable to (P, R).
+        features : ndarray, shape (R, K, ...)
+            :meth:`features` of the points.
+        trajectory : bool
+            Also return each state variable after each point, shape (P, R, K).
+
+        Returns
+        -------
+        dict of ndarray
+            ``statistic``, ``limit`` (broadcastable to (P, R, K)) and ``decision`` (P, R, K); with
+            ``trajectory`` also the state variables.
+        """
+        raise NotImplementedError
+
+    def start(self, n: int) -> dict[str, np.ndarray]:
+        """The state at a stream's start as arrays of shape (1, 1) (broadcast over any batch)."""
+        return {name: np.full((1, 1), value) for name, (_, value) in self.step_state(n).items()}
+
+    def population(self, calibration_features: np.ndarray, features: np.ndarray, X: np.ndarray) -> Decisions:
+        """Every design of X (P, d) from a stream's start on every run of ``features``: :meth:`scan`."""
+        X = np.atleast_2d(np.asarray(X, float))
+        features = np.asarray(features, float)
+        width = features.shape[-1] if features.ndim > 2 else 1
+        out = self.scan(self.step_params(X, calibration_features), self.start(width), features)
+        return Decisions(statistic=out["statistic"], threshold=out["limit"], decision=out["decision"])
+
+    def online(self, calibration_z, inputs=None) -> "StepStage":
+        """This design's causal form on points of ``calibration_z``'s width: its step parameters, nothing else."""
+        calibration_z = np.asarray(calibration_z, float)
+        params = self.step_params(self.design(), self.features(calibration_z))
+        cls = type(self)
+        return StepStage(detector=f"{cls.__module__}.{cls.__qualname__}", design=_plain(self.get_params()),
+                         step={k: _plain(np.asarray(v).reshape(-1)[0]) for k, v in params.items()},
+                         n=int(calibration_z.shape[-1]))
+
+
+def _plain(value):
+    """JSON-able: NumPy scalars as Python numbers, tuples as lists."""
+    if isinstance(value, dict):
+        return {k: _plain(v) for k, v in value.items()}
+    if isinstance(value, (tuple, list)):
+        return [_plain(v) for v in value]
+    return value.item() if isinstance(value, np.generic) else value
+
+
+@dataclass
+class StepStage(PointDecision):
+    """A :class:`StepDetector`'s causal form: points in (``point``, ``z_1`` ... ``z_n``); ``statistic``,
+    ``limit``, ``decision`` and ``alarm`` out; the state the detector declares, carried.
+
+    Attributes
+    ----------
+    detector : str
+        The detector's class (``module.Class``).
+    design : dict
+        Its parameters (``get_params``).
+    step : dict
+        Its :meth:`~StepDetector.step_params` (one design: scalars), fitted when the model was made.
+    n : int
+        Values per point.
+    """
+
+    detector: str
+    design: dict
+    step: dict
+    n: int
+
+    def _detector(self) -> StepDetector:
+        cached = self.__dict__.get("_built")
+        if cached is None:
+            cached = self.__dict__["_built"] = mosd_class(self.detector, "detector class")(**self.design)
+        return cached
+
+    def _declared(self) -> dict:
+        cached = self.__dict__.get("_state")
+        if cached is None:
+            cached = self.__dict__["_state"] = self._detector().step_state(self.n)
+        return cached
+
+    def state_vars(self) -> dict[str, StateVar]:
+        return {name: var for name, (var, _) in self._declared().items()}
+
+    def initial_state(self) -> dict:
+        return {name: value for name, (_, value) in self._declared().items()}
+
+    def update(self, columns, state) -> dict[str, np.ndarray]:
+        detector = self._detector()
+        rows, at, Z = points_of(columns, self.n)
+        params = {k: np.asarray([v]) for k, v in self.step.items()}
+        carried = {name: np.full((1, 1), float(state[name])) for name in self._declared()}
+        out = detector.scan(params, carried, detector.features(Z[None]), trajectory=True)
+        count = len(at)
+        per_point = {name: np.broadcast_to(out[name], (1, 1, count))[0, 0]
+                     for name in ("statistic", "limit", "decision")}
+        per_point["decision"] = per_point["decision"].astype(np.int64)
+        per_point["alarm"] = per_point["decision"] > 0
+        for name, (var, _) in self._declared().items():
+            values = np.asarray(out[name])[0, 0]
+            per_point[name] = values.astype(np.int64) if var.integer else values.astype(float)
+        return spread(rows, at, per_point, state)
+
+
+#: stage classes of models saved before :class:`StepStage`: class → (detector class, design, step) from its fields
+LEGACY = {
+    "mosd.detectors.threshold.OnlineThreshold": lambda f: (
+        "mosd.detectors.threshold.ThresholdDetector",
+        {"threshold": f["threshold"], "persistence": f["persistence"],
+         "threshold_max": max(10.0, f["threshold"]), "persistence_max": max(20, f["persistence"])},
+        {"threshold": f["threshold"], "persistence": f["persistence"]}),
+    "mosd.detectors.cusum.OnlineCusum": lambda f: (
+        "mosd.detectors.cusum.Cusum", {"k": f["k"], "h": f["h"], "persistence": f["persistence"]},
+        {"k": f["k"], "h": f["h"], "persistence": f["persistence"]}),
+    "mosd.detectors.adaptive_chi2.OnlineAdaptiveChi2": lambda f: (
+        "mosd.detectors.adaptive_chi2.AdaptiveChi2Detector",
+        {"b": f["b"], "lag": f["lag"], "persistence": f["persistence"]},
+        {"chi2_threshold": f["chi2_threshold"], "b": f["b"], "persistence": f["persistence"]}),
+    "mosd.detectors.mode_probability.OnlineModeProbability": lambda f: (
+        "mosd.detectors.mode_probability.ModeProbabilityDetector",
+        {"mu_T": f["mu_T"], "persistence": f["persistence"], "labels": list(f["labels"]["tuple"])
+         if isinstance(f["labels"], dict) else list(f["labels"])},
+        {"mu_T": f["mu_T"], "persistence": f["persistence"]}),
+}
+
+
+def legacy_stage(path: str, fields: dict) -> StepStage | None:
+    """The :class:`StepStage` of a stage an older model saved as ``path`` with ``fields``; None if not one."""
+    translate = LEGACY.get(path)
+    if translate is None:
+        return None
+    detector, design, step = translate(fields)
+    n = int(fields.get("n", 2))
+    return StepStage(detector=detector, design=design, step=step, n=n)
