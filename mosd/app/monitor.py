@@ -48,8 +48,8 @@ class _Parser(argparse.ArgumentParser):
 
 def parser() -> argparse.ArgumentParser:
     p = _Parser(prog=PROG, description="Score a CSV/Parquet file with a run's logged detector model.")
-    p.add_argument("data", help="a .csv (.csv.gz) or .parquet file: one row per sample, the model's tag columns "
-                   "(- : read it from stdin)")
+    p.add_argument("data", nargs="?", default=None, help="a .csv (.csv.gz) or .parquet file: one row per sample, "
+                   "the model's tag columns (- : read it from stdin); not with --opcua")
     p.add_argument("--model", required=True, help="the model URI (models:/M-ID or runs:/RUN_ID/detector, "
                    "printed in the run's summary)")
     p.add_argument("--out", default=None, help="write the per-row output (statistics, limits, alarm, top "
@@ -59,7 +59,27 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--keep", action="append", default=[], metavar="COLUMN",
                    help="a column that is not a tag (time, label): copied to the output, not scored (repeatable)")
     p.add_argument("--chunk", type=int, default=1000, help="rows per predict call (state carried across)")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar (with --opcua: no reconnect lines)")
+    live = p.add_argument_group("a live plant over OPC UA (pip install 'mosd[opcua]'; docs/OPCUA.md)")
+    live.add_argument("--opcua", default=None, metavar="opc.tcp://HOST:PORT",
+                      help="subscribe to this OPC UA server instead of reading a file")
+    live.add_argument("--nodes", default=None, metavar="FILE.yaml", help="the model's input columns mapped to node "
+                      "ids or unique browse names (default: each column's own name as a browse name)")
+    live.add_argument("--write", default=None, metavar="FILE.yaml", help="output columns mapped to existing nodes "
+                      "to write (default: every output, on nodes mosd creates under Objects/mosd)")
+    live.add_argument("--state", default=None, metavar="state.json", help="checkpoint the state here; restarted "
+                      "with the same file the monitor continues where it stopped")
+    live.add_argument("--step", type=float, default=None, help="the model's sampling step in seconds (required "
+                      "with --opcua): samples are aligned to it")
+    live.add_argument("--interval", type=float, default=None, help="publishing interval in seconds (default: --step)")
+    live.add_argument("--since", default=None, help="the time of the first sample to score (Unix seconds or "
+                      "ISO-8601): earlier samples come from the server's history (default: the first value seen)")
+    live.add_argument("--samples", type=int, default=None, help="stop after this many samples from the first "
+                      "(default: run until SIGTERM/SIGINT)")
+    live.add_argument("--checkpoint-every", type=int, default=100, help="samples between checkpoints (default 100)")
+    live.add_argument("--timeout", type=float, default=10.0, help="seconds to wait for the server (default 10)")
+    live.add_argument("--late", type=int, default=2, help="a sample with a tag not reported leaves, the tag missing, "
+                      "once a sample this many steps newer is seen (default 2)")
     return p
 
 
@@ -220,6 +240,14 @@ def first_alarm(out, first: int) -> str:
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = parser().parse_args(argv)
+    if args.opcua is not None:
+        from ..live.cli import main as live
+
+        return live(args)
+    if args.data is None:
+        print("mosd monitor: error: DATA is required; allowed: a .csv or .parquet file, -, or --opcua URL",
+              file=sys.stderr)
+        return 2
     try:
         if args.chunk < 1:
             raise ConfigError(f"--chunk={args.chunk} is out of range; allowed: integers >= 1")

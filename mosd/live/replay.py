@@ -106,6 +106,19 @@ def read_recording(path: str, time_column: str | None = None, drop: Sequence[str
     return Recording(values=values, tags=tuple(tags), step=float(step or 1.0))
 
 
+def _local_users():
+    """A user manager that makes every client an administrator (the replay serves 127.0.0.1 only): it may add
+    mosd's output nodes, which a plant's server would leave to its administrator (then: --write)."""
+    from asyncua.crypto.permission_rules import User, UserRole
+    from asyncua.server.user_managers import UserManager
+
+    class Local(UserManager):
+        def get_user(self, iserver, username=None, password=None, certificate=None):
+            return User(role=UserRole.Admin, name=username)
+
+    return Local()
+
+
 class ReplayServer:
     """The asyncua server replaying a :class:`Recording` (module docstring); ``async with`` starts and stops it."""
 
@@ -127,7 +140,7 @@ class ReplayServer:
         from asyncua.server.history import HistoryDict
 
         self.ua = ua
-        self.server = asyncua.Server()
+        self.server = asyncua.Server(user_manager=_local_users())
         await self.server.init()
         self.server.set_endpoint(self.url)
         self.server.set_server_name("mosd replay")
