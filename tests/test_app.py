@@ -21,6 +21,7 @@ import pytest
 import mosd as mosd_package
 from mosd.app import CONFIG_DIR
 from mosd.estimators import CESCKF
+from mosd.plants.base import fault_classes
 
 # subprocesses import the same mosd as this test process (a checkout or an install)
 PACKAGE_PARENT = str(Path(mosd_package.__file__).resolve().parents[1])
@@ -29,6 +30,8 @@ REDUCED = ["optimizer.pop_size=10", "optimizer.n_gen=3", "budget.n_test=5", "bud
            "budget.n_calibration=3", "optimizer.n_jobs=1"]
 #: the fault options as the one-line errors list them, read from conf/fault/ (issue 50: no hand-kept list)
 FAULTS = ", ".join(sorted(path.stem for path in (Path(CONFIG_DIR) / "fault").glob("*.yaml")))
+#: the fault classes a sensor-fault plant takes, as its one-line refusal lists them (found from acts_on)
+SENSOR_FAULTS = ", ".join(fault_classes(("sensor",)))
 RUN_DIR_NAME = re.compile(r"^\d{4}-\d{2}-\d{2}_\d{2}-\d{2}-\d{2}-\d{6}$")
 FINAL_METRICS = {"far", "far_ci", "mdr", "mdr_ci", "accuracy", "accuracy_ci", "delay", "delay_ci", "lam", "K",
                  "wall_time_s"}
@@ -66,6 +69,9 @@ def runs_of(outputs: Path, experiment: str = "mosd"):
     (["+fault=nope"], r"fault=nope is not an option; allowed: " + re.escape(FAULTS)),
     (["+fault=offset_var", "detector.lam=1.5"], r"detector\.lam=1\.5 is out of range; allowed: \(0, 1\)"),
     (["+fault=offset_var", "optimizer.pop_size=0"], r"optimizer\.pop_size=0 is out of range; allowed: integers"),
+    # a fault acting where the plant takes none (issue 50: a TypeError in the dry run before)
+    (["+fault=actuator", "plant=two_tank", "noise=two_tank"], r"^mosd: error: fault=ActuatorFault\(.*\) acts on an "
+     r"actuator, but plant two_tank takes faults acting on sensor only; allowed: " + re.escape(SENSOR_FAULTS)),
 ])
 def test_errors_are_one_line_exit_2_and_leave_nothing(tmp_path, args, expected):
     result = mosd(args, cwd=tmp_path)
