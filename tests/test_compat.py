@@ -102,34 +102,39 @@ def test_the_store_reads_mlflows_own_schema(tmp_path):
 
 
 def test_the_worker_pool_adapter_sees_and_stops_lokys_workers():
-    """joblib's memmapping executor, loky's module global and its worker table, the resource trackers
-    (mosd.optim.workers)."""
+    """joblib's memmapping executor, its workers found among this process's children (psutil), the resource
+    trackers (mosd.optim.workers); a pool joblib.Parallel started is found and ended too."""
     code = textwrap.dedent("""
         import json, os
         from mosd.optim import workers
         executor = workers.memmapping_executor(2, timeout=60)
         pids = sorted(executor.submit(os.getpid).result() for _ in range(4))
         seen = workers.pool_pids()
-        sentinels = workers.pool_sentinels()
+        alive = workers.pool_alive(seen)
         from multiprocessing import resource_tracker as stdlib_tracker
         from joblib.externals.loky.backend import resource_tracker as loky_tracker
         trackers = [loky_tracker._resource_tracker._pid, stdlib_tracker._resource_tracker._pid]
         hangup_blocked = [bool(int(next(line for line in open(f"/proc/{pid}/status") if line.startswith("SigBlk"))
                                    .split()[1], 16) & 1) for pid in trackers]  # bit 0: SIGHUP
         workers.shutdown_pool()
+        after_shutdown = workers.pool_alive(seen)
         import joblib  # joblib.Parallel still works after the pool it shares was shut down
-        total = sum(joblib.Parallel(n_jobs=2)(joblib.delayed(abs)(-i) for i in range(4)))
+        parallel = joblib.Parallel(n_jobs=2)(joblib.delayed(os.getpid)() for i in range(4))
+        joblibs = workers.pool_pids()
         workers.shutdown_pool()
-        print(json.dumps({"ran_in": sorted(set(pids)), "seen": sorted(seen), "total": total,
-                          "sentinels": sorted(sentinels), "hangup_blocked": hangup_blocked}))
+        import time
+        time.sleep(0.5)
+        print(json.dumps({"ran_in": sorted(set(pids)), "seen": sorted(seen), "alive": alive,
+                          "after_shutdown": after_shutdown, "parallel": sorted(set(parallel)),
+                          "joblibs": joblibs, "left": workers.pool_alive(joblibs), "hangup_blocked": hangup_blocked}))
     """)
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300,
                          env={**os.environ, "PYTHONPATH": PACKAGE_PARENT})
     assert out.returncode == 0, out.stderr[-2000:]
     found = json.loads(out.stdout.strip().splitlines()[-1])
     assert found["ran_in"] and set(found["ran_in"]) <= set(found["seen"]) and len(found["seen"]) == 2
-    assert os.getpid() not in found["seen"] and found["total"] == 6
-    assert found["sentinels"] == found["seen"]  # a stopped joblib sweep waits on them (mosd.app.signals)
+    assert os.getpid() not in found["seen"] and found["alive"] == found["seen"] and found["after_shutdown"] == []
+    assert set(found["parallel"]) <= set(found["joblibs"]) and found["left"] == []
     assert found["hangup_blocked"] == [True, True]  # SIGHUP to the group no longer kills the trackers
 
 

@@ -105,11 +105,9 @@ def stop_job_workers(signum: int, wait_s: float = JOB_STOP_WAIT_S) -> list[int]:
     job starting meanwhile does not start its run. The signal is passed on as
     received (a Ctrl-C stays SIGINT in the jobs' summaries). A worker is done
     when it has written ``<pid>`` there (:func:`end_job_worker`) or has ended.
-    Lock-free, like :func:`kill_workers`: it waits on the workers' process
-    sentinels and the stop directory only.
+    Lock-free, like :func:`kill_workers`: it polls the workers' state in ``/proc``
+    (:func:`mosd.optim.workers.pool_alive`) and the stop directory only.
     """
-    from multiprocessing.connection import wait
-
     stop_dir = os.environ.get(STOP_DIR_ENV)
     if stop_dir:
         try:
@@ -118,13 +116,13 @@ def stop_job_workers(signum: int, wait_s: float = JOB_STOP_WAIT_S) -> list[int]:
         except OSError:
             stop_dir = None
     workers = sys.modules.get(_WORKERS)
-    alive = workers.pool_sentinels() if workers is not None else {}
+    alive = workers.pool_pids() if workers is not None else []
     _signal_pool(alive, signum)
     deadline = time.monotonic() + wait_s
     while alive and time.monotonic() < deadline:
-        ended = set(wait(list(alive.values()), timeout=0.05))
-        alive = {pid: sentinel for pid, sentinel in alive.items()
-                 if sentinel not in ended and not (stop_dir and os.path.exists(os.path.join(stop_dir, str(pid))))}
+        time.sleep(0.05)
+        alive = [pid for pid in workers.pool_alive(alive)
+                 if not (stop_dir and os.path.exists(os.path.join(stop_dir, str(pid))))]
     return sorted(alive)
 
 

@@ -1,20 +1,22 @@
 """The evaluation workers: their process pool and their thread pinning.
 
-This module is the only contact with joblib's and loky's private parts;
-``tests/test_compat.py`` checks each against the installed joblib, so that an
-upgrade that changes one fails there, by name:
+Public interfaces only (issue 50 item 4); ``tests/test_compat.py`` checks each against the installed versions:
 
-* :func:`memmapping_executor` — ``joblib.executor.get_memmapping_executor`` (not in
-  joblib's documented API): joblib's memmapping flavour of loky's reusable
-  executor. ``joblib.Parallel`` (used elsewhere in the same process, e.g. the
-  optimiser benchmarks) reuses or replaces it; a plain loky executor in that
-  global slot makes ``Parallel`` fail (no ``_temp_folder_manager``).
-* :func:`pool_pids`, :func:`pool_sentinels`, :func:`shutdown_pool` — the reusable executor is
-  loky's module global ``_executor``, its workers the keys of its ``_processes`` (the values are
-  ``multiprocessing`` process objects, whose public ``sentinel`` is ready once one ends). Read without
-  taking any lock and without importing joblib: :func:`pool_pids` is called from a
-  signal handler, where the executor's own ``shutdown`` would take locks the
-  interrupted main thread may hold; no pool exists unless joblib was loaded.
+* :func:`memmapping_executor` — ``joblib.executor.get_memmapping_executor``: joblib's memmapping flavour of
+  loky's reusable executor, the one ``joblib.Parallel``'s loky backend itself asks for. A public module of
+  joblib (no private name), though not on its documentation's pages; kept because the reusable executor is one
+  slot per process that ``joblib.Parallel`` (the optimiser benchmarks, Hydra's joblib launcher) reuses or
+  replaces: a plain loky executor (``joblib.externals.loky.get_reusable_executor``) there makes a later
+  ``Parallel`` fail (it lacks joblib's temporary-folder manager), and a pool of our own
+  (``concurrent.futures.ProcessPoolExecutor``) would be a second set of workers beside joblib's.
+* :func:`pool_pids`, :func:`pool_alive` — the loky workers of this process, found among its child processes
+  (``psutil``: read from ``/proc``, no lock shared with the main thread, so callable from a signal handler,
+  where the executor's own ``shutdown`` would take locks the interrupted main thread may hold; no joblib
+  import). A loky worker is a child process started as ``python -m joblib.externals.loky...`` (its command
+  line; loky's resource tracker is started with ``-c`` and is not one). Before: loky's module global
+  ``_executor`` and its ``_processes``.
+* :func:`shutdown_pool` — the executor's public ``shutdown(wait=True, kill_workers=True)`` for the pool this
+  module handed out, then SIGKILL for any loky worker left (a pool ``joblib.Parallel`` started).
 * :func:`start_resource_trackers` — loky's ``backend.resource_tracker.ensure_running``
   and the standard library's ``multiprocessing.resource_tracker.ensure_running``.
 """
@@ -23,9 +25,11 @@ from __future__ import annotations
 import os
 import sys
 
-#: Where loky keeps the process-wide reusable executor.
-_LOKY_MODULE = "joblib.externals.loky.reusable_executor"
+#: The package whose workers are the pool's: a child process runs one of its modules (``-m``).
+_LOKY_PACKAGE = "joblib.externals.loky"
 _PINNED: dict = {}
+#: the executor :func:`memmapping_executor` last handed out (joblib's reusable one: the same object when reused)
+_POOL: dict = {}
 
 
 #: the environment variables that size BLAS/OpenMP/numba pools in processes started from here
@@ -126,7 +130,9 @@ def memmapping_executor(n_workers: int, timeout: float):
     from joblib.executor import get_memmapping_executor
 
     start_resource_trackers()
-    return get_memmapping_executor(n_workers, timeout=timeout, initializer=ignore_interrupt)
+    executor = get_memmapping_executor(n_workers, timeout=timeout, initializer=ignore_interrupt)
+    _POOL["executor"] = executor
+    return executor
 
 
 def start_resource_trackers() -> None:
@@ -151,32 +157,58 @@ def start_resource_trackers() -> None:
         signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
 
 
-def _executor():
-    module = sys.modules.get(_LOKY_MODULE)
-    return getattr(module, "_executor", None) if module is not None else None
+def _is_loky_worker(cmdline: list[str]) -> bool:
+    """Whether a process's command line is a loky worker's (``python -m joblib.externals.loky.…``)."""
+    return any(flag == "-m" and module.startswith(_LOKY_PACKAGE + ".")
+               for flag, module in zip(cmdline, cmdline[1:]))
 
 
 def pool_pids() -> list[int]:
-    """The process ids of the reusable executor's workers (empty when there is none). Lock-free."""
-    return list(getattr(_executor(), "_processes", None) or {})
+    """The process ids of this process's loky workers (empty when joblib was never loaded). Lock-free."""
+    if _LOKY_PACKAGE not in sys.modules:
+        return []
+    import psutil
 
-
-def pool_sentinels() -> dict[int, int]:
-    """``{pid: sentinel}`` of the reusable executor's workers (ready once the worker has ended). Lock-free."""
-    found = {}
-    for pid, process in list((getattr(_executor(), "_processes", None) or {}).items()):
+    found = []
+    try:
+        children = psutil.Process().children()
+    except psutil.Error:  # pragma: no cover - this process can always read its own children
+        return []
+    for child in children:
         try:
-            found[pid] = process.sentinel
-        except (AttributeError, ValueError):  # not started, or closed: nothing to wait for
+            if _is_loky_worker(child.cmdline()) and child.status() != psutil.STATUS_ZOMBIE:
+                found.append(child.pid)
+        except psutil.Error:  # it ended meanwhile
             pass
-    return found
+    return sorted(found)
+
+
+def pool_alive(pids) -> list[int]:
+    """Those of ``pids`` still running (not ended, not a zombie waiting to be reaped). Lock-free."""
+    import psutil
+
+    alive = []
+    for pid in pids:
+        try:
+            if psutil.Process(pid).status() != psutil.STATUS_ZOMBIE:
+                alive.append(pid)
+        except psutil.Error:
+            pass
+    return alive
 
 
 def shutdown_pool() -> None:
-    """Shut the reusable executor down and reap its workers, if there is one (a broken pool is expected)."""
-    executor = _executor()
+    """Shut the worker pool down and end its workers, if there is one (a broken pool is expected)."""
+    executor = _POOL.pop("executor", None)
     if executor is not None:
         try:
             executor.shutdown(wait=True, kill_workers=True)
         except Exception:  # a broken pool is what a signal leaves behind
+            pass
+    import signal
+
+    for pid in pool_pids():  # a pool joblib.Parallel started (Hydra's joblib launcher): idle workers, killed
+        try:
+            os.kill(pid, signal.SIGKILL)
+        except OSError:
             pass
