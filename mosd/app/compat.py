@@ -11,10 +11,9 @@ adapter, :mod:`mosd.optim.workers`: the science core cannot import the app.)
 * :func:`run_exit_handlers` — ``atexit._run_exitfuncs``: the fast exit
   (:func:`mosd.app.exit_now`) runs the registered cleanup handlers, then skips
   the interpreter's teardown. The standard library has no public way to run them.
-* :func:`unverified_tls_context` — ``ssl._create_unverified_context``: preflight's
-  look at a tracking server honours MLflow's ``MLFLOW_TRACKING_INSECURE_TLS`` as
-  MLflow's client does (no certificate check, no host name check); the standard
-  library's public way to build that context is this private factory.
+* :func:`unverified_tls_context` — public now: preflight's look at a tracking server honours MLflow's
+  ``MLFLOW_TRACKING_INSECURE_TLS`` as MLflow's client does (no certificate check, no host name check), with
+  ``ssl.create_default_context()`` and both checks turned off (was ``ssl._create_unverified_context``).
 * :func:`run_composed` — Hydra's ``Hydra.run`` without its two compositions
   (``hydra._internal``: ``Hydra.create_main_hydra2``, ``Callbacks``, ``run_and_report``): a single
   run uses the configuration preflight composed. ``hydra.main`` composes it twice more (once
@@ -72,10 +71,14 @@ def run_exit_handlers() -> None:
 
 
 def unverified_tls_context():
-    """An SSL context that checks neither the certificate nor the host name (private API, see the module)."""
+    """An SSL context that checks neither the certificate nor the host name (public API: the standard library's
+    default client context with both checks turned off, in the order ``ssl`` requires)."""
     import ssl
 
-    return ssl._create_unverified_context()
+    context = ssl.create_default_context()
+    context.check_hostname = False  # before verify_mode: CERT_NONE is refused while host names are checked
+    context.verify_mode = ssl.CERT_NONE
+    return context
 
 
 def sweep_jobs(parsed: Sequence[Any]) -> list[list[str]]:

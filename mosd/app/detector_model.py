@@ -81,13 +81,15 @@ def warm_up() -> None:
     """
     import mlflow.models.signature  # noqa: F401
     import mlflow.pyfunc  # noqa: F401
-    from mlflow.utils.requirements_utils import _init_modules_to_packages_map
+    from mlflow.utils.requirements_utils import warn_dependency_requirement_mismatches
 
     from .. import detectors, estimators, faults, monitors, noise, plants  # noqa: F401
     from . import model_state  # noqa: F401
 
     _python_model_class()
-    _init_modules_to_packages_map()
+    # what log_model's check of its pip requirements calls (public name): its first call scans the installed
+    # distributions (~1 s), kept for the process; numpy is installed, so it warns of nothing
+    warn_dependency_requirement_mismatches(["numpy"])
     try:
         import git  # noqa: F401
     except ImportError:  # MLflow logs without it
