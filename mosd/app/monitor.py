@@ -78,8 +78,8 @@ def parser() -> argparse.ArgumentParser:
                       "(default: run until SIGTERM/SIGINT)")
     live.add_argument("--checkpoint-every", type=int, default=100, help="samples between checkpoints (default 100)")
     live.add_argument("--timeout", type=float, default=10.0, help="seconds to wait for the server (default 10)")
-    live.add_argument("--late", type=int, default=2, help="a sample with a tag not reported leaves, the tag missing, "
-                      "once a sample this many steps newer is seen (default 2)")
+    live.add_argument("--late", type=float, default=None, help="seconds a sample waits for a tag that reported "
+                      "nothing newer, once a newer sample is seen; then the tag is missing (default 1 + 2 x --interval)")
     return p
 
 

@@ -2,8 +2,10 @@
 
 :class:`Aligner` puts each value an OPC UA server reports (tag, source timestamp, value, status) into the
 sample of its timestamp, ``round((t - t_ref) / step)``, and hands the samples on in order: a sample
-leaves when every tag has reported for it, or when a sample ``late`` steps newer has been seen (a value
-that never came is then missing). A value with a status other than Good, or that is not a number, is a
+leaves when every tag has reported for it; or when every tag has reported a newer sample (each tag's
+values come in time order, from the history and then the subscription: the missing one will not come);
+or when a newer sample has been seen for ``late`` seconds (a tag that stopped reporting). A value that
+never came is then missing. A value with a status other than Good, or that is not a number, is a
 missing value: counted (``bad``), never used. A value for a sample already handed on (a duplicate from a
 backfill, a late arrival) is counted (``stale``) and ignored: no sample is scored twice.
 
@@ -18,6 +20,7 @@ training data read them. Both classes' state is plain JSON (:meth:`to_json`), ch
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -48,22 +51,27 @@ class Aligner:
         Time of sample 0 (Unix seconds); default: the first value's time.
     next_number : int
         The first sample not yet handed on (a restart's checkpoint).
-    late : int
-        A sample with tags still missing leaves once a sample this many steps newer has been seen.
+    late : float
+        Seconds a sample waits for a tag that has reported nothing newer, once a newer sample has been seen.
+    clock : callable
+        Seconds (monotonic) for ``late``.
     """
 
     n_tags: int
     step: float
     t_ref: float | None = None
     next_number: int = 0
-    late: int = 2
+    late: float = 2.0
     counts: dict = field(default_factory=lambda: {"bad": 0, "absent": 0, "stale": 0, "missing_rows": 0})
+    clock: object = time.monotonic
 
     def __post_init__(self):
         self._values: dict[int, np.ndarray] = {}
         self._seen: dict[int, np.ndarray] = {}
         self._bad: dict[int, int] = {}
+        self._overtaken: dict[int, float] = {}
         self.newest = self.next_number - 1
+        self.tag_newest = np.full(self.n_tags, self.next_number - 1)
 
     def number_of(self, t: float) -> int:
         return int(round((t - self.t_ref) / self.step))
@@ -91,6 +99,7 @@ class Aligner:
         else:
             self._bad[k] = self._bad.get(k, 0) + 1
         self.newest = max(self.newest, k)
+        self.tag_newest[tag] = max(self.tag_newest[tag], k)
 
     def close(self, upto: int | None = None) -> list[Sample]:
         """The samples that may leave now, in order (none past ``upto``, exclusive)."""
@@ -98,9 +107,12 @@ class Aligner:
         while self.next_number <= self.newest and (upto is None or self.next_number < upto):
             k = self.next_number
             seen = self._seen.get(k)
-            complete = seen is not None and bool(seen.all())
-            if not complete and self.newest - k < self.late:
-                break
+            complete = (seen is not None and bool(seen.all())) or int(self.tag_newest.min()) > k
+            if not complete:
+                since = self._overtaken.setdefault(k, self.clock())
+                if self.clock() - since < self.late:
+                    break
+            self._overtaken.pop(k, None)
             values = self._values.pop(k, None)
             seen = self._seen.pop(k, np.zeros(self.n_tags, bool))
             bad = self._bad.pop(k, 0)

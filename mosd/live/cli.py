@@ -94,8 +94,9 @@ def options(args, pipeline) -> LiveOptions:
                              ("--timeout", args.timeout, 0.0)):
         if value is not None and not value > low:
             raise ConfigError(f"{name}={value!r} is out of range; allowed: a number of seconds > {low:g}")
-    for name, value in (("--samples", args.samples), ("--checkpoint-every", args.checkpoint_every),
-                        ("--late", args.late)):
+    if args.late is not None and not args.late >= 0:
+        raise ConfigError(f"--late={args.late!r} is out of range; allowed: a number of seconds >= 0")
+    for name, value in (("--samples", args.samples), ("--checkpoint-every", args.checkpoint_every)):
         if value is not None and value < 1:
             raise ConfigError(f"{name}={value} is out of range; allowed: integers >= 1")
     from ..app.monitor import check_out

@@ -23,7 +23,6 @@ from __future__ import annotations
 import asyncio
 import math
 import re
-import time
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
@@ -59,7 +58,7 @@ class LiveOptions:
     samples: int | None = None
     checkpoint_every: int = 100
     timeout: float = 10.0
-    late: int = 2
+    late: float | None = None
     max_backoff: float = 10.0
     security: str | None = None
     user: str | None = None
@@ -94,7 +93,8 @@ class LiveMonitor:
         self.inputs = tuple(pipeline.inputs)
         self.state_names = tuple(pipeline.state_names)
         self.state = pipeline.initial_state()
-        self.aligner = Aligner(len(self.inputs), options.step, t_ref=options.since, late=options.late)
+        self.late = options.late if options.late is not None else 1.0 + 2 * (options.interval or options.step)
+        self.aligner = Aligner(len(self.inputs), options.step, t_ref=options.since, late=self.late)
         self.fill = CausalFill(pipeline.fill, len(self.inputs))
         self.totals = Totals()
         self.queue: asyncio.Queue = asyncio.Queue()
@@ -132,7 +132,7 @@ class LiveMonitor:
                               f"--step {data['step']:g} with --state {path}")
         self.state = self.pipeline.check_state(data["state"])
         self.aligner = Aligner(len(self.inputs), self.o.step, t_ref=data["t_ref"], next_number=data["next_number"],
-                               late=self.o.late, counts=dict(data["counts"]))
+                               late=self.late, counts=dict(data["counts"]))
         self.fill.load_json(data["fill"])
         self.totals = Totals(**data["totals"])
         self.log_bytes = int(data.get("log_bytes", 0))
@@ -361,8 +361,9 @@ class LiveMonitor:
             item = ua.MonitoredItemCreateRequest()
             item.ItemToMonitor = ua.ReadValueId(NodeId=node.nodeid, AttributeId=ua.AttributeIds.Value)
             item.MonitoringMode = ua.MonitoringMode.Reporting
-            # a queue for every sample of a publishing interval (and then some): none is dropped between two
-            queue = int(min(10000, max(10, 4 * period / 1000.0 / max(self.o.step, 1e-3) + 10)))
+            # a queue for every sample of a publishing interval, and a late publish (a replay faster than real
+            # time, a loaded machine): none is dropped between two
+            queue = int(min(10000, max(1000, 4 * period / 1000.0 / max(self.o.step, 1e-3))))
             item.RequestedParameters = ua.MonitoringParameters(ClientHandle=1000 + j, SamplingInterval=0.0,
                                                                Filter=trigger, QueueSize=queue, DiscardOldest=False)
             requests.append(item)
@@ -399,6 +400,11 @@ class LiveMonitor:
         value = dv.Value.Value if dv.Value is not None else None
         self.aligner.add(tag, dv.SourceTimestamp.timestamp(), value, code == 0)
 
+    def drain(self) -> None:
+        """Every notification that has arrived, into the aligner."""
+        while not self.queue.empty():
+            self._add(*self.queue.get_nowait())
+
     async def consume(self, client) -> None:
         """Samples from the subscription until stopped; raises when the server is lost."""
         from asyncua import ua
@@ -411,8 +417,7 @@ class LiveMonitor:
                 await asyncio.wait_for(client.nodes.server_state.read_value(), self.o.timeout)
                 continue
             self._add(*first)
-            while not self.queue.empty():
-                self._add(*self.queue.get_nowait())
+            self.drain()
             await self.process(client)
 
     async def run(self) -> int:
@@ -432,6 +437,7 @@ class LiveMonitor:
                     self.write_nodes = [client.get_node(n.nodeid) for n in self.write_nodes]
                 await self.subscribe(client)
                 await self.backfill(client)
+                self.drain()
                 await self.process(client)
                 delay = 0.2
                 await self.consume(client)
@@ -524,6 +530,3 @@ def seconds(text: str, option: str) -> float:
                           "(2026-01-01T00:00:00Z)") from None
     return (stamp if stamp.tzinfo else stamp.replace(tzinfo=timezone.utc)).timestamp()
 
-
-def clock() -> float:
-    return time.time()
