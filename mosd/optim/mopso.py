@@ -52,7 +52,13 @@ One class, two presets:
   same seed it gives the same archive as this module did before the robust default.
 
 The archive (grid, eq. 37, leader choice) and the constrained dominance live in
-:mod:`mosd.optim.archive`; this module keeps the swarm. The swarm's state is arrays; pymoo's
+:mod:`mosd.optim.archive`; this module keeps the algorithm class and pymoo's lifecycle, and the rest of the
+swarm lives in rooms by job (issue 50), whose names it re-exports: the operators on arrays in
+:mod:`mosd.optim.variation`; the particles' move in :mod:`mosd.optim.particle_move`, the archive offspring in
+:mod:`mosd.optim.offspring`, the compiled move's glue in :mod:`mosd.optim.compiled_move` and the run-length
+planning in :mod:`mosd.optim.planning` (mixins of :class:`MOPSO`); the constants, the paper preset and the
+option checks in :mod:`mosd.optim.mopso_settings`; pymoo's individuals in :mod:`mosd.optim.individuals`.
+The swarm's state is arrays; pymoo's
 individuals are built only where its API needs them: :meth:`MOPSO.next` runs a generation on arrays
 and hands pymoo's ``advance`` an :class:`EvaluatedArrays`, whose individuals are built when the archive
 keeps a candidate or something reads ``pop`` (``res.pop``, ``res.history``, callbacks); ``ask``/``tell``
@@ -71,7 +77,7 @@ place that implements it:
   and :meth:`~mosd.optim.archive.GridArchive._truncate`;
 * duplicates and constraints in the archive — :meth:`~mosd.optim.archive.GridArchive.update`;
 * the run length that schedules and Coello's mutation refer to —
-  :meth:`MOPSO._planned_generations`.
+  :meth:`~mosd.optim.planning.GenerationPlan._planned_generations`.
 
 Paper 000's step 4 also says to stop ("jump to step 7") once the archive is full; this
 implementation does not: the run length is pymoo's termination criterion (the paper's
