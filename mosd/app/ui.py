@@ -15,8 +15,9 @@ MLflow's job runner off, on the loopback interface) against the default store an
   runs table those columns (the browser's own stored choices win), so that a click on
   the experiment in the list lands on that table too.
 
-The server is MLflow's, unchanged: its FastAPI app (:data:`app`, what uvicorn
-serves) with one middleware that adds the script to the HTML page.
+The server is MLflow's, unchanged: its FastAPI app with one middleware that adds the script to the HTML page
+(:func:`create_app`), served as an MLflow app plugin (``mlflow server --app-name``, MLflow's documented
+``mlflow.app`` entry points: :func:`serve`).
 """
 from __future__ import annotations
 
@@ -117,29 +118,64 @@ def _wrapped_app():
     return mlflow_app
 
 
+def create_app():
+    """MLflow's FastAPI app with the page script (:func:`_wrapped_app`): the factory uvicorn calls (``--factory``)."""
+    return _wrapped_app()
+
+
 def __getattr__(name: str):
-    # ``mosd.app.ui:app`` is what uvicorn serves; built on first access so that importing this module is cheap
+    # ``mosd.app.ui:app``: the wrapped app, built on first access so that importing this module is cheap
     if name == "app":
         globals()["app"] = _wrapped_app()
         return globals()["app"]
     raise AttributeError(name)
 
 
+#: the name of mosd's app among MLflow's app plugins (the ``mlflow.app`` entry point group), and its factory
+APP_NAME = "mosd-ui"
+APP_FACTORY = "mosd.app.ui:create_app"
+
+
+def _entry_point_folder() -> str | None:
+    """A folder to put on ``sys.path`` that declares :data:`APP_NAME` in the ``mlflow.app`` entry points (a
+    distribution's metadata, the packaging standard MLflow reads plugins from); None when an installed
+    distribution declares it already.
+
+    One folder per user in the temporary directory, its two small files rewritten whole (a temporary file
+    renamed into place) each time: servers started together read one or the other, both the same, and a server
+    killed never leaves a folder behind.
+    """
+    import importlib.metadata
+    import tempfile
+    from pathlib import Path
+
+    if any(ep.name == APP_NAME for ep in importlib.metadata.entry_points(group="mlflow.app")):
+        return None
+    uid = os.getuid() if hasattr(os, "getuid") else "user"
+    folder = Path(tempfile.gettempdir()) / f"mosd-ui-app-{uid}"
+    info = folder / "mosd_ui_app-1.0.dist-info"
+    info.mkdir(parents=True, exist_ok=True)
+    for name, text in (("METADATA", "Metadata-Version: 2.1\nName: mosd-ui-app\nVersion: 1.0\n"),
+                       ("entry_points.txt", f"[mlflow.app]\n{APP_NAME} = {APP_FACTORY}\n")):
+        part = info / f".{name}.{os.getpid()}"
+        part.write_text(text)
+        os.replace(part, info / name)
+    return str(folder)
+
+
 def serve(argv: Sequence[str]) -> int:
-    """``python -m mosd.app.ui serve ARGS``: ``mlflow server ARGS`` serving :data:`app` instead of MLflow's app."""
-    import mlflow.server as server
+    """``python -m mosd.app.ui serve ARGS``: ``mlflow server --app-name mosd-ui ARGS``, serving :func:`create_app`.
 
-    build = server._build_uvicorn_command
-
-    def ours(uvicorn_opts, host, port, workers, app_name, *args, **kwargs):
-        if app_name == "mlflow.server.fastapi_app:app":
-            app_name = "mosd.app.ui:app"  # by name: run as -m this module is __main__
-        return build(uvicorn_opts, host, port, workers, app_name, *args, **kwargs)
-
-    server._build_uvicorn_command = ours  # the one place MLflow names its app: ours wraps it
+    MLflow finds the app among its ``mlflow.app`` entry points; where mosd's installed metadata does not declare
+    it, a folder declaring it is put on ``sys.path`` for this process (:func:`_entry_point_folder`). The server
+    process is MLflow's own; uvicorn calls the factory in its worker.
+    """
+    folder = _entry_point_folder()
+    if folder is not None:
+        sys.path.insert(0, folder)
     from mlflow.cli import cli
 
-    return cli.main(["server", *argv], prog_name="mlflow", standalone_mode=True)
+    return cli.main(["server", "--app-name", APP_NAME, *argv], prog_name="mlflow", standalone_mode=True)
 
 
 def server_command(uri: str, host: str, port: int) -> list[str]:
