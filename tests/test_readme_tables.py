@@ -50,8 +50,6 @@ def test_the_readme_index_names_every_option_and_no_other():
 
 
 def test_the_index_says_where_each_fault_acts_and_each_plant_takes_faults():
-    from mosd.app.config import CONFIG_DIR
-
     row = {line.split("|")[1].strip(): line for line in options_module.readme_index().splitlines()
            if line.startswith("| `")}
     for name in options("fault"):
@@ -63,7 +61,6 @@ def test_the_index_says_where_each_fault_acts_and_each_plant_takes_faults():
     for preset, choices in options_module.presets().items():
         if choices.get("plant") and choices.get("fault") and not choices.get("data"):
             assert choices["fault"] in options_module.faults_for(choices["plant"]), (preset, choices)
-    assert (CONFIG_DIR / "fault").is_dir()
 
 
 def test_the_curated_preset_table_names_existing_presets():
