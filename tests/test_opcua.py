@@ -111,6 +111,13 @@ def tuned(tmp_path_factory):
                 coded=coded, bad=len(set(cells)))
 
 
+@pytest.fixture(scope="module")
+def served(tuned):
+    """One replay of the test rows for the tests that need no restart: (url, epoch)."""
+    with replay_server(tuned["tmp"] / "test.csv") as (url, epoch, _):
+        yield url, epoch
+
+
 def expected(pipeline, frame):
     """The uninterrupted run: the model's gap policy on the whole table, then one update from the start."""
     import pandas as pd
@@ -135,14 +142,15 @@ def same_outputs(log, reference):
     assert list(log["top_t2"]) == list(reference["top_t2"])
 
 
-def test_replayed_test_rows_give_the_file_s_alarms_and_are_written_back(tuned):
+def test_replayed_test_rows_give_the_file_s_alarms_and_are_written_back(tuned, served):
     import asyncio
 
     import pandas as pd
     from asyncua import Client
 
     tmp = tuned["tmp"]
-    with replay_server(tmp / "test.csv") as (url, epoch, _):
+    url, epoch = served
+    if True:
         live = monitor([*live_args(url, tuned["uri"], tmp, "live", epoch), "--tracking-uri", tuned["tracking"]])
         file = _mosd(["monitor", "--model", tuned["uri"], str(tmp / "test.csv"), "--keep", "time", "--out",
                       str(tmp / "file.csv"), "--tracking-uri", tuned["tracking"]], tmp, tmp / "out")
@@ -216,34 +224,39 @@ def test_server_killed_and_restarted_mid_stream_is_backfilled_from_its_history(t
     same_outputs(read_log(tmp / "dropped.csv"), reference)
 
 
-def _one_line_exit_2(args, *needles):
-    process = monitor(args)
-    out, err = process.communicate(timeout=120)
-    assert process.returncode == 2, (out, err)
+def _one_line_exit_2(capsys, args, *needles):
+    """``mosd monitor`` in this process (no interpreter to start): exit 2, one line naming ``needles``."""
+    from mosd.app.monitor import main
+
+    capsys.readouterr()
+    assert main([str(a) for a in args]) == 2
+    err = capsys.readouterr().err
     assert err.strip().count("\n") == 0 and "Traceback" not in err, err
     for needle in needles:
         assert needle in err, err
     return err
 
 
-def test_mistakes_are_one_line_and_exit_2(tuned, tmp_path):
-    tmp, npz = tuned["tmp"], tuned["npz"]
+def test_mistakes_are_one_line_and_exit_2(tuned, served, tmp_path, capsys):
+    npz = tuned["npz"]
+    url, _ = served
     base = ["--model", npz, "--step", 60, "--timeout", 2, "--no-progress"]
     # a server that accepts the connection and never answers
     with socket.socket() as silent:
         silent.bind(("127.0.0.1", 0))
         silent.listen()
-        _one_line_exit_2(["--opcua", f"opc.tcp://127.0.0.1:{silent.getsockname()[1]}", *base], "did not answer")
-    _one_line_exit_2(["--opcua", "opc.tcp://user:secret@127.0.0.1:4840", *base], "MOSD_OPCUA_PASSWORD")
+        _one_line_exit_2(capsys, ["--opcua", f"opc.tcp://127.0.0.1:{silent.getsockname()[1]}", *base],
+                         "did not answer")
+    _one_line_exit_2(capsys, ["--opcua", "opc.tcp://user:secret@127.0.0.1:4840", *base], "MOSD_OPCUA_PASSWORD")
     nodes = tmp_path / "nodes.yaml"
-    with replay_server(tmp / "test.csv", speed=1) as (url, _, _):
-        nodes.write_text("".join(f"{t}: {t}\n" for t in TAGS[:-1]) + f"{TAGS[-1]}: ns=2;s=no_such_tag\n")
-        _one_line_exit_2(["--opcua", url, "--nodes", nodes, *base], "no_such_tag", "not a variable")
-        nodes.write_text("".join(f"{t}: {t}\n" for t in TAGS[:-1]) + f"{TAGS[-1]}: Info\n")
-        _one_line_exit_2(["--opcua", url, "--nodes", nodes, *base], "data type String", "numeric")
-        nodes.write_text("".join(f"{t}: {t}\n" for t in TAGS[:-1]))
-        _one_line_exit_2(["--opcua", url, "--nodes", nodes, *base], f"input {TAGS[-1]!r}")
-        _one_line_exit_2(["--opcua", url, "--model", npz, "--no-progress"], "--step is required")
+    nodes.write_text("".join(f"{t}: {t}\n" for t in TAGS[:-1]) + f"{TAGS[-1]}: ns=2;s=no_such_tag\n")
+    _one_line_exit_2(capsys, ["--opcua", url, "--nodes", nodes, *base], "no_such_tag", "not a variable")
+    nodes.write_text("".join(f"{t}: {t}\n" for t in TAGS[:-1]) + f"{TAGS[-1]}: Info\n")
+    _one_line_exit_2(capsys, ["--opcua", url, "--nodes", nodes, *base], "data type String", "numeric")
+    nodes.write_text("".join(f"{t}: {t}\n" for t in TAGS[:-1]))
+    _one_line_exit_2(capsys, ["--opcua", url, "--nodes", nodes, *base], f"input {TAGS[-1]!r}")
+    _one_line_exit_2(capsys, ["--opcua", url, "--model", npz, "--no-progress"], "--step is required")
+    _one_line_exit_2(capsys, ["--opcua", url, "--write", nodes, *base], "is not a column of the model")
 
 
 def test_a_missing_extra_is_one_line_naming_it(monkeypatch):
