@@ -31,6 +31,28 @@ def test_hydra_args_parser_reads_what_preflight_reads():
 
 
 @pytest.mark.parametrize("line", [
+    [], ["-m", "--config-dir", "extra", "-cn", "other", "a=1", "+b=2"], ["--cfg", "job", "--resolve", "-p", "x"],
+    ["--info"], ["-i", "defaults-tree"], ["--hydra-help"], ["-h", "seed=3"], ["-cp", "/c", "-r", "~x"],
+    ["--shell-completion", "hydra/launcher=joblib"], ["--experimental-rerun", "p.pickle"], ["-c", "hydra", "-sc"],
+])
+def test_our_hydra_parser_reads_a_line_as_hydras_own(line):
+    """Our parser (public argparse) against Hydra's private one, read here in the test only: the same namespace."""
+    from hydra._internal.utils import get_args_parser
+
+    assert vars(compat.hydra_args_parser().parse_args(line)) == vars(get_args_parser().parse_args(line))
+
+
+def test_both_hydra_parsers_know_the_same_flags():
+    from hydra._internal.utils import get_args_parser
+
+    def flags(parser):
+        return sorted((tuple(sorted(a.option_strings)), a.dest, a.nargs, tuple(a.choices or ()))
+                      for a in parser._actions)
+
+    assert flags(compat.hydra_args_parser()) == flags(get_args_parser())
+
+
+@pytest.mark.parametrize("line", [
     ["+fault=offset,variance", "optimizer=mopso,nsga2", "seed=1"],
     ["seed=range(1,4)", "+fault=offset", "seed=5,6"],          # a later override of a key replaces it
     ["+fault=offset_var", "detector.lam=0.1,0.2", "budget.n_test=3"],

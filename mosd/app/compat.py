@@ -5,9 +5,9 @@ that an upgrade that moves or changes one fails there, naming what changed,
 rather than somewhere in a run. (The optimiser's worker pool has its own
 adapter, :mod:`mosd.optim.workers`: the science core cannot import the app.)
 
-* :func:`hydra_args_parser` — Hydra's command-line parser
-  (``hydra._internal.utils.get_args_parser``). Preflight must read a command line
-  exactly as ``hydra.main`` will, and Hydra has no public parser.
+* :func:`hydra_args_parser` — public now: our own parser of Hydra's documented flags (was Hydra's private
+  ``hydra._internal.utils.get_args_parser``; preflight must read a command line exactly as ``hydra.main`` will,
+  and Hydra has no public parser: ``tests/test_compat.py`` compares the two).
 * :func:`run_exit_handlers` — ``atexit._run_exitfuncs``: the fast exit
   (:func:`mosd.app.exit_now`) runs the registered cleanup handlers, then skips
   the interpreter's teardown. The standard library has no public way to run them.
@@ -56,11 +56,39 @@ MLFLOW_VERSION_TABLE = "alembic_version"
 MLFLOW_RUNS_TABLE = "runs"
 
 
-def hydra_args_parser():
-    """Hydra's own ``argparse`` parser of a ``hydra.main`` command line (private API, see the module)."""
-    from hydra._internal.utils import get_args_parser
+#: the values of Hydra's ``--info`` (``hydra.main``'s command line, Hydra 1.3's documentation)
+HYDRA_INFO = ("all", "config", "defaults", "defaults-tree", "plugins", "searchpath")
 
-    return get_args_parser()
+
+def hydra_args_parser():
+    """An ``argparse`` parser of a ``hydra.main`` command line: the flags Hydra 1.3 documents (``--help`` of any
+    Hydra app), with the attribute names Hydra's own parser gives them.
+
+    Our own, not Hydra's private ``hydra._internal.utils.get_args_parser``: ``tests/test_compat.py`` compares
+    the two on a set of command lines, so a flag Hydra adds or renames fails there, by name.
+    """
+    import argparse
+
+    from hydra import __version__
+
+    parser = argparse.ArgumentParser(add_help=False, description="Hydra")
+    parser.add_argument("--help", "-h", action="store_true", help="Application's help")
+    parser.add_argument("--hydra-help", action="store_true", help="Hydra's help")
+    parser.add_argument("--version", action="version", version=f"Hydra {__version__}",
+                        help="Show Hydra's version and exit")
+    parser.add_argument("--cfg", "-c", choices=["job", "hydra", "all"], help="Show config instead of running")
+    parser.add_argument("--resolve", action="store_true", help="Used with --cfg, resolve config interpolations")
+    parser.add_argument("--package", "-p", help="Config package to show")
+    parser.add_argument("--run", "-r", action="store_true", help="Run a job")
+    parser.add_argument("--multirun", "-m", action="store_true", help="Run multiple jobs")
+    parser.add_argument("--shell-completion", "-sc", action="store_true", help="Install or Uninstall shell completion")
+    parser.add_argument("--config-path", "-cp", help="Overrides the config_path")
+    parser.add_argument("--config-name", "-cn", help="Overrides the config_name")
+    parser.add_argument("--config-dir", "-cd", help="Adds an additional config dir to the config search path")
+    parser.add_argument("--experimental-rerun", help="Rerun a job from a previous config pickle")
+    parser.add_argument("--info", "-i", const="all", nargs="?", choices=list(HYDRA_INFO), help="Print Hydra information")
+    parser.add_argument("overrides", nargs="*", help="Any key=value arguments to override config values")
+    return parser
 
 
 def run_exit_handlers() -> None:
