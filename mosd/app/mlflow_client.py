@@ -9,6 +9,7 @@ store is created or opened under :func:`mosd.app.store.store_lock`.
 """
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import subprocess
@@ -26,6 +27,8 @@ HTTP_ENV_DEFAULTS = {"MLFLOW_HTTP_REQUEST_MAX_RETRIES": "2", "MLFLOW_HTTP_REQUES
 # MLflow limits: param values 6000 characters, tag values 8000.
 MAX_PARAM_LENGTH = 6000
 MAX_TAG_LENGTH = 8000
+#: MLflow's table of experiments (the template store's Default experiment is removed from it: store_template)
+MLFLOW_EXPERIMENTS_TABLE = "experiments"
 #: Tag of a run whose params, metrics or artifacts were not all logged (the run is FAILED until
 #: ``mosd log RUN_DIR`` completes it: :mod:`mosd.app.pending`).
 LOGGING_ERROR_TAG = "mosd.logging_error"
@@ -68,10 +71,11 @@ def store_template() -> Path | None:
 
     MLflow makes a new store by running every schema migration since its first release (~4 s of CPU: 135
     migration scripts, 63 table rebuilds), each time. The result depends only on the versions of MLflow,
-    SQLAlchemy, alembic and SQLite, which name the file. MLflow's own function makes it
-    (``mlflow.store.db.utils._initialize_tables``: what ``SqlAlchemyStore`` runs on an empty database);
-    it holds no experiment: the Default one, whose artifact location depends on the working directory,
-    is added by MLflow when a store copied from it is first opened, as on a store it made.
+    SQLAlchemy, alembic and SQLite, which name the file. MLflow's public store class makes it
+    (``SqlAlchemyStore`` migrates an empty database when it is constructed, then adds the Default
+    experiment); the Default experiment is then removed from the template, because its artifact
+    location depends on the working directory: MLflow adds it again when a store copied from the
+    template is first opened, as on a store it made.
     None when templates are off (:func:`mosd.app.store.template_directory`).
     """
     directory = template_directory()
@@ -82,8 +86,8 @@ def store_template() -> Path | None:
 
     import alembic
     import mlflow
-    import mlflow.store.db.utils as db_utils
     import sqlalchemy
+    from mlflow.store.tracking.sqlalchemy_store import SqlAlchemyStore
 
     key = (f"mlflow-{mlflow.__version__}_sqlalchemy-{sqlalchemy.__version__}_alembic-{alembic.__version__}"
            f"_sqlite-{sqlite3.sqlite_version}")
@@ -93,11 +97,11 @@ def store_template() -> Path | None:
     partial = template.with_name(f"{template.name}.partial-{os.getpid()}")
     partial.unlink(missing_ok=True)
     try:
-        engine = db_utils.create_sqlalchemy_engine_with_retry(f"sqlite:///{partial}")
-        try:
-            db_utils._initialize_tables(engine)
-        finally:
-            engine.dispose()
+        made = SqlAlchemyStore(f"sqlite:///{partial}", (directory / "unused-artifacts").resolve().as_uri())
+        made.engine.dispose()
+        with contextlib.closing(sqlite3.connect(partial)) as con, con:
+            # the Default experiment (id 0) and its artifact location, which belongs to whoever opens the copy
+            con.execute(f"DELETE FROM {MLFLOW_EXPERIMENTS_TABLE} WHERE experiment_id = 0")
         os.replace(partial, template)  # another process building it too: either whole file wins
     finally:
         partial.unlink(missing_ok=True)
@@ -165,9 +169,17 @@ class MlflowStore:
             self._experiment_id = self.experiment_id()
 
     def experiment_id(self) -> str:
-        """Id of the settings' experiment, created (with its artifact location) if new."""
-        if self._experiment_id is not None:
-            return self._experiment_id
+        """Id of the settings' experiment, created (with its artifact location) if new; asked once per store.
+
+        Kept after the first answer: the run's start reply names it after the run is created, and a tracking
+        server that dies in between must not make the created run look uncreated (its id would be lost, and
+        ``mosd log`` would make a second run: issue 53 item 7).
+        """
+        if self._experiment_id is None:
+            self._experiment_id = self._find_or_create_experiment()
+        return self._experiment_id
+
+    def _find_or_create_experiment(self) -> str:
         name = self.settings.experiment
         found = self.client.get_experiment_by_name(name)
         # the kind of a training-runs experiment: MLflow UIs that read it open it on its runs, not the GenAI

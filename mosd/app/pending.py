@@ -129,9 +129,9 @@ def log_pending(run_dir: str | os.PathLike, uri: str | None = None) -> tuple[str
     store = MlflowStore(settings)
     run_id = None
     if without_password(redacted(settings.uri)) == stored["uri"]:
-        # a pending file written before mosd recorded the run id: the run made for the same directory
-        run_id = pending["run_id"] if "run_id" in pending else store.run_of_directory(pending["tags"].get(
-            "mosd.run_dir", ""))
+        # no run id (a pending file written before mosd recorded it, or a store that created the run and died
+        # before it answered): the one run made for the same directory
+        run_id = pending.get("run_id") or store.run_of_directory(pending["tags"].get("mosd.run_dir", ""))
     if not store.active_run(run_id):
         parent = pending.get("parent_run_id")
         if parent and not store.active_run(parent):  # the sweep's parent is in another store, or gone
