@@ -347,12 +347,10 @@ class OnlinePipeline:
         """What :meth:`save` wrote (a file or its directory). Only mosd's own stage classes are loaded."""
         arrays, meta = _read_arrays(path, cls.FILE)
         stages = []
-        from .detectors.step import legacy_stage
-
         for i, entry in enumerate(meta["stages"]):
-            older = legacy_stage(entry["class"], entry["fields"])  # a decision stage saved before the one step
-            if older is not None:
-                stages.append(older)
+            _mosd_module(entry["class"], "model stage class")   # registers its older stage classes, if any
+            if entry["class"] in LEGACY_STAGES:  # a stage class of older models: what replaced it reads its fields
+                stages.append(LEGACY_STAGES[entry["class"]](entry["fields"]))
                 continue
             stage_cls = mosd_class(entry["class"], "model stage class")
             own = {k.split(".", 1)[1]: v for k, v in arrays.items() if k.startswith(f"s{i}.")}
@@ -406,12 +404,21 @@ def describe(component) -> dict:
             "params": {k: plain(v) for k, v in component.get_params().items()}}
 
 
+#: stage classes older models were saved with (``module.Class``) → a function of their saved fields giving the
+#: stage that replaced them; filled by the module that replaced them (imported when such a model is loaded)
+LEGACY_STAGES: dict = {}
+
+
 def mosd_class(path: str, what: str = "component class"):
     """The class at the dotted ``path``; only mosd's own (a saved model runs no code from elsewhere)."""
-    module, _, name = path.rpartition(".")
+    return getattr(_mosd_module(path, what), path.rpartition(".")[2])
+
+
+def _mosd_module(path: str, what: str):
+    module = path.rpartition(".")[0]
     if not module.startswith("mosd."):
         raise ConfigError(f"{what} {path!r} is not mosd's; allowed: mosd.* classes")
-    return getattr(importlib.import_module(module), name)
+    return importlib.import_module(module)
 
 
 def build(description: Mapping):

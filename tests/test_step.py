@@ -152,3 +152,21 @@ def test_a_model_saved_before_the_one_step_loads_and_scores_the_same(path, field
     got = OnlinePipeline([old]).update(columns)
     expected = detector.population(None, detector.features(z[:1]), detector.design()).decision[0, 0]
     assert np.array_equal(got["decision"][where], expected)
+
+
+def test_a_saved_file_naming_an_old_stage_class_loads_in_a_fresh_process(tmp_path):
+    """The pipeline file of a model logged before the one step names ``OnlineThreshold``; a process that has
+    imported no detector yet loads it (the module named registers what replaced the class)."""
+    import json
+    import subprocess
+    import sys
+
+    meta = {"fill": "none", "stages": [{"class": "mosd.detectors.threshold.OnlineThreshold",
+                                        "fields": {"threshold": 1.2, "persistence": 2, "n": 1}}]}
+    np.savez(tmp_path / OnlinePipeline.FILE, meta=np.array(json.dumps(meta)))
+    code = ("import sys, numpy as np; from mosd.streaming import OnlinePipeline as P; "
+            "p = P.load(sys.argv[1]); out = p.update({'point': np.arange(1, 6), 'z_1': np.array([2., 2., 0., 2., 2.])}); "
+            "print(type(p.stages[0]).__name__, out['decision'].tolist())")
+    done = subprocess.run([sys.executable, "-c", code, str(tmp_path)], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout.split() == ["StepStage", "[0,", "1,", "0,", "0,", "1]"]

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..streaming import PointDecision, StateVar, mosd_class, points_of, spread
+from ..streaming import LEGACY_STAGES, PointDecision, StateVar, mosd_class, points_of, spread
 from .base import Decisions, Detector
 
 
@@ -184,3 +184,7 @@ def legacy_stage(path: str, fields: dict) -> StepStage | None:
     detector, design, step = translate(fields)
     n = int(fields.get("n", 2))
     return StepStage(detector=detector, design=design, step=step, n=n)
+
+
+# each old class's module imports this one, so a model naming it finds its translation when loaded
+LEGACY_STAGES.update({path: (lambda fields, path=path: legacy_stage(path, fields)) for path in LEGACY})
