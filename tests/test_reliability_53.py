@@ -271,7 +271,23 @@ def test_monitor_on_a_locked_store_is_one_line_saying_so(tmp_path):
 # ---------------------------------------------------------------------------------------
 # item 5: `mosd monitor` on every family's model
 # ---------------------------------------------------------------------------------------
-FAMILIES = ["pca", "dpca", "cva", "ica", "kpca", "sfa", "autoencoder", "tag_cusum", "tag_ewma"]
+def _families() -> list[str]:
+    """Every conf/detector option whose class is a recorded-data monitor family (a LatentDetector): found, not listed."""
+    import importlib
+
+    import yaml
+
+    from mosd.detectors.latent import LatentDetector
+
+    names = []
+    for path in sorted((Path(__file__).resolve().parents[1] / "conf" / "detector").glob("*.yaml")):
+        module, _, name = yaml.safe_load(path.read_text())["_target_"].rpartition(".")
+        if issubclass(getattr(importlib.import_module(module), name), LatentDetector):
+            names.append(path.stem)
+    return names
+
+
+FAMILIES = _families()
 
 
 def _monitor_a_runs_own_stream(tmp_path: Path, *run_args: str) -> None:
