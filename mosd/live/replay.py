@@ -158,7 +158,13 @@ class ReplayServer:
             await node.write_attribute(ua.AttributeIds.Historizing,
                                        ua.DataValue(ua.Variant(True, ua.VariantType.Boolean)))
             await self.history.new_historized_node(node.nodeid, None, 0)
+            # no value before row 0: a client subscribing early must not take the placeholder for a sample
+            await self.server.write_attribute_value(node.nodeid, ua.DataValue(
+                ua.Variant(0.0, ua.VariantType.Double), StatusCode=ua.StatusCode(ua.StatusCodes.BadWaitingForInitialData)))
             self.nodes.append(node)
+        # a variable that is no tag (text): what a node id naming a non-numeric node looks like
+        await plant.add_variable(ua.NodeId("Info", self.ns), "Info", ua.Variant(
+            f"mosd replay: {len(self.recording.values)} rows x {len(self.recording.tags)} tags", ua.VariantType.String))
         await self.server.start()
         return self
 
@@ -197,6 +203,7 @@ class ReplayServer:
                     pass
             await self.publish(self.next_row)
             self.next_row += 1
+            await asyncio.sleep(0)  # a replay behind its schedule still lets the server publish between rows
         return self.next_row
 
 
