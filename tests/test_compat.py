@@ -101,6 +101,34 @@ def test_exit_handlers_run_once_and_the_exit_code_stays():
     assert (out.returncode, out.stdout.split()) == (7, ["handler", "after"]), out.stderr
 
 
+def test_a_fast_exit_runs_every_exit_handler_then_skips_the_teardown():
+    """compat.fast_exit (public API): the handlers registered after mosd.__main__ (a library's, as joblib's or
+    logging's) run, in the usual last-in-first-out order; the teardown (an object's __del__ at interpreter exit)
+    does not; the exit code stays. Without mosd.__main__ it is an ordinary exit (the teardown runs)."""
+    code = textwrap.dedent("""
+        import atexit, sys
+        if sys.argv[1] == "main":
+            import mosd.__main__  # what the console script and python -m mosd load first
+        from mosd.app.compat import fast_exit
+
+        class Teardown:
+            def __del__(self):
+                print("teardown", flush=True)
+
+        kept = Teardown()
+        atexit.register(lambda: print("first", flush=True))
+        atexit.register(lambda: print("second", flush=True))
+        fast_exit(7)
+    """)
+    found = {}
+    for how in ("main", "plain"):
+        out = subprocess.run([sys.executable, "-c", code, how], capture_output=True, text=True, timeout=120,
+                             env={**os.environ, "PYTHONPATH": PACKAGE_PARENT})
+        found[how] = (out.returncode, out.stdout.split())
+    assert found["main"] == (7, ["second", "first"]), found
+    assert found["plain"] == (7, ["second", "first", "teardown"]), found
+
+
 def test_the_store_reads_mlflows_own_schema(tmp_path):
     """A store MLflow created is ``ok`` and holds the runs MLflow counts (table names of mosd.app.compat)."""
     import mlflow  # noqa: F401  (a test dependency: a missing one fails, never skips)
