@@ -226,6 +226,23 @@ def test_the_joblib_launcher_arguments_are_the_plugins_parallel_arguments():
     Parallel(**arguments)  # every key is one Parallel takes
 
 
+@pytest.mark.parametrize("given", [{}, {"pre_dispatch": "7", "batch_size": "4", "max_nbytes": "1000"},
+                                   {"pre_dispatch": "2*n_jobs", "batch_size": "auto", "max_nbytes": "1M"},
+                                   {"pre_dispatch": "5", "batch_size": "auto", "max_nbytes": None, "n_jobs": -1}])
+def test_our_joblib_launcher_arguments_are_the_plugins_conversion(given):
+    """Our conversion against the plugin's own (private, read here in the test only)."""
+    from hydra_plugins.hydra_joblib_launcher._core import process_joblib_cfg
+    from hydra_plugins.hydra_joblib_launcher.config import JobLibLauncherConf
+    from omegaconf import OmegaConf
+
+    cfg = OmegaConf.merge(OmegaConf.structured(JobLibLauncherConf), given)
+    theirs = OmegaConf.to_container(cfg, resolve=True)
+    theirs.pop("_target_", None)
+    theirs["backend"] = "loky"
+    process_joblib_cfg(theirs)
+    assert compat.joblib_launcher_arguments(cfg) == theirs
+
+
 def test_the_dask_backend_calls_what_the_installed_distributed_serves():
     """A worker's ``actor_execute`` handler and its keywords, the scheduler's ``proxy`` handler and the client's
     connection pool ``Client.rpc``: :class:`mosd.optim.backends.DaskEvaluation` calls an actor's method through

@@ -19,14 +19,15 @@ adapter, :mod:`mosd.optim.workers`: the science core cannot import the app.)
   run uses the configuration preflight composed. ``hydra.main`` composes it twice more (once
   to read ``hydra.mode``, once for the run): 0.33 s each for the main command (fastest of 8 on the
   project's 2-core machine at load average 7.7).
-* :func:`sweep_composed_once` — Hydra's ``BasicSweeper.validate_batch_is_legal``
-  (``hydra._internal.core_plugins``): before launching a batch, the basic sweeper composes every
+* :func:`sweep_composed_once` — public now: ``validate_batch_is_legal`` of Hydra's public
+  ``hydra.plugins.sweeper.Sweeper`` (was patched on ``hydra._internal``'s ``BasicSweeper``, which
+  inherits it): before launching a batch, the basic sweeper composes every
   job of it to catch a composition error early, which preflight did already for the same jobs
   (the job then composes its configuration a third time where it runs). Skipped for the jobs
   preflight composed; 2.7 s of a 16-job sweep of the main command on the project's 2-core machine,
   every second of it before the first job starts (docs/SCALING.md).
-* :func:`joblib_launcher_arguments` — the joblib launcher plugin's ``process_joblib_cfg``
-  (``hydra_plugins.hydra_joblib_launcher._core``): the ``Parallel`` arguments the launcher builds
+* :func:`joblib_launcher_arguments` — public now: our own conversion, compared in the tests with the joblib
+  launcher plugin's private ``process_joblib_cfg``: the ``Parallel`` arguments the launcher builds
   from ``hydra.launcher``, so that the workers a sweep starts while preflight checks its jobs
   (:func:`mosd.app.sweep.warm_job_workers`) are the pool the launcher then reuses (joblib reuses its
   worker pool for a ``Parallel`` of the same arguments).
@@ -221,20 +222,20 @@ def job_signature(overrides: Sequence[str]) -> tuple[str, ...]:
 
 @contextlib.contextmanager
 def sweep_composed_once(composed: set[tuple[str, ...]]):
-    """Within this block Hydra's basic sweeper does not compose again the jobs preflight composed (private API).
+    """Within this block Hydra's sweepers do not compose again the jobs preflight composed (public API).
 
     ``composed``: :func:`job_signature` of each job preflight composed, hydra overrides included.
-    ``BasicSweeper.validate_batch_is_legal`` composes every job of a batch (the job's task overrides
-    after the primary config's hydra overrides) only to raise a composition error before any job
-    runs; a job whose overrides preflight composed (the same strings, in any order) has passed that
-    check already, and any other job (one of a sweep the sweeper reads from ``hydra.sweeper.params``, or
-    written differently from preflight's expansion) is still composed here. A subclass that overrides
-    the method keeps its own.
+    ``validate_batch_is_legal``, a method of Hydra's public ``hydra.plugins.sweeper.Sweeper`` that the basic
+    sweeper inherits, composes every job of a batch (the job's task overrides after the primary config's hydra
+    overrides) only to raise a composition error before any job runs; a job whose overrides preflight composed
+    (the same strings, in any order) has passed that check already, and any other job (one of a sweep the
+    sweeper reads from ``hydra.sweeper.params``, or written differently from preflight's expansion) is still
+    composed here. A sweeper that overrides the method keeps its own.
     """
-    from hydra._internal.core_plugins.basic_sweeper import BasicSweeper
+    from hydra.plugins.sweeper import Sweeper
     from omegaconf import OmegaConf
 
-    original = BasicSweeper.validate_batch_is_legal
+    original = Sweeper.validate_batch_is_legal
 
     def validate_batch_is_legal(self, batch):
         # the override Hydra adds for -m (preflight composes the jobs without it): a value of an enum key of
@@ -245,23 +246,37 @@ def sweep_composed_once(composed: set[tuple[str, ...]]):
         if unchecked:
             original(self, unchecked)
 
-    BasicSweeper.validate_batch_is_legal = validate_batch_is_legal
+    Sweeper.validate_batch_is_legal = validate_batch_is_legal
     try:
         yield
     finally:
-        BasicSweeper.validate_batch_is_legal = original
+        Sweeper.validate_batch_is_legal = original
+
+
+#: the ``joblib.Parallel`` arguments Hydra's joblib launcher reads as integers when given (its documented
+#: ``hydra.launcher`` keys); a value that is not a number is left as it is (joblib's own words: ``"2*n_jobs"``)
+JOBLIB_INTEGER_ARGUMENTS = ("pre_dispatch", "batch_size", "max_nbytes")
 
 
 def joblib_launcher_arguments(launcher_cfg) -> dict:
-    """The keyword arguments Hydra's joblib launcher gives ``joblib.Parallel`` for ``launcher_cfg`` (``hydra.launcher``;
-    private API: the plugin's own conversion, and the loky backend it forces)."""
-    from hydra_plugins.hydra_joblib_launcher._core import process_joblib_cfg
+    """The keyword arguments Hydra's joblib launcher gives ``joblib.Parallel`` for ``launcher_cfg`` (``hydra.launcher``).
+
+    Written here from the launcher's documented behaviour (its keys are ``Parallel``'s; numbers given as text
+    become integers; the backend is loky) instead of calling the plugin's private ``_core.process_joblib_cfg``;
+    ``tests/test_compat.py`` compares the two.
+    """
     from omegaconf import OmegaConf
 
     arguments = OmegaConf.to_container(launcher_cfg, resolve=True)
     arguments.pop("_target_", None)
     arguments["backend"] = "loky"
-    process_joblib_cfg(arguments)
+    for key in JOBLIB_INTEGER_ARGUMENTS:
+        value = arguments.get(key)
+        if value:
+            try:
+                arguments[key] = int(value)
+            except ValueError:
+                pass
     return arguments
 
 
