@@ -239,8 +239,6 @@ class LiveMonitor:
         names = await self._browse_names(client) if any(node_id_or_name(s) is None for s in self.o.nodes.values()) \
             else {}
         self.tag_nodes = [await self._node(client, tag, self.o.nodes[tag], names, "--nodes") for tag in self.inputs]
-        from asyncua import ua
-
         for tag, node in zip(self.inputs, self.tag_nodes):
             kind = await node.read_data_type()
             if kind.NamespaceIndex != 0 or kind.Identifier not in NUMERIC_TYPES:
@@ -407,8 +405,6 @@ class LiveMonitor:
 
     async def consume(self, client) -> None:
         """Samples from the subscription until stopped; raises when the server is lost."""
-        from asyncua import ua
-
         while not self.stop.is_set():
             try:
                 first = await asyncio.wait_for(self.queue.get(), timeout=1.0)
