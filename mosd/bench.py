@@ -25,6 +25,9 @@ other, so machine noise hits both. Sections:
   ``PCA.predict`` on the same rows, in turns;
 * ``serve`` — ``mlflow models serve`` of a logged model on 127.0.0.1: the median
   latency of a request of 100 rows (the server is stopped afterwards).
+* ``opcua`` — ``mosd monitor --opcua`` against the replay server on 127.0.0.1 (:mod:`mosd.live.bench`): the
+  latency from a row's last tag write to the alarm node's write at 1 Hz × 100 tags (median and 99th
+  percentile), and the tag-samples per second one monitor process sustains (a minute; ``--only opcua``);
 * ``scale`` — one tuning per evaluation path (threads: the main command's chart; processes:
   paper 001's and 002's evaluators; recorded: TE PCA; the main command again at 20 times its
   training runs, ``threads_n200``) at n_jobs = 1, 2, 4, … up to the CPUs and
@@ -52,6 +55,7 @@ with bibmon installed, ``bibmon_predict_rows_per_s``, ``monitor_speedup_vs_bibmo
 ``bibmon_spe_agrees`` (1: the two SPEs agree to 1e-9 relative), and per family f in ica, kpca, autoencoder
 ``tep_candidates_per_s_f``, ``tep_fit_score_s_f``, ``tep_library_fit_transform_s_f``
 (:func:`bench_tep_nonlinear`); ``serve`` adds ``serve_latency_ms`` and ``serve_latency_p90_ms``;
+``opcua`` adds ``opcua_latency_ms_p50``, ``opcua_latency_ms_p99`` and ``opcua_samples_per_s``;
 ``scale`` adds ``scale_machine_ceiling_<n>`` (n copies of a loop that shares nothing at once against one: the
 machine's own bound on any n-worker speed-up), ``scale_speedup_<workload>_<n>``,
 ``scale_compute_inflation_<workload>_<n>``,
@@ -70,9 +74,10 @@ import time
 
 import numpy as np
 
+from .bench_sections import bench_opcua, bench_tep_nonlinear, with_monitor  # noqa: F401 (sections by name)
 from .timing import best_of
 
-SECTIONS = ("candidates", "filter", "parallel", "main", "tuning", "zdt", "tep", "skab", "serve", "scale")
+SECTIONS = ("candidates", "filter", "parallel", "main", "tuning", "zdt", "tep", "skab", "serve", "scale", "opcua")
 DEFAULT_SECTIONS = ("candidates", "filter", "parallel", "tuning")
 #: what ``--json`` runs by default: every section that feeds a JSON key
 JSON_SECTIONS = ("candidates", "filter", "parallel", "main", "tep", "serve")
@@ -510,153 +515,9 @@ def bench_tep(quick: bool = False) -> tuple[list, dict]:
 
     if bibmon_directory() is None:
         return [("skipped: the TE files need pip install \".[te]\"", float("nan"), "")], {}
-    rows, figures = _with_monitor(benchmark(quick), quick)
+    rows, figures = with_monitor(benchmark(quick), quick)
     family_rows, family_figures = bench_tep_nonlinear(quick)
     return rows + family_rows, {**figures, **family_figures}
-
-
-def bench_tep_nonlinear(quick: bool = False) -> tuple[list, dict]:
-    """ICA, kernel PCA and autoencoder designs per second on the TE training split, and fit + score of the 22 test
-    files beside the library's own fit + transform of the same model on the same rows (scikit-learn's FastICA and
-    KernelPCA, PyTorch's training and forward pass), on one BLAS thread as mosd's fits (a multi-threaded FastICA
-    took 64 s instead of 7 s on a 2-core machine at load average 12: threads spinning for cores others hold).
-
-    Designs are drawn in each family's box (the preset's α box). ICA's fit does not depend on a design and is
-    made before the clock starts (as PCA's); a kernel width or a network size is a new fit, inside the time.
-    A family listed in :data:`mosd.systems.tep.FAMILIES` is timed by :func:`mosd.systems.tep.family_benchmark`
-    instead (the same two figures); the library's time is added here either way.
-    Figures: ``tep_candidates_per_s_<family>``, ``tep_fit_score_s_<family>`` and
-    ``tep_library_fit_transform_s_<family>``.
-    """
-    import warnings
-
-    from .data.tep import TennesseeEastman
-    from .detectors.autoencoder import AutoencoderDetector
-    from .detectors.ica import ICADetector
-    from .detectors.kpca import KernelPCADetector
-    from .detectors.pca import _one_blas_thread
-    from .estimators.measured import MeasuredSignals
-    from .monitors.outputs import OutputMonitor
-    from .recorded import RecordedExperiment
-    from .systems.tep import FAMILIES
-
-    te = TennesseeEastman()
-    calibration, test = te.trace("calibration").y, te.trace("test").y
-    fit_rows, test_rows = calibration[0], test.reshape(-1, test.shape[-1])
-    rng = np.random.default_rng(0)
-    n = 6 if quick else 20
-    common = [rng.uniform(1e-4, 0.1, n), rng.uniform(0.01, 1.0, n), rng.integers(1, 11, n)]
-    families = {
-        "ica": (ICADetector(fit_runs=1, max_components=32), [rng.integers(1, 33, n)]),
-        "kpca": (KernelPCADetector(fit_runs=1, max_components=32), [rng.integers(1, 33, n), rng.integers(1, 1001, n)]),
-        "autoencoder": (AutoencoderDetector(fit_runs=1, max_components=32, epochs=200),
-                        [rng.integers(1, 33, n), rng.integers(4, 33, n), rng.integers(50, 301, n)]),
-    }
-    libraries = {"ica": _fastica_fit_transform, "kpca": _kernelpca_fit_transform, "autoencoder": _torch_fit_forward}
-    rows, figures = [], {}
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", UserWarning)  # FastICA's non-convergence on TE (mosd.detectors.ica)
-        for name, (detector, own) in families.items():
-            if name not in FAMILIES:  # else family_benchmark has timed it (the same figures, its protocol)
-                experiment = RecordedExperiment(te, MeasuredSignals(), OutputMonitor(), detector)
-                evaluator = experiment.evaluator(experiment.prepare())
-                X = np.column_stack([*own, *common]).astype(float)
-                evaluator(detector.design())  # imports and the default design's fit
-                start = time.perf_counter()
-                evaluator(X)
-                per_s = n / (time.perf_counter() - start)
-                start = time.perf_counter()
-                detector.decide(calibration, test)
-                fit_score = time.perf_counter() - start
-                load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
-                rows += [(f"{name} designs/s on the training split, fits included", per_s,
-                          f"{n} designs; load average {load:.1f}"),
-                         (f"{name}: fit on d00.dat + score all 22 test files, s", fit_score, "default design")]
-                figures.update({f"tep_candidates_per_s_{name}": per_s, f"tep_fit_score_s_{name}": fit_score})
-            with _one_blas_thread():  # as mosd's own fits: the comparison is of the code, not of BLAS threads
-                library = libraries[name](fit_rows, test_rows)
-            rows.append((f"{name}: the library's own fit + transform of the same rows, s", library,
-                         {"ica": "FastICA", "kpca": "KernelPCA", "autoencoder": "torch training + forward"}[name]))
-            figures[f"tep_library_fit_transform_s_{name}"] = library
-    return rows, figures
-
-
-def _standardised(fit_rows, test_rows):
-    mean, scale = fit_rows.mean(0), fit_rows.std(0, ddof=1)
-    return (fit_rows - mean) / scale, (test_rows - mean) / scale
-
-
-def _fastica_fit_transform(fit_rows, test_rows) -> float:
-    from sklearn.decomposition import FastICA
-
-    Z, T = _standardised(fit_rows, test_rows)
-    start = time.perf_counter()
-    FastICA(whiten="unit-variance", random_state=0, max_iter=1000, tol=1e-4).fit(Z).transform(T)
-    return time.perf_counter() - start
-
-
-def _kernelpca_fit_transform(fit_rows, test_rows) -> float:
-    from sklearn.decomposition import KernelPCA
-
-    Z, T = _standardised(fit_rows, test_rows)
-    start = time.perf_counter()
-    KernelPCA(n_components=32, kernel="rbf", gamma=1.0 / (10 * Z.shape[1]), eigen_solver="dense").fit(Z).transform(T)
-    return time.perf_counter() - start
-
-
-def _torch_fit_forward(fit_rows, test_rows) -> float:
-    import torch
-
-    from .detectors.autoencoder import LAYERS, _train
-
-    Z, T = _standardised(fit_rows, test_rows)
-    start = time.perf_counter()
-    (weights, _), = _train(Z, 8, 24, [200], 0.01, 0)
-    w = {k: torch.as_tensor(weights[k]) for k in LAYERS}
-    with torch.no_grad():
-        t = torch.tanh(torch.as_tensor(T) @ w["w1"] + w["b1"]) @ w["w2"] + w["b2"]
-        torch.tanh(t @ w["w3"] + w["b3"]) @ w["w4"] + w["b4"]
-    return time.perf_counter() - start
-
-
-def _with_monitor(r: dict, quick: bool) -> tuple[list, dict]:
-    """bench_tep's rows and figures plus the logged model's scoring speed beside bibmon's (mosd.app.detector_model)."""
-    from .app.model_bench import monitor_benchmark
-
-    m = monitor_benchmark(quick)
-    load = f"load average {m['load_average_1min_before']:.1f} -> {m['load_average_1min_after']:.1f}"
-    rows = [("PCA designs/s on the training split, in-process", r["candidates_per_s"],
-             f"{r['n_candidates']} designs, {r['training_points']} points each"),
-            ("fit on d00.dat + score all 22 test files, s", r["fit_score_s"], f"{r['test_points']} points"),
-            ("logged model: rows scored/s (predict on a DataFrame, in-process)", m["monitor_rows_per_s"],
-             f"{m['rows']} TE test rows; T², SPE, EWMA, alarms, top-3 contributors; {load}"),
-            ("logged model without top contributors, rows/s", m["monitor_no_top_rows_per_s"], "same rows, in turns"),
-            ("floor: standardise + one projection + T², SPE sums, rows/s", m["t2_spe_floor_rows_per_s"],
-             "float array in, two arrays out, one BLAS thread")]
-    figures = {"tep_candidates_per_s": r["candidates_per_s"], "tep_fit_score_s": r["fit_score_s"],
-               "monitor_rows_per_s": m["monitor_rows_per_s"], "monitor_no_top_rows_per_s": m["monitor_no_top_rows_per_s"],
-               "t2_spe_floor_rows_per_s": m["t2_spe_floor_rows_per_s"],
-               "monitor_load_average_1min": m["load_average_1min_after"]}
-    for family, speed in r.get("families", {}).items():  # issue 29: every monitor family on the same rows
-        rows.append((f"{family} designs/s on the training split", speed["candidates_per_s"],
-                     f"fit + score of the 22 test files {speed['fit_score_s']:.3f} s"))
-        figures[f"tep_candidates_per_s_{family}"] = speed["candidates_per_s"]
-        figures[f"tep_fit_score_s_{family}"] = speed["fit_score_s"]
-    if "bibmon_rows_per_s" in m:
-        rows += [("bibmon PCA predict on the same rows, rows/s", m["bibmon_rows_per_s"],
-                  f"in turns; SPE equal to {m['bibmon_spe_max_relative_difference']:.1e} relative"),
-                 ("logged model / bibmon predict", m["monitor_rows_per_s"] / m["bibmon_rows_per_s"], "target >= 10"),
-                 ("logged model without top / bibmon predict", m["monitor_no_top_rows_per_s"] / m["bibmon_rows_per_s"],
-                  "target >= 10"),
-                 ("floor / bibmon predict", m["t2_spe_floor_rows_per_s"] / m["bibmon_rows_per_s"],
-                  "no scoring of T² and SPE can beat this ratio")]
-        figures.update(bibmon_predict_rows_per_s=m["bibmon_rows_per_s"],
-                       monitor_speedup_vs_bibmon=m["monitor_rows_per_s"] / m["bibmon_rows_per_s"],
-                       monitor_no_top_speedup_vs_bibmon=m["monitor_no_top_rows_per_s"] / m["bibmon_rows_per_s"],
-                       t2_spe_floor_speedup_vs_bibmon=m["t2_spe_floor_rows_per_s"] / m["bibmon_rows_per_s"],
-                       # the same SPE (a flag: the JSON's 6 decimals would print 2e-14 as 0)
-                       bibmon_spe_agrees=int(m["bibmon_spe_max_relative_difference"] < 1e-9))
-    return rows, figures
 
 
 def bench_skab(quick: bool = False) -> tuple[list, dict]:
