@@ -258,3 +258,59 @@ def test_the_dask_backend_calls_what_the_installed_distributed_serves():
     assert {"msg", "worker"} <= set(inspect.signature(Scheduler.proxy).parameters)
     assert '"proxy": self.proxy' in inspect.getsource(Scheduler.__init__)
     assert "self.rpc = ConnectionPool(" in inspect.getsource(Client.__init__)
+
+
+_RUN_COMPOSED = """
+import sys
+from hydra import compose, initialize_config_dir
+from mosd.app.compat import run_composed
+
+events = []
+class Recorder:
+    def __init__(self, name):
+        self.name = name
+    def on_run_start(self, config, **kw): events.append(f"{self.name}.run_start")
+    def on_run_end(self, config, **kw): events.append(f"{self.name}.run_end")
+    def on_job_start(self, config, **kw): events.append(f"{self.name}.job_start")
+    def on_job_end(self, config, job_return, **kw): events.append(f"{self.name}.job_end")
+
+config_dir, run_dir, fail = sys.argv[1], sys.argv[2], sys.argv[3] == "fail"
+with initialize_config_dir(config_dir=config_dir, version_base="1.3"):
+    cfg = compose("config", overrides=[f"hydra.run.dir={run_dir}"], return_hydra_config=True)
+
+def task(cfg):
+    events.append(f"task x={cfg.x}")
+    if fail:
+        raise ValueError("boom in the task")
+
+try:
+    run_composed(cfg, task, config_dir)
+finally:
+    print(" ".join(events), flush=True)
+"""
+
+
+def test_run_composed_runs_a_job_as_hydra_main_does_and_reports_its_error(tmp_path):
+    """Public Hydra parts only: the run directory and .hydra/, the callbacks in Hydra's order (start hooks in the
+    configuration's order, end hooks reversed), and a task's error as Hydra reports it: the traceback from the
+    task down, exit code 1."""
+    (tmp_path / "conf").mkdir()
+    (tmp_path / "conf" / "config.yaml").write_text(
+        "x: 3\nhydra:\n  callbacks:\n    a:\n      _target_: __main__.Recorder\n      name: a\n"
+        "    b:\n      _target_: __main__.Recorder\n      name: b\n")
+    env = {**os.environ, "PYTHONPATH": PACKAGE_PARENT}
+    env.pop("HYDRA_FULL_ERROR", None)
+    found = {}
+    for mode in ("ok", "fail"):
+        run_dir = tmp_path / f"run-{mode}"
+        out = subprocess.run([sys.executable, "-c", _RUN_COMPOSED, str(tmp_path / "conf"), str(run_dir), mode],
+                             capture_output=True, text=True, timeout=120, env=env, cwd=tmp_path)
+        found[mode] = out
+        assert (run_dir / ".hydra" / "config.yaml").is_file() and (run_dir / ".hydra" / "hydra.yaml").is_file()
+    ok, fail = found["ok"], found["fail"]
+    assert ok.returncode == 0, ok.stderr[-2000:]
+    assert ok.stdout.split() == ["a.run_start", "b.run_start", "a.job_start", "b.job_start", "task", "x=3",
+                                 "b.job_end", "a.job_end", "b.run_end", "a.run_end"]
+    assert fail.returncode == 1, fail.stderr[-2000:]
+    assert "ValueError: boom in the task" in fail.stderr and "in task" in fail.stderr
+    assert "run_job" not in fail.stderr and "HYDRA_FULL_ERROR=1" in fail.stderr

@@ -14,8 +14,9 @@ adapter, :mod:`mosd.optim.workers`: the science core cannot import the app.)
 * :func:`unverified_tls_context` — public now: preflight's look at a tracking server honours MLflow's
   ``MLFLOW_TRACKING_INSECURE_TLS`` as MLflow's client does (no certificate check, no host name check), with
   ``ssl.create_default_context()`` and both checks turned off (was ``ssl._create_unverified_context``).
-* :func:`run_composed` — Hydra's ``Hydra.run`` without its two compositions
-  (``hydra._internal``: ``Hydra.create_main_hydra2``, ``Callbacks``, ``run_and_report``): a single
+* :func:`run_composed` — public now: Hydra's ``Hydra.run`` without its two compositions, from Hydra's public
+  parts (``initialize_config_dir``, ``hydra.core.utils.run_job``) and our own callbacks caller and error report
+  (were ``hydra._internal``'s ``Hydra.create_main_hydra2``, ``Callbacks``, ``run_and_report``): a single
   run uses the configuration preflight composed. ``hydra.main`` composes it twice more (once
   to read ``hydra.mode``, once for the run): 0.33 s each for the main command (fastest of 8 on the
   project's 2-core machine at load average 7.7).
@@ -280,41 +281,103 @@ def joblib_launcher_arguments(launcher_cfg) -> dict:
     return arguments
 
 
+class _Callbacks:
+    """Hydra's ``hydra.callbacks`` of a configuration, instantiated and told of a run as ``hydra.main`` tells them
+    (its documented order: the ``*_start`` hooks in the configuration's order, the ``*_end`` hooks in reverse;
+    an error in one is a warning, the run goes on)."""
+
+    def __init__(self, cfg) -> None:
+        from hydra.utils import instantiate
+
+        section = cfg.hydra.get("callbacks") or {}
+        self.callbacks = [instantiate(params) for params in section.values()]
+
+    def _notify(self, name: str, reverse: bool = False, **kwargs) -> None:
+        import warnings
+
+        for callback in reversed(self.callbacks) if reverse else self.callbacks:
+            try:
+                getattr(callback, name)(**kwargs)
+            except Exception as exc:  # noqa: BLE001 - Hydra's rule: a callback's error is a warning
+                warnings.warn(f"Callback {type(callback).__name__}.{name} raised {type(exc).__name__}: {exc}")
+
+    def on_run_start(self, **kwargs) -> None:
+        self._notify("on_run_start", **kwargs)
+
+    def on_run_end(self, **kwargs) -> None:
+        self._notify("on_run_end", reverse=True, **kwargs)
+
+    def on_job_start(self, **kwargs) -> None:
+        self._notify("on_job_start", **kwargs)
+
+    def on_job_end(self, **kwargs) -> None:
+        self._notify("on_job_end", reverse=True, **kwargs)
+
+
+def _report_task_error(exc: BaseException) -> None:
+    """Print ``exc`` as ``hydra.main`` does (documented: ``HYDRA_FULL_ERROR=1`` for the whole stack): Hydra's own
+    compact errors as their text, others as a traceback from the task function down, without the frames of Hydra
+    above it and of OmegaConf below it."""
+    import os
+    import traceback
+
+    from hydra.errors import CompactHydraException
+    from omegaconf.errors import OmegaConfBaseException
+
+    if isinstance(exc, CompactHydraException):
+        sys.stderr.write(str(exc) + os.linesep)
+        if isinstance(exc.__cause__, OmegaConfBaseException):
+            sys.stderr.write(str(exc.__cause__) + os.linesep)
+        return
+    frames = traceback.extract_tb(exc.__traceback__)
+    start = next((i + 1 for i, frame in enumerate(frames) if frame.name == "run_job"), 0)
+    kept = []
+    for frame in frames[start:]:
+        if f"{os.sep}omegaconf{os.sep}" in frame.filename:
+            break
+        kept.append(frame)
+    sys.stderr.write("Traceback (most recent call last):\n" + "".join(traceback.format_list(kept))
+                     + "".join(traceback.format_exception_only(type(exc), exc)))
+    sys.stderr.write("\nSet the environment variable HYDRA_FULL_ERROR=1 for a complete stack trace.\n")
+
+
 def run_composed(cfg, task_function, config_dir: str, task_name: str = "mosd") -> None:
-    """Run ``task_function`` as ``hydra.main`` runs a single job, on ``cfg`` composed already (private API).
+    """Run ``task_function`` as ``hydra.main`` runs a single job, on ``cfg`` composed already (public API).
 
     ``cfg``: the job's configuration with its ``hydra`` section (``compose(...,
-    return_hydra_config=True)``, as preflight composes it). What ``Hydra.run`` does
-    after its composition is done here in the same order: Hydra's logging, the
-    callbacks' ``on_run_start``, :func:`hydra.core.utils.run_job` (the run directory,
-    ``.hydra/``, the job's logging, ``on_job_start``/``on_job_end``), ``on_run_end``;
-    an error in the task is reported by Hydra's own ``run_and_report`` (exit code 1).
+    return_hydra_config=True)``, as preflight composes it). What ``hydra.main`` does after its composition is
+    done here in the same order, with Hydra's public parts: Hydra initialised on ``config_dir``
+    (``initialize_config_dir``), Hydra's logging (``hydra.core.utils.configure_log``), the callbacks'
+    ``on_run_start`` (:class:`_Callbacks`), :func:`hydra.core.utils.run_job` (the run directory, ``.hydra/``,
+    the job's logging, ``on_job_start``/``on_job_end``), ``on_run_end``; an error in the task is reported as
+    Hydra reports it (:func:`_report_task_error`) with exit code 1. ``hydra.main`` composes the configuration
+    twice more (once to read ``hydra.mode``, once for the run): 0.33 s each for the main command.
     """
-    from hydra._internal.callbacks import Callbacks
-    from hydra._internal.hydra import Hydra
-    from hydra._internal.utils import create_config_search_path, run_and_report
+    import os
+
+    from hydra import initialize_config_dir
     from hydra.core.global_hydra import GlobalHydra
     from hydra.core.utils import configure_log, run_job
     from hydra.types import HydraContext, RunMode
     from omegaconf import open_dict, read_write
 
-    def run() -> None:
-        hydra = Hydra.create_main_hydra2(task_name=task_name,
-                                         config_search_path=create_config_search_path(config_dir))
+    with initialize_config_dir(config_dir=str(config_dir), version_base="1.3", job_name=task_name):
+        with read_write(cfg.hydra), open_dict(cfg.hydra):
+            cfg.hydra.mode = RunMode.RUN
+            # as hydra.main records it (.hydra/hydra.yaml is the same file)
+            cfg.hydra.overrides.hydra.append("hydra.mode=RUN")
+        configure_log(cfg.hydra.hydra_logging, cfg.hydra.verbose)
+        callbacks = _Callbacks(cfg)
         try:
-            with read_write(cfg.hydra), open_dict(cfg.hydra):
-                cfg.hydra.mode = RunMode.RUN
-                # as hydra.main records it (.hydra/hydra.yaml is the same file)
-                cfg.hydra.overrides.hydra.append("hydra.mode=RUN")
-            configure_log(cfg.hydra.hydra_logging, cfg.hydra.verbose)
-            callbacks = Callbacks(cfg)
             callbacks.on_run_start(config=cfg, config_name=None)
-            ret = run_job(hydra_context=HydraContext(config_loader=hydra.config_loader, callbacks=callbacks),
+            ret = run_job(hydra_context=HydraContext(config_loader=GlobalHydra.instance().config_loader(),
+                                                     callbacks=callbacks),
                           task_function=task_function, config=cfg, job_dir_key="hydra.run.dir",
                           job_subdir_key=None, configure_logging=True)
             callbacks.on_run_end(config=cfg, config_name=None, job_return=ret)
-            _ = ret.return_value  # raises the task's exception, as Hydra.run does
-        finally:
-            GlobalHydra.instance().clear()
-
-    run_and_report(run)
+            _ = ret.return_value  # raises the task's exception, as hydra.main does
+        except Exception as exc:
+            if os.environ.get("HYDRA_FULL_ERROR", "") == "1":
+                raise
+            _report_task_error(exc)
+            sys.exit(1)
