@@ -220,6 +220,10 @@ def _checked_and_run(argv: list[str], started: float) -> int:
             plots.start_early()
             if not TRACKING_OFF.intersection(argv):
                 channel.start_early()
+    from .settings import install_warning_display
+
+    # before preflight: its dry run fits what the run fits again, and a warning is shown once, on one line
+    install_warning_display()
     try:
         from .preflight import preflight
 
@@ -240,10 +244,6 @@ def _checked_and_run(argv: list[str], started: float) -> int:
         _transient(None)
 
     import hydra
-
-    from .settings import redact_warnings
-
-    redact_warnings()
 
     def run_task(cfg):
         from .run import run

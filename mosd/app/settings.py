@@ -108,16 +108,65 @@ class TrackingSettings:
 
 
 
-def redact_warnings() -> None:
-    """Mask URI passwords in the warnings this process shows (Hydra warns with a callback's exception text)."""
+#: What a warning means for the run, said beside it (the warning's first words -> one sentence): a warning that a
+#: user cannot judge is noise
+WARNING_MEANINGS = {
+    "detector=ica: FastICA did not converge": (
+        "it means the independent components are FastICA's last iterate, not a converged solution; the run goes "
+        "on with it, its limits set on the same statistics, so FAR and MDR are those of that matrix; a larger "
+        "detector.max_iter or detector.tol lets FastICA converge"),
+}
+
+_PACKAGE = Path(__file__).resolve().parents[1]
+
+
+def _from_mosd(filename: str) -> bool:
+    try:
+        return Path(filename).resolve().is_relative_to(_PACKAGE)
+    except (OSError, ValueError):
+        return False
+
+
+def install_warning_display() -> None:
+    """How this process shows warnings: each once, URI passwords masked, mosd's own on one line with what it means.
+
+    * a warning is shown once per process (its category and text): the same fit repeated by the preflight
+      dry run, the tuning and the test (FastICA that does not converge) printed it once per fit, each time
+      with the source line that raised it (issue 53 item 9);
+    * mosd's own warnings (raised in this package) are one line, ``mosd: warning: TEXT``, followed on the same line
+      by what the warning means where :data:`WARNING_MEANINGS` knows it;
+    * other libraries' warnings keep Python's display; a URI's password is masked in every warning (Hydra warns
+      with a callback's exception text).
+
+    ``warnings.catch_warnings(record=True)`` still records every warning (it replaces the display while it runs):
+    mosd.systems.skab_study counts FastICA's that way.
+    """
+    import sys
     import warnings
 
     shown = warnings.showwarning
     if getattr(shown, "redacts", False):
         return
+    seen: set[tuple[type, str]] = set()
 
     def show(message, category, filename, lineno, file=None, line=None):
-        shown(redacted(str(message)), category, filename, lineno, file, line)
+        text = redacted(str(message))
+        if (category, text) in seen:
+            return
+        seen.add((category, text))
+        if not _from_mosd(filename):
+            shown(text, category, filename, lineno, file, line)
+            return
+        meaning = next((m for start, m in WARNING_MEANINGS.items() if text.startswith(start)), None)
+        stream = file if file is not None else sys.stderr
+        try:
+            stream.write(f"mosd: warning: {text}" + (f" ({meaning}; shown once)" if meaning else "") + "\n")
+        except (OSError, ValueError):  # a closed stream: nothing more can reach it
+            pass
 
     show.redacts = True
     warnings.showwarning = show
+
+
+#: the name the app called it by before it showed warnings once (mosd.app.main)
+redact_warnings = install_warning_display
