@@ -320,6 +320,9 @@ def live_options(args, pipeline):
     nodes = read_mapping(args.nodes, "--nodes", inputs, required=True) or {t: t for t in inputs}
     outputs = [c for c in pipeline.outputs if c not in pipeline.state_names]
     write = read_mapping(args.write, "--write", outputs, required=False)
+    if args.out is not None and not args.out.lower().endswith(".csv"):
+        raise ConfigError(f"--out={args.out!r} with --opcua: the log is a CSV file appended sample by sample; "
+                          "allowed: a .csv path")
     state = check_out(args.state) if args.state is not None else None
     if state is not None and args.state == args.out:
         raise ConfigError("--state and --out name the same file; allowed: two files")
@@ -367,8 +370,8 @@ def live_main(args) -> int:
     t = monitor.totals
     counts = monitor.aligner.counts
     print(f"{monitor.o.url}: {t.scored} samples scored, {t.alarms} alarms; missing: {counts['bad']} bad-quality "
-          f"values, {counts['absent']} absent values, {counts['missing_rows']} missing rows; {t.dropped} rows "
-          f"dropped (data.fill=drop); {t.history} values from history; {t.reconnects} reconnects; next sample "
+          f"values, {counts['absent']} absent values, {counts['missing_rows']} missing rows"
+          f"{f'; {t.dropped} rows dropped (data.fill=drop)' if t.dropped else ''}; {t.history} values from history; {t.reconnects} reconnects; next sample "
           f"{monitor.aligner.next_number}", flush=True)
     return code
 
