@@ -23,11 +23,13 @@ class CompiledMove:
     """Whether and how the compiled move runs (a mixin of :class:`~mosd.optim.mopso.MOPSO`)."""
 
     def _compiled_move(self):
-        """The compiled move (:mod:`mosd.kernels.swarm`) when it applies, else None (the NumPy code below).
+        """The compiled move (:mod:`mosd.kernels.swarm`) when it applies, else None (then the NumPy code of
+        :mod:`mosd.optim.particle_move` and :mod:`mosd.optim.offspring` runs).
 
         It applies when the kernels are on, the random state is a NumPy Generator, the boundary rule is one of
-        :func:`apply_bounds`' and the particles' mutation is polynomial or none (Coello's stays NumPy code); on an
-        empty cache, from the generation its compilation ahead ends (:func:`mosd.kernels.swarm.ready`).
+        :func:`~mosd.optim.variation.apply_bounds`' and the particles' mutation is polynomial or none (Coello's
+        stays NumPy code); on an empty cache, from the generation its compilation ahead ends
+        (:func:`mosd.kernels.swarm.ready`).
         """
         if (not kernels.enabled() or type(self.random_state) is not np.random.Generator
                 or self.boundary not in BOUNDARY_RULES
@@ -48,7 +50,8 @@ class CompiledMove:
         return cached[1]
 
     def _compiled_particles(self, swarm, X, previous_velocity, personal, leaders, w, c1, c2):
-        """The particles' move of :meth:`_particles` in one call of :func:`mosd.kernels.swarm.particle_move`."""
+        """The particles' move of :meth:`~mosd.optim.particle_move.ParticleMove._particles` in one call of
+        :func:`mosd.kernels.swarm.particle_move`."""
         problem, n_particles = self.problem, len(X)
         xl, xu = np.asarray(problem.xl, dtype=float), np.asarray(problem.xu, dtype=float)
         limit = _NO_LIMIT if self.max_velocity is None else self.max_velocity * (xu - xl)

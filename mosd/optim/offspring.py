@@ -15,7 +15,8 @@ from .variation import (CROSSOVER_ETA, CROSSOVER_PROBABILITY, polynomial_mutatio
 
 
 class ArchiveOffspring:
-    """Children of archive members for the last slots of each generation (a mixin of :class:`~mosd.optim.mopso.MOPSO`)."""
+    """Children of archive members for the last slots of each generation (a mixin of
+    :class:`~mosd.optim.mopso.MOPSO`)."""
 
     def _n_offspring(self) -> int:
         """Slots of the swarm filled by archive offspring each move: round(``recombination`` × N), at most N − 1."""
