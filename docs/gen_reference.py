@@ -1,0 +1,101 @@
+"""Write the site's Reference section: one page per config group and one API page per package.
+
+Run by the ``gen-files`` plugin of ``mkdocs.yml`` at every build (nothing it writes is in the repository):
+
+* ``reference/config/index.md``: every preset's choices (:func:`mosd.app.options.readme_index`);
+* ``reference/config/<group>.md``: every option of ``conf/<group>/`` with its class, description and keys
+  (default, the class's declared domain, the YAML's comment): :func:`mosd.app.options.markdown`, the same
+  text ``python -m mosd options GROUP`` prints;
+* ``reference/api/<package>.md``: the docstrings of the package's modules (mkdocstrings);
+* ``reference/SUMMARY.md``: the section's navigation (literate-nav).
+
+A new config group, option or module appears without editing this file or ``mkdocs.yml``.
+"""
+from __future__ import annotations
+
+import pkgutil
+from pathlib import Path
+
+import mkdocs_gen_files
+
+import mosd
+from mosd.app.config import groups
+from mosd.app.options import listing, markdown, readme_index
+
+#: the packages whose modules get an API page, in the navigation's order, with a line on each
+PACKAGES = {
+    "mosd": "the experiment, scenario, types, parameter declarations and the streaming contract",
+    "mosd.plants": "plants (simulated systems)",
+    "mosd.noise": "noise models",
+    "mosd.faults": "faults",
+    "mosd.data": "recorded data sources (Tennessee Eastman, SKAB, any table)",
+    "mosd.estimators": "residual generators",
+    "mosd.monitors": "monitors (standardisation, subgroups, selected outputs)",
+    "mosd.detectors": "detectors (control charts, latent-variable monitors, decision rules)",
+    "mosd.denoisers": "denoisers",
+    "mosd.metrics": "metrics (FAR, MDR, delays, the run's summary)",
+    "mosd.optim": "optimisers (MO-PSO and the pymoo/jMetal adapters)",
+    "mosd.systems": "the systems' studies and report commands",
+    "mosd.live": "live monitoring (OPC UA)",
+    "mosd.app": "the application: Hydra, MLflow, preflight, serving",
+}
+
+#: modules left out of the API pages: command-line entry points whose import runs a command
+SKIP = {"mosd.__main__", "mosd.kernels.__main__"}
+
+
+def modules(package: str) -> list[str]:
+    """The modules of ``package``: its own top-level modules for ``mosd``, else the package and its modules."""
+    if package == "mosd":
+        found = [f"mosd.{m.name}" for m in pkgutil.iter_modules(mosd.__path__) if not m.ispkg]
+        return sorted(m for m in found if m not in SKIP)
+    path = Path(mosd.__path__[0]) / package.split(".", 1)[1]
+    found = [f"{package}.{m.name}" for m in pkgutil.iter_modules([str(path)]) if not m.ispkg]
+    return [package] + sorted(m for m in found if m not in SKIP)
+
+
+def config_pages() -> dict[str, str]:
+    """{path under reference/: markdown} of the configuration reference."""
+    pages = {"config/index.md": (
+        "# Configuration\n\n"
+        "Every run composes one option per config group (`group=option` on the command line, `+group=option` "
+        "for a group without a default such as `fault`) and any key of it (`group.key=value`). A preset "
+        "(`+experiment=NAME`) chooses one option per group; its choices over `conf/config.yaml`'s defaults:\n\n"
+        + readme_index() + "\n\n"
+        "One page per group lists each option's class, its description and its keys: the default (the YAML's "
+        "value), the domain the class declares (what preflight checks) and the YAML's comment. "
+        "`python -m mosd options [GROUP ...]` prints the same tables.\n")}
+    found = listing([g for g in groups() if g != "experiment"]) | listing(["experiment"])
+    for group, opts in found.items():
+        table = markdown({group: opts}).split("\n", 2)[2]  # without its "### `group`" heading
+        pages[f"config/{group}.md"] = (
+            f"# `{group}`\n\n{len(opts)} options: " + ", ".join(f"`{o.name}`" for o in opts)
+            + f". Choose one with `{group}=NAME`; list them with `python -m mosd options {group}`.\n\n" + table)
+    return pages
+
+
+def api_pages() -> dict[str, str]:
+    pages = {}
+    for package, what in PACKAGES.items():
+        blocks = [f"# `{package}`\n\nThe {what}.\n"]
+        for module in modules(package):
+            blocks.append(f"## `{module}`\n\n::: {module}\n    options:\n      show_root_heading: false\n"
+                          f"      heading_level: 3\n")
+        pages[f"api/{package}.md"] = "\n".join(blocks)
+    return pages
+
+
+def summary() -> str:
+    lines = ["* [Configuration](config/index.md)"]
+    lines += [f"    * [{g}](config/{g}.md)" for g in groups()]
+    lines += ["* API", *[f"    * [{p}](api/{p}.md)" for p in PACKAGES]]
+    return "\n".join(lines) + "\n"
+
+
+def write() -> None:
+    for path, text in {**config_pages(), **api_pages(), "SUMMARY.md": summary()}.items():
+        with mkdocs_gen_files.open(f"reference/{path}", "w") as out:
+            out.write(text)
+
+
+write()
