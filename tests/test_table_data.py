@@ -170,3 +170,33 @@ def test_bad_tables_are_one_line(tmp_path):
                                           r"tags: the covariance is singular"):
         Table(str(path), time_column="time", label_column="fault",
               splits={"calibration": [0, 4], "training": [4, 100], "test": [100, 200]})
+
+
+def _stamped(tmp_path, **extra) -> Path:
+    """labelled_frame's tags and labels with its time as text in a column 'stamp' (every 2 s)."""
+    frame = labelled_frame().drop(columns="time")
+    frame.insert(0, "stamp", pd.date_range("2024-01-01", periods=len(frame), freq="2s").strftime("%Y-%m-%d %H:%M:%S"))
+    for name, column in extra.items():
+        frame[name] = column(frame)
+    path = tmp_path / "stamped.csv"
+    frame.to_csv(path, index=False)
+    return path
+
+
+def test_the_one_column_of_timestamps_is_the_time_column_when_none_is_named(tmp_path, capsys):
+    """issue 51: without data.time_column the timestamp was a tag of 400 'not numbers', dropped as constant."""
+    table = Table(str(_stamped(tmp_path)), label_column="fault")
+    said = capsys.readouterr().out
+    assert "column 'stamp' holds a timestamp on every row" in said and said.count("\n") == 1
+    assert table.time_column == "stamp" and "stamp" not in table.output_names
+    assert table.dt == pytest.approx(2.0)
+
+
+def test_no_detection_with_time_column_false_or_two_timestamp_columns(tmp_path, capsys):
+    tags = [f"TI-{i}" for i in range(8)]
+    table = Table(str(_stamped(tmp_path)), label_column="fault", time_column=False, tags=tags)
+    assert table.time_column is False and table.dt == 1.0
+    two = _stamped(tmp_path, again=lambda f: f["stamp"])
+    table = Table(str(two), label_column="fault", tags=tags)
+    assert table.time_column is None and table.dt == 1.0
+    assert "holds a timestamp" not in capsys.readouterr().out

@@ -82,9 +82,10 @@ class Table(RecordedData):
     ----------
     path : str
         A ``.csv`` (or ``.csv.gz``) or ``.parquet`` file.
-    time_column : str or int, optional
+    time_column : str or int or False, optional
         The time column (name, or 0-based position); sets ``dt`` from the median step.
-        None: samples are numbered and ``dt`` is taken from ``dt``.
+        None: the one column whose every cell is a timestamp, said on stdout (none or several: the
+        samples are numbered and ``dt`` is taken from ``dt``); False: samples numbered, no detection.
     label_column : str, optional
         The fault id per row (0, empty = normal); None: every row is normal operation.
     tags : "all" or sequence of str
@@ -103,7 +104,7 @@ class Table(RecordedData):
         the number of rows out of order is printed on stdout.
     """
 
-    def __init__(self, path: str | None = None, time_column: str | int | None = None, label_column: str | None = None,
+    def __init__(self, path: str | None = None, time_column: str | int | bool | None = None, label_column: str | None = None,
                  tags: str | Sequence[str] = "all", errors: str = "nan", fill: str = "hold",
                  splits: Mapping[str, Sequence[float]] | None = None, dt: float = 1.0, sort: bool = False):
         if path is None or str(path) in ("", "???"):
@@ -123,11 +124,17 @@ class Table(RecordedData):
             raise ConfigError(f"data.path={self.path!r} has {what}; allowed: a table with at least "
                               f"{len(SPLITS) * MIN_SPLIT_ROWS} rows ({MIN_SPLIT_ROWS} per split: "
                               f"{', '.join(SPLITS)})")
-        time_name = self._column("data.time_column", time_column, columns) if time_column is not None else None
+        if time_column is not False and not (isinstance(time_column, str) and time_column.lower() in ("false", "none")):
+            time_name = self._column("data.time_column", time_column, columns) if time_column is not None else None
+        else:
+            time_name, time_column = None, False
         label_name = self._column("data.label_column", label_column, columns) if label_column is not None else None
         seconds = None
-        if time_name:
+        if time_column is None:
+            time_name, seconds = self._detected_time(frame, columns, label_name)
+        elif time_name:
             seconds = self._seconds(frame[time_name], time_name)
+        if time_name:
             frame, seconds = self._in_time_order(frame, seconds, time_name)
         reserved = {time_name, label_name}
         if isinstance(tags, str):
@@ -290,6 +297,33 @@ class Table(RecordedData):
                 or str(value).strip() in ("", "NaT", "nan") else repr(str(value))
             raise ConfigError(f"{self.path}: column {name!r} row {row} holds {shown}, not a time; {allowed}")
         return np.asarray(seconds, float)
+
+    def _detected_time(self, frame, columns: list[str], label_name: str | None):
+        """(name, seconds) of the one column whose every cell is a timestamp, when ``time_column`` is not set; said
+        in one line. (None, None) when no column, or more than one, is: the rows are then numbered."""
+        import pandas as pd
+
+        found = []
+        for name in columns:
+            column = frame[name]
+            text = column.dtype == object or pd.api.types.is_string_dtype(column.dtype)
+            if name == label_name or not (text or pd.api.types.is_datetime64_any_dtype(column.dtype)):
+                continue
+            head = column.dropna().head(5).astype(str)
+            if head.empty or not pd.to_numeric(head, errors="coerce").isna().all():
+                continue  # numbers in text (a tag with an error code) are not times
+            try:
+                seconds = self._seconds(column, name)
+            except ConfigError:
+                continue
+            found.append((name, seconds))
+        if len(found) != 1:
+            return None, None
+        name, seconds = found[0]
+        self.time_column = name
+        print(f"data: column {name!r} holds a timestamp on every row: used as data.time_column "
+              "(data.time_column=false numbers the rows instead)", flush=True)
+        return name, seconds
 
     def _in_time_order(self, frame, seconds: np.ndarray, name: str):
         """The frame in strictly increasing time: as it is, or sorted when ``sort`` is set (said on stdout)."""
