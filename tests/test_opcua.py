@@ -12,6 +12,7 @@
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import re
 import signal
@@ -175,13 +176,13 @@ def test_replayed_test_rows_give_the_file_s_alarms_and_are_written_back(tuned, s
     assert t2.SourceTimestamp.timestamp() == pytest.approx(epoch + (ROWS - 1) * 60.0, abs=1e-3)
 
 
-def _kill_when(process, log: Path, rows: int, timeout=120):
-    """SIGKILL ``process`` once its log holds ``rows`` samples and it has checkpointed at least once."""
+def _kill_when(process, log: Path, rows: int, sig=signal.SIGKILL, timeout=120):
+    """Send ``sig`` to ``process`` once its log holds ``rows`` samples and it has checkpointed at least once."""
     deadline = time.time() + timeout
     while time.time() < deadline and process.poll() is None:
         if log.with_suffix(".json").exists() and log.read_text().count("\n") > rows:
-            process.send_signal(signal.SIGKILL)
-            process.wait(10)
+            process.send_signal(sig)
+            process.wait(30)
             return True
         time.sleep(0.05)
     return False
@@ -190,13 +191,22 @@ def _kill_when(process, log: Path, rows: int, timeout=120):
 def test_monitor_killed_and_restarted_ends_as_an_uninterrupted_run(tuned):
     tmp = tuned["tmp"]
     reference = expected(load_fitted(tuned["npz"]), tuned["coded"])
-    with replay_server(tmp / "coded.csv") as (url, epoch, _):
+    with replay_server(tmp / "coded.csv", speed=600) as (url, epoch, _):  # 30 s: the second run stops mid-way
         args = live_args(url, tuned["npz"], tmp, "killed", epoch)
         first = monitor(args)
         assert _kill_when(first, tmp / "killed.csv", 50), first.communicate()[1][-2000:]
+        # SIGTERM: the state and the log flushed, exit 0
         second = monitor(args)
-        out, err = second.communicate(timeout=300)
-    assert second.returncode == 0, err[-2000:]
+        logged = (tmp / "killed.csv").read_text().count("\n")
+        assert _kill_when(second, tmp / "killed.csv", logged + 30, signal.SIGTERM), second.communicate()[1][-2000:]
+        out, err = second.communicate(timeout=60)
+        assert second.returncode == 0, err[-2000:]
+        stopped = json.loads((tmp / "killed.json").read_text())
+        assert "samples scored" in out and stopped["next_number"] < ROWS
+        assert stopped["log_bytes"] == (tmp / "killed.csv").stat().st_size  # the log flushed up to the state
+        third = monitor(args)
+        out, err = third.communicate(timeout=300)
+    assert third.returncode == 0, err[-2000:]
     log = read_log(tmp / "killed.csv")
     same_outputs(log, reference)
     # every Bad cell was counted (in the first run or the second: the counts travel in the state), never used

@@ -335,13 +335,15 @@ def live_options(args, pipeline):
                        password=os.environ.get("MOSD_OPCUA_PASSWORD") or None, quiet=args.no_progress)
 
 
-async def _run_live(monitor) -> int:
+async def _run_live(monitor, stopping: list) -> int:
     import asyncio
     import signal
 
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGTERM, signal.SIGINT):  # flush the state and the log, exit 0
         loop.add_signal_handler(sig, monitor.stop.set)
+    if stopping:  # a signal while the model loaded: stop at once, the state as it was
+        monitor.stop.set()
     return await monitor.run()
 
 
@@ -352,7 +354,11 @@ def live_main(args) -> int:
     a user or password is refused, as a command line is visible to every user of the machine (``ps``)."""
     import asyncio
     import logging
+    import signal
 
+    stopping: list = []
+    for sig in (signal.SIGTERM, signal.SIGINT):  # until the loop's own handlers: noted, acted on at its start
+        signal.signal(sig, lambda number, frame: stopping.append(number))
     try:
         from ..live import require_asyncua
 
@@ -363,7 +369,9 @@ def live_main(args) -> int:
         logging.getLogger("asyncua").setLevel(logging.CRITICAL)
         pipeline = load_pipeline(args.model, args.tracking_uri)
         monitor = LiveMonitor(pipeline, live_options(args, pipeline), model=args.model)
-        code = asyncio.run(_run_live(monitor))
+        code = asyncio.run(_run_live(monitor, stopping))
+        # the loop's handlers are gone with it; the checkpoint is written: a late SIGTERM does not cut the summary
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
     except ConfigError as exc:
         print(f"mosd monitor: error: {redacted(str(exc))}", file=sys.stderr)
         return 2
