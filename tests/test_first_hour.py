@@ -301,7 +301,7 @@ def test_the_te_files_export_as_csv_with_their_tag_names(tmp_path):
     from mosd.systems.tep import main
 
     assert main(["--export", str(tmp_path / "te")]) == 0
-    files = sorted((tmp_path / "te").glob("*.csv"))
+    files = sorted((tmp_path / "te").glob("d*.csv"))
     assert len(files) == 44 and {"d00.csv", "d21.csv", "d00_te.csv", "d21_te.csv"} <= {f.name for f in files}
     frame = pd.read_csv(tmp_path / "te" / "d05_te.csv")
     assert list(frame.columns) == ["time", "fault", *PRESETS["literature"]]
@@ -310,6 +310,26 @@ def test_the_te_files_export_as_csv_with_their_tag_names(tmp_path):
     raw = TennesseeEastman().values("d05_te.dat")
     np.testing.assert_array_equal(frame[list(PRESETS["literature"])].to_numpy(), raw)
     assert (pd.read_csv(tmp_path / "te" / "d07.csv")["fault"] == 7).all()
+
+
+def test_the_te_export_table_runs_as_printed(tmp_path, capsys):
+    """issue 51: `--export` then `+experiment=table data.path=DIR/d05_te.csv` exited 2 (a split with no fault-free
+    row); the export now writes the preset's splits as one table and prints the command that runs it."""
+    import shlex
+
+    from mosd.systems.tep import main
+
+    assert main(["--export", str(tmp_path / "te")]) == 0
+    command = [line.strip() for line in capsys.readouterr().out.splitlines() if "+experiment=table" in line]
+    assert len(command) == 1, command
+    table = pd.read_csv(tmp_path / "te" / "te_table.csv")
+    assert len(table) == 500 + 960 + 18 * 480 + 18 * 960 and (np.diff(table["time"]) == 180.0).all()
+    argv = shlex.split(command[0])
+    assert argv[:3] == ["python", "-m", "mosd"]
+    run = subprocess.run([sys.executable, *argv[1:], "debug=tiny", "tracking=none", "progress=false"], cwd=tmp_path,
+                         capture_output=True, text=True, timeout=600)
+    assert run.returncode == 0, run.stderr[-3000:]
+    assert "FAR" in run.stdout and "MDR" in run.stdout
 
 
 # -- 5. set-up: compile what a run needs ----------------------------------------------------------

@@ -28,7 +28,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from ..data.tep import ALL_FAULTS, DT, ONSET, TennesseeEastman, file_name
+from ..data.tep import ALL_FAULTS, DEFAULT_FAULTS, DT, ONSET, TennesseeEastman, file_name
 from ..detectors.pca import PCADetector
 from ..validation import ConfigError, check_int
 from . import base, cli
@@ -460,10 +460,41 @@ def monitor_table(table, detector: PCADetector, top: int = 10) -> dict:
 
 #: Columns an exported file has besides its tags (:func:`export_csv`).
 EXPORT_TIME, EXPORT_LABEL = "time", "fault"
+#: The one table of the export that ``+experiment=table`` runs as it is (:func:`export_table`).
+EXPORT_TABLE = "te_table.csv"
 
 
-def export_csv(out_dir: str | Path, directory: str | None = None, variables: str = "literature") -> list[Path]:
-    """Write every Braatz file as ``dNN.csv`` / ``dNN_te.csv``: time, fault label and the tags by name.
+def export_table(tables: Mapping[str, np.ndarray], names: tuple[str, ...], out: Path) -> tuple[Path, dict]:
+    """The ``tep`` preset's splits as one CSV a ``data=table`` run reads unchanged, and its row splits.
+
+    Rows in order: ``d00.dat`` (calibration: fault-free), then ``d00_te.dat`` and the training files of the
+    preset's 18 faults (training: fault-free and faulty rows), then their ``_te`` files (test: 160
+    fault-free rows, then the fault). One clock, 180 s a row. A table is one run per split, so the EWMA
+    and the persistence run across the files' boundaries inside a split, which the preset's runs do not.
+    """
+    import csv
+
+    parts = {"calibration": [file_name(0)],
+             "training": [file_name(0, test=True), *(file_name(f) for f in DEFAULT_FAULTS)],
+             "test": [file_name(f, test=True) for f in DEFAULT_FAULTS]}
+    path, splits, row = out / EXPORT_TABLE, {}, 0
+    with path.open("w", newline="") as handle:
+        writer = csv.writer(handle)
+        writer.writerow([EXPORT_TIME, EXPORT_LABEL, *names])
+        for split, files in parts.items():
+            start = row
+            for name in files:
+                fault, onset = int(name[1:3]), (ONSET if name.endswith("_te.dat") else 0)
+                for k, sample in enumerate(tables[name]):
+                    writer.writerow([f"{row * DT:g}", fault if k >= onset else 0, *(repr(float(v)) for v in sample)])
+                    row += 1
+            splits[split] = [start, row]
+    return path, splits
+
+
+def export_csv(out_dir: str | Path, directory: str | None = None, variables: str = "literature"):
+    """Write every Braatz file as ``dNN.csv`` / ``dNN_te.csv``: time, fault label and the tags by name; and the
+    preset's splits as one table (:func:`export_table`). Returns (the files written, that table's row splits).
 
     Each file keeps its rows in order: ``time`` in seconds from the file's first
     row (180 s per sample), ``fault`` the IDV number acting on the row (0 before
@@ -492,7 +523,15 @@ def export_csv(out_dir: str | Path, directory: str | None = None, variables: str
             for row, sample in enumerate(values):
                 writer.writerow([f"{row * DT:g}", fault if row >= onset else 0, *(repr(float(v)) for v in sample)])
         written.append(path)
-    return written
+    table, splits = export_table(dict(tables), source.output_names, out)
+    return [*written, table], splits
+
+
+def table_command(path: Path, splits: Mapping[str, list]) -> str:
+    """The ``+experiment=table`` command that runs :func:`export_table`'s file with its splits."""
+    ranges = " ".join(f"'data.splits.{k}=[{a},{b}]'" for k, (a, b) in splits.items())
+    return (f"python -m mosd +experiment=table data.path={path} data.time_column={EXPORT_TIME} "
+            f"data.label_column={EXPORT_LABEL} {ranges}")
 
 
 def main(argv=None) -> int:
@@ -529,9 +568,11 @@ def main(argv=None) -> int:
     cli.design_options(parser, SYSTEM)
 
     def export_body(args):
-        files = export_csv(args.export, args.directory, args.variables)
-        print(f"{len(files)} TE files as CSV in {args.export} (columns {EXPORT_TIME}, {EXPORT_LABEL} and "
-              f"{len(TennesseeEastman(args.directory, args.variables).output_names)} tags)")
+        files, splits = export_csv(args.export, args.directory, args.variables)
+        print(f"{len(files) - 1} TE files as CSV in {args.export} (columns {EXPORT_TIME}, {EXPORT_LABEL} and "
+              f"{len(TennesseeEastman(args.directory, args.variables).output_names)} tags), and the tep preset's "
+              f"splits as one table; run it with:")
+        print(f"  {table_command(files[-1], splits)}")
         return [Path(args.export)]
 
     def table_body(args):
