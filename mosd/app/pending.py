@@ -29,7 +29,7 @@ from .config import described
 from .atomic import write_atomically, write_json
 from .mlflow_client import MlflowStore
 from .settings import TrackingSettings, redacted, without_password
-from .store import TrackingError
+from .store import TrackingError, short_error
 
 #: File in a run directory with the MLflow requests of a run that was not logged.
 PENDING_FILE = "mlflow_pending.json"
@@ -220,10 +220,12 @@ def log_main(argv) -> int:
             if gone:  # removed from the run directory since: said, not silently skipped
                 print(f"mosd log: not logged, no longer in {run_dir}: {', '.join(gone)}", file=sys.stderr)
     except (ConfigError, TrackingError) as exc:
-        print(f"mosd log: error: {described(exc) if isinstance(exc, TrackingError) else exc}", file=sys.stderr)
+        print(f"mosd log: error: {short_error(described(exc)) if isinstance(exc, TrackingError) else exc}",
+              file=sys.stderr)
         return 2
-    except Exception as exc:  # MLflow's own errors: one line, the pending file is kept
-        print(f"mosd log: error: {described(exc)}", file=sys.stderr)
+    except Exception as exc:  # MLflow's own errors: one line (no SQL statement), the pending file is kept
+        print(f"mosd log: error: {short_error(described(exc))}; the pending file is kept: run it again once the "
+              f"store can take it", file=sys.stderr)
         return 1
     return 0
 

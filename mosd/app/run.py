@@ -30,8 +30,9 @@ import signal
 import sys
 import time
 import traceback
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Mapping
+from typing import Any, Mapping
 
 import numpy as np
 
@@ -44,6 +45,7 @@ from . import signals
 from .report import logged_study_name, study_metric_tags
 from .settings import redacted
 from .signals import RECEIVED, Interrupted, name
+from .store import short_error
 from .sweep import under_joblib_launcher
 from .summary import (UndefinedResult, closing_lines, final_metrics, format_summary, header_line, result_lines,
                       undefined_metrics)
@@ -136,6 +138,40 @@ def recorded_labels(labels: dict[str, str]) -> dict[str, str]:
     return {k: v for k, v in labels.items() if k not in ("plant", "noise", "fault")}
 
 
+@dataclass
+class _Job:
+    """What one run's steps share (:func:`run`): the job, its components, its results and how far it got."""
+
+    cfg: Any
+    hc: Any
+    multirun: bool
+    job_worker: bool
+    started: float
+    task_start: float
+    run_dir: Path
+    labels: dict
+    setup: Any = None
+    tracker: Any = None
+    progress: Any = None
+    figures: Any = None
+    result: Any = None
+    n_jobs: int = 1
+    share: int | None = None  # a job worker's share of the cores
+    timings: dict = field(default_factory=dict)
+    metrics: dict = field(default_factory=dict)
+    study_metrics: dict = field(default_factory=dict)
+    study_figures: list = field(default_factory=list)
+    params: dict = field(default_factory=dict)
+    logged: list = field(default_factory=list)  # metrics (key, value, step) handed to MLflow
+    sent: list = field(default_factory=list)  # artifacts already handed to MLflow
+    files: list = field(default_factory=list)  # the run directory's files, once written
+    writing: bool = False  # an OSError while True: the run directory cannot be written (disk full, quota)
+    done: bool = False  # the run is complete (FINISHED, or its files kept for `mosd log`): a signal changes nothing
+    holding: bool = False  # the results are printed, not yet in summary.json: a signal waits (signals.hold)
+    results_kept: bool = False  # summary.json holds the results and MLflow has them: a signal ends the run FINISHED
+    printed: bool = False  # the results are on stdout (a single run prints them as soon as they exist)
+
+
 def run(cfg, started: float | None = None, checked=None):
     """The Hydra task: one experiment, its files and its MLflow run.
 
@@ -148,18 +184,37 @@ def run(cfg, started: float | None = None, checked=None):
     checked : mosd.app.preflight.Checked, optional
         The components preflight built for the command's jobs: this job takes its
         own instead of building them again (a job in another process builds them).
+
+    The steps: :func:`_setup_job` (components, cores), :func:`_start_job` (MLflow run, progress, header),
+    :func:`_optimise` (the tuning, the test, the study), :func:`_write_files` (the run directory, MLflow's
+    early batches), :func:`_finish_tracking` (the MLflow run ended), :func:`_print_summary`; on an
+    exception, :func:`_on_failure`.
     """
+    job = _new_job(cfg, started)
+    try:
+        _setup_job(job, checked)
+        _start_job(job)
+        _optimise(job)
+        model_file, deployment = _write_files(job)
+        tracking_line, not_logged = _finish_tracking(job, model_file, deployment)
+        _print_summary(job, tracking_line, not_logged)
+        return job.result
+    except BaseException as exc:
+        return _on_failure(job, exc)
+    finally:
+        signals.run_ended()
+
+
+def _new_job(cfg, started: float | None) -> _Job:
+    """The job's Hydra context and labels, its stop signals handled (a job worker's stop ends it here)."""
     from hydra.core.hydra_config import HydraConfig
     from hydra.types import RunMode
-    from omegaconf import OmegaConf
-
-    from . import plots
-    from .progress import Progress
-    from .mlflow_client import LOGGING_ERROR_TAG, flatten
-    from .store import TrackingError
 
     import multiprocessing
 
+    from .settings import install_warning_display
+
+    install_warning_display()  # a job in a launcher's worker shows warnings as the launching process does
     hc = HydraConfig.get()
     multirun = hc.mode == RunMode.MULTIRUN
     # a job in a joblib-launcher worker: its launcher waits for it to mark its run on a signal
@@ -170,260 +225,322 @@ def run(cfg, started: float | None = None, checked=None):
         signals.end_job_worker(stopped)
     task_start = time.perf_counter()
     started = task_start if (started is None or multirun) else started
-    run_dir = Path(hc.runtime.output_dir)
     choices = {k: v for k, v in hc.runtime.choices.items() if not k.startswith("hydra/") and v is not None}
     labels = recorded_labels({group: str(choices.get(group, "")) for group in (*COMPONENTS, "tracking", "experiment")})
-    tracker = progress = figures = setup = None
-    result = None
-    writing = False  # an OSError while True: the run directory cannot be written (disk full, quota)
-    done = False  # the run is complete (FINISHED, or its files kept for `mosd log`): a signal no longer changes it
-    holding = False  # the results are printed, not yet in summary.json: a signal waits (signals.hold)
-    results_kept = False  # summary.json holds the results and MLflow has them: a signal ends the run FINISHED
-    try:
-        setup = checked.take(cfg) if checked is not None else None
-        if setup is None:  # a job in another process: built here, its component count bounded as preflight does
-            from .preflight import fit_to_data
+    return _Job(cfg, hc, multirun, job_worker, started, task_start, Path(hc.runtime.output_dir), labels)
 
-            setup = build(cfg)
-            fit_to_data(setup)
-        labels["online"] = "true" if setup.experiment.detector.is_causal else "false"
-        n_jobs = setup.n_jobs
-        if n_jobs > 1 and under_joblib_launcher(hc):
-            # nested joblib under the joblib launcher silently becomes threads: evaluate in-process
-            log.info("joblib launcher: fitness evaluation runs in-process (optimizer.n_jobs=%d -> 1)", n_jobs)
-            n_jobs = 1
-        share = None  # a job worker's share of the cores
-        if job_worker:
-            from ..optim.workers import pin_sweep_job
 
-            # jobs side by side: each keeps BLAS/OpenMP/numba to its share of the cores (docs/SCALING.md)
-            share = pin_sweep_job(hc.launcher.get("n_jobs"))
-            log.info("joblib launcher: this job's thread pools pinned to %d thread(s)", share)
+def _setup_job(job: _Job, checked) -> None:
+    """The job's components (preflight's, or built here) and the cores its evaluation may use."""
+    setup = checked.take(job.cfg) if checked is not None else None
+    if setup is None:  # a job in another process: built here, its component count bounded as preflight does
+        from .preflight import fit_to_data
 
-        with signals.deferred():  # a run that exists in MLflow is one this process can mark KILLED
-            tracker = _start_tracking(cfg, hc, labels, n_jobs, run_dir, tuple(setup.experiment.detector.tunable))
-        if tracker is None or tracker.in_process:
-            from . import channel
+        setup = build(job.cfg)
+        fit_to_data(setup)
+    job.setup = setup
+    job.labels["online"] = "true" if setup.experiment.detector.is_causal else "false"
+    job.n_jobs = setup.n_jobs
+    if job.n_jobs > 1 and under_joblib_launcher(job.hc):
+        # nested joblib under the joblib launcher silently becomes threads: evaluate in-process
+        log.info("joblib launcher: fitness evaluation runs in-process (optimizer.n_jobs=%d -> 1)", job.n_jobs)
+        job.n_jobs = 1
+    if job.job_worker:
+        from ..optim.workers import pin_sweep_job
 
-            channel.discard()  # a tracking process started ahead of this run, which does not use it
-        position = int(hc.job.num) if multirun and under_joblib_launcher(hc) else 0
-        progress = Progress(setup.n_gen, enabled=cfg.progress, position=position,
-                            description=f"job {hc.job.num}" if multirun else "",
+        # jobs side by side: each keeps BLAS/OpenMP/numba to its share of the cores (docs/SCALING.md)
+        job.share = pin_sweep_job(job.hc.launcher.get("n_jobs"))
+        log.info("joblib launcher: this job's thread pools pinned to %d thread(s)", job.share)
+
+
+def _start_job(job: _Job) -> None:
+    """The MLflow run, the progress bar, the summary's first line and the figure process."""
+    from . import plots
+    from .progress import Progress
+
+    setup, hc = job.setup, job.hc
+    with signals.deferred():  # a run that exists in MLflow is one this process can mark KILLED
+        job.tracker = _start_tracking(job.cfg, hc, job.labels, job.n_jobs, job.run_dir,
+                                      tuple(setup.experiment.detector.tunable))
+    if job.tracker is None or job.tracker.in_process:
+        from . import channel
+
+        channel.discard()  # a tracking process started ahead of this run, which does not use it
+    position = int(hc.job.num) if job.multirun and under_joblib_launcher(hc) else 0
+    job.progress = Progress(setup.n_gen, enabled=job.cfg.progress, position=position,
+                            description=f"job {hc.job.num}" if job.multirun else "",
                             objectives=setup.experiment.objectives)
-        timings = {"startup_s": task_start - started}
-        if not multirun:
-            # the summary's first line now, so that a user (or a log file) sees the run start; the
-            # results come when the test is scored (a sweep prints each job's summary whole: jobs may run at once)
-            print(header_line(labels, setup), flush=True)
-        # started before preflight for a single run (plots.start_early), else now: matplotlib loads on the
-        # other core while this process checks the command or simulates; a sweep's job draws on its share
-        figures = plots.take(drawers=share)
-        result = setup.experiment.run(setup.algorithm, setup.termination, n_jobs=n_jobs, bounds=setup.bounds,
-                                      choose=setup.choose, callback=progress, backend=setup.backend,
-                                      dask_address=setup.dask_address)
-        progress.close()
-        timings.update(result.timings)
-        study_metrics, study_figures = {}, []
-        writing = True
-        if setup.study is not None:
-            t0 = time.perf_counter()
-            run_dir.mkdir(parents=True, exist_ok=True)
-            study_metrics, study_data = setup.study.measure(setup.experiment, result)
-            if setup.study.figures:
-                # drawn by the figure process with the run's own figures, while this process writes the files
-                study_figures = [("study_figures", {"study": setup.study, "method": method, "kwargs": kwargs})
-                                 for method, kwargs in setup.study.figure_jobs(study_data, run_dir)]
-            result.timings["study_s"] = timings["study_s"] = time.perf_counter() - t0
-        test_metrics = final_metrics(result, result.example["seconds_per_point"])
-        # a study metric named like a test metric (paper 003's far, scored its own way; paper 000's with
-        # study.n_runs != budget.n_test) must not replace the test metric: MLflow gets it as study_<name>
-        metrics = {**test_metrics, **{logged_study_name(k, test_metrics): float(v) for k, v in study_metrics.items()}}
-        # the studies' own metrics may be NaN by definition (e.g. paper 003's step of a window that never detects)
-        undefined = undefined_metrics(test_metrics)
-        if undefined:  # the last guard behind preflight: a NaN rate is no result, whatever the exit code said
-            raise UndefinedResult(f"the run's metrics {', '.join(undefined)} are NaN (no points to score them on); "
-                                  f"the run is not finished")
-        # from here the results exist: a stop signal waits until summary.json holds them (a few file writes)
-        signals.hold()
-        holding = True
-        if not multirun:
-            # the results as soon as they exist; where the files and the MLflow run are, once they are
-            # (a sweep prints each job's summary whole: jobs may run at once)
-            print(result_lines(result, setup, metrics), flush=True)
-        logged: list[tuple[str, float, int]] = []
-        params: dict[str, str] = {}
-        sent: list[Path] = []  # artifacts already handed to MLflow
+    job.timings = {"startup_s": job.task_start - job.started}
+    if not job.multirun:
+        # the summary's first line now, so that a user (or a log file) sees the run start; the
+        # results come when the test is scored (a sweep prints each job's summary whole: jobs may run at once)
+        print(header_line(job.labels, setup), flush=True)
+    # started before preflight for a single run (plots.start_early), else now: matplotlib loads on the
+    # other core while this process checks the command or simulates; a sweep's job draws on its share
+    job.figures = plots.take(drawers=job.share)
 
-        def log_early(text_files: list[Path]) -> None:
-            # MLflow logs the config, the history, the results and the text files while the
-            # figures are drawn; only the timings and the PNGs are left for the end
-            nonlocal params
-            if tracker is None:
-                return
-            params = {k: redacted(v) for k, v in flatten(OmegaConf.to_container(cfg, resolve=True)).items()}
-            logged.extend((key, record[key], record["generation"]) for record in result.history
-                          for key in ("hypervolume", "archive_size", "best_accuracy", "n_eval",
-                                      *(f"best_{name}" for name in result.objectives))
-                          if np.isfinite(record[key]))
-            logged.extend((k, v, 0) for k, v in metrics.items())
-            sent.extend(text_files)
-            tracker.log(params=params, metrics=logged, tags=study_metric_tags(study_metrics), artifacts=sent)
-            tracker.send()
 
-        found = []
-
-        def while_figures_are_drawn(text_files: list[Path]) -> None:
-            nonlocal holding, results_kept
-            log_early(text_files)
-            # summary.json holds the results and MLflow has them: a stop from now on cuts the extras only
-            results_kept, holding = True, False
-            signals.release()
-            # the deployable pipeline and its test stream are built (and pyarrow imported to write it) while
-            # the figure process draws; they are written after the figures (below)
-            found.append(deployable(setup, result))
-
+def _optimise(job: _Job) -> None:
+    """The tuning and the test (and a system's study); the results printed once they exist."""
+    setup = job.setup
+    result = job.result = setup.experiment.run(
+        setup.algorithm, setup.termination, n_jobs=job.n_jobs, bounds=setup.bounds, choose=setup.choose,
+        callback=job.progress, backend=setup.backend, dask_address=setup.dask_address)
+    job.progress.close()
+    job.timings.update(result.timings)
+    job.writing = True
+    if setup.study is not None:
         t0 = time.perf_counter()
-        files = write_run_files(run_dir, cfg, result, setup, labels, study_metrics, figures,
-                                on_text_files=while_figures_are_drawn, extra_figures=study_figures)
-        # the deployable pipeline and the first test replication's stream, after the run's own files (a disk
-        # that fills up takes the extras, not the results); logged with the last artifacts
-        model_file, deployment = save_for_run(setup, result, run_dir, found[0] if found else None)
-        files += [run_dir / STREAM_FILE] if deployment.stream is not None else []
-        record_model(run_dir, deployment, model_file)
-        fallback = figures.fallback
-        # a sweep's next job in this process draws with this figure process, matplotlib loaded and warm
-        if not (multirun and plots.keep(figures)):
-            figures.close()
-        figures = None
-        timings["files_s"] = time.perf_counter() - t0
-        if fallback:
-            log.warning("figures drawn in-process: %s", fallback)
-        tracking_line, not_logged = "", None
-        if tracker is not None:
-            t0 = time.perf_counter()
-            finals = [(k, v, 0) for k, v in {**timings, "wall_time_s": time.perf_counter() - started}.items()]
-            logged.extend(finals)
-            tracker.log(metrics=finals, artifacts=[f for f in files if f not in sent])
-            if model_file is not None:
-                tracker.log_model(model_file)
+        job.run_dir.mkdir(parents=True, exist_ok=True)
+        job.study_metrics, study_data = setup.study.measure(setup.experiment, result)
+        if setup.study.figures:
+            # drawn by the figure process with the run's own figures, while this process writes the files
+            job.study_figures = [("study_figures", {"study": setup.study, "method": method, "kwargs": kwargs})
+                                 for method, kwargs in setup.study.figure_jobs(study_data, job.run_dir)]
+        result.timings["study_s"] = job.timings["study_s"] = time.perf_counter() - t0
+    test_metrics = final_metrics(result, result.example["seconds_per_point"])
+    # a study metric named like a test metric (paper 003's far, scored its own way; paper 000's with
+    # study.n_runs != budget.n_test) must not replace the test metric: MLflow gets it as study_<name>
+    job.metrics = {**test_metrics, **{logged_study_name(k, test_metrics): float(v)
+                                      for k, v in job.study_metrics.items()}}
+    # the studies' own metrics may be NaN by definition (e.g. paper 003's step of a window that never detects)
+    undefined = undefined_metrics(test_metrics)
+    if undefined:  # the last guard behind preflight: a NaN rate is no result, whatever the exit code said
+        raise UndefinedResult(f"the run's metrics {', '.join(undefined)} are NaN (no points to score them on); "
+                              f"the run is not finished")
+    # from here the results exist: a stop signal waits until summary.json holds them (a few file writes)
+    signals.hold()
+    job.holding = True
+    if not job.multirun:
+        # the results as soon as they exist; where the files and the MLflow run are, once they are
+        # (a sweep prints each job's summary whole: jobs may run at once)
+        print(result_lines(result, setup, job.metrics), flush=True)
+        job.printed = True
+
+
+def _log_early(job: _Job, text_files: list[Path]) -> None:
+    """MLflow gets the config, the history, the results and the text files while the figures are drawn; only the
+    timings and the PNGs are left for the end."""
+    from omegaconf import OmegaConf
+
+    from .mlflow_client import flatten
+
+    if job.tracker is None:
+        return
+    result = job.result
+    job.params = {k: redacted(v) for k, v in flatten(OmegaConf.to_container(job.cfg, resolve=True)).items()}
+    job.logged.extend((key, record[key], record["generation"]) for record in result.history
+                      for key in ("hypervolume", "archive_size", "best_accuracy", "n_eval",
+                                  *(f"best_{name}" for name in result.objectives))
+                      if np.isfinite(record[key]))
+    job.logged.extend((k, v, 0) for k, v in job.metrics.items())
+    job.sent.extend(text_files)
+    job.tracker.log(params=job.params, metrics=job.logged, tags=study_metric_tags(job.study_metrics),
+                    artifacts=job.sent)
+    job.tracker.send()
+
+
+def _write_files(job: _Job):
+    """The run directory (MLflow's early batches sent meanwhile), then the deployable pipeline; returns
+    ``(model file, deployment)``."""
+    from . import plots
+
+    found = []
+
+    def while_figures_are_drawn(text_files: list[Path]) -> None:
+        _log_early(job, text_files)
+        # summary.json holds the results and MLflow has them: a stop from now on cuts the extras only
+        job.results_kept, job.holding = True, False
+        signals.release()
+        # the deployable pipeline and its test stream are built (and pyarrow imported to write it) while
+        # the figure process draws; they are written after the figures (below)
+        found.append(deployable(job.setup, job.result))
+
+    t0 = time.perf_counter()
+    files = write_run_files(job.run_dir, job.cfg, job.result, job.setup, job.labels, job.study_metrics, job.figures,
+                            on_text_files=while_figures_are_drawn, extra_figures=job.study_figures)
+    # the deployable pipeline and the first test replication's stream, after the run's own files (a disk
+    # that fills up takes the extras, not the results); logged with the last artifacts
+    model_file, deployment = save_for_run(job.setup, job.result, job.run_dir, found[0] if found else None)
+    files += [job.run_dir / STREAM_FILE] if deployment.stream is not None else []
+    record_model(job.run_dir, deployment, model_file)
+    job.files = files
+    fallback = job.figures.fallback
+    # a sweep's next job in this process draws with this figure process, matplotlib loaded and warm
+    if not (job.multirun and plots.keep(job.figures)):
+        job.figures.close()
+    job.figures = None
+    job.timings["files_s"] = time.perf_counter() - t0
+    if fallback:
+        log.warning("figures drawn in-process: %s", fallback)
+    return model_file, deployment
+
+
+def _finish_tracking(job: _Job, model_file, deployment) -> tuple[str, str | None]:
+    """End the MLflow run FINISHED (or keep what it lacks for ``mosd log``); returns ``(tracking line, the logging
+    error or None)``."""
+    from .mlflow_client import LOGGING_ERROR_TAG
+    from .store import TrackingError
+
+    tracker = job.tracker
+    if tracker is None:
+        return (f"model     none: {deployment.reason}" if deployment.reason else ""), None
+    t0 = time.perf_counter()
+    finals = [(k, v, 0) for k, v in {**job.timings, "wall_time_s": time.perf_counter() - job.started}.items()]
+    job.logged.extend(finals)
+    tracker.log(metrics=finals, artifacts=[f for f in job.files if f not in job.sent])
+    if model_file is not None:
+        tracker.log_model(model_file)
+    try:
+        # a signal now is raised once the run is ended FINISHED: never a FINISHED run with a 'killed' summary
+        with signals.deferred():
             try:
-                # a signal now is raised once the run is ended FINISHED: never a FINISHED run with a 'killed' summary
-                with signals.deferred():
-                    try:
-                        run_id = tracker.finish("FINISHED")
-                    finally:
-                        done = True
-            except TrackingError as exc:
-                # the work is done and on disk: keep it, say how to log it later
-                not_logged = redacted(one_line(exc))
-                mark_not_logged(run_dir, not_logged, pending_request(tracker, params, logged, files, model_file),
-                                 tracker.status)
-                tracking_line = f"mlflow    NOT LOGGED ({redacted(tracker.settings.uri)}): {not_logged}"
-                if tracker.run_id:
-                    ended = (f"marked {tracker.status} (tag {LOGGING_ERROR_TAG})" if tracker.status
-                             else "left RUNNING (the store failed)")
-                    tracking_line += f"\n          run {tracker.run_id} {ended}: mosd log completes it"
-            else:
-                # what MLflow still took after the figures (the rest overlapped them)
-                timings["mlflow_s"] = time.perf_counter() - t0
-                where = "in-process" if tracker.in_process else "side process, overlapping the run"
-                startup = ", ".join(f"{k.removeprefix('mlflow_').removesuffix('_s')} {v:.1f} s"
-                                    for k, v in tracker.startup_timings.items())
-                tracking_line = (f"mlflow    run {run_id}  experiment {tracker.settings.experiment!r}"
-                                 f"  store {redacted(tracker.settings.uri)}\n          ({where}: {startup})")
-                if tracker.model_uri:
-                    record_model(run_dir, deployment, model_file, uri=tracker.model_uri)
-                    tracking_line += (f"\n          model {tracker.model_uri} (runs:/{run_id}/detector): "
-                                      f"{rescoring_command(tracker.model_uri, run_dir, tracker.settings.uri)}")
-                elif tracker.model_error:
-                    tracking_line += f"\n          model NOT LOGGED: {tracker.model_error}"
-                elif deployment.reason:
-                    tracking_line += f"\n          no model: {deployment.reason}"
-                if tracker.note:
-                    tracking_line += f"\n          store: {tracker.note}"
-                if tracker.experiment_id:
-                    tracking_line += "\n" + ui_line(tracker.settings.uri, tracker.experiment_id)
-            signals.raise_pending()  # one that arrived while MLflow failed: the pending file is written
-        elif deployment.reason:
-            tracking_line = f"model     none: {deployment.reason}"
-        writing = False
-        done = True
-        timings["wall_s"] = time.perf_counter() - started
-        summary_text = format_summary(labels, result, setup, metrics, timings, run_dir, tracking_line, study_metrics,
-                                      header=multirun)
-        print(summary_text if multirun else closing_lines(setup, timings, run_dir, tracking_line, study_metrics),
-              flush=True)
-        to_log_file(summary_text if multirun else header_line(labels, setup) + "\n" + summary_text)
-        if not_logged is not None:
-            NOT_LOGGED.append(run_dir)
-            print(f"mosd: error: the run was not logged to MLflow ({not_logged}); its files are complete in "
-                  f"{run_dir}; log it later with: python -m mosd log {run_dir}", file=sys.stderr, flush=True)
-        return result
-    except BaseException as exc:
-        if holding:  # a failure while the results were being written: a stop signal is handled below
-            signals.release(raise_now=False)
-        if progress is not None:
-            progress.close()
-        if figures is not None:
-            figures.close(wait=False)
-        # a signal raised inside compiled code (numba) comes out as a SystemError with the
-        # Interrupted as its context: what counts is that a stop signal arrived
-        killed = isinstance(exc, KeyboardInterrupt) or bool(RECEIVED)
-        if killed:
-            signals.shutdown_workers()
-            signum = exc.signum if isinstance(exc, Interrupted) else (RECEIVED[0] if RECEIVED else int(signal.SIGINT))
-            if done:  # the run is complete, its summary.json and MLflow run say so: leave them
-                print(f"mosd: stopped by {name(signum)} after the run was complete ({run_dir})",
-                      file=sys.stderr, flush=True)
-                _stopped(exc, signum, job_worker)
-            if results_kept:  # the results are in summary.json and MLflow: the stop cut only the extras
-                _keep_results(exc, signum, job_worker, started, run_dir, (result, setup, labels), tracker,
-                              (params, logged, sent))
-        status = "KILLED" if killed else "FAILED"
-        error = f"stopped by {name(signum)}" if killed else f"{type(exc).__name__}: {redacted(one_line(exc))}"
-        not_written = writing and not killed and isinstance(exc, OSError)
-        kept = {}
-        if not_written:
-            error = f"the run directory could not be written: {error}"
-            # each file is complete or absent (atomic writes) and the figure process is stopped: what
-            # is absent now stays absent; summary.json is rewritten below, keeping the results it holds
-            missing = [n for n in lacking(run_dir, expected_files(run_dir, result, setup, labels))
-                       if n != "summary.json"]
-            try:
-                kept = {k: v for k, v in json.loads((run_dir / "summary.json").read_text()).items()
-                        if k not in ("status", "labels", "error")}
-            except (OSError, ValueError):
-                pass
-            kept["missing"] = missing
-        run_id, marked = None, ""
-        if tracker is not None and tracker.open:
-            try:
-                # on a signal, do not wait for a side process still importing MLflow: it ends the run alone
-                run_id = tracker.abort(status, error, traceback.format_exc(), timeout=ABORT_WAIT_S if killed else None)
-                marked = f"MLflow run {run_id} marked {status}; " if run_id else \
-                    f"the MLflow run will be marked {status} by the tracking process; "
-            except Exception as tracking_exc:
-                print(f"mosd: could not mark the MLflow run {status}: {redacted(one_line(tracking_exc))}",
-                      file=sys.stderr)
-        try:
-            write_status(run_dir, status.lower(), labels, error, mlflow_run_id=run_id,
-                         elapsed_s=time.perf_counter() - started, **kept)
-            said = "summary.json says status 'failed' and lists what it lacks"
-        except OSError:
-            said = "it has no summary.json (that could not be written either)"
-        if not_written:
-            print(f"mosd: error: {error}; {marked}{run_dir} lacks {', '.join(missing) or 'no result file'}; {said}",
+                run_id = tracker.finish("FINISHED")
+            finally:
+                job.done = True
+    except TrackingError as exc:
+        # the work is done and on disk: keep it, say how to log it later
+        not_logged = redacted(one_line(exc))
+        mark_not_logged(job.run_dir, not_logged,
+                        pending_request(tracker, job.params, job.logged, job.files, model_file), tracker.status)
+        line = f"mlflow    NOT LOGGED ({redacted(tracker.settings.uri)}): {not_logged}"
+        if tracker.run_id:
+            ended = (f"marked {tracker.status} (tag {LOGGING_ERROR_TAG})" if tracker.status
+                     else "left RUNNING (the store failed)")
+            line += f"\n          run {tracker.run_id} {ended}: mosd log completes it"
+        signals.raise_pending()  # one that arrived while MLflow failed: the pending file is written
+        return line, not_logged
+    # what MLflow still took after the figures (the rest overlapped them)
+    job.timings["mlflow_s"] = time.perf_counter() - t0
+    where = "in-process" if tracker.in_process else "side process, overlapping the run"
+    startup = ", ".join(f"{k.removeprefix('mlflow_').removesuffix('_s')} {v:.1f} s"
+                        for k, v in tracker.startup_timings.items())
+    line = (f"mlflow    run {run_id}  experiment {tracker.settings.experiment!r}"
+            f"  store {redacted(tracker.settings.uri)}\n          ({where}: {startup})")
+    if tracker.model_uri:
+        record_model(job.run_dir, deployment, model_file, uri=tracker.model_uri)
+        line += (f"\n          model {tracker.model_uri} (runs:/{run_id}/detector): "
+                 f"{rescoring_command(tracker.model_uri, job.run_dir, tracker.settings.uri)}")
+    elif tracker.model_error:
+        line += f"\n          model NOT LOGGED: {tracker.model_error}"
+    elif deployment.reason:
+        line += f"\n          no model: {deployment.reason}"
+    if tracker.note:
+        line += f"\n          store: {tracker.note}"
+    if tracker.experiment_id:
+        line += "\n" + ui_line(tracker.settings.uri, tracker.experiment_id)
+    signals.raise_pending()
+    return line, None
+
+
+def _print_summary(job: _Job, tracking_line: str, not_logged: str | None) -> None:
+    """The summary's closing lines (a sweep's job: the whole summary), the log file's copy, a logging error's line."""
+    job.writing = False
+    job.done = True
+    timings, run_dir, setup = job.timings, job.run_dir, job.setup
+    timings["wall_s"] = time.perf_counter() - job.started
+    summary_text = format_summary(job.labels, job.result, setup, job.metrics, timings, run_dir, tracking_line,
+                                  job.study_metrics, header=job.multirun)
+    print(summary_text if job.multirun else closing_lines(setup, timings, run_dir, tracking_line, job.study_metrics),
+          flush=True)
+    to_log_file(summary_text if job.multirun else header_line(job.labels, setup) + "\n" + summary_text)
+    if not_logged is not None:
+        NOT_LOGGED.append(run_dir)
+        print(f"mosd: error: the run was not logged to MLflow ({not_logged}); its files are complete in "
+              f"{run_dir}; log it later with: python -m mosd log {run_dir}", file=sys.stderr, flush=True)
+
+
+def _on_failure(job: _Job, exc: BaseException):
+    """A run that did not end normally: a stop signal, a full disk, an error (module docstring).
+
+    Returns None for a run directory that could not be written (the job ends, a sweep goes on); otherwise
+    raises (the signal's :class:`~mosd.app.signals.Interrupted`, or the error itself).
+    """
+    if job.holding:  # a failure while the results were being written: a stop signal is handled below
+        signals.release(raise_now=False)
+    if job.progress is not None:
+        job.progress.close()
+    if job.figures is not None:
+        job.figures.close(wait=False)
+    # a signal raised inside compiled code (numba) comes out as a SystemError with the
+    # Interrupted as its context: what counts is that a stop signal arrived
+    killed = isinstance(exc, KeyboardInterrupt) or bool(RECEIVED)
+    signum = None
+    if killed:
+        signals.shutdown_workers()
+        signum = exc.signum if isinstance(exc, Interrupted) else (RECEIVED[0] if RECEIVED else int(signal.SIGINT))
+        if job.done:  # the run is complete, its summary.json and MLflow run say so: leave them
+            print(f"mosd: stopped by {name(signum)} after the run was complete ({job.run_dir})",
                   file=sys.stderr, flush=True)
-            # the job ends here; a sweep goes on with its other jobs, and the exit code is 1
-            NOT_WRITTEN.append(run_dir)
-            return None
-        if killed:
-            print(f"mosd: stopped by {name(signum)} after {time.perf_counter() - started:.1f} s: "
-                  f"{marked}{run_dir} is incomplete (summary.json status 'killed')", file=sys.stderr, flush=True)
-            _stopped(exc, signum, job_worker)
-        raise
-    finally:
-        signals.run_ended()
+            _stopped(exc, signum, job.job_worker)
+        if job.results_kept:  # the results are in summary.json and MLflow: the stop cut only the extras
+            _keep_results(exc, signum, job.job_worker, job.started, job.run_dir, (job.result, job.setup, job.labels),
+                          job.tracker, (job.params, job.logged, job.sent))
+    status = "KILLED" if killed else "FAILED"
+    error = f"stopped by {name(signum)}" if killed else f"{type(exc).__name__}: {redacted(one_line(exc))}"
+    not_written = job.writing and not killed and isinstance(exc, OSError)
+    kept, missing = {}, []
+    if not_written:
+        error = f"the run directory could not be written: {error}"
+        kept, missing = _what_is_kept(job)
+    marked = _mark_tracker(job, status, error, killed)
+    try:
+        write_status(job.run_dir, status.lower(), job.labels, error, mlflow_run_id=marked[0],
+                     elapsed_s=time.perf_counter() - job.started, **kept)
+        said = ("summary.json says status 'failed', keeps the results and lists what it lacks"
+                if "params" in kept else "summary.json says status 'failed' and lists what it lacks")
+    except OSError:
+        said = "it has no summary.json (that could not be written either)" + (
+            ": the results are those printed above" if job.printed else "")
+    if not_written:
+        # one line: what happened, what is kept, what to do; the job ends here, a sweep goes on with its other
+        # jobs, and the exit code is 1
+        print(f"mosd: error: {error}; {job.run_dir} lacks {', '.join(missing) or 'no result file'}; {said}; "
+              f"{marked[1]}free space on that disk (or raise its quota) and run again",
+              file=sys.stderr, flush=True)
+        NOT_WRITTEN.append(job.run_dir)
+        return None
+    if killed:
+        print(f"mosd: stopped by {name(signum)} after {time.perf_counter() - job.started:.1f} s: "
+              f"{marked[1]}{job.run_dir} is incomplete (summary.json status 'killed')", file=sys.stderr, flush=True)
+        _stopped(exc, signum, job.job_worker)
+    if marked[2]:  # the error's traceback follows (Hydra's): the store's failure is said before it
+        print(f"mosd: {marked[2]}", file=sys.stderr, flush=True)
+    raise exc
+
+
+def _what_is_kept(job: _Job) -> tuple[dict, list[str]]:
+    """A run directory the disk did not take whole: ``(summary.json's results to keep, the files it lacks)``.
+
+    Each file is complete or absent (atomic writes) and the figure process is stopped: what is absent now stays
+    absent; summary.json is rewritten, keeping the results it holds.
+    """
+    missing = [n for n in lacking(job.run_dir, expected_files(job.run_dir, job.result, job.setup, job.labels))
+               if n != "summary.json"]
+    try:
+        kept = {k: v for k, v in json.loads((job.run_dir / "summary.json").read_text()).items()
+                if k not in ("status", "labels", "error")}
+    except (OSError, ValueError):
+        kept = {}
+    kept["missing"] = missing
+    return kept, missing
+
+
+def _mark_tracker(job: _Job, status: str, error: str, killed: bool) -> tuple[str | None, str, str]:
+    """End the job's MLflow run ``status``; returns ``(run id or None, the clause that says so, the store's failure
+    as a sentence or "")``, the store's error without SQLAlchemy's statement (:func:`mosd.app.store.short_error`)."""
+    tracker = job.tracker
+    if tracker is None or not tracker.open:
+        return None, "", ""
+    try:
+        # on a signal, do not wait for a side process still importing MLflow: it ends the run alone
+        run_id = tracker.abort(status, error, traceback.format_exc(), timeout=ABORT_WAIT_S if killed else None)
+    except Exception as tracking_exc:  # noqa: BLE001 - the store failed too (a full disk): said, not raised
+        failure = f"the MLflow run could not be marked {status} ({short_error(redacted(one_line(tracking_exc)))})"
+        return None, failure + "; ", failure
+    if run_id:
+        return run_id, f"MLflow run {run_id} marked {status}; ", ""
+    return None, f"the MLflow run will be marked {status} by the tracking process; ", ""
 
 
 def to_log_file(text: str) -> None:

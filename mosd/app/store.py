@@ -17,6 +17,7 @@ from __future__ import annotations
 import contextlib
 import fcntl
 import os
+import re
 import sqlite3
 import time
 from dataclasses import dataclass
@@ -37,6 +38,21 @@ LOCKED_WAIT_S = 20.0
 
 class TrackingError(RuntimeError):
     """MLflow (or the store) refused a request (the message is one line)."""
+
+
+#: What SQLAlchemy appends to a database error after its message: the statement, its parameters, a web link
+_SQL_DETAIL = re.compile(r"\s*(\[SQL: .*|\(Background on this error at: [^)]*\))$", re.DOTALL)
+#: SQLAlchemy's note on where a failed flush came from, before the message
+_AUTOFLUSH_NOTE = re.compile(r"\(raised as a result of Query-invoked autoflush;[^)]*\)\s*")
+
+
+def short_error(text: str) -> str:
+    """A store's error without SQLAlchemy's statement, parameters and link (``[SQL: INSERT INTO runs ...]``).
+
+    A full disk fails MLflow's sqlite store with ``(sqlite3.OperationalError) database or disk is full`` and then
+    the raw INSERT with its values and a link; only the first part tells the user anything (issue 53 item 9).
+    """
+    return _SQL_DETAIL.sub("", _AUTOFLUSH_NOTE.sub("", str(text))).strip()
 
 
 def sqlite_path(uri: str) -> Path | None:

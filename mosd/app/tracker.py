@@ -17,7 +17,7 @@ from . import channel
 from .channel import InProcess
 from .mlflow_client import MAX_TAG_LENGTH
 from .settings import TrackingSettings
-from .store import TrackingError
+from .store import TrackingError, short_error
 
 
 class RunTracker:
@@ -121,8 +121,8 @@ class RunTracker:
         self.model_uri = next((r["model_uri"] for r in replies if r.get("model_uri")), None)
         self.model_error = next((r["model_error"] for r in replies if r.get("model_error")), None)
         failed = [r["error"] for r in replies if not r.get("ok")]
-        if failed:
-            raise TrackingError(failed[0])
+        if failed:  # the store's message, without the SQL statement a database error carries
+            raise TrackingError(short_error(failed[0]))
         return self.run_id
 
 
