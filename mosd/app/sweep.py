@@ -18,7 +18,7 @@ from hydra.experimental.callback import Callback
 
 from . import signals
 from .mlflow_client import MlflowStore, git_commit
-from .settings import TrackingSettings
+from .settings import TrackingSettings, redacted
 
 #: File in a sweep directory that carries the parent run id to the jobs.
 PARENT_RUN_FILE = "mlflow_parent_run_id.txt"
@@ -193,6 +193,112 @@ def discard_warm_workers() -> None:
     shutdown_pool()
 
 
+#: Job directories of this process's sweep whose joblib worker ended before the job did (:func:`lost_worker`)
+LOST_JOBS: list[Path] = []
+
+
+def report_lost_workers() -> None:
+    """A joblib sweep whose worker process dies (SIGKILL, the out-of-memory killer) ends in one line, not a traceback.
+
+    joblib raises ``TerminatedWorkerError`` (a ``BrokenProcessPool``) out of the launcher's ``Parallel``, and
+    loky ends every worker with it: Hydra printed 36 lines of traceback, the exit code was 1 and the jobs that
+    were running were left without ``summary.json`` (issue 53 item 9). The joblib launcher's public ``launch``
+    is wrapped, in this process, so that the failure is reported by :func:`lost_worker` and the sweep ends as
+    one whose jobs could not write their run directory (exit code 1, the parent MLflow run FAILED).
+    """
+    from hydra_plugins.hydra_joblib_launcher.joblib_launcher import JoblibLauncher
+
+    launch = JoblibLauncher.launch
+    if getattr(launch, "reports_lost_workers", False):
+        return
+
+    def reporting(self, job_overrides, initial_job_idx):
+        from concurrent.futures.process import BrokenProcessPool
+
+        try:
+            return launch(self, job_overrides, initial_job_idx)
+        except BrokenProcessPool as exc:
+            return lost_worker(Path(str(self.config.hydra.sweep.dir)), job_overrides, initial_job_idx, exc)
+
+    reporting.reports_lost_workers = True
+    JoblibLauncher.launch = reporting
+
+
+def _job_dirs(sweep_dir: Path) -> dict[tuple[str, ...], Path]:
+    """The sweep's started jobs by their overrides (Hydra writes ``.hydra/overrides.yaml`` as a job starts)."""
+    from omegaconf import OmegaConf
+
+    found = {}
+    for path in sweep_dir.glob("*/.hydra/overrides.yaml"):
+        try:
+            # (as saved: a password in tracking.uri masked, mosd.app.files.RedactConfigFiles)
+            found[tuple(redacted(str(o)) for o in OmegaConf.load(path))] = path.parent.parent.resolve()
+        except Exception:  # noqa: BLE001 - a file cut short by the dying worker: that job is not found, said so
+            continue
+    return found
+
+
+def _varying(job_overrides) -> list[str]:
+    """Each job's overrides that differ from another job's (the sweep's own choices), as one string per job."""
+    lists = [list(o) for o in job_overrides]
+    common = set.intersection(*(set(o) for o in lists)) if lists else set()
+    return [" ".join(o for o in job if o not in common) for job in lists]
+
+
+def lost_worker(sweep_dir: Path, job_overrides, initial_job_idx: int, exc: BaseException) -> list:
+    """The jobs of a batch whose joblib worker pool broke: marked, named in one line on stderr.
+
+    A job that started and has no ``summary.json`` lost its work with its worker: it gets a ``summary.json`` with
+    status ``failed``, the error and the jobs' overrides (its MLflow run is ended FAILED by its tracking process,
+    which sees the job's process end); finished jobs keep theirs; the jobs that had not started are named. The
+    launcher's return values say the batch completed, so that Hydra ends the sweep normally (its callback then
+    ends the parent MLflow run FAILED) instead of printing a traceback.
+    """
+    import re
+    import sys
+
+    from hydra.core.utils import JobReturn, JobStatus
+
+    from .files import NOT_WRITTEN, write_status
+
+    codes = re.search(r"exit codes of the workers are \{([^}]*)\}", str(exc))
+    how = codes.group(1) if codes else type(exc).__name__
+    error = f"the joblib worker process running this job ended ({how}) before the job did"
+    started = _job_dirs(sweep_dir)
+    shown = _varying(job_overrides)
+    lost, unstarted, returns = [], [], []
+    for index, overrides in enumerate(job_overrides):
+        name = f"#{initial_job_idx + index}" + (f" ({shown[index]})" if shown[index] else "")
+        job_dir = started.get(tuple(redacted(str(o)) for o in overrides))
+        if job_dir is None and (sweep_dir / str(initial_job_idx + index)).is_dir():
+            # killed before Hydra saved its overrides: the directory named by the job's number (hydra.sweep.subdir)
+            job_dir = (sweep_dir / str(initial_job_idx + index)).resolve()
+        if job_dir is None:
+            unstarted.append(name)
+        elif not (job_dir / "summary.json").is_file():
+            lost.append(name)
+            try:
+                write_status(job_dir, "failed", {}, error, overrides=list(overrides), missing=["the job's results"])
+            except OSError:
+                pass  # the line below still names the job
+            NOT_WRITTEN.append(job_dir)
+            LOST_JOBS.append(job_dir)
+        returns.append(JobReturn(overrides=list(overrides), working_dir=str(job_dir or ""),
+                                 status=JobStatus.COMPLETED))
+    done = len(job_overrides) - len(lost) - len(unstarted)
+
+    def jobs(names: list[str], verb: str, plural: str) -> str:
+        return f"job {names[0]} {verb}" if len(names) == 1 else f"jobs {', '.join(names)} {plural}"
+
+    print(f"mosd: error: a worker process of the joblib launcher ended ({how}, e.g. the out-of-memory killer): "
+          + (jobs(lost, "lost its work (its summary.json", "lost their work (their summary.json")
+             + " says status 'failed')" if lost else "no running job lost its work")
+          + (f"; {jobs(unstarted, 'did not start', 'did not start')}" if unstarted else "")
+          + f"; {done} finished job(s) keep their results in {sweep_dir}; run the others again (fewer "
+          f"hydra.launcher.n_jobs if memory ran out)", file=sys.stderr, flush=True)
+    return returns
+
+
 class SweepCallback(Callback):
     """Hydra callback: one MLflow parent run per multirun, the jobs attach as children.
 
@@ -211,6 +317,8 @@ class SweepCallback(Callback):
     def on_multirun_start(self, config, **kwargs) -> None:
         if under_joblib_launcher(config.hydra):
             from ..optim.workers import start_resource_trackers
+
+            report_lost_workers()  # a worker that dies: one line, the jobs marked (not Hydra's traceback)
 
             # a stop signal must reach the jobs in the launcher's workers before the launcher kills them
             signals.jobs_run_in_pool()
@@ -233,7 +341,11 @@ class SweepCallback(Callback):
         atexit.register(self._close, "FAILED", "a job of the sweep failed (see its child run)")
 
     def on_multirun_end(self, config, **kwargs) -> None:
-        if record_job_outcomes(str(config.hydra.sweep.dir)):
+        not_written = record_job_outcomes(str(config.hydra.sweep.dir))
+        if LOST_JOBS:
+            self._close("FAILED", f"the worker process of {len(LOST_JOBS)} job(s) ended before the job did "
+                                  f"(see their summary.json)")
+        elif not_written:
             self._close("FAILED", "a job of the sweep could not write its run directory (see its summary.json)")
         else:
             self._close("FINISHED")
