@@ -22,7 +22,7 @@ from scipy import special
 
 from ..streaming import FINITE, StateVar
 from ..validation import Interval, Param
-from .latent import LatentDetector, complete_rows, latent_params, scaling
+from .latent import LatentDetector, complete_rows, ewma_from, latent_params, scaling
 
 
 class TagEwmaDetector(LatentDetector):
@@ -45,18 +45,17 @@ class TagEwmaDetector(LatentDetector):
         return {"mean": mean, "scale": scale}
 
     def score(self, fitted, X, design, carried=None):
-        from scipy.signal import lfilter
-
         Z = (np.asarray(X, float) - fitted["mean"]) / fitted["scale"]
         R, K, m = Z.shape
         finite = np.all(np.isfinite(Z), axis=-1)
-        Z = np.moveaxis(np.where(np.isfinite(Z), Z, 0.0), -1, 1)          # (R, m, K): time last
+        Z = np.moveaxis(Z, -1, 1)                                           # (R, m, K): time last
         lam = float(design["smoothing"])
-        previous = np.zeros((R, m, 1))
+        previous = 0.0
         if carried:
-            previous[..., 0] = np.column_stack([np.asarray(carried[f"tag_ewma_{i}"], float).reshape(R)
-                                                for i in range(1, m + 1)])
-        e = Z if lam >= 1.0 else lfilter([lam], [1.0, -(1.0 - lam)], Z, axis=-1, zi=(1.0 - lam) * previous)[0]
+            previous = np.column_stack([np.asarray(carried[f"tag_ewma_{i}"], float).reshape(R)
+                                        for i in range(1, m + 1)])[..., None]   # (R, m, 1)
+        # the one EWMA of the recorded-data monitors (a missing value enters as 0, the in-control mean)
+        e = ewma_from(Z, lam, 0.0, previous=previous)
         sigma = math.sqrt(lam / (2.0 - lam))
         statistic = np.where(finite, np.abs(e).max(axis=1, initial=0.0) / sigma, np.nan)
         return {"ewma": statistic}, {f"tag_ewma_{i}": e[:, i - 1] for i in range(1, m + 1)}
