@@ -11,6 +11,7 @@
 """
 from __future__ import annotations
 
+import asyncio
 import contextlib
 import json
 import os
@@ -214,11 +215,19 @@ def test_monitor_killed_and_restarted_ends_as_an_uninterrupted_run(tuned):
     assert log["missing"].sum() == tuned["bad"]
 
 
+async def _read_alarm(url):
+    from asyncua import Client
+
+    async with Client(url) as client:
+        ns = await client.get_namespace_index("urn:mosd:monitor")
+        return await client.get_node(f"ns={ns};s=mosd.alarm").read_data_value()
+
+
 def test_server_killed_and_restarted_mid_stream_is_backfilled_from_its_history(tuned):
     tmp = tuned["tmp"]
     reference = expected(load_fitted(tuned["npz"]), tuned["test"])
     port = free_port()
-    with replay_server(tmp / "test.csv", port=port, speed=1500) as (url, epoch, server):
+    with replay_server(tmp / "test.csv", port=port, speed=1000) as (url, epoch, server):
         live = monitor(live_args(url, tuned["npz"], tmp, "dropped", epoch))
         deadline = time.time() + 120
         log = tmp / "dropped.csv"
@@ -226,12 +235,17 @@ def test_server_killed_and_restarted_mid_stream_is_backfilled_from_its_history(t
             time.sleep(0.05)
         server.send_signal(signal.SIGKILL)
         server.wait(10)
-        with replay_server(tmp / "test.csv", port=port, epoch=epoch, speed=1500):
+        with replay_server(tmp / "test.csv", port=port, epoch=epoch, speed=1000) as (url, _, _):
             out, err = live.communicate(timeout=300)
+            written = asyncio.run(_read_alarm(url))
     assert live.returncode == 0, err[-2000:]
     reconnects = int(re.search(r"(\d+) reconnects", out).group(1))
     assert reconnects >= 1, out
-    same_outputs(read_log(tmp / "dropped.csv"), reference)
+    log = read_log(tmp / "dropped.csv")
+    same_outputs(log, reference)
+    # the restarted server lost mosd's nodes: created again, the last sample's alarm written there
+    assert written.Value.Value == bool(log["alarm"].iloc[-1]), out
+    assert written.SourceTimestamp.timestamp() == pytest.approx(epoch + (ROWS - 1) * 60.0, abs=1e-3), out
 
 
 def _one_line_exit_2(capsys, args, *needles):

@@ -425,12 +425,14 @@ class LiveMonitor:
         while not self.stop.is_set():
             try:
                 client = await self.connect()
-                if not ready:
+                try:
+                    # each time: a restarted server may have other namespace indices, and lost mosd's nodes
                     await self.resolve(client)
-                    ready = True
-                else:
-                    self.tag_nodes = [client.get_node(n.nodeid) for n in self.tag_nodes]
-                    self.write_nodes = [client.get_node(n.nodeid) for n in self.write_nodes]
+                except ConfigError as exc:
+                    if not ready:
+                        raise
+                    raise ConnectionError(str(exc)) from None  # a server still starting up: retried
+                ready = True
                 await self.subscribe(client)
                 await self.backfill(client)
                 self.drain()
