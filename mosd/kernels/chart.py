@@ -233,6 +233,23 @@ def _statistics(u_run, v_run, k0, k1, order, combine_max, lanes, width, out, cou
 
 
 @_helper
+def _push_block(lanes, width, res, depth, joins):
+    """A finished block's sum (field ``res``) onto each lane's stack of partial sums (fields from STACK, ``depth``
+    deep), then the ``joins`` additions of the two top entries that follow that block in NumPy's recursion
+    (:func:`_pairwise_leaves`); returns the new depth. Once per block, not per value."""
+    top = (_STACK + depth) * _LANES
+    for lane in range(width):
+        lanes[top + lane] = lanes[res + lane]
+    depth += 1
+    for _ in range(joins):
+        depth -= 1
+        left, right = (_STACK + depth - 1) * _LANES, (_STACK + depth) * _LANES
+        for lane in range(width):
+            lanes[left + lane] = lanes[left + lane] + lanes[right + lane]
+    return depth
+
+
+@_helper
 def _accumulate(points, n_points, deviations, lanes, width, cursor, sizes, joins):
     """Add the next ``n_points`` rows of ``points`` (n, lanes) to each lane's pairwise sum, NumPy's, as they come.
 
@@ -317,15 +334,7 @@ def _accumulate(points, n_points, deviations, lanes, width, cursor, sizes, joins
                                      + ((lanes[a + 4 * _LANES + lane] + lanes[a + 5 * _LANES + lane])
                                         + (lanes[a + 6 * _LANES + lane] + lanes[a + 7 * _LANES + lane])))
         if j == m:  # the block is summed: onto the stack, then the joins that follow it in NumPy's recursion
-            top = (_STACK + depth) * _LANES
-            for lane in range(width):
-                lanes[top + lane] = lanes[res + lane]
-            depth += 1
-            for _ in range(joins[block]):
-                depth -= 1
-                left, right = (_STACK + depth - 1) * _LANES, (_STACK + depth) * _LANES
-                for lane in range(width):
-                    lanes[left + lane] = lanes[left + lane] + lanes[right + lane]
+            depth = _push_block(lanes, width, res, depth, joins[block])
             block += 1
             j = 0
             if block == sizes.shape[0]:
