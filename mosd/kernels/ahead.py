@@ -144,8 +144,8 @@ class Ahead:
         import time
 
         done = self._done.get(part)
-        if done is None:
-            return False
+        if done is None or done.is_set():  # numba calls compile on every lookup while typing: the common case
+            return part in self.ready
         stall_s = STALL_S if stall_s is None else stall_s
         deadline = time.monotonic() + (WAIT_S if wait_s is None else wait_s)
         used, since = self._cpu_seconds(), time.monotonic()
