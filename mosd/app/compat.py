@@ -1,16 +1,19 @@
-"""The app's only contact with other libraries' private parts: each is reached here and nowhere else.
+"""The app's adapters to other libraries, public APIs only (issue 50 item 4; ``tests/test_public_apis.py``).
 
-``tests/test_compat.py`` checks every adapter against the installed versions, so
-that an upgrade that moves or changes one fails there, naming what changed,
-rather than somewhere in a run. (The optimiser's worker pool has its own
+Each was a private part of Hydra, the joblib launcher or the standard library until issue 50; what replaced it is
+said below. ``tests/test_compat.py`` checks every adapter against the installed versions (where a replacement is
+our own code, against the private original, read in the test only), so that an upgrade that moves or changes one
+fails there, naming what changed, rather than somewhere in a run. (The optimiser's worker pool has its own
 adapter, :mod:`mosd.optim.workers`: the science core cannot import the app.)
 
 * :func:`hydra_args_parser` — public now: our own parser of Hydra's documented flags (was Hydra's private
   ``hydra._internal.utils.get_args_parser``; preflight must read a command line exactly as ``hydra.main`` will,
   and Hydra has no public parser: ``tests/test_compat.py`` compares the two).
-* :func:`run_exit_handlers` — ``atexit._run_exitfuncs``: the fast exit
-  (:func:`mosd.app.exit_now`) runs the registered cleanup handlers, then skips
-  the interpreter's teardown. The standard library has no public way to run them.
+* :func:`fast_exit` — the fast exit (:func:`mosd.app.exit_now`): every registered cleanup handler runs, the
+  interpreter's teardown does not, through an ordinary ``SystemExit`` and a last exit handler that
+  :mod:`mosd.__main__` registers first. :func:`run_exit_handlers` (``atexit._run_exitfuncs``, private: the
+  standard library has no public way to run the handlers now) remains only until ``exit_now`` calls
+  :func:`fast_exit`.
 * :func:`unverified_tls_context` — public now: preflight's look at a tracking server honours MLflow's
   ``MLFLOW_TRACKING_INSECURE_TLS`` as MLflow's client does (no certificate check, no host name check), with
   ``ssl.create_default_context()`` and both checks turned off (was ``ssl._create_unverified_context``).
