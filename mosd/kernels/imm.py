@@ -43,6 +43,15 @@ from .cubature import _over_replications, _solve_columns
 _LOG_2PI = math.log(2.0 * math.pi)
 
 
+#: The loop's steps, each a function of its own to read, inlined into :func:`imm` by numba (their IR, before
+#: typing): the compiled loop is the one body it was when written in one piece, the same operations in the same
+#: order, with no call and no second compile of a step. Each array an inlined step receives is a new reference
+#: that numba counts in and out, so a step is called once per fusion instant with its loops over the models and
+#: packets inside it (a step per packet and model cost the sequential loop 26 %, 200 runs of 41 s, one thread),
+#: and the prediction indexes model i instead of receiving five views of it, which pays for the rest.
+_step = njit(inline="always", nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
 def _cholesky(a, n, low):
     """Lower L with L Lᵀ = a[:n, :n] (column by column, as LAPACK's potf2); False if not positive definite."""
@@ -80,29 +89,31 @@ def _white_logdet(low, n, nu, white):
     return sumsq, 2.0 * logdet
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
-def _predict(x, P, phi, drive, q, tmp, xn):
-    """x ← Φ x + Γu, P ← sym(Φ P Φᵀ + Q) in place, for one model (the reference's ``predict``)."""
-    n = x.shape[0]
+@_step
+def _predict(x, P, i, phi, drive, q, row, tmp, xn):
+    """x_i ← Φ x_i + Γu, P_i ← sym(Φ P_i Φᵀ + Q) in place, for model i over table row ``row`` (the reference's
+    ``predict``). Indexed, not handed views of model i: no new array per model and packet."""
+    n = x.shape[1]
     for a in range(n):
         acc = 0.0
         for b in range(n):
-            acc += phi[a, b] * x[b]
-        xn[a] = acc + drive[a]
-    x[:] = xn
+            acc += phi[row, i, a, b] * x[i, b]
+        xn[a] = acc + drive[row, i, a]
+    for a in range(n):
+        x[i, a] = xn[a]
     for a in range(n):
         for b in range(n):
             acc = 0.0
             for c in range(n):
-                acc += phi[a, c] * P[c, b]
+                acc += phi[row, i, a, c] * P[i, c, b]
             tmp[a, b] = acc
     for a in range(n):
         for b in range(n):
             acc = 0.0
             for c in range(n):
-                acc += tmp[a, c] * phi[b, c]
-            P[a, b] = acc + q[a, b]
-    _symmetrise(P, n)
+                acc += tmp[a, c] * phi[row, i, b, c]
+            P[i, a, b] = acc + q[row, i, a, b]
+    _symmetrise(P[i], n)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -113,6 +124,265 @@ def _symmetrise(a, n):
             a[i, j] = v
             a[j, i] = v
         a[i, i] = 0.5 * (a[i, i] + a[i, i])
+
+
+@_step
+def _start(mu0, x0, P0, mu, x, P):
+    """Each model's μ, x̂ and P before row 0 (copied: the loop updates them in place)."""
+    n_models, n = x0.shape
+    for i in range(n_models):
+        mu[i] = mu0[i]
+        for a in range(n):
+            x[i, a] = x0[i, a]
+            for b in range(n):
+                P[i, a, b] = P0[i, a, b]
+
+
+@_step
+def _restart(mu, x, P, trans, cbar, weights, xm, Pm, d):
+    """§3.1 filter restart (eqs. 20–23): c̄_m = Σ_i λ_im μ_i, μ_{i|m} = λ_im μ_i / c̄_m, x and P mixed in place.
+
+    A model no model reaches (c̄_m = 0) keeps its own estimate. ``cbar`` is filled (the mode update uses it);
+    ``weights``, ``xm``, ``Pm`` and ``d`` are workspace.
+    """
+    n_models, n = x.shape
+    for j in range(n_models):
+        acc = 0.0
+        for i in range(n_models):
+            acc += mu[i] * trans[i, j]
+        cbar[j] = acc
+    for i in range(n_models):
+        for j in range(n_models):
+            if cbar[j] > 0.0:
+                weights[i, j] = mu[i] * trans[i, j] / cbar[j]
+            else:
+                weights[i, j] = 1.0 if i == j else 0.0
+    for j in range(n_models):
+        for a in range(n):
+            acc = 0.0
+            for i in range(n_models):
+                acc += weights[i, j] * x[i, a]
+            xm[j, a] = acc
+        for a in range(n):
+            for b in range(n):
+                Pm[j, a, b] = 0.0
+        for i in range(n_models):
+            for a in range(n):
+                d[a] = x[i, a] - xm[j, a]
+            for a in range(n):
+                for b in range(n):
+                    Pm[j, a, b] += weights[i, j] * (P[i, a, b] + d[a] * d[b])
+    x[:, :] = xm
+    P[:, :, :] = Pm
+
+
+@_step
+def _sequential_interval(r, k, nv, x, P, y, sensor, slot_key, key, phi, drive, q, H, Rm, loglik, tmp, d, hq, nu, s,
+                         low, pht_t, gain_t, white):
+    """§3.2 by measurement-by-measurement updates over (t_{k−1}, t_k]; False where an S is not positive definite.
+
+    Every model is predicted to each of the ``nv`` packets' instants τ_j and updated with it, in time order:
+    S = H P Hᵀ + R, Kᵀ = S⁻¹ H P (Cholesky), x ← x + Kν, P ← sym(P − K H P), log N(ν; 0, S) summed into
+    ``loglik``; then each model is predicted on to t_k (table row ``key``).
+    """
+    m, n = H.shape[1], H.shape[2]
+    for j in range(nv):
+        row = slot_key[r, k, j]
+        sn = sensor[r, k, j]
+        for i in range(x.shape[0]):
+            _predict(x, P, i, phi, drive, q, row, tmp, d)
+            for a in range(m):
+                acc = 0.0
+                for b in range(n):
+                    acc += H[sn, a, b] * x[i, b]
+                nu[a] = y[r, k, j, a] - acc
+                for b in range(n):
+                    acc = 0.0
+                    for c in range(n):
+                        acc += H[sn, a, c] * P[i, c, b]
+                    hq[a, b] = acc
+            for a in range(m):
+                for b in range(m):
+                    acc = 0.0
+                    for c in range(n):
+                        acc += hq[a, c] * H[sn, b, c]
+                    s[a, b] = acc + Rm[sn, a, b]
+            _symmetrise(s, m)
+            if not _cholesky(s, m, low):
+                return False
+            for a in range(m):
+                for b in range(n):
+                    pht_t[a, b] = hq[a, b]
+            _solve_columns(low, m, pht_t, n, gain_t)
+            for b in range(n):
+                acc = 0.0
+                for a in range(m):
+                    acc += nu[a] * gain_t[a, b]
+                x[i, b] = x[i, b] + acc
+            for a in range(n):
+                for b in range(n):
+                    acc = 0.0
+                    for c in range(m):
+                        acc += gain_t[c, a] * hq[c, b]
+                    P[i, a, b] = P[i, a, b] - acc
+            _symmetrise(P[i], n)
+            sumsq, logdet = _white_logdet(low, m, nu, white)
+            loglik[i] += -0.5 * (sumsq + logdet + m * _LOG_2PI)
+    for i in range(x.shape[0]):
+        _predict(x, P, i, phi, drive, q, key, tmp, d)
+    return True
+
+
+@_step
+def _stack_slots(r, k, nv, y, sensor, slot_key, h_eq, hgu, cross, q, Rm, hq, z_bar, h_bar, c_bar, r_bar):
+    """Theorem 1's stacked equivalent measurement z̄ = H̄ x(t_k) + ṽ over the interval's ``nv`` slots, every model.
+
+    Rows j·m..(j+1)·m of ``z_bar[i]`` (y_j + H̄_j Γu), ``h_bar[i]`` (H̄_j = H Φ⁻¹), columns of ``c_bar[i]``
+    (C_j = −Q H̄_jᵀ), and Lemma 2's covariance ``r_bar[i]``: R̃_ij = δ_ij R_s(i) + H̄_i Q_max(i,j) H̄_jᵀ.
+    """
+    n_models, m, n = h_eq.shape[2], h_eq.shape[3], h_eq.shape[4]
+    for i in range(n_models):
+        for j in range(nv):
+            kj = slot_key[r, k, j]
+            sj = sensor[r, k, j]
+            for a in range(m):
+                z_bar[i, j * m + a] = y[r, k, j, a] + hgu[kj, sj, i, a]
+                for b in range(n):
+                    h_bar[i, j * m + a, b] = h_eq[kj, sj, i, a, b]
+                    c_bar[i, b, j * m + a] = cross[kj, sj, i, b, a]
+        for j1 in range(nv):
+            k1 = slot_key[r, k, j1]
+            s1 = sensor[r, k, j1]
+            for j2 in range(nv):
+                if j2 == 0 or j2 > j1:
+                    # H̄_j1 Q_max(j1,j2): one product for every j2 <= j1, one per later j2
+                    later = slot_key[r, k, max(j1, j2)]
+                    for a in range(m):
+                        for b in range(n):
+                            acc = 0.0
+                            for c in range(n):
+                                acc += h_eq[k1, s1, i, a, c] * q[later, i, c, b]
+                            hq[a, b] = acc
+                k2 = slot_key[r, k, j2]
+                s2 = sensor[r, k, j2]
+                for a in range(m):
+                    for b in range(m):
+                        acc = 0.0
+                        for c in range(n):
+                            acc += hq[a, c] * h_eq[k2, s2, i, b, c]
+                        if j1 == j2:
+                            acc += Rm[s1, a, b]
+                        r_bar[i, j1 * m + a, j2 * m + b] = acc
+
+
+@_step
+def _stacked_updates(x, P, rows, h_bar, c_bar, r_bar, z_bar, pht_c, s, nu, low, pht_t, gain_t, sg, white, logpdf):
+    """Theorem 1's update of every model with its stacked measurement (``rows`` rows); x and P in place.
+
+    S = H̄ (P H̄ᵀ + C) + Cᵀ H̄ᵀ + R̃, Kᵀ = S⁻¹ (P H̄ᵀ + C)ᵀ, x ← x + Kν, P ← sym(P − K S Kᵀ); ``logpdf[i]`` the two
+    data terms of log N(ν; 0, S), Σ w² + log det S with L w = ν (0 for no rows). False where an S is not positive
+    definite.
+    """
+    n_models, n = x.shape
+    for i in range(n_models):
+        for a in range(n):
+            for b in range(rows):
+                acc = 0.0
+                for c in range(n):
+                    acc += P[i, a, c] * h_bar[i, b, c]
+                pht_c[a, b] = acc + c_bar[i, a, b]
+        for a in range(rows):
+            for b in range(rows):
+                acc = 0.0
+                for c in range(n):
+                    acc += h_bar[i, a, c] * pht_c[c, b]
+                acc2 = 0.0
+                for c in range(n):
+                    acc2 += c_bar[i, c, a] * h_bar[i, b, c]
+                s[a, b] = acc + acc2 + r_bar[i, a, b]
+        _symmetrise(s, rows)
+        for a in range(rows):
+            acc = 0.0
+            for b in range(n):
+                acc += h_bar[i, a, b] * x[i, b]
+            nu[a] = z_bar[i, a] - acc
+        if rows > 0:
+            if not _cholesky(s, rows, low):
+                return False
+            for a in range(rows):
+                for b in range(n):
+                    pht_t[a, b] = pht_c[b, a]
+            _solve_columns(low, rows, pht_t, n, gain_t)  # Kᵀ = S⁻¹ (P H̄ᵀ + C)ᵀ
+        for b in range(n):
+            acc = 0.0
+            for a in range(rows):
+                acc += nu[a] * gain_t[a, b]
+            x[i, b] = x[i, b] + acc
+        # P − Kᵀᵀ S Kᵀ, as the reference: (Kᵀᵀ S) Kᵀ
+        for a in range(n):
+            for b in range(rows):
+                acc = 0.0
+                for c in range(rows):
+                    acc += gain_t[c, a] * s[c, b]
+                sg[a, b] = acc
+        for a in range(n):
+            for b in range(n):
+                acc = 0.0
+                for c in range(rows):
+                    acc += sg[a, c] * gain_t[c, b]
+                P[i, a, b] = P[i, a, b] - acc
+        _symmetrise(P[i], n)
+        if rows > 0:
+            sumsq, logdet = _white_logdet(low, rows, nu, white)
+        else:
+            sumsq, logdet = 0.0, 0.0
+        logpdf[i] = sumsq + logdet
+    return True
+
+
+@_step
+def _mode_update(mu, cbar, loglik, log_post):
+    """§3.3: μ_m ∝ Λ_m c̄_m, in logs (the largest term subtracted before the exponential); ``mu`` in place."""
+    n_models = mu.shape[0]
+    for i in range(n_models):
+        # log 0 = −inf: a model no model can reach keeps probability 0
+        log_post[i] = (math.log(cbar[i]) if cbar[i] > 0.0 else -np.inf) + loglik[i]
+    top = log_post[0]
+    for i in range(1, n_models):
+        if log_post[i] > top:
+            top = log_post[i]
+    total = 0.0
+    for i in range(n_models):
+        log_post[i] = math.exp(log_post[i] - top)
+        total += log_post[i]
+    for i in range(n_models):
+        mu[i] = log_post[i] / total
+
+
+@_step
+def _fuse(r, n_rows, out_mu, out_x, out_P, fused_x, fused_P, d):
+    """§3.4 output fusion of rows 0..n_rows − 1 of replication r from each model's stored μ, x̂ and P:
+    x̂ = Σ_m μ_m x̂_m, P = Σ_m μ_m [P_m + (x̂_m − x̂)(x̂_m − x̂)ᵀ].
+
+    Once per replication, after its time loop, from the stored rows (the values the loop held: the same
+    products in the same order), not once per row: fewer counted references in the loop.
+    """
+    n_models, n = out_x.shape[2], out_x.shape[3]
+    for k in range(n_rows):
+        for a in range(n):
+            acc = 0.0
+            for i in range(n_models):
+                acc += out_mu[r, k, i] * out_x[r, k, i, a]
+            fused_x[r, k, a] = acc
+        for a in range(n):
+            for b in range(n):
+                fused_P[r, k, a, b] = 0.0
+        for i in range(n_models):
+            for a in range(n):
+                d[a] = out_x[r, k, i, a] - fused_x[r, k, a]
+            for a in range(n):
+                for b in range(n):
+                    fused_P[r, k, a, b] += out_mu[r, k, i] * (out_P[r, k, i, a, b] + d[a] * d[b])
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -151,252 +421,48 @@ def imm(sequential, counts, n_valid, y, sensor, slot_key, step_key, phi, drive, 
         0, or 1 where an innovation covariance was not positive definite (the
         reference's Cholesky raises there; the caller then runs it).
     """
-    n_points = counts.shape[0]
-    n_models = mu0.shape[0]
-    n = x0.shape[1]
-    m = H.shape[1]
-    n_slots = y.shape[2]
-    big = max(n_slots * m, m)
-
-    mu = np.empty(n_models)
-    x = np.empty((n_models, n))
-    P = np.empty((n_models, n, n))
-    cbar = np.empty(n_models)
-    weights = np.empty((n_models, n_models))
-    xm = np.empty((n_models, n))
-    Pm = np.empty((n_models, n, n))
-    d = np.empty(n)
-    tmp = np.empty((n, n))
-    loglik = np.empty(n_models)
-    log_post = np.empty(n_models)
-    # update workspace (J·m rows at most)
-    h_bar = np.empty((big, n))
-    z_bar = np.empty(big)
-    r_bar = np.empty((big, big))
-    c_bar = np.empty((n, big))
-    pht_c = np.empty((n, big))
-    pht_t = np.empty((big, n))
-    s = np.empty((big, big))
-    low = np.empty((big, big))
-    gain_t = np.empty((big, n))
-    sg = np.empty((n, big))
-    nu = np.empty(big)
-    hq = np.empty((m, n))
-
+    n_models, n, m = mu0.shape[0], x0.shape[1], H.shape[1]
+    big = max(y.shape[2] * m, m)  # the update's workspace: J·m rows at most
+    mu, x, P, cbar = np.empty(n_models), np.empty((n_models, n)), np.empty((n_models, n, n)), np.empty(n_models)
+    weights, xm, Pm = np.empty((n_models, n_models)), np.empty((n_models, n)), np.empty((n_models, n, n))
+    d, tmp, loglik, log_post = np.empty(n), np.empty((n, n)), np.empty(n_models), np.empty(n_models)
+    logpdf = np.empty(n_models)
+    pht_c, pht_t, s, low = np.empty((n, big)), np.empty((big, n)), np.empty((big, big)), np.empty((big, big))
+    gain_t, sg, nu, hq, white = np.empty((big, n)), np.empty((n, big)), np.empty(big), np.empty((m, n)), np.empty(big)
+    # the stacked measurement of every model (Theorem 1)
+    z_bar, h_bar = np.empty((n_models, big)), np.empty((n_models, big, n))
+    c_bar, r_bar = np.empty((n_models, n, big)), np.empty((n_models, big, big))
     for r in range(first, stop):
         status[r] = 0
-        for i in range(n_models):
-            mu[i] = mu0[i]
-            for a in range(n):
-                x[i, a] = x0[i, a]
-                for b in range(n):
-                    P[i, a, b] = P0[i, a, b]
-        failed = False
-        for k in range(n_points):
+        _start(mu0, x0, P0, mu, x, P)
+        for k in range(counts.shape[0]):
             if k > 0:
-                # §3.1 filter restart: c̄_m = Σ_i λ_im μ_i, μ_{i|m} = λ_im μ_i / c̄_m (own estimate if c̄_m = 0)
-                for j in range(n_models):
-                    acc = 0.0
-                    for i in range(n_models):
-                        acc += mu[i] * trans[i, j]
-                    cbar[j] = acc
-                for i in range(n_models):
-                    for j in range(n_models):
-                        if cbar[j] > 0.0:
-                            weights[i, j] = mu[i] * trans[i, j] / cbar[j]
-                        else:
-                            weights[i, j] = 1.0 if i == j else 0.0
-                for j in range(n_models):
-                    for a in range(n):
-                        acc = 0.0
-                        for i in range(n_models):
-                            acc += weights[i, j] * x[i, a]
-                        xm[j, a] = acc
-                    for a in range(n):
-                        for b in range(n):
-                            Pm[j, a, b] = 0.0
-                    for i in range(n_models):
-                        for a in range(n):
-                            d[a] = x[i, a] - xm[j, a]
-                        for a in range(n):
-                            for b in range(n):
-                                Pm[j, a, b] += weights[i, j] * (P[i, a, b] + d[a] * d[b])
-                x[:, :] = xm
-                P[:, :, :] = Pm
-
-                # §3.2 fault-conditioned filtering over (t_{k−1}, t_k]
-                nv = n_valid[r, k]
+                _restart(mu, x, P, trans, cbar, weights, xm, Pm, d)
+                nv, n_slots_k, key = n_valid[r, k], counts[k], step_key[r, k]
                 for i in range(n_models):
                     loglik[i] = 0.0
-                if sequential:
-                    for j in range(nv):
-                        key = slot_key[r, k, j]
-                        sn = sensor[r, k, j]
-                        for i in range(n_models):
-                            _predict(x[i], P[i], phi[key, i], drive[key, i], q[key, i], tmp, d)
-                            # one Kalman update: S = H P Hᵀ + R, Kᵀ = S⁻¹ H P
-                            for a in range(m):
-                                acc = 0.0
-                                for b in range(n):
-                                    acc += H[sn, a, b] * x[i, b]
-                                nu[a] = y[r, k, j, a] - acc
-                                for b in range(n):
-                                    acc = 0.0
-                                    for c in range(n):
-                                        acc += H[sn, a, c] * P[i, c, b]
-                                    hq[a, b] = acc
-                            for a in range(m):
-                                for b in range(m):
-                                    acc = 0.0
-                                    for c in range(n):
-                                        acc += hq[a, c] * H[sn, b, c]
-                                    s[a, b] = acc + Rm[sn, a, b]
-                            _symmetrise(s, m)
-                            if not _cholesky(s, m, low):
-                                failed = True
-                                break
-                            for a in range(m):
-                                for b in range(n):
-                                    pht_t[a, b] = hq[a, b]
-                            _solve_columns(low, m, pht_t, n, gain_t)
-                            for b in range(n):
-                                acc = 0.0
-                                for a in range(m):
-                                    acc += nu[a] * gain_t[a, b]
-                                x[i, b] = x[i, b] + acc
-                            for a in range(n):
-                                for b in range(n):
-                                    acc = 0.0
-                                    for c in range(m):
-                                        acc += gain_t[c, a] * hq[c, b]
-                                    P[i, a, b] = P[i, a, b] - acc
-                            _symmetrise(P[i], n)
-                            sumsq, logdet = _white_logdet(low, m, nu, z_bar)
-                            loglik[i] += -0.5 * (sumsq + logdet + m * _LOG_2PI)
-                        if failed:
-                            break
-                    if failed:
-                        break
-                    key = step_key[r, k]
+                if sequential:  # §3.2, measurement by measurement
+                    ok = _sequential_interval(r, k, nv, x, P, y, sensor, slot_key, key, phi, drive, q, H, Rm, loglik,
+                                              tmp, d, hq, nu, s, low, pht_t, gain_t, white)
+                else:  # §3.2, Theorem 1: every model predicted to t_k, then one update with the interval's packets
                     for i in range(n_models):
-                        _predict(x[i], P[i], phi[key, i], drive[key, i], q[key, i], tmp, d)
-                else:
-                    key = step_key[r, k]
-                    for i in range(n_models):
-                        _predict(x[i], P[i], phi[key, i], drive[key, i], q[key, i], tmp, d)
-                    n_slots_k = counts[k]
+                        _predict(x, P, i, phi, drive, q, key, tmp, d)
+                    ok = True
                     if n_slots_k > 0:
-                        rows = nv * m
+                        _stack_slots(r, k, nv, y, sensor, slot_key, h_eq, hgu, cross, q, Rm, hq, z_bar, h_bar, c_bar,
+                                     r_bar)
+                        ok = _stacked_updates(x, P, nv * m, h_bar, c_bar, r_bar, z_bar, pht_c, s, nu, low, pht_t,
+                                              gain_t, sg, white, logpdf)
+                        # the reference pads to the batch's slot count with unit blocks and adds their
+                        # constant back; the same expression keeps the same rounding
                         for i in range(n_models):
-                            # the stacked equivalent measurement z̄ = H̄ x(t_k) + ṽ of the valid slots
-                            for j in range(nv):
-                                kj = slot_key[r, k, j]
-                                sj = sensor[r, k, j]
-                                for a in range(m):
-                                    z_bar[j * m + a] = y[r, k, j, a] + hgu[kj, sj, i, a]
-                                    for b in range(n):
-                                        h_bar[j * m + a, b] = h_eq[kj, sj, i, a, b]
-                                        c_bar[b, j * m + a] = cross[kj, sj, i, b, a]
-                            # R̃_ij = δ_ij R_s(i) + H̄_i Q_max(i,j) H̄_jᵀ (Lemma 2)
-                            for j1 in range(nv):
-                                k1 = slot_key[r, k, j1]
-                                s1 = sensor[r, k, j1]
-                                for j2 in range(nv):
-                                    if j2 == 0 or j2 > j1:
-                                        # H̄_j1 Q_max(j1,j2): one product for every j2 <= j1, one per later j2
-                                        later = slot_key[r, k, max(j1, j2)]
-                                        for a in range(m):
-                                            for b in range(n):
-                                                acc = 0.0
-                                                for c in range(n):
-                                                    acc += h_eq[k1, s1, i, a, c] * q[later, i, c, b]
-                                                hq[a, b] = acc
-                                    k2 = slot_key[r, k, j2]
-                                    s2 = sensor[r, k, j2]
-                                    for a in range(m):
-                                        for b in range(m):
-                                            acc = 0.0
-                                            for c in range(n):
-                                                acc += hq[a, c] * h_eq[k2, s2, i, b, c]
-                                            if j1 == j2:
-                                                acc += Rm[s1, a, b]
-                                            r_bar[j1 * m + a, j2 * m + b] = acc
-                            # P H̄ᵀ + C, S = H̄ (P H̄ᵀ + C) + Cᵀ H̄ᵀ + R̃
-                            for a in range(n):
-                                for b in range(rows):
-                                    acc = 0.0
-                                    for c in range(n):
-                                        acc += P[i, a, c] * h_bar[b, c]
-                                    pht_c[a, b] = acc + c_bar[a, b]
-                            for a in range(rows):
-                                for b in range(rows):
-                                    acc = 0.0
-                                    for c in range(n):
-                                        acc += h_bar[a, c] * pht_c[c, b]
-                                    acc2 = 0.0
-                                    for c in range(n):
-                                        acc2 += c_bar[c, a] * h_bar[b, c]
-                                    s[a, b] = acc + acc2 + r_bar[a, b]
-                            _symmetrise(s, rows)
-                            for a in range(rows):
-                                acc = 0.0
-                                for b in range(n):
-                                    acc += h_bar[a, b] * x[i, b]
-                                nu[a] = z_bar[a] - acc
-                            if rows > 0:
-                                if not _cholesky(s, rows, low):
-                                    failed = True
-                                    break
-                                for a in range(rows):
-                                    for b in range(n):
-                                        pht_t[a, b] = pht_c[b, a]
-                                _solve_columns(low, rows, pht_t, n, gain_t)  # Kᵀ = S⁻¹ (P H̄ᵀ + C)ᵀ
-                            for b in range(n):
-                                acc = 0.0
-                                for a in range(rows):
-                                    acc += nu[a] * gain_t[a, b]
-                                x[i, b] = x[i, b] + acc
-                            # P − Kᵀᵀ S Kᵀ, as the reference: (Kᵀᵀ S) Kᵀ
-                            for a in range(n):
-                                for b in range(rows):
-                                    acc = 0.0
-                                    for c in range(rows):
-                                        acc += gain_t[c, a] * s[c, b]
-                                    sg[a, b] = acc
-                            for a in range(n):
-                                for b in range(n):
-                                    acc = 0.0
-                                    for c in range(rows):
-                                        acc += sg[a, c] * gain_t[c, b]
-                                    P[i, a, b] = P[i, a, b] - acc
-                            _symmetrise(P[i], n)
-                            if rows > 0:
-                                sumsq, logdet = _white_logdet(low, rows, nu, z_bar)
-                            else:
-                                sumsq, logdet = 0.0, 0.0
-                            # the reference pads to the batch's slot count with unit blocks and adds their
-                            # constant back; the same expression keeps the same rounding
-                            loglik[i] = (-0.5 * (sumsq + logdet + (n_slots_k * m) * _LOG_2PI)
+                            loglik[i] = (-0.5 * (logpdf[i] + (n_slots_k * m) * _LOG_2PI)
                                          + 0.5 * m * _LOG_2PI * (n_slots_k - nv))
-                        if failed:
-                            break
-
-                # §3.3 mode probabilities: μ_m ∝ Λ_m c̄_m, in logs
-                for i in range(n_models):
-                    # log 0 = −inf: a model no model can reach keeps probability 0
-                    log_post[i] = (math.log(cbar[i]) if cbar[i] > 0.0 else -np.inf) + loglik[i]
-                top = log_post[0]
-                for i in range(1, n_models):
-                    if log_post[i] > top:
-                        top = log_post[i]
-                total = 0.0
-                for i in range(n_models):
-                    log_post[i] = math.exp(log_post[i] - top)
-                    total += log_post[i]
-                for i in range(n_models):
-                    mu[i] = log_post[i] / total
-
-            # outputs and §3.4 output fusion
+                if not ok:
+                    status[r] = 1  # the reference's Cholesky raises here; the caller runs it
+                    break
+                _mode_update(mu, cbar, loglik, log_post)
+            # row k: each model's μ, x̂, P and log Λ (0 at row 0); §3.4's fusion follows the time loop
             for i in range(n_models):
                 out_mu[r, k, i] = mu[i]
                 out_ll[r, k, i] = loglik[i] if k > 0 else 0.0
@@ -404,22 +470,8 @@ def imm(sequential, counts, n_valid, y, sensor, slot_key, step_key, phi, drive, 
                     out_x[r, k, i, a] = x[i, a]
                     for b in range(n):
                         out_P[r, k, i, a, b] = P[i, a, b]
-            for a in range(n):
-                acc = 0.0
-                for i in range(n_models):
-                    acc += mu[i] * x[i, a]
-                fused_x[r, k, a] = acc
-            for a in range(n):
-                for b in range(n):
-                    fused_P[r, k, a, b] = 0.0
-            for i in range(n_models):
-                for a in range(n):
-                    d[a] = x[i, a] - fused_x[r, k, a]
-                for a in range(n):
-                    for b in range(n):
-                        fused_P[r, k, a, b] += mu[i] * (P[i, a, b] + d[a] * d[b])
-        if failed:
-            status[r] = 1
+        if status[r] == 0:
+            _fuse(r, counts.shape[0], out_mu, out_x, out_P, fused_x, fused_P, d)
 
 
 def _tables(step, deltas):
