@@ -281,6 +281,10 @@ def test_mistakes_are_one_line_and_exit_2(tuned, served, tmp_path, capsys):
     _one_line_exit_2(capsys, ["--opcua", url, "--nodes", nodes, *base], f"input {TAGS[-1]!r}")
     _one_line_exit_2(capsys, ["--opcua", url, "--model", npz, "--no-progress"], "--step is required")
     _one_line_exit_2(capsys, ["--opcua", url, "--write", nodes, *base], "is not a column of the model")
+    _one_line_exit_2(capsys, ["--opcua", url, "--out", tmp_path / "log.parquet", *base], "allowed: a .csv path")
+    other = tmp_path / "other.json"
+    other.write_text(json.dumps({"format": 1, "inputs": ["x"], "step": 60}))
+    _one_line_exit_2(capsys, ["--opcua", url, "--state", other, *base], "not a state of this model")
 
 
 def test_a_missing_extra_is_one_line_naming_it(monkeypatch):
