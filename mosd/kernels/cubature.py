@@ -252,6 +252,194 @@ def _fill_rows(stack, first_row, block, n_lanes):
                 stack[first_row + i, j, b] = block[i, j]
 
 
+#: The filter's steps, each a function of its own to read, inlined into :func:`cesckf` by numba (their IR, before
+#: typing): one compiled body as when written in one piece, the same operations in the same order, no call and
+#: no module of their own to compile (unlike the two big helpers above, each step is used once). Each is called
+#: once per step and block of lanes, so the references numba counts for the arrays it receives cost little.
+_lane_step = njit(inline="always", nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
+
+
+@_lane_step
+def _workspace(n_pts, n_x, n_y, n_u, L):
+    """The scratch arrays of one block of ``L`` lanes, and those of one lane with missing channels."""
+    blocks = (np.empty((n_x, L)), np.empty((max(n_u, 1), L)), np.empty((n_pts, n_x, L)), np.empty((n_pts, n_x, L)),
+              np.empty((n_pts, n_y, L)), np.empty((n_pts + n_x, n_x, L)), np.empty((n_y, L)))
+    # [N; S_Rᵀ] (eq. 15), S_yyᵀ, P_xyᵀ, Kᵀ, [R − K N; K S_R]ᵀ (eq. 18) and the update's per-lane scratch
+    update = (np.empty((n_pts + n_y, n_y, L)), np.empty((n_y, n_y, L)), np.empty((n_y, n_x, L)),
+              np.empty((n_y, n_x, L)), np.empty(L), np.empty((n_pts + n_y, n_x, L)), np.empty(L), np.empty(L),
+              np.empty(L), np.empty(L), np.empty(L))
+    steps = (np.empty((n_x, L)), np.empty((n_x, n_x, L)), np.empty((n_x, L)), np.empty((n_x, n_x, L)),
+             np.empty((n_y, L)))
+    # one lane with missing channels, its present ones gathered into lane 0 (the rest reuses the scratch above)
+    lane = (np.empty(n_y, np.int64), np.empty((n_pts, n_y, 1)), np.empty((n_pts, n_x, 1)), np.zeros((n_y, n_y)),
+            np.empty((n_y, 1)), np.empty((n_x, 1)), np.empty((n_x, 1)), np.empty((n_x, n_x, 1)))
+    return blocks, update, steps, lane
+
+
+@_lane_step
+def _start_lanes(nb, x0, st0, xp, stp):
+    """x̂_{0|−1} = ``x0`` and S_{0|−1}ᵀ = ``st0`` on lanes 0..nb (a series' first sample)."""
+    n_x = x0.shape[0]
+    for i in range(n_x):
+        for b in range(nb):
+            xp[i, b] = x0[i]
+        for j in range(n_x):
+            for b in range(nb):
+                stp[i, j, b] = st0[i, j]
+
+
+@_lane_step
+def _carry_in(nb, n_u, x_before, st_before, u_before, xf, stf, u_k):
+    """A resumed series: x̂_{−1|−1}, S_{−1|−1}ᵀ and u_{−1}, the state a stream carries, on lanes 0..nb."""
+    n_x = x_before.shape[0]
+    for i in range(n_x):
+        for b in range(nb):
+            xf[i, b] = x_before[i]
+        for j in range(n_x):
+            for b in range(nb):
+                stf[i, j, b] = st_before[i, j]
+    for c in range(n_u):
+        for b in range(nb):
+            u_k[c, b] = u_before[c]
+
+
+@_lane_step
+def _predict_lanes(kind, params, nb, eps, weights, sqrt_w, sq_t, xf, stf, u_k, point, moved, stack_x, xp, stp, update,
+                   tria):
+    """x̂_{k|k−1} and S_{k|k−1}ᵀ from x̂_{k−1|k−1}, S_{k−1|k−1}ᵀ and u_{k−1} on lanes 0..nb (eqs. 3–5, 10–11).
+
+    Eqs. 4–5: X_i = x̂ + S ε_i, X*_i = f(X_i, u_{k−1}); eq. 3: their weighted mean; eqs. 10–11:
+    S_{k|k−1} = tria([M, S_Q]), M_i = √w_i (X*_i − x̂). ``update``: the update's scratch (its per-lane vectors
+    serve the tria here).
+    """
+    n_pts, n_x = eps.shape
+    norm2, v0, vtv, alpha, scale = update[6], update[7], update[8], update[9], update[10]
+    for j in range(n_x):
+        for b in range(nb):
+            xp[j, b] = 0.0
+    for i in range(n_pts):
+        for j in range(n_x):
+            for b in range(nb):
+                point[j, b] = xf[j, b]
+            for m in range(n_x):
+                e = eps[i, m]
+                for b in range(nb):
+                    point[j, b] += e * stf[m, j, b]
+        transition_lanes(kind, params, point, u_k, moved[i], nb)
+        w = weights[i]
+        for j in range(n_x):
+            for b in range(nb):
+                xp[j, b] += w * moved[i, j, b]
+    for i in range(n_pts):
+        s = sqrt_w[i]
+        for j in range(n_x):
+            for b in range(nb):
+                stack_x[i, j, b] = s * (moved[i, j, b] - xp[j, b])
+    _fill_rows(stack_x, n_pts, sq_t, nb)
+    _call_tria(tria, (stack_x, n_pts + n_x, n_x, stp, nb, norm2, v0, vtv, alpha, scale))
+
+
+@_lane_step
+def _measurement_points(nb, eps, weights, sqrt_w, outputs, xp, stp, acc, point, deviation, centred_y, yp):
+    """The points drawn from S_{k|k−1} and what the update needs of them, on lanes 0..nb.
+
+    Eq. 8: X_i = x̂_{k|k−1} + S ε_i; eq. 16: ``deviation`` √w_i (X_i − x̂); eq. 9: Y_i = h(X_i) (the ``outputs``
+    states); eq. 6: ŷ in ``yp``; eq. 17: ``centred_y`` N_i = √w_i (Y_i − ŷ).
+    """
+    n_pts, n_x = eps.shape
+    n_y = outputs.shape[0]
+    for c in range(n_y):
+        for b in range(nb):
+            yp[c, b] = 0.0
+    for i in range(n_pts):
+        s = sqrt_w[i]
+        for j in range(n_x):
+            for b in range(nb):
+                acc[b] = 0.0
+            for m in range(n_x):
+                e = eps[i, m]
+                for b in range(nb):
+                    acc[b] += e * stp[m, j, b]
+            for b in range(nb):
+                deviation[i, j, b] = s * acc[b]
+                point[j, b] = xp[j, b] + acc[b]
+        w = weights[i]
+        for c in range(n_y):
+            o = outputs[c]
+            for b in range(nb):
+                centred_y[i, c, b] = point[o, b]
+                yp[c, b] += w * point[o, b]
+    for i in range(n_pts):
+        s = sqrt_w[i]
+        for c in range(n_y):
+            for b in range(nb):
+                centred_y[i, c, b] = s * (centred_y[i, c, b] - yp[c, b])
+
+
+@_lane_step
+def _store_innovations(r0, k, nb, yp, innov, syy, y_pred, innovation, innovation_cov):
+    """Step k of lanes 0..nb into replications r0..: ŷ_{k|k−1}, r_k and S_yy S_yyᵀ over every channel."""
+    n_y = yp.shape[0]
+    for b in range(nb):
+        for c in range(n_y):
+            y_pred[r0 + b, k, c] = yp[c, b]
+            innovation[r0 + b, k, c] = innov[c, b]
+        for a in range(n_y):
+            for c in range(n_y):
+                total = 0.0
+                for m in range(n_y):
+                    total += syy[m, a, b] * syy[m, c, b]
+                innovation_cov[r0 + b, k, a, c] = total
+
+
+@_lane_step
+def _missing_channels(r0, k, nb, y, yp, xp, stp, centred_y, deviation, sr_t, xf, stf, lane, update, tria, address):
+    """Eqs. 12–18 again, on its present channels alone, for each of lanes 0..nb with a missing channel at step k.
+
+    Through the same code (:func:`_update_lanes` at ``address``) with that lane's present columns gathered into
+    lane 0 of the ``lane`` scratch; a lane with nothing present keeps the prediction.
+    """
+    n_pts, n_y, n_x = centred_y.shape[0], centred_y.shape[1], xp.shape[0]
+    present, lane_centred_y, lane_deviation, lane_sr_t, lane_innov, lane_xp, lane_xf, lane_stf = lane
+    stack_y, syy, pxy, gain, acc, stack_yx, norm2, v0, vtv, alpha, scale = update
+    one = np.int64(1)
+    for b in range(nb):
+        # np.int64(0), not a bare 0 (here and for the 1 lane above): typing would first compile
+        # _update_lanes and everything it calls for the literal value as well (twice the compile)
+        n_present = np.int64(0)
+        for c in range(n_y):
+            if not math.isnan(y[r0 + b, k, c]):
+                present[n_present] = c
+                n_present += 1
+        if n_present == n_y:
+            continue
+        if n_present == 0:
+            for i in range(n_x):
+                xf[i, b] = xp[i, b]
+                for j in range(n_x):
+                    stf[i, j, b] = stp[i, j, b]
+            continue
+        for i in range(n_pts):
+            for a in range(n_present):
+                lane_centred_y[i, a, 0] = centred_y[i, present[a], b]
+            for j in range(n_x):
+                lane_deviation[i, j, 0] = deviation[i, j, b]
+        for i in range(n_y):
+            for a in range(n_present):
+                lane_sr_t[i, a] = sr_t[i, present[a]]
+        for a in range(n_present):
+            lane_innov[a, 0] = y[r0 + b, k, present[a]] - yp[present[a], b]
+        for j in range(n_x):
+            lane_xp[j, 0] = xp[j, b]
+        _call_update(address, (n_present, n_pts, lane_centred_y, lane_deviation, lane_sr_t, lane_xp, lane_innov, one,
+                               stack_y, syy, pxy, gain, acc, stack_yx, lane_xf, lane_stf, norm2, v0, vtv, alpha, scale,
+                               tria))
+        for i in range(n_x):
+            xf[i, b] = lane_xf[i, 0]
+            for j in range(n_x):
+                stf[i, j, b] = lane_stf[i, j, 0]
+
+
 #: replications filtered side by side (the innermost, vectorised axis of the kernel's arrays)
 LANES = 64
 
@@ -300,175 +488,37 @@ def cesckf(kind, params, outputs, y, u, x0, st0, eps, weights, sq_t, sr_t, first
     tria, update : int
         Where :func:`_tria_lanes` and :func:`_update_lanes` start (:func:`_address`): called, not linked in.
     """
-    n_steps, n_y = y.shape[1], y.shape[2]
-    n_u = u.shape[2]
-    n_x = x0.shape[0]
-    n_pts = weights.shape[0]
+    n_steps, n_y, n_u = y.shape[1], y.shape[2], u.shape[2]
     sqrt_w = np.sqrt(weights)
-    L = lanes
-    point = np.empty((n_x, L))
-    u_k = np.empty((max(n_u, 1), L))
-    moved = np.empty((n_pts, n_x, L))
-    deviation = np.empty((n_pts, n_x, L))
-    centred_y = np.empty((n_pts, n_y, L))
-    stack_x = np.empty((n_pts + n_x, n_x, L))   # [M; S_Qᵀ] (eq. 10)
-    stack_y = np.empty((n_pts + n_y, n_y, L))   # [N; S_Rᵀ] (eq. 15)
-    stack_yx = np.empty((n_pts + n_y, n_x, L))  # [R − K N; K S_R]ᵀ (eq. 18)
-    syy = np.empty((n_y, n_y, L))
-    pxy = np.empty((n_y, n_x, L))
-    gain = np.empty((n_y, n_x, L))
-    innov = np.empty((n_y, L))
-    acc = np.empty(L)
-    xp = np.empty((n_x, L))
-    stp = np.empty((n_x, n_x, L))
-    xf = np.empty((n_x, L))
-    stf = np.empty((n_x, n_x, L))
-    yp = np.empty((n_y, L))
-    norm2, v0, vtv, alpha, scale = np.empty(L), np.empty(L), np.empty(L), np.empty(L), np.empty(L)
-    # one lane with missing channels, its present ones gathered into lane 0 (the rest reuses the scratch above)
-    present = np.empty(n_y, np.int64)
-    lane_centred_y = np.empty((n_pts, n_y, 1))
-    lane_deviation = np.empty((n_pts, n_x, 1))
-    lane_sr_t = np.zeros((n_y, n_y))
-    lane_innov = np.empty((n_y, 1))
-    lane_xp = np.empty((n_x, 1))
-    lane_xf = np.empty((n_x, 1))
-    lane_stf = np.empty((n_x, n_x, 1))
-    one = np.int64(1)
-
-    for r0 in range(first, stop, L):
-        nb = min(L, stop - r0)
+    blocks, work, steps, lane = _workspace(weights.shape[0], x0.shape[0], n_y, n_u, lanes)
+    point, u_k, moved, deviation, centred_y, stack_x, innov = blocks
+    stack_y, syy, pxy, gain, acc, stack_yx, norm2, v0, vtv, alpha, scale = work
+    xp, stp, xf, stf, yp = steps
+    for r0 in range(first, stop, lanes):
+        nb = min(lanes, stop - r0)
         for k in range(n_steps):
             if k == 0 and not resume:
-                for i in range(n_x):
-                    for b in range(nb):
-                        xp[i, b] = x0[i]
-                    for j in range(n_x):
-                        for b in range(nb):
-                            stp[i, j, b] = st0[i, j]
+                _start_lanes(nb, x0, st0, xp, stp)
             else:
-                # eqs. 4–5: X_i = x̂ + S ε_i, X*_i = f(X_i, u_{k−1}); eq. 3: the weighted mean
                 if k == 0:  # resumed: the step before this call's first sample is the carried state
-                    for i in range(n_x):
-                        for b in range(nb):
-                            xf[i, b] = x_before[i]
-                        for j in range(n_x):
-                            for b in range(nb):
-                                stf[i, j, b] = st_before[i, j]
-                    for c in range(n_u):
-                        for b in range(nb):
-                            u_k[c, b] = u_before[c]
+                    _carry_in(nb, n_u, x_before, st_before, u_before, xf, stf, u_k)
                 else:
                     for c in range(n_u):
                         for b in range(nb):
                             u_k[c, b] = u[r0 + b, k - 1, c]
-                for j in range(n_x):
-                    for b in range(nb):
-                        xp[j, b] = 0.0
-                for i in range(n_pts):
-                    for j in range(n_x):
-                        for b in range(nb):
-                            point[j, b] = xf[j, b]
-                        for m in range(n_x):
-                            e = eps[i, m]
-                            for b in range(nb):
-                                point[j, b] += e * stf[m, j, b]
-                    transition_lanes(kind, params, point, u_k, moved[i], nb)
-                    w = weights[i]
-                    for j in range(n_x):
-                        for b in range(nb):
-                            xp[j, b] += w * moved[i, j, b]
-                # eqs. 10–11: S_{k|k−1} = tria([M, S_Q]), M_i = √w_i (X*_i − x̂)
-                for i in range(n_pts):
-                    s = sqrt_w[i]
-                    for j in range(n_x):
-                        for b in range(nb):
-                            stack_x[i, j, b] = s * (moved[i, j, b] - xp[j, b])
-                _fill_rows(stack_x, n_pts, sq_t, nb)
-                _call_tria(tria, (stack_x, n_pts + n_x, n_x, stp, nb, norm2, v0, vtv, alpha, scale))
+                _predict_lanes(kind, params, nb, eps, weights, sqrt_w, sq_t, xf, stf, u_k, point, moved, stack_x, xp,
+                               stp, work, tria)
             _store_lanes(r0, k, nb, xp, stp, x_pred, sqrt_cov_pred)
-
-            # eq. 8: points re-drawn from S_{k|k−1}; eq. 16: √w_i (X_i − x̂); eq. 9: Y_i = h(X_i); eq. 6: ŷ
-            for c in range(n_y):
-                for b in range(nb):
-                    yp[c, b] = 0.0
-            for i in range(n_pts):
-                s = sqrt_w[i]
-                for j in range(n_x):
-                    for b in range(nb):
-                        acc[b] = 0.0
-                    for m in range(n_x):
-                        e = eps[i, m]
-                        for b in range(nb):
-                            acc[b] += e * stp[m, j, b]
-                    for b in range(nb):
-                        deviation[i, j, b] = s * acc[b]
-                        point[j, b] = xp[j, b] + acc[b]
-                w = weights[i]
-                for c in range(n_y):
-                    o = outputs[c]
-                    for b in range(nb):
-                        centred_y[i, c, b] = point[o, b]
-                        yp[c, b] += w * point[o, b]
-            # eq. 17: N_i = √w_i (Y_i − ŷ)
-            for i in range(n_pts):
-                s = sqrt_w[i]
-                for c in range(n_y):
-                    for b in range(nb):
-                        centred_y[i, c, b] = s * (centred_y[i, c, b] - yp[c, b])
+            _measurement_points(nb, eps, weights, sqrt_w, outputs, xp, stp, acc, point, deviation, centred_y, yp)
             for c in range(n_y):
                 for b in range(nb):
                     innov[c, b] = y[r0 + b, k, c] - yp[c, b]
-            # eqs. 12–18 over every channel
-            _call_update(update, (n_y, n_pts, centred_y, deviation, sr_t, xp, innov, nb, stack_y, syy, pxy, gain,
-                                  acc, stack_yx, xf, stf, norm2, v0, vtv, alpha, scale, tria))
-            for b in range(nb):
-                for c in range(n_y):
-                    y_pred[r0 + b, k, c] = yp[c, b]
-                    innovation[r0 + b, k, c] = innov[c, b]
-                for a in range(n_y):
-                    for c in range(n_y):
-                        total = 0.0
-                        for m in range(n_y):
-                            total += syy[m, a, b] * syy[m, c, b]
-                        innovation_cov[r0 + b, k, a, c] = total
-            # a lane with a missing channel: the update again on the present channels alone, through the same
-            # code with that lane's present columns gathered into lane 0; nothing present keeps the prediction
-            for b in range(nb):
-                # np.int64(0), not a bare 0 (here and for the 1 lane below): typing would first compile
-                # _update_lanes and everything it calls for the literal value as well (twice the compile)
-                n_present = np.int64(0)
-                for c in range(n_y):
-                    if not math.isnan(y[r0 + b, k, c]):
-                        present[n_present] = c
-                        n_present += 1
-                if n_present == n_y:
-                    continue
-                if n_present == 0:
-                    for i in range(n_x):
-                        xf[i, b] = xp[i, b]
-                        for j in range(n_x):
-                            stf[i, j, b] = stp[i, j, b]
-                    continue
-                for i in range(n_pts):
-                    for a in range(n_present):
-                        lane_centred_y[i, a, 0] = centred_y[i, present[a], b]
-                    for j in range(n_x):
-                        lane_deviation[i, j, 0] = deviation[i, j, b]
-                for i in range(n_y):
-                    for a in range(n_present):
-                        lane_sr_t[i, a] = sr_t[i, present[a]]
-                for a in range(n_present):
-                    lane_innov[a, 0] = y[r0 + b, k, present[a]] - yp[present[a], b]
-                for j in range(n_x):
-                    lane_xp[j, 0] = xp[j, b]
-                _call_update(update, (n_present, n_pts, lane_centred_y, lane_deviation, lane_sr_t, lane_xp, lane_innov,
-                                      one, stack_y, syy, pxy, gain, acc, stack_yx, lane_xf, lane_stf, norm2, v0, vtv,
-                                      alpha, scale, tria))
-                for i in range(n_x):
-                    xf[i, b] = lane_xf[i, 0]
-                    for j in range(n_x):
-                        stf[i, j, b] = lane_stf[i, j, 0]
+            # eqs. 12–18 over every channel, then again on the present ones of a lane with a missing channel
+            _call_update(update, (n_y, weights.shape[0], centred_y, deviation, sr_t, xp, innov, nb, stack_y, syy, pxy,
+                                  gain, acc, stack_yx, xf, stf, norm2, v0, vtv, alpha, scale, tria))
+            _store_innovations(r0, k, nb, yp, innov, syy, y_pred, innovation, innovation_cov)
+            _missing_channels(r0, k, nb, y, yp, xp, stp, centred_y, deviation, sr_t, xf, stf, lane, work, tria,
+                              update)
             _store_lanes(r0, k, nb, xf, stf, x_filt, sqrt_cov_filt)
 
 
