@@ -4,8 +4,8 @@ Run by the ``gen-files`` plugin of ``mkdocs.yml`` at every build (nothing it wri
 
 * ``reference/config/index.md``: every preset's choices (:func:`mosd.app.options.readme_index`);
 * ``reference/config/<group>.md``: every option of ``conf/<group>/`` with its class, description and keys
-  (default, the class's declared domain, the YAML's comment): :func:`mosd.app.options.markdown`, the same
-  text ``python -m mosd options GROUP`` prints;
+  (default, the class's declared domain, the YAML's comment), from :func:`mosd.app.options.listing`, what
+  ``python -m mosd options GROUP`` prints;
 * ``reference/api/<package>.md``: the docstrings of the package's modules (mkdocstrings);
 * ``reference/SUMMARY.md``: the section's navigation (literate-nav).
 
@@ -20,7 +20,7 @@ import mkdocs_gen_files
 
 import mosd
 from mosd.app.config import groups
-from mosd.app.options import listing, markdown, readme_index
+from mosd.app.options import listing, readme_index
 
 #: the packages whose modules get an API page, in the navigation's order, with a line on each
 PACKAGES = {
@@ -67,11 +67,34 @@ def config_pages() -> dict[str, str]:
         "`python -m mosd options [GROUP ...]` prints the same tables.\n")}
     found = listing([g for g in groups() if g != "experiment"]) | listing(["experiment"])
     for group, opts in found.items():
-        table = markdown({group: opts}).split("\n", 2)[2]  # without its "### `group`" heading
         pages[f"config/{group}.md"] = (
-            f"# `{group}`\n\n{len(opts)} options: " + ", ".join(f"`{o.name}`" for o in opts)
-            + f". Choose one with `{group}=NAME`; list them with `python -m mosd options {group}`.\n\n" + table)
+            f"# `{group}`\n\n{len(opts)} options: " + ", ".join(f"[`{o.name}`](#{o.name})" for o in opts)
+            + f". Choose one with `{group}=NAME`, set a key with `{group}.KEY=VALUE`; "
+            f"`python -m mosd options {group}` prints the same.\n\n" + "\n".join(_option(o) for o in opts))
     return pages
+
+
+def _cell(text: str) -> str:
+    return text.replace("|", "\\|").replace("\n", " ")
+
+
+def _option(opt) -> str:
+    """One option: its heading, class, description, where it acts, and a table of its keys."""
+    out = [f"## `{opt.name}` {{#{opt.name}}}", ""]
+    if opt.target:
+        out += [f"Class: `{opt.target}`", ""]
+    if opt.description:
+        out += [opt.description, ""]
+    if opt.acts_on:
+        out += [f"{'Acts on' if opt.group == 'fault' else 'Takes faults acting on'}: {opt.acts_on}.", ""]
+    if opt.note:
+        out += [f"*{opt.note}*", ""]
+    if opt.keys:
+        out += ["| key | default | allowed | meaning |", "|---|---|---|---|"]
+        out += [f"| `{k.name}` | `{_cell(k.default)}` | {_cell(k.declared) or '—'} | {_cell(k.comment)} |"
+                for k in opt.keys]
+        out.append("")
+    return "\n".join(out)
 
 
 def api_pages() -> dict[str, str]:

@@ -151,11 +151,14 @@ def test_the_reference_generator_lists_every_group_option_and_key():
         page = written[f"reference/config/{group}.md"]
         assert f"(config/{group}.md)" in summary, f"reference/SUMMARY.md does not link {group}"
         for opt in opts:
-            assert f"| `{opt.name}` |" in page, f"reference/config/{group}.md lacks option {opt.name}"
+            heading = f"## `{opt.name}` {{#{opt.name}}}\n"
+            assert heading in page, f"reference/config/{group}.md lacks option {opt.name}"
+            section = page.split(heading, 1)[1].split("\n## ", 1)[0]
             for key in opt.keys:
-                assert f"`{key.name}` = " in page, f"reference/config/{group}.md: {opt.name} lacks key {key.name}"
+                row = f"| `{key.name}` | `{key.default.replace('|', chr(92) + '|')}` | "
+                assert row in section, f"reference/config/{group}.md: {opt.name} lacks key {key.name} = {key.default}"
                 if key.declared:
-                    assert key.declared.replace("|", "\\|") in page, (
+                    assert key.declared.replace("|", "\\|") in section.split(row, 1)[1].split("\n", 1)[0], (
                         f"reference/config/{group}.md: {opt.name}.{key.name} lacks its domain {key.declared}")
     assert set(groups()) == {p.split("/")[-1][:-3] for p in written if p.startswith("reference/config/")} - {"index"}
     for package in gen.PACKAGES:
