@@ -22,10 +22,11 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = ROOT / "docs"
 
-#: the pages whose blocks run: Getting started, the tutorials and the how-to guides
+#: the pages whose blocks run: Getting started, the tutorials, the how-to guides and the new explanation pages
 EXECUTED = ["getting-started.md",
             *sorted(str(p.relative_to(DOCS)) for p in (DOCS / "tutorials").glob("*.md")),
-            *sorted(str(p.relative_to(DOCS)) for p in (DOCS / "how-to").glob("*.md"))]
+            *sorted(str(p.relative_to(DOCS)) for p in (DOCS / "how-to").glob("*.md")),
+            *sorted(str(p.relative_to(DOCS)) for p in (DOCS / "explanation").glob("*.md"))]
 RUN = {"bash", "python"}
 REFUSED = {"sh", "shell", "zsh"}
 
