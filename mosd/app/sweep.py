@@ -218,6 +218,8 @@ def report_lost_workers() -> None:
         try:
             return launch(self, job_overrides, initial_job_idx)
         except BrokenProcessPool as exc:
+            if signals.RECEIVED:  # a stop signal ended the workers: the sweep's stop is reported as such
+                raise
             return lost_worker(Path(str(self.config.hydra.sweep.dir)), job_overrides, initial_job_idx, exc)
 
     reporting.reports_lost_workers = True
