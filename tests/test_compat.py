@@ -87,20 +87,6 @@ def test_composition_errors_are_read_from_the_exceptions_attributes():
     assert other is None
 
 
-def test_exit_handlers_run_once_and_the_exit_code_stays():
-    code = textwrap.dedent("""
-        import atexit, os, sys
-        from mosd.app.compat import run_exit_handlers
-        atexit.register(lambda: print("handler", flush=True))
-        run_exit_handlers()
-        print("after", flush=True)
-        os._exit(7)
-    """)
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60,
-                         env={**os.environ, "PYTHONPATH": PACKAGE_PARENT})
-    assert (out.returncode, out.stdout.split()) == (7, ["handler", "after"]), out.stderr
-
-
 def test_a_fast_exit_runs_every_exit_handler_then_skips_the_teardown():
     """compat.fast_exit (public API): the handlers registered after mosd.__main__ (a library's, as joblib's or
     logging's) run, in the usual last-in-first-out order; the teardown (an object's __del__ at interpreter exit)

@@ -129,25 +129,16 @@ def exit_now(code: int) -> None:
     matplotlib loaded takes 0.4–0.7 s of destructors and garbage collection
     (measured on this machine) and is part of the command's wall time. The
     worker pool is shut down explicitly (its threads would otherwise be joined
-    first), the ``atexit`` handlers run as usual (joblib's temporary folders,
-    logging's flush, a sweep's parent run), the standard streams are flushed,
-    then ``os._exit`` skips the rest.
+    first), then :func:`mosd.app.compat.fast_exit`: the ``atexit`` handlers run as
+    at any exit (joblib's temporary folders, logging's flush, a sweep's parent run),
+    and the last of them flushes the standard streams and ends the process with
+    ``os._exit`` before the teardown (public APIs only).
     """
-    import os
-
-    from .compat import run_exit_handlers
+    from .compat import fast_exit
     from .signals import shutdown_workers
 
     shutdown_workers()
-    try:
-        run_exit_handlers()
-    finally:
-        for stream in (sys.stdout, sys.stderr):
-            try:
-                stream.flush()
-            except (OSError, ValueError):  # a closed pipe: nothing more can reach it
-                pass
-        os._exit(code)
+    fast_exit(code)
 
 
 def spare_core() -> bool:

@@ -11,9 +11,7 @@ adapter, :mod:`mosd.optim.workers`: the science core cannot import the app.)
   and Hydra has no public parser: ``tests/test_compat.py`` compares the two).
 * :func:`fast_exit` — the fast exit (:func:`mosd.app.exit_now`): every registered cleanup handler runs, the
   interpreter's teardown does not, through an ordinary ``SystemExit`` and a last exit handler that
-  :mod:`mosd.__main__` registers first. :func:`run_exit_handlers` (``atexit._run_exitfuncs``, private: the
-  standard library has no public way to run the handlers now) remains only until ``exit_now`` calls
-  :func:`fast_exit`.
+  :mod:`mosd.__main__` registers first (was ``atexit._run_exitfuncs``, private).
 * :func:`unverified_tls_context` — public now: preflight's look at a tracking server honours MLflow's
   ``MLFLOW_TRACKING_INSECURE_TLS`` as MLflow's client does (no certificate check, no host name check), with
   ``ssl.create_default_context()`` and both checks turned off (was ``ssl._create_unverified_context``).
@@ -95,13 +93,6 @@ def hydra_args_parser():
     parser.add_argument("--info", "-i", const="all", nargs="?", choices=list(HYDRA_INFO), help="Print Hydra information")
     parser.add_argument("overrides", nargs="*", help="Any key=value arguments to override config values")
     return parser
-
-
-def run_exit_handlers() -> None:
-    """Run and clear the ``atexit`` handlers now (private API, see the module; :func:`fast_exit` replaces it)."""
-    import atexit
-
-    atexit._run_exitfuncs()
 
 
 def fast_exit(code: int):
