@@ -13,6 +13,7 @@ import importlib
 import importlib.util
 import os
 import re
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -214,12 +215,26 @@ def test_the_page_runs_as_written(page, tmp_path):
             script = home / f".block{number}.py"
             script.write_text(text, encoding="utf-8")
             command = [sys.executable, str(script)]
+        # its own process group: whatever the block left running (a server it started) ends with it
+        block = subprocess.Popen(command, cwd=home, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                 text=True, start_new_session=True)
         try:
-            done = subprocess.run(command, cwd=home, env=env, capture_output=True, text=True,
-                                  timeout=BLOCK_TIMEOUT_S)
-        except subprocess.TimeoutExpired as exc:
+            stdout, stderr = block.communicate(timeout=BLOCK_TIMEOUT_S)
+        except subprocess.TimeoutExpired:
+            _end_group(block)
+            stdout, stderr = block.communicate()
             pytest.fail(f"docs/{page}, block {number} ({lang}) ran past {BLOCK_TIMEOUT_S} s:\n{text}\n"
-                        f"--- output ---\n{_tail(str(exc.stdout or '') + str(exc.stderr or ''))}")
-        if done.returncode != 0:
-            pytest.fail(f"docs/{page}, block {number} ({lang}) exited {done.returncode}:\n{text}\n"
-                        f"--- stdout ---\n{_tail(done.stdout)}\n--- stderr ---\n{_tail(done.stderr)}")
+                        f"--- stdout ---\n{_tail(stdout)}\n--- stderr ---\n{_tail(stderr)}")
+        finally:
+            _end_group(block)
+        if block.returncode != 0:
+            pytest.fail(f"docs/{page}, block {number} ({lang}) exited {block.returncode}:\n{text}\n"
+                        f"--- stdout ---\n{_tail(stdout)}\n--- stderr ---\n{_tail(stderr)}")
+
+
+def _end_group(process: subprocess.Popen) -> None:
+    """SIGKILL the process group the block started (its own id), if anything of it is left."""
+    try:
+        os.killpg(process.pid, signal.SIGKILL)
+    except (ProcessLookupError, PermissionError):
+        pass
