@@ -131,6 +131,8 @@ def opcua_bench(quick: bool = False, seed: int = 0) -> dict:
             "opcua_latency_rows": int(len(ms)),
             "opcua_samples_per_s": float(load_rows * TAGS / (last - first)) if last > first else float("nan"),
             "opcua_load_rows": load_rows,
+            # the replay's own pace in the load run: when it is near opcua_samples_per_s, the server is the bound
+            "opcua_server_samples_per_s": float((load_rows - 1) * TAGS / (fast["published"][-1] - first)),
             "opcua_alarm_writes_missing": int(np.isnan(slow["alarm"]).sum() + np.isnan(fast["alarm"]).sum()),
             "opcua_values_missing": _missing(slow["summary"]) + _missing(fast["summary"]),
             "opcua_load_average_1min": os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")}
