@@ -35,6 +35,7 @@ PACKAGES = {
     "mosd.denoisers": "denoisers",
     "mosd.metrics": "metrics (FAR, MDR, delays, the run's summary)",
     "mosd.optim": "optimisers (MO-PSO and the pymoo/jMetal adapters)",
+    "mosd.kernels": "compiled numerical kernels (numba)",
     "mosd.systems": "the systems' studies and report commands",
     "mosd.live": "live monitoring (OPC UA)",
     "mosd.app": "the application: Hydra, MLflow, preflight, serving",
