@@ -105,6 +105,16 @@ def test_fences_are_parsed_as_written():
     assert [n for n, _, _ in runnable(found)] == [1, 3]
 
 
+def test_a_failing_block_names_the_page_and_the_block(tmp_path):
+    found = runnable(fenced("```bash\necho fine\n```\n```console\nnot run\n```\n"
+                            "```python\nraise SystemExit('the third block fails')\n```\n"))
+    with pytest.raises(pytest.fail.Exception) as failed:
+        run_blocks("tutorials/example.md", found, tmp_path)
+    message = str(failed.value)
+    assert "docs/tutorials/example.md, block 3 (python) exited 1" in message
+    assert "the third block fails" in message
+
+
 def test_the_docs_dependencies_are_installed():
     """The docs extra is installed (the test extra has it): missing, this fails, never skips."""
     for name in DOCS_MODULES:
@@ -207,8 +217,14 @@ def test_the_page_runs_as_written(page, tmp_path):
         assert Path(skab).is_dir(), f"MOSD_SKAB={skab} is not a directory"
         (home / "SKAB").mkdir()
         (home / "SKAB" / "data").symlink_to(Path(skab).resolve())
+    run_blocks(page, executed_blocks(page), home)
+
+
+def run_blocks(page: str, found: list[tuple[int, str, str]], home: Path) -> None:
+    """Run ``found`` (from :func:`runnable`) in order in ``home``; the first that fails fails the test, naming
+    ``docs/<page>``, the block's number and language, its text and the tail of its output."""
     env = _env()
-    for number, lang, text in executed_blocks(page):
+    for number, lang, text in found:
         if lang == "bash":
             command = ["bash", "-euo", "pipefail", "-c", text]
         else:
