@@ -1261,7 +1261,9 @@ def test_a_full_outputs_disk_is_one_line_and_a_run_directory_that_says_what_it_l
     result = subprocess.run(args, cwd=tmp_path, env=_env(), capture_output=True, text=True, timeout=600,
                             preexec_fn=_limited_file_size(20_000))
     assert result.returncode == 1, result.stderr[-3000:]
-    lines = result.stderr.strip().splitlines()
+    # the kernel cache cannot take its 1 MiB probe under this limit either: one warning line says so (the NumPy
+    # path is used, mosd.kernels.cache.usable_place); the error itself is one line
+    lines = [ln for ln in result.stderr.strip().splitlines() if not ln.startswith("mosd: warning: kernel cache")]
     assert len(lines) == 1 and "Traceback" not in result.stderr, result.stderr[-3000:]
     assert "the run directory could not be written" in lines[0] and "File too large" in lines[0]
     run_dir, = set((tmp_path / "outputs" / "runs").iterdir()) - {whole}
@@ -1457,7 +1459,8 @@ def test_a_full_outputs_disk_in_a_sweep_is_one_line_per_job_and_exit_1(tmp_path,
                             capture_output=True, timeout=600, preexec_fn=_limited_file_size(20_000))
     assert result.returncode == 1, result.stderr[-3000:]
     assert "Traceback" not in result.stderr, result.stderr[-3000:]
-    lines = [ln for ln in result.stderr.splitlines() if ln.startswith("mosd:")]
+    lines = [ln for ln in result.stderr.splitlines()  # the kernel cache's own warning aside (the test above)
+             if ln.startswith("mosd:") and not ln.startswith("mosd: warning: kernel cache")]
     assert len(lines) == 2 and all("the run directory could not be written" in ln for ln in lines), lines
     jobs = sorted(p for p in next((tmp_path / "outputs" / "multirun").iterdir()).iterdir() if p.is_dir())
     assert [j.name for j in jobs] == ["0", "1"]
