@@ -379,7 +379,8 @@ def live_main(args) -> int:
     counts = monitor.aligner.counts
     print(f"{monitor.o.url}: {t.scored} samples scored, {t.alarms} alarms; missing: {counts['bad']} bad-quality "
           f"values, {counts['absent']} absent values, {counts['missing_rows']} missing rows"
-          f"{f'; {t.dropped} rows dropped (data.fill=drop)' if t.dropped else ''}; {t.history} values from history; {t.reconnects} reconnects; next sample "
+          f"{f'; {t.dropped} rows dropped (data.fill=drop)' if t.dropped else ''}; {t.history} values from history; "
+          f"{t.reconnects} reconnects; {t.extra.get('write_errors', 0)} refused writes; next sample "
           f"{monitor.aligner.next_number}", flush=True)
     return code
 

@@ -217,7 +217,14 @@ class LiveMonitor:
                 nodes.append(node)
                 values.append(ua.DataValue(ua.Variant(_as(out[column][i], kind), kind), SourceTimestamp=stamp))
         if nodes:
-            await client.write_values(nodes, values)
+            try:
+                await client.write_values(nodes, values)
+            except ua.UaStatusCodeError as exc:  # refused (not writable, wrong type): counted, scoring goes on
+                errors = self.totals.extra.get("write_errors", 0)
+                self.totals.extra["write_errors"] = errors + 1
+                if not errors:
+                    self.say(f"the server refused mosd's write of the outputs ({_reason(exc)}); scoring goes on, "
+                             "the log has every sample")
         if self.on_written is not None:
             self.on_written([s.number for s in scored["samples"]])
 
@@ -290,7 +297,8 @@ class LiveMonitor:
                 node = client.get_node(node_id)
                 if not await _exists(node):
                     node = await folder.add_variable(node_id, column, ua.Variant(_as(0, kind), kind))
-                    await node.set_writable()
+                # each time: a connection lost between the creation and this left the node read-only
+                await node.set_writable()
                 nodes.append(node)
             return nodes
         except ua.UaError as exc:
