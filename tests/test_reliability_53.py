@@ -56,8 +56,11 @@ def test_a_stop_after_the_results_are_printed_keeps_them_finished(tmp_path, sig,
     assert not [name for name in summary.get("missing", []) if not (run_dir / name).suffix == ".png"], summary
     # MLflow agrees with the run directory: a FINISHED run whose summary.json artifact says 'finished'
     deadline = time.monotonic() + 30  # a tracking process left to end the run alone finishes it shortly
+    store = tmp_path / "outputs" / "mlflow.db"
+    while not store.exists() and time.monotonic() < deadline:  # this test's client must not make the store itself
+        time.sleep(0.5)
     while True:
-        client, runs = _runs(f"sqlite:///{tmp_path / 'outputs' / 'mlflow.db'}")
+        client, runs = _runs(f"sqlite:///{store}")
         if [r.info.status for r in runs] == ["FINISHED"] or time.monotonic() > deadline:
             break
         time.sleep(0.5)
