@@ -144,13 +144,35 @@ def test_a_study_of_a_hundred_metrics_prints_grouped_short_lines():
     study = {f"{d}_fdr_{s}_idv{f}": 0.5 + f / 100 for d in ("lit", "tuned") for s in ("t2", "spe", "combined")
              for f in range(1, 19)}
     study.update({"lit_far_combined": 0.06, "tuned_far_combined": 0.01})
-    lines = study_lines("Study", study)
+    lines = study_lines("Study", study, shown=None)
     assert len(study) == 110 and max(map(len, lines)) <= 112
     assert lines[0] == "study     Study: 110 metrics"
     assert any(line.strip().startswith("lit_fdr_t2: idv1 0.51, idv2 0.52") for line in lines)
     assert sum("lit_far_combined 0.06" in line for line in lines) == 1
     # wrapped between metrics: no line starts with a value cut off from its name
     assert all(line.split()[0].startswith(("idv", "lit", "tuned")) for line in lines[1:])
+
+
+def test_a_long_study_is_one_line_on_the_screen():
+    """issue 51: the TE study's 384 metrics took about 80 lines of the summary."""
+    from mosd.app.summary import SHOWN_STUDY_METRICS, study_lines
+
+    long = {f"m{i}": float(i) for i in range(SHOWN_STUDY_METRICS + 1)}
+    assert study_lines("Study", long) == [f"study     Study: {len(long)} metrics, in summary.json (\"study\") and "
+                                          "the MLflow run (python -m mosd report --metrics study)"]
+    short = dict(list(long.items())[:3])
+    assert study_lines("Study", short)[0] == "study     Study: 3 metrics"
+
+
+def test_the_test_line_says_what_was_scored_and_no_interval_of_one_run():
+    from types import SimpleNamespace
+
+    from mosd.app.summary import _test_runs
+
+    recorded, simulated = SimpleNamespace(experiment=SimpleNamespace(data=object())), SimpleNamespace(
+        experiment=SimpleNamespace())
+    assert _test_runs(recorded, 1) == "1 run of the recorded data's test split (one run: no interval)"
+    assert _test_runs(simulated, 100) == "100 fresh replications, mean ± 95 % CI half-width"
 
 
 # -- 4. mosd report ----------------------------------------------------------------------------------

@@ -45,14 +45,23 @@ def bound_notes(params: Mapping[str, float], setup: Setup) -> list[str]:
     return notes
 
 
-def study_lines(name: str, study: Mapping[str, float], width: int = 110) -> list[str]:
-    """The ``study`` line of the summary, grouped and wrapped: one line per family of metrics.
+#: a study of more metrics than this is one line on the screen: where its metrics are (issue 51: TE's 384 took 80)
+SHOWN_STUDY_METRICS = 24
 
-    Metrics sharing a name up to their last ``_`` part (``lit_fdr_t2_idv1``,
-    ``lit_fdr_t2_idv2``, … of the TE study) form one family printed as
-    ``lit_fdr_t2: idv1 0.9988, idv2 …``; the rest are listed together; every line
-    is wrapped at ``width`` characters, between metrics.
+
+def study_lines(name: str, study: Mapping[str, float], width: int = 110,
+                shown: int | None = SHOWN_STUDY_METRICS) -> list[str]:
+    """The ``study`` lines of the summary: one line saying where a long study's metrics are, else grouped and wrapped.
+
+    A study of more than ``shown`` metrics (None: no limit) is one line: their count and where they are
+    (``summary.json``'s ``study``, the MLflow run, ``python -m mosd report --metrics study``). Otherwise metrics
+    sharing a name up to their last ``_`` part (``lit_fdr_t2_idv1``, ``lit_fdr_t2_idv2``, …) form one family
+    printed as ``lit_fdr_t2: idv1 0.9988, idv2 …``; the rest are listed together; every line is wrapped at
+    ``width`` characters, between metrics.
     """
+    if shown is not None and len(study) > shown:
+        return [f"study     {name}: {len(study)} metrics, in summary.json (\"study\") and the MLflow run "
+                "(python -m mosd report --metrics study)"]
     families: dict[str, list[tuple[str, str, float]]] = {}  # stem -> (full key, last part, value)
     for key, value in study.items():
         stem, _, tail = key.rpartition("_")
@@ -140,8 +149,9 @@ def result_lines(result, setup: Setup, metrics) -> str:
     n_test = int(metrics["n_test"])
     params = "  ".join(f"{k} = {v}" if isinstance(v, int) else f"{k} = {v:.4f}" for k, v in result.params.items())
 
-    def pm(key, digits=4):
-        return f"{metrics[key]:.{digits}f} ± {metrics[key + '_ci']:.{digits}f}"
+    def pm(key, digits=4):  # no "± nan": one run (or one detected run) has no interval
+        half = metrics[key + "_ci"]
+        return f"{metrics[key]:.{digits}f}" + (f" ± {half:.{digits}f}" if math.isfinite(half) else "")
 
     train = ", ".join(f"{k} {v:.4g}" for k, v in result.train_objectives.items())
     online = "online (causal detector)" if setup.experiment.detector.is_causal else \
@@ -149,7 +159,7 @@ def result_lines(result, setup: Setup, metrics) -> str:
     return "\n".join([
         f"chosen    {params}   (training: {train}; archive of {len(result.archive_F)})",
         *(f"          on the search bound: {note}" for note in bound_notes(result.params, setup)),
-        f"test      {n_test} fresh replications, mean ± 95 % CI half-width; {online}",
+        f"test      {_test_runs(setup, n_test)}; {online}",
         f"  FAR       {pm('far')}",
         f"  MDR       {pm('mdr')}",
         f"  accuracy  {pm('accuracy')}",
@@ -157,6 +167,14 @@ def result_lines(result, setup: Setup, metrics) -> str:
         f"  delay     {pm('delay_s', 4)} s over detected runs; censored median "
         f"{metrics['delay_censored_median_s']:.4g} s (undetected runs beyond the horizon)",
     ])
+
+
+def _test_runs(setup: Setup, n_test: int) -> str:
+    """What the test scored: fresh simulated replications, or the recorded data's test runs."""
+    recorded = getattr(setup.experiment, "data", None) is not None
+    runs = (f"{n_test} run{'s' * (n_test != 1)} of the recorded data's test split" if recorded
+            else f"{n_test} fresh replication{'s' * (n_test != 1)}")
+    return runs + (", mean ± 95 % CI half-width" if n_test > 1 else " (one run: no interval)")
 
 
 def closing_lines(setup: Setup, timings, run_dir, tracking_line, study=None) -> str:
