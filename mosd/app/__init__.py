@@ -16,10 +16,10 @@ Modules by job (docs/ARCHITECTURE.md has their import graph):
 * the command line: :mod:`.config` (where the configs are, which keys exist),
   :mod:`.preflight` (the whole command line checked before Hydra creates
   anything), :mod:`.build` (config → validated components), :mod:`.compat`
-  (the only contact with Hydra's and the standard library's private parts);
+  (where mosd meets Hydra's and the standard library's internals, through their public APIs);
 * one run: :mod:`.run` (the Hydra task), :mod:`.signals` (stop signals),
   :mod:`.files` (the run directory), :mod:`.summary` (printed metrics),
-  :mod:`.progress`, :mod:`.plots` (the figure process);
+  :mod:`.progress`, :mod:`.plots` (the figure process), :mod:`.figures` (the run's figures);
 * tracking: :mod:`.settings` (the ``tracking`` section), :mod:`.store` (the sqlite
   store's lock and health), :mod:`.checks` (preflight's checks of the outputs and
   the store), :mod:`.mlflow_client` (the only code that talks to MLflow),
