@@ -53,12 +53,12 @@ def _env():
 
 
 @contextlib.contextmanager
-def replay_server(path, port=None, epoch=None, speed=SPEED, wait=60):
+def replay_server(path, port=None, epoch=None, speed=SPEED, extra=()):
     """``python -m mosd.replay --opcua`` on ``path``: yields (url, epoch, process); SIGTERM at the end."""
     port = port or free_port()
     epoch = time.time() + 4 if epoch is None else epoch
     process = subprocess.Popen([sys.executable, "-m", "mosd.replay", "--opcua", "--port", str(port), "--speed",
-                                str(speed), "--epoch", repr(epoch), str(path)], env=_env(), stdout=subprocess.PIPE,
+                                str(speed), "--epoch", repr(epoch), *extra, str(path)], env=_env(), stdout=subprocess.PIPE,
                                stderr=subprocess.STDOUT, text=True)
     line = process.stdout.readline()  # the server listens once it prints
     assert "replaying" in line, line + process.stdout.read()[-2000:]
@@ -246,6 +246,24 @@ def test_server_killed_and_restarted_mid_stream_is_backfilled_from_its_history(t
     # the restarted server lost mosd's nodes: created again, the last sample's alarm written there
     assert written.Value.Value == bool(log["alarm"].iloc[-1]), out
     assert written.SourceTimestamp.timestamp() == pytest.approx(epoch + (ROWS - 1) * 60.0, abs=1e-3), out
+
+
+def test_without_history_the_samples_before_the_subscription_are_logged_as_missing_rows(tuned):
+    """A server that keeps no history: what was published before the monitor subscribed cannot be read back;
+    those samples are logged as missing rows (missing = every tag) and counted, the rest scored."""
+    import pandas as pd
+
+    tmp = tuned["tmp"]
+    with replay_server(tmp / "test.csv", extra=("--no-history",)) as (url, epoch, _):
+        time.sleep(max(0.0, epoch + 1.0 - time.time()))  # rows have been published before the monitor starts
+        live = monitor(live_args(url, tuned["npz"], tmp, "nohistory", epoch))
+        out, err = live.communicate(timeout=300)
+    assert live.returncode == 0, err[-2000:]
+    log = pd.read_csv(tmp / "nohistory.csv")
+    assert list(log["sample"]) == list(range(ROWS))
+    gap = log["missing"].to_numpy() == len(TAGS)
+    assert gap[0] and set(log["missing"]) <= {0, len(TAGS)}
+    assert f"{int(gap.sum())} missing rows" in out and " 0 values from history" in out, out
 
 
 def _one_line_exit_2(capsys, args, *needles):

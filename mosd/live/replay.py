@@ -9,7 +9,7 @@ historian's ``Bad``) is published with status ``BadSensorFailure`` and value 0.0
 anyway would score a wrong zero, which the tests would see.
 
 History: every published value is stored in the server's in-memory history (HistoryRead, raw), so a
-client that was away backfills the gap. A server restarted with the same ``--epoch`` first stores every
+client that was away backfills the gap (``--no-history``: none; the gap is then missing rows). A server restarted with the same ``--epoch`` first stores every
 row that was due while it was down, as a historian that kept recording would hold them, then goes on
 live. ``--hold`` seconds before the first row gives clients time to subscribe.
 
@@ -122,12 +122,13 @@ def _local_users():
 class ReplayServer:
     """The asyncua server replaying a :class:`Recording` (module docstring); ``async with`` starts and stops it."""
 
-    def __init__(self, recording: Recording, port: int = 4840, speed: float = 1.0, epoch: float | None = None):
+    def __init__(self, recording: Recording, port: int = 4840, speed: float = 1.0, epoch: float | None = None,
+                 history: bool = True):
         if not (speed > 0 and math.isfinite(speed)):
             raise ConfigError(f"--speed={speed!r} is out of range; allowed: a number > 0")
         if not 0 < port < 65536:
             raise ConfigError(f"--port={port} is out of range; allowed: 1..65535")
-        self.recording, self.port, self.speed = recording, port, speed
+        self.recording, self.port, self.speed, self.keeps_history = recording, port, speed, history
         self.epoch = time.time() if epoch is None else float(epoch)
         self.url = f"opc.tcp://127.0.0.1:{port}/mosd/"
         #: wall time (time.time) at which row i's last tag was written, for the bench's latency
@@ -157,7 +158,8 @@ class ReplayServer:
                 ua.AccessLevel.CurrentRead.mask | ua.AccessLevel.HistoryRead.mask, ua.VariantType.Byte)))
             await node.write_attribute(ua.AttributeIds.Historizing,
                                        ua.DataValue(ua.Variant(True, ua.VariantType.Boolean)))
-            await self.history.new_historized_node(node.nodeid, None, 0)
+            if self.keeps_history:
+                await self.history.new_historized_node(node.nodeid, None, 0)
             # no value before row 0: a client subscribing early must not take the placeholder for a sample
             await self.server.write_attribute_value(node.nodeid, ua.DataValue(
                 ua.Variant(0.0, ua.VariantType.Double), StatusCode=ua.StatusCode(ua.StatusCodes.BadWaitingForInitialData)))
@@ -186,7 +188,8 @@ class ReplayServer:
                               StatusCode=ua.StatusCode(ua.StatusCodes.Good if good else ua.StatusCodes.BadSensorFailure),
                               SourceTimestamp=stamp, ServerTimestamp=now)
             await self.server.write_attribute_value(node.nodeid, dv)
-            await self.history.save_node_value(node.nodeid, dv)
+            if self.keeps_history:
+                await self.history.save_node_value(node.nodeid, dv)
         self.published[row] = time.time()
 
     async def replay(self, stop: asyncio.Event | None = None) -> int:
@@ -222,6 +225,8 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--epoch", type=float, default=None, help="wall time (Unix seconds) of row 0 (default: now + "
                    "--hold); a server restarted with the same epoch holds the rows due meanwhile in its history")
     p.add_argument("--hold", type=float, default=0.0, help="seconds before row 0 is published (default 0)")
+    p.add_argument("--no-history", action="store_true", help="keep no history (a server without HistoryRead: a "
+                   "client's gap is missing rows)")
     p.add_argument("--linger", type=float, default=3600.0, help="seconds the server stays up after the last row")
     return p
 
@@ -234,7 +239,7 @@ async def _serve(args) -> int:
     for sig in (signal.SIGTERM, signal.SIGINT):
         loop.add_signal_handler(sig, stop.set)
     try:
-        server = ReplayServer(recording, args.port, args.speed, epoch)
+        server = ReplayServer(recording, args.port, args.speed, epoch, history=not args.no_history)
         async with server:
             print(f"replaying {len(recording.values)} rows x {len(recording.tags)} tags of {args.file} at "
                   f"{server.url} (step {recording.step:g} s, speed {args.speed:g}, epoch {epoch:.3f})", flush=True)
