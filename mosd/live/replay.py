@@ -69,7 +69,10 @@ def read_recording(path: str, time_column: str | None = None, drop: Sequence[str
 
     from ..app.monitor import read_data
 
-    frame = read_data(path)
+    try:
+        frame = read_data(path)
+    except ConfigError as exc:
+        raise ConfigError(str(exc).replace("DATA=", "FILE=")) from None
     if frame.shape[1] == 1 and ";" in str(frame.columns[0]):  # SKAB's files are ';'-separated
         frame = pd.read_csv(Path(path).expanduser(), sep=";")
     frame.columns = [str(c) for c in frame.columns]
@@ -210,8 +213,14 @@ class ReplayServer:
         return self.next_row
 
 
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):  # one line, exit 2 (argparse prints the usage first)
+        print(f"mosd replay: error: {message}", file=sys.stderr)
+        raise SystemExit(2)
+
+
 def parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog=PROG, description="Replay a recorded table as a live OPC UA server on 127.0.0.1.")
+    p = _Parser(prog=PROG, description="Replay a recorded table as a live OPC UA server on 127.0.0.1.")
     p.add_argument("file", help="a .csv or .parquet table: one row per sample (a data=table file, a TE export, a "
                    "SKAB CSV)")
     p.add_argument("--opcua", action="store_true", required=True, help="serve over OPC UA (the only protocol)")
