@@ -71,7 +71,8 @@ def parser() -> argparse.ArgumentParser:
                       "with the same file the monitor continues where it stopped")
     live.add_argument("--step", type=float, default=None, help="the model's sampling step in seconds (required "
                       "with --opcua): samples are aligned to it")
-    live.add_argument("--interval", type=float, default=None, help="publishing interval in seconds (default: --step)")
+    live.add_argument("--interval", type=float, default=None, help="publishing interval in seconds (default: --step, "
+                      "at most 1)")
     live.add_argument("--since", default=None, help="the time of the first sample to score (Unix seconds or "
                       "ISO-8601): earlier samples come from the server's history (default: the first value seen)")
     live.add_argument("--samples", type=int, default=None, help="stop after this many samples from the first "

@@ -41,6 +41,8 @@ NODE_ID = re.compile(r"^(ns=\d+;|nsu=[^;]+;)?[isgb]=")
 #: the namespace of the nodes mosd creates for its outputs
 OUTPUT_NAMESPACE = "urn:mosd:monitor"
 STATE_FORMAT = 1
+#: the default publishing interval, s: the model's step, at most this (an alarm waits for the next publish)
+MAX_INTERVAL = 1.0
 
 
 @dataclass
@@ -93,7 +95,8 @@ class LiveMonitor:
         self.inputs = tuple(pipeline.inputs)
         self.state_names = tuple(pipeline.state_names)
         self.state = pipeline.initial_state()
-        self.late = options.late if options.late is not None else 1.0 + 2 * (options.interval or options.step)
+        self.interval = options.interval if options.interval is not None else min(options.step, MAX_INTERVAL)
+        self.late = options.late if options.late is not None else 1.0 + 2 * self.interval
         self.aligner = Aligner(len(self.inputs), options.step, t_ref=options.since, late=self.late)
         self.fill = CausalFill(pipeline.fill, len(self.inputs))
         self.totals = Totals()
@@ -353,7 +356,7 @@ class LiveMonitor:
     async def subscribe(self, client):
         from asyncua import ua
 
-        period = 1000.0 * (self.o.interval if self.o.interval is not None else self.o.step)
+        period = 1000.0 * self.interval
         monitor = self
 
         class Handler:
