@@ -263,6 +263,8 @@ def pareto_front(path: str | Path, F: np.ndarray, chosen: int | None = None, tit
     labels : pair of str
         The objectives' names.
 
+    Notes
+    -----
     When some designs are far from the best trade-off (:func:`zoom_box`) the
     axes zoom on the designs near it and an inset shows the whole archive.
     """

@@ -185,6 +185,8 @@ def run(cfg, started: float | None = None, checked=None):
         The components preflight built for the command's jobs: this job takes its
         own instead of building them again (a job in another process builds them).
 
+    Notes
+    -----
     The steps: :func:`_setup_job` (components, cores), :func:`_start_job` (MLflow run, progress, header),
     :func:`_optimise` (the tuning, the test, the study), :func:`_write_files` (the run directory, MLflow's
     early batches), :func:`_finish_tracking` (the MLflow run ended), :func:`_print_summary`; on an

@@ -120,6 +120,8 @@ def persistent(condition: np.ndarray, length: np.ndarray | int, carried: np.ndar
     counts : bool
         Also return the run length after each point, shape (P, ..., K) (int64).
 
+    Notes
+    -----
     Compiled (:func:`mosd.kernels.decisions.persistence`: one pass per row); :func:`run_lengths`'
     cumulative counting is the reference, used with the kernels off.
     """
