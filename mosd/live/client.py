@@ -363,7 +363,7 @@ class LiveMonitor:
             def datachange_notification(self, node, val, data):
                 monitor.queue.put_nowait((monitor.index.get(node.nodeid), data.monitored_item.Value))
 
-        subscription = await client.create_subscription(period, Handler(), queue_maxsize=0)
+        subscription = await client.create_subscription(period, Handler())
         trigger = ua.DataChangeFilter(Trigger=ua.DataChangeTrigger.StatusValueTimestamp)
         requests = []
         for j, node in enumerate(self.tag_nodes):
