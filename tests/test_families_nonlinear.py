@@ -299,7 +299,12 @@ def test_served_models_score_from_saved_arrays_without_sklearn_or_torch(tmp_path
             assert all(stored[k].dtype != object for k in stored.files)
     for module in [m for m in sys.modules if m.split(".")[0] in ("sklearn", "torch")]:
         monkeypatch.setitem(sys.modules, module, None)
+    import mosd.detectors
+
     for module in ("mosd.detectors.ica", "mosd.detectors.kpca", "mosd.detectors.autoencoder"):
+        # the import below binds the fresh module to the package too: restored with sys.modules at teardown, or a
+        # later test's Hydra-built detector (found through the package) is not an instance of the class others import
+        monkeypatch.setattr(mosd.detectors, module.rsplit(".", 1)[1], sys.modules[module])
         monkeypatch.delitem(sys.modules, module)
     for name, (path, expected) in saved.items():
         again = OnlinePipeline.load(path).update(columns)
