@@ -199,4 +199,9 @@ def test_no_detection_with_time_column_false_or_two_timestamp_columns(tmp_path, 
     two = _stamped(tmp_path, again=lambda f: f["stamp"])
     table = Table(str(two), label_column="fault", tags=tags)
     assert table.time_column is None and table.dt == 1.0
+    # timestamps out of order are not the table's clock unless data.sort=true (a named column would be refused)
+    shuffled = _stamped(tmp_path, stamp=lambda f: f["stamp"].iloc[::-1].to_numpy())
+    table = Table(str(shuffled), label_column="fault", tags=tags)
+    assert table.time_column is None and table.dt == 1.0
     assert "holds a timestamp" not in capsys.readouterr().out
+    assert Table(str(shuffled), label_column="fault", tags=tags, sort=True).time_column == "stamp"

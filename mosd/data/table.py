@@ -299,8 +299,9 @@ class Table(RecordedData):
         return np.asarray(seconds, float)
 
     def _detected_time(self, frame, columns: list[str], label_name: str | None):
-        """(name, seconds) of the one column whose every cell is a timestamp, when ``time_column`` is not set; said
-        in one line. (None, None) when no column, or more than one, is: the rows are then numbered."""
+        """(name, seconds) of the one column whose every cell is a timestamp, in strictly increasing time (in any
+        order with ``sort``), when ``time_column`` is not set; said in one line. (None, None) when no column, or
+        more than one, is: the rows are then numbered, as before the detection."""
         import pandas as pd
 
         found = []
@@ -316,6 +317,8 @@ class Table(RecordedData):
                 seconds = self._seconds(column, name)
             except ConfigError:
                 continue
+            if not self.sort and not np.all(np.diff(seconds) > 0):
+                continue  # not this table's clock (a date per batch, a shuffled export): a named column is refused
             found.append((name, seconds))
         if len(found) != 1:
             return None, None
