@@ -10,6 +10,8 @@ the same.
 """
 from __future__ import annotations
 
+import contextlib
+
 import numpy as np
 import pytest
 
@@ -80,7 +82,7 @@ def test_whole_chunked_and_row_by_row_equal_the_population(name, numpy_path):
     rng = np.random.default_rng(7)
     z = _points(name, rng)
     X = np.asarray(designs, float)
-    with kernels.disabled() if numpy_path else _nothing():
+    with kernels.disabled() if numpy_path else contextlib.nullcontext():
         decided = detector.population(detector.features(z[:1]), detector.features(z), X)
         for p, design in enumerate(X):
             tuned = detector.candidates(design[None])[0]
@@ -104,14 +106,6 @@ def test_whole_chunked_and_row_by_row_equal_the_population(name, numpy_path):
                                                rtol=RTOL, equal_nan=True)
                     for state_name in pipeline.state_names:
                         np.testing.assert_array_equal(got[state_name], whole[state_name])
-
-
-class _nothing:
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        return False
 
 
 def test_decisions_do_alarm_in_these_cases():
