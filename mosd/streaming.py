@@ -349,11 +349,12 @@ class OnlinePipeline:
         stages = []
         for i, entry in enumerate(meta["stages"]):
             _mosd_module(entry["class"], "model stage class")   # registers its older stage classes, if any
+            own = {k.split(".", 1)[1]: v for k, v in arrays.items() if k.startswith(f"s{i}.")}
             if entry["class"] in LEGACY_STAGES:  # a stage class of older models: what replaced it reads its fields
-                stages.append(LEGACY_STAGES[entry["class"]](entry["fields"]))
+                # (its scalars and its arrays, one mapping: a stage with fitted arrays saved them beside the JSON)
+                stages.append(LEGACY_STAGES[entry["class"]]({**entry["fields"], **own}))
                 continue
             stage_cls = mosd_class(entry["class"], "model stage class")
-            own = {k.split(".", 1)[1]: v for k, v in arrays.items() if k.startswith(f"s{i}.")}
             stages.append(stage_cls.from_fields(entry["fields"], own))
         return cls(stages=stages, fill=meta.get("fill", "none"))
 
