@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 
 from mosd.detectors.pca import PCADetector
-from mosd.monitors.outputs import OnlineSelect
+from mosd.monitors.outputs import OutputMonitor
 from mosd.streaming import OnlinePipeline
 from mosd.validation import ConfigError
 
@@ -44,10 +44,10 @@ def _same(a, b):
 
 
 class FittedPCA:
-    """The pipeline a PCA run deploys (OnlineSelect → OnlinePCA), scored on tag rows."""
+    """The pipeline a PCA run deploys (the selection monitor → OnlinePCA), scored on tag rows."""
 
     def __init__(self, detector, calibration, tags=TAGS):
-        self.pipeline = OnlinePipeline([OnlineSelect(columns=tuple(tags), burn_in=0), detector.online(calibration, tags)])
+        self.pipeline = OnlinePipeline([OutputMonitor(burn_in=0).online(tuple(tags)), detector.online(calibration, tags)])
         self.pca = self.pipeline.stages[-1]
 
     def score(self, X, state=None, top=True):

@@ -29,8 +29,8 @@ from mosd.app import model_state
 from mosd.data.table import Table
 from mosd.detectors.chart import OnlineChart
 from mosd.detectors.pca import PCADetector
-from mosd.monitors.outputs import OnlineSelect
-from mosd.monitors.subgroups import OnlineSubgroups
+from mosd.monitors.outputs import OutputMonitor
+from mosd.monitors.step import MonitorStage
 from mosd.streaming import OnlinePipeline
 from mosd.validation import ConfigError
 
@@ -40,7 +40,7 @@ STATE = ("ewma_t2", "ewma_spe", "run_length")
 
 def pca_pipeline(detector, calibration, tags, fill="none") -> OnlinePipeline:
     """What a PCA run deploys: its tags selected, the tuned PCA (mosd.app.deploy builds the same)."""
-    return OnlinePipeline([OnlineSelect(columns=tuple(tags), burn_in=0), detector.online(calibration, tuple(tags))],
+    return OnlinePipeline([OutputMonitor(burn_in=0).online(tuple(tags)), detector.online(calibration, tuple(tags))],
                           fill=fill)
 
 
@@ -229,8 +229,8 @@ def test_the_domains_hold_every_state_the_model_itself_gives(fitted_pca):
 
 def test_impossible_chart_state_is_refused_naming_the_param():
     chart = OnlinePipeline([
-        OnlineSubgroups(columns=("residual_x",), mean=np.array([0.0]), std=np.array([1.0]), subgroup="window", n=5,
-                        burn_in=10),
+        MonitorStage(monitor="mosd.monitors.subgroups.SubgroupMonitor", design={"n": 5, "burn_in": 10},
+                     fitted={"mean": np.array([0.0]), "std": np.array([1.0])}, columns=("residual_x",)),
         OnlineChart(detector="mosd.detectors.mean_variance.SSDEWMA", design={"lam": 0.2, "K": 3.0, "limit": "phase1"},
                     limit_value=2.0, n=5)])
     rows = pd.DataFrame({"residual_x": np.random.default_rng(0).normal(size=40)})

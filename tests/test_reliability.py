@@ -1128,14 +1128,14 @@ def test_a_run_whose_artifacts_did_not_fit_is_failed_and_mosd_log_completes_it_o
     from mosd.app import pending
     from mosd.app.tracker import RunTracker
     from mosd.detectors.chart import OnlineChart
-    from mosd.monitors.subgroups import OnlineSubgroups
+    from mosd.monitors.step import MonitorStage
     from mosd.streaming import OnlinePipeline
 
     run_dir = tmp_path / "run"
     files = _run_dir_with_results(run_dir)
     model = OnlinePipeline([
-        OnlineSubgroups(columns=("residual_a",), mean=np.array([0.3]), std=np.array([2.0]), subgroup="window", n=5,
-                        burn_in=20),
+        MonitorStage(monitor="mosd.monitors.subgroups.SubgroupMonitor", design={"n": 5, "burn_in": 20},
+                     fitted={"mean": np.array([0.3]), "std": np.array([2.0])}, columns=("residual_a",)),
         OnlineChart(detector="mosd.detectors.mean_variance.SSDEWMA", design={"lam": 0.25, "K": 1.0,
                                                                              "limit": "theoretical"},
                     limit_value=float("nan"), n=5)]).save(run_dir / "model")

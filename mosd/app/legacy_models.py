@@ -25,8 +25,7 @@ def load_legacy(path: str | Path) -> OnlinePipeline:
     """The pipeline of an old ``chart_detector.npz`` or ``pca_detector.npz``."""
     from ..detectors.chart import OnlineChart
     from ..detectors.pca import OnlinePCA
-    from ..monitors.outputs import OnlineSelect
-    from ..monitors.subgroups import OnlineSubgroups
+    from ..monitors.step import LEGACY as LEGACY_MONITORS
 
     path = Path(path)
     arrays, meta = _read(path)
@@ -34,8 +33,9 @@ def load_legacy(path: str | Path) -> OnlinePipeline:
     if path.name == "chart_detector.npz":
         columns = tuple(str(c) for c in arrays["columns"])
         n = int(meta["n"])
-        monitor = OnlineSubgroups(columns=columns, mean=arrays["mean"], std=arrays["std"], subgroup=meta["subgroup"],
-                                  n=n, burn_in=int(meta["burn_in"]))
+        monitor = LEGACY_MONITORS["mosd.monitors.subgroups.OnlineSubgroups"]({   # the monitor stage such files named
+            "columns": columns, "mean": arrays["mean"], "std": arrays["std"], "subgroup": meta["subgroup"], "n": n,
+            "burn_in": int(meta["burn_in"])})
         if meta["chart"] == "EWMA":
             detector, design = "mosd.detectors.ewma_chart.EWMA", {"lam": meta["lam"], "L": meta["K"]}
         else:
@@ -45,4 +45,5 @@ def load_legacy(path: str | Path) -> OnlinePipeline:
         return OnlinePipeline([monitor, chart], fill=fill)
     tags = tuple(str(t) for t in arrays.pop("tags"))
     pca = OnlinePCA(tags=tags, **arrays, **meta)
-    return OnlinePipeline([OnlineSelect(columns=tags, burn_in=0), pca], fill=fill)
+    select = LEGACY_MONITORS["mosd.monitors.outputs.OnlineSelect"]({"columns": tags, "burn_in": 0})
+    return OnlinePipeline([select, pca], fill=fill)

@@ -14,11 +14,11 @@ from .detector_model import log_model
 def _pca_pipeline(calibration, tags):
     """The literature's design (9 components, α = 0.01) on ``calibration`` as a deployable pipeline."""
     from ..detectors.pca import PCADetector
-    from ..monitors.outputs import OnlineSelect
+    from ..monitors.outputs import OutputMonitor
     from ..streaming import OnlinePipeline
 
     detector = PCADetector(n_components=9, alpha=0.01, fit_runs=1)
-    return OnlinePipeline([OnlineSelect(columns=tuple(tags), burn_in=0), detector.online(calibration, tags)])
+    return OnlinePipeline([OutputMonitor(burn_in=0).online(tuple(tags)), detector.online(calibration, tags)])
 
 
 def monitor_benchmark(quick: bool = False) -> dict:

@@ -40,7 +40,7 @@ def _free_port() -> int:
 def _pipeline(directory: Path, rng: np.random.Generator):
     """A PCA pipeline on 100 tags (5 latent factors), saved; (path, test rows with a shift on tags 0-4)."""
     from ..detectors.pca import PCADetector
-    from ..monitors.outputs import OnlineSelect
+    from ..monitors.outputs import OutputMonitor
     from ..streaming import OnlinePipeline
 
     tags = tuple(f"tag{i:03d}" for i in range(TAGS))
@@ -51,7 +51,7 @@ def _pipeline(directory: Path, rng: np.random.Generator):
 
     calibration = np.stack([rows(600), rows(600)])
     detector = PCADetector(fit_runs=1, max_components=10, n_components=5, alpha=0.01)
-    pipeline = OnlinePipeline([OnlineSelect(columns=tags, burn_in=0), detector.online(calibration, tags)])
+    pipeline = OnlinePipeline([OutputMonitor(burn_in=0).online(tags), detector.online(calibration, tags)])
     test = rows(4000)
     test[::7, :5] += 3.0  # some alarms to write
     return pipeline.save(directory), tags, test

@@ -9,22 +9,26 @@ estimator's ``extra`` (or ``"residual"`` for r itself), of shape (R, N) or
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
 
-from ..streaming import COUNT, OnlineStage, StateVar
+from ..streaming import COUNT, StateVar
 from ..types import Residuals, Subgroups
 from ..validation import ConfigError, Interval, Param, check_names
-from .base import Monitor, _grid
+from .base import _grid
+from .step import StepMonitor, after_rows
 
 
 _ALLOWED = "names of estimator outputs, e.g. [residual]"
 
 
-class OutputMonitor(Monitor):
-    """Select outputs by name (module docstring)."""
+class OutputMonitor(StepMonitor):
+    """Select outputs by name (module docstring).
+
+    Its step (:mod:`mosd.monitors.step`): every row past the first ``burn_in`` is a point, its values the
+    selected outputs as they are; the state is ``samples_seen``, the rows since the stream's start.
+    """
 
     params = {
         "outputs": Param(lambda key, value, monitor: check_names(key, value, _ALLOWED),
@@ -72,67 +76,27 @@ class OutputMonitor(Monitor):
                     names.append(f"{name}_{j}")
         return tuple(names)
 
-    def online(self, inputs) -> OnlineSelect:
-        """The causal form on the stream's columns ``inputs`` (:meth:`columns`)."""
-        return OnlineSelect(columns=tuple(inputs), burn_in=int(self.burn_in))
+    # -- the step (mosd.monitors.step) -------------------------------------------------------
+    def step_state(self, params: dict, width: int) -> dict:
+        return {"samples_seen": (StateVar("Rows seen since the stream's start.", COUNT), 0)}
+
+    def scan(self, params: dict, state: dict, X: np.ndarray, trajectory: bool = False) -> dict[str, np.ndarray]:
+        """Every row past the burn-in is a point; its values are the row's (:meth:`StepMonitor.scan`)."""
+        rows = X.shape[1]
+        seen, index = after_rows(state, rows, self.burn_in)
+        at = np.flatnonzero(index >= 0)
+        # the rows past the burn-in are a suffix of the chunk: z is a view of X
+        out = {"at": at, "point": index[at] + 1, "z": X[:, rows - len(at):]}
+        if trajectory:
+            out["samples_seen"] = np.broadcast_to(seen + np.arange(1, rows + 1, dtype=np.int64), X.shape[:2])
+        return out
 
     def transform(self, outputs: Residuals) -> Subgroups:
         n_points = outputs.fault_mask.shape[-1]
         if self.burn_in >= n_points:
             raise ConfigError(f"monitor.burn_in={self.burn_in} leaves no point of a {n_points}-point run; "
                               f"allowed: 0..{n_points - 1}")
-        z = self._select(outputs)[:, self.burn_in:]
-        return Subgroups(z=z, fault_mask=outputs.fault_mask[:, self.burn_in:],
-                         fault_label=outputs.fault_label[:, self.burn_in:], fault_roles=outputs.fault_roles,
-                         t=_grid(outputs)[self.burn_in:])
-
-
-@dataclass
-class OnlineSelect(OnlineStage):
-    """:class:`OutputMonitor`'s causal form: the selected output columns in, the detector's points out.
-
-    Outputs per row: ``point``, the number k = 1, 2, ... of the point the row is (0 in the burn-in), and
-    the row's values as ``z_1`` ... ``z_n`` (NaN in the burn-in; internal: they feed the detector).
-    State: ``samples_seen`` (rows since the stream's start).
-    """
-
-    columns: tuple
-    burn_in: int
-
-    @property
-    def inputs(self) -> tuple[str, ...]:
-        return tuple(self.columns)
-
-    @property
-    def points(self) -> tuple[str, ...]:
-        cached = self.__dict__.get("_points")  # asked for on every served request: made once
-        if cached is None or len(cached) != len(self.columns):
-            cached = self.__dict__["_points"] = tuple(f"z_{j}" for j in range(1, len(self.columns) + 1))
-        return cached
-
-    @property
-    def outputs(self) -> tuple[str, ...]:
-        return ("point", *self.points)
-
-    @property
-    def internal(self) -> tuple[str, ...]:
-        return ("point", *self.points)   # the detector's outputs say what each point decided
-
-    def state_vars(self) -> dict[str, StateVar]:
-        return {"samples_seen": StateVar("Rows seen since the stream's start.", COUNT)}
-
-    def initial_state(self) -> dict:
-        return {"samples_seen": 0}
-
-    def update(self, columns, state) -> dict[str, np.ndarray]:
-        first = next(iter(columns.values())) if columns else np.empty(0)
-        rows, seen = len(first), int(state["samples_seen"])
-        index = seen + np.arange(rows) - self.burn_in            # point index past the burn-in (< 0: in it)
-        live = index >= 0
-        out = {"point": np.where(live, index + 1, 0).astype(np.int64)}
-        every = bool(live.all())  # past the burn-in: the columns pass as they are
-        for name, column in zip(self.points, self.columns):
-            values = np.asarray(columns[column], float)
-            out[name] = values if every else np.where(live, values, np.nan)
-        out["samples_seen"] = seen + np.arange(1, rows + 1, dtype=np.int64)
-        return out
+        points = self.points(self._select(outputs))
+        at = slice(n_points - len(points["at"]), None)   # the points: the rows past the burn-in
+        return Subgroups(z=points["z"], fault_mask=outputs.fault_mask[:, at],
+                         fault_label=outputs.fault_label[:, at], fault_roles=outputs.fault_roles, t=_grid(outputs)[at])

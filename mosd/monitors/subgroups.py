@@ -14,18 +14,29 @@ Two subgrouping modes feed the n-sample statistics of eqs. 19–20:
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 
-from ..streaming import COUNT, FINITE, OnlineStage, StateVar
+from ..streaming import COUNT, FINITE, StateVar
 from ..types import Residuals, Subgroups
 from ..validation import ConfigError, Interval, Param
 from .base import Monitor, _grid
+from .step import StepMonitor, after_rows
 
 
-class SubgroupMonitor(Monitor):
-    """Standardise residuals with Phase-I statistics and cut them into subgroups."""
+class SubgroupMonitor(StepMonitor):
+    """Standardise residuals with Phase-I statistics and cut them into subgroups.
+
+    Its step (:mod:`mosd.monitors.step`): the first ``burn_in`` rows are skipped; past them a ``window``
+    subgroup closes on every n-th row (its n standardised residuals), a ``channels`` subgroup on every row
+    (the row's standardised channels). State: ``samples_seen`` (rows since the stream's start) and, for
+    ``window`` subgroups, the raw residuals of the unfinished subgroup (``pending_1`` ... ``pending_{n-1}``;
+    only the first ``(samples_seen − burn_in) mod n`` count). The served stage shows the point's number
+    as ``subgroup`` too, and refuses a missing residual (a subgroup with one has no U_k, V_k).
+    """
+
+    numbered = ("subgroup", "point")
+    accepts_missing = False
 
     params = {
         "subgroup": Param(("window", "channels"), "Subgrouping mode (module docstring)."),
@@ -71,133 +82,96 @@ class SubgroupMonitor(Monitor):
         return super().fault_scale(calibration, channel)
 
     def transform(self, residuals: Residuals) -> Subgroups:
-        """Standardised subgroups z of shape (R, K, n) and their fault mask (R, K)."""
+        """Standardised subgroups z of shape (R, K, n) and their fault mask (R, K): :meth:`scan` from the start."""
         self._check_fitted()
-        z = (self._monitored(residuals) - self.mean_) / self.std_
-        mask = residuals.fault_mask[:, self.burn_in :]
-        label = residuals.fault_label[:, self.burn_in :]
-        t = _grid(residuals)[self.burn_in :]
-        if self.subgroup == "channels":
-            return Subgroups(z=z, fault_mask=mask, fault_label=label, fault_roles=residuals.fault_roles, t=t)
-        n = self.n
-        n_sub = z.shape[1] // n
-        if n_sub == 0:
-            raise ConfigError(f"monitor.burn_in={self.burn_in} leaves fewer than n={n} samples of a "
-                              f"{residuals.r.shape[1]}-sample run; allowed: burn_in <= {residuals.r.shape[1] - n}")
-        z = z[:, : n_sub * n, 0].reshape(z.shape[0], n_sub, n)
-        last = slice(n - 1, n_sub * n, n)  # a subgroup's fault state is that of its last sample
-        return Subgroups(z=z, fault_mask=mask[:, last], fault_label=label[:, last],
-                         fault_roles=residuals.fault_roles, t=t[last])
+        n_rows = residuals.r.shape[1]
+        if self.subgroup == "window" and n_rows - self.burn_in < self.n:
+            raise ConfigError(f"monitor.burn_in={self.burn_in} leaves fewer than n={self.n} samples of a "
+                              f"{n_rows}-sample run; allowed: burn_in <= {n_rows - self.n}")
+        points = self.points(self._monitored(residuals, burn_in=0))
+        at = points["at"]   # a subgroup's fault state is that of its last sample
+        return Subgroups(z=points["z"], fault_mask=residuals.fault_mask[:, at], fault_label=residuals.fault_label[:, at],
+                         fault_roles=residuals.fault_roles, t=_grid(residuals)[at])
 
     def stream(self, outputs: Residuals, residual_columns=()) -> dict[str, np.ndarray]:
         """The monitored residual channels of the first replication, named as the estimator names them."""
         return {(residual_columns[c] if c < len(residual_columns) else f"residual_{c}"):
                 np.asarray(outputs.r[0, :, c], float) for c in self.channels}
 
-    def online(self, columns) -> "OnlineSubgroups":
-        """The fitted monitor's causal form on the monitored channels' columns (:meth:`stream`)."""
+    # -- the step (mosd.monitors.step) -------------------------------------------------------
+    def step_params(self) -> dict[str, np.ndarray]:
+        """The Phase-I μ and σ of the monitored channels (:meth:`fit`)."""
         self._check_fitted()
-        return OnlineSubgroups(columns=tuple(columns), mean=np.asarray(self.mean_, float),
-                               std=np.asarray(self.std_, float), subgroup=str(self.subgroup), n=int(self.subgroup_size),
-                               burn_in=int(self.burn_in))
+        return {"mean": np.asarray(self.mean_, float), "std": np.asarray(self.std_, float)}
 
-    def _monitored(self, residuals: Residuals) -> np.ndarray:
+    def point_width(self, width: int) -> int:
+        return self.subgroup_size
+
+    def step_state(self, params: dict, width: int) -> dict:
+        out = {"samples_seen": (StateVar("Rows seen since the stream's start.", COUNT), 0)}
+        if self.subgroup == "window":
+            out.update({f"pending_{j}": (StateVar(f"Residual {j} of the unfinished subgroup.", FINITE), 0.0)
+                        for j in range(1, self.n)})
+        return out
+
+    def example_row(self, params: dict, width: int) -> np.ndarray:
+        return np.asarray(params["mean"], float)
+
+    def scan(self, params: dict, state: dict, X: np.ndarray, trajectory: bool = False) -> dict[str, np.ndarray]:
+        """The subgroups the rows of ``X`` (R, N, c) close, standardised z = (r − μ)/σ (:meth:`StepMonitor.scan`)."""
+        mean, std = params["mean"], params["std"]
+        runs, rows = X.shape[:2]
+        seen, after = after_rows(state, rows, self.burn_in)
+        live = after >= 0
+        done_before = max(seen - self.burn_in, 0)               # post-burn-in samples before this chunk
+        if self.subgroup == "channels":
+            at = np.flatnonzero(live)
+            out = {"at": at, "point": done_before + np.arange(1, len(at) + 1), "z": (X[:, at] - mean) / std}
+        else:
+            out = self._scan_window(mean, std, state, X[:, live, 0], done_before, trajectory)
+            out["at"] = np.flatnonzero(live & ((after + 1) % self.n == 0))
+            if trajectory:
+                out.update(self._pending(out.pop("raw"), after, live, done_before))
+        if trajectory:
+            out["samples_seen"] = np.broadcast_to(seen + np.arange(1, rows + 1, dtype=np.int64), (runs, rows))
+        return out
+
+    def _scan_window(self, mean, std, state, live_rows, done_before: int, trajectory: bool) -> dict:
+        """The window subgroups of the carried unfinished one followed by ``live_rows`` (R, L)."""
+        n = self.n
+        held = done_before % n                                  # samples of the unfinished subgroup carried in
+        runs = live_rows.shape[0]
+        pending = np.stack([np.broadcast_to(np.asarray(state[f"pending_{j}"], float), (runs,))
+                            for j in range(1, held + 1)], axis=-1) if held else np.empty((runs, 0))
+        raw = np.concatenate([pending, live_rows], axis=1)     # post-burn-in samples from the subgroup's start
+        complete = raw.shape[1] // n
+        z = ((raw[:, :complete * n] - mean[0]) / std[0]).reshape(runs, complete, n)
+        out = {"point": (done_before - held) // n + np.arange(1, complete + 1), "z": z}
+        if trajectory:
+            out["raw"] = raw
+        return out
+
+    def _pending(self, raw: np.ndarray, after: np.ndarray, live: np.ndarray, done_before: int) -> dict:
+        """``pending_j`` after every row (R, N): the j-th residual of the subgroup the row leaves unfinished."""
+        n = self.n
+        position = np.where(live, after % n, -1)                # index of the row's sample in its subgroup
+        base = done_before - done_before % n                    # post-burn-in index of raw[:, 0]
+        out = {}
+        for j in range(1, n):
+            source = after - position + (j - 1) - base          # raw index of the subgroup's j-th sample
+            valid = live & (position < n - 1) & (j - 1 <= position)
+            column = np.zeros((raw.shape[0], len(after)))
+            column[:, valid] = raw[:, source[valid]]
+            out[f"pending_{j}"] = column
+        return out
+
+    def _monitored(self, residuals: Residuals, burn_in: int | None = None) -> np.ndarray:
+        """The monitored channels of every run from row ``burn_in`` (None: the monitor's burn-in)."""
         m = residuals.r.shape[-1]
         if max(self.channels) >= m:
             raise ConfigError(f"monitor.channels={list(self.channels)} is out of range; allowed: 0..{m - 1}")
-        return residuals.r[:, self.burn_in :, list(self.channels)]
+        return residuals.r[:, self.burn_in if burn_in is None else burn_in:, list(self.channels)]
 
     def _check_fitted(self) -> None:
         if not hasattr(self, "std_"):
             raise RuntimeError("Monitor is not fitted: call fit(phase1_residuals) first")
-
-
-@dataclass
-class OnlineSubgroups(OnlineStage):
-    """:class:`SubgroupMonitor`'s causal form: residual rows in, a standardised subgroup on each row that completes one.
-
-    Inputs: the monitored residual channels, one column each (``columns``), from a stream's start (the
-    first ``burn_in`` rows are skipped, as in training). Outputs per row: ``subgroup``, the number
-    k = 1, 2, ... of the subgroup the row completes (0 on a row that completes none), and its
-    standardised points ``z_1`` ... ``z_n`` (NaN elsewhere; internal: they feed the detector).
-
-    State: ``samples_seen`` (rows since the stream's start) and, for ``window`` subgroups, the raw
-    residuals of the unfinished subgroup (``pending_1`` ... ``pending_{n-1}``; only the first
-    ``(samples_seen − burn_in) mod n`` count).
-    """
-
-    columns: tuple
-    mean: np.ndarray
-    std: np.ndarray
-    subgroup: str
-    n: int
-    burn_in: int
-    accepts_missing = False  # a residual stream has no gaps; a subgroup with one has no U_k, V_k
-
-    @property
-    def inputs(self) -> tuple[str, ...]:
-        return tuple(self.columns)
-
-    @property
-    def points(self) -> tuple[str, ...]:
-        return tuple(f"z_{j}" for j in range(1, self.n + 1))
-
-    @property
-    def outputs(self) -> tuple[str, ...]:
-        return ("subgroup", "point", *self.points)
-
-    @property
-    def internal(self) -> tuple[str, ...]:
-        return ("point", *self.points)   # point: the subgroup's number, as any monitor names its points
-
-    def state_vars(self) -> dict[str, StateVar]:
-        out = {"samples_seen": StateVar("Rows seen since the stream's start.", COUNT)}
-        if self.subgroup == "window":
-            out.update({f"pending_{j}": StateVar(f"Residual {j} of the unfinished subgroup.", FINITE)
-                        for j in range(1, self.n)})
-        return out
-
-    def initial_state(self) -> dict:
-        return {name: (0 if name == "samples_seen" else 0.0) for name in self.state_vars()}
-
-    def example_row(self) -> np.ndarray:
-        return np.asarray(self.mean, float)
-
-    def update(self, columns, state) -> dict[str, np.ndarray]:
-        X = np.column_stack([np.asarray(columns[c], float) for c in self.columns]) if self.columns else np.empty((0, 0))
-        rows, n = len(X), int(self.n)
-        seen = int(state["samples_seen"])
-        after = seen + np.arange(rows) - self.burn_in           # sample index past the burn-in (< 0: in it)
-        live = after >= 0
-        done_before = max(seen - self.burn_in, 0)               # post-burn-in samples before this chunk
-        if self.subgroup == "window":
-            held = done_before % n                              # samples of the unfinished subgroup carried in
-            pending = np.array([float(state[f"pending_{j}"]) for j in range(1, n)])[:held]
-            raw = np.concatenate([pending, X[live, 0]])         # post-burn-in samples from the subgroup's start
-            first = (done_before - held) // n                   # subgroups completed before this chunk
-            complete = len(raw) // n
-            z = ((raw[:complete * n, None] - self.mean) / self.std)[:, 0].reshape(complete, n)
-            closes = live & ((after + 1) % n == 0)
-        else:
-            first, z = done_before, (X[live] - self.mean) / self.std
-            complete = len(z)
-            closes = live
-        at = np.flatnonzero(closes)
-        out = {"subgroup": np.zeros(rows, np.int64)}
-        out["subgroup"][at] = first + np.arange(1, complete + 1)
-        out["point"] = out["subgroup"]
-        for j, name in enumerate(self.points):
-            column = np.full(rows, np.nan)
-            column[at] = z[:, j]
-            out[name] = column
-        out["samples_seen"] = seen + np.arange(1, rows + 1, dtype=np.int64)
-        if self.subgroup == "window":
-            position = np.where(live, after % n, -1)            # index of the row's sample in its subgroup
-            base = done_before - held                           # post-burn-in index of raw[0]
-            for j in range(1, n):
-                source = after - position + (j - 1) - base      # raw index of the subgroup's j-th sample
-                valid = live & (position < n - 1) & (j - 1 <= position)
-                column = np.zeros(rows)
-                column[valid] = raw[source[valid]]
-                out[f"pending_{j}"] = column
-        return out

@@ -1,0 +1,165 @@
+"""One step per monitor and per estimator (issue 50): the served stage runs the scan the batch ran.
+
+For every converted monitor (:mod:`mosd.monitors.step`) and estimator (:mod:`mosd.estimators.step`): the
+batch form (what the tuning and the test evaluation compute: ``transform``, ``estimate``) and one fitted
+stage fed the same run whole, in chunks of random sizes with the state carried between them, and row by
+row give the same points and outputs, to a relative 1e-12 (the same elementwise operations on batches of
+different shapes; the chunked and row-by-row streams equal the whole stream bit for bit, their state
+included). A model saved with a removed ``Online*`` class (the files under ``tests/data/legacy_stages``,
+written by those classes before they were removed) loads through ``LEGACY_STAGES`` and scores what the
+removed class scored, to the same 1e-12.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mosd.monitors.outputs import OutputMonitor
+from mosd.monitors.step import MonitorStage
+from mosd.monitors.subgroups import SubgroupMonitor
+from mosd.streaming import OnlinePipeline
+from mosd.types import Residuals
+
+#: the batch and the stream are the same elementwise operations on arrays of different shapes
+RTOL = 1e-12
+LEGACY = Path(__file__).parent / "data" / "legacy_stages"
+
+
+def stream(stage, columns: dict, cuts) -> dict[str, np.ndarray]:
+    """``stage`` over ``columns`` cut at ``cuts``, each part from the state the one before ended with (its
+    internal outputs too: a monitor's points)."""
+    rows = len(next(iter(columns.values())))
+    pipeline = OnlinePipeline([stage])
+    state, parts = None, []
+    bounds = [0, *cuts, rows]
+    for start, stop in zip(bounds[:-1], bounds[1:]):
+        part = stage.update({k: v[start:stop] for k, v in columns.items()}, pipeline.check_state(state))
+        state = pipeline.final_state({k: part[k] for k in pipeline.state_names}, state)
+        parts.append(part)
+    return {k: np.concatenate([np.broadcast_to(p[k], (len(p[stage.outputs[0]]),)) for p in parts]) for k in parts[0]}
+
+
+def three_ways(stage, columns: dict, rng: np.random.Generator) -> dict[str, np.ndarray]:
+    """Whole, random chunks and row by row: equal bit for bit (state included); the whole stream's outputs."""
+    rows = len(next(iter(columns.values())))
+    whole = stream(stage, columns, [])
+    chunks = sorted(rng.choice(np.arange(1, rows), size=min(7, rows - 1), replace=False).tolist())
+    for cuts in (chunks, list(range(1, rows))):
+        got = stream(stage, columns, cuts)
+        assert set(got) == set(whole)
+        for key in whole:
+            assert np.array_equal(got[key], whole[key], equal_nan=True), (key, cuts[:3])
+    return whole
+
+
+def close(got, expected, rtol=RTOL):
+    np.testing.assert_allclose(np.asarray(got, float), np.asarray(expected, float), rtol=rtol, atol=0, equal_nan=True)
+
+
+def legacy(name: str):
+    """(the pipeline a removed class saved, its input columns, the outputs it scored)."""
+    folder = LEGACY / name
+    with np.load(folder / "stream.npz") as saved:
+        columns = {k[3:]: saved[k] for k in saved.files if k.startswith("in.")}
+        expected = {k[4:]: saved[k] for k in saved.files if k.startswith("out.")}
+    return OnlinePipeline.load(folder), columns, expected
+
+
+def check_legacy(name: str, stage_type) -> OnlinePipeline:
+    pipeline, columns, expected = legacy(name)
+    assert isinstance(pipeline.stages[0], stage_type)
+    got = pipeline.update(columns)
+    assert set(got) == set(expected)
+    for key, values in expected.items():
+        if values.dtype.kind in "biu":
+            assert np.array_equal(got[key], values), key
+        else:
+            close(got[key], values)
+    return pipeline
+
+
+# -- monitors ----------------------------------------------------------------------------------------
+def _residuals(rng: np.random.Generator, runs: int = 3, rows: int = 57, m: int = 3) -> Residuals:
+    r = rng.normal(0.2, 1.5, size=(runs, rows, m))
+    mask = np.zeros((runs, rows), bool)
+    mask[:, rows // 2:] = True
+    extra = {"error": rng.normal(size=(runs, rows)), "mode_probabilities": rng.dirichlet([2, 1, 1], (runs, rows))}
+    extra["error"][1, 9] = np.nan   # a missing output passes through a selection
+    return Residuals(r=r, fault_mask=mask, channels=("a", "b", "c"), extra=extra, t=np.arange(rows) * 0.5)
+
+
+MONITORS = {
+    "select": lambda: OutputMonitor(outputs=["error", "mode_probabilities"], burn_in=4),
+    "select-no-burn-in": lambda: OutputMonitor(outputs=["residual"], burn_in=0),
+    "window": lambda: SubgroupMonitor(subgroup="window", n=5, channels=(1,), burn_in=7),
+    "window-no-burn-in": lambda: SubgroupMonitor(subgroup="window", n=2, channels=(0,), burn_in=0),
+    "channels": lambda: SubgroupMonitor(subgroup="channels", channels=(0, 2), burn_in=3),
+}
+
+
+def _run_columns(monitor, outputs: Residuals, run: int) -> dict[str, np.ndarray]:
+    """Run ``run``'s monitored columns, as :meth:`stream` names those of the first run."""
+    one = Residuals(r=outputs.r[run:run + 1], fault_mask=outputs.fault_mask[run:run + 1], channels=outputs.channels,
+                    extra={k: v[run:run + 1] for k, v in outputs.extra.items()})
+    return monitor.stream(one, tuple(f"residual_{c}" for c in outputs.channels))
+
+
+@pytest.mark.parametrize("name", sorted(MONITORS))
+def test_a_monitor_stream_whole_chunked_and_row_by_row_gives_its_batch_points(name):
+    rng = np.random.default_rng(11)
+    outputs = _residuals(rng)
+    monitor = MONITORS[name]()
+    if isinstance(monitor, SubgroupMonitor):
+        monitor.fit(Residuals(r=rng.normal(0.2, 1.5, (2, 40, 3)), fault_mask=np.zeros((2, 40), bool),
+                              channels=outputs.channels))
+    batch = monitor.transform(outputs)
+    assert batch.z.shape[1] > 3
+    columns = _run_columns(monitor, outputs, 0)
+    stage = monitor.online(tuple(columns))
+    assert isinstance(stage, MonitorStage)
+    for run in range(outputs.r.shape[0]):
+        whole = three_ways(stage, _run_columns(monitor, outputs, run), rng)
+        at = np.flatnonzero(whole["point"] > 0)
+        assert np.array_equal(whole["point"][at], np.arange(1, batch.z.shape[1] + 1))
+        # a point's row is the one whose fault truth and time the batch gives the point
+        assert np.array_equal(outputs.fault_mask[run, at], batch.fault_mask[run])
+        assert np.array_equal(outputs.t[at], batch.t)
+        z = np.column_stack([whole[f"z_{j}"][at] for j in range(1, batch.z.shape[-1] + 1)])
+        close(z, batch.z[run])
+        off = np.setdiff1d(np.arange(len(whole["point"])), at)
+        assert all(np.isnan(whole[f"z_{j}"][off]).all() for j in range(1, batch.z.shape[-1] + 1))
+        if isinstance(monitor, SubgroupMonitor):
+            assert np.array_equal(whole["subgroup"], whole["point"])
+
+
+def test_a_monitor_stage_saves_its_fitted_arrays_as_arrays(tmp_path):
+    rng = np.random.default_rng(2)
+    monitor = SubgroupMonitor(n=4, burn_in=2).fit(Residuals(r=rng.normal(size=(1, 30, 1)),
+                                                            fault_mask=np.zeros((1, 30), bool), channels=("a",)))
+    pipeline = OnlinePipeline([monitor.online(("residual_a",))])
+    with np.load(pipeline.save(tmp_path)) as saved:
+        assert {"s0.fitted.mean", "s0.fitted.std"} <= set(saved.files)
+    loaded = OnlinePipeline.load(tmp_path)
+    columns = {"residual_a": rng.normal(size=23)}
+    a, b = pipeline.update(columns), loaded.update(columns)
+    assert loaded.state_names == ("samples_seen", "pending_1", "pending_2", "pending_3")
+    assert all(np.array_equal(a[k], b[k], equal_nan=True) for k in pipeline.outputs)
+
+
+def test_a_subgroup_stage_refuses_a_missing_residual_in_one_line():
+    monitor = SubgroupMonitor(n=2, burn_in=0)
+    monitor.mean_, monitor.std_ = np.array([0.0]), np.array([1.0])
+    pipeline = OnlinePipeline([monitor.online(("residual_a",))])
+    import pandas as pd
+
+    from mosd.validation import ConfigError
+
+    with pytest.raises(ConfigError, match=r"^input column 'residual_a' row 1 is .*nan.*, not a finite number; allowed: numbers"):
+        pipeline.rows(pd.DataFrame({"residual_a": [0.0, np.nan]}))
+
+
+@pytest.mark.parametrize("name", ["OnlineSelect", "OnlineSubgroups_window", "OnlineSubgroups_channels"])
+def test_a_monitor_saved_with_its_removed_class_loads_and_scores_the_same(name):
+    check_legacy(name, MonitorStage)
