@@ -7,7 +7,9 @@ Run by the ``gen-files`` plugin of ``mkdocs.yml`` at every build (nothing it wri
   (default, the class's declared domain, the YAML's comment), from :func:`mosd.app.options.listing`, what
   ``python -m mosd options GROUP`` prints;
 * ``reference/api/<package>.md``: the docstrings of the package's modules (mkdocstrings);
-* ``reference/SUMMARY.md``: the section's navigation (literate-nav).
+* ``reference/SUMMARY.md``: the section's navigation (literate-nav), which also lists ``reference/options.md``,
+  the one page of the section kept in the repository (the curated option tables with the papers' context and
+  the index that ``mosd options --readme docs/reference/options.md`` rewrites).
 
 A new config group, option or module appears without editing this file or ``mkdocs.yml``.
 """
@@ -110,7 +112,9 @@ def api_pages() -> dict[str, str]:
 
 
 def summary() -> str:
-    lines = ["* [Configuration](config/index.md)"]
+    # options.md is a page of the repository (the curated tables and the generated index that
+    # ``mosd options --readme docs/reference/options.md`` rewrites), not one this script writes
+    lines = ["* [Configuration reference](options.md)", "* [Configuration](config/index.md)"]
     lines += [f"    * [{g}](config/{g}.md)" for g in groups()]
     lines += ["* API", *[f"    * [{p}](api/{p}.md)" for p in PACKAGES]]
     return "\n".join(lines) + "\n"

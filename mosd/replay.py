@@ -1,5 +1,5 @@
 """``python -m mosd.replay --opcua [--port P] [--speed S] FILE``: a recorded table replayed as a live OPC UA
-server (:mod:`mosd.live.replay`; docs/OPCUA.md)."""
+server (:mod:`mosd.live.replay`; docs/how-to/opcua.md)."""
 import sys
 
 from .live.replay import main

@@ -98,6 +98,10 @@ def _digests(root: Path) -> dict[str, str]:
             for p in sorted(root.rglob("*")) if p.is_file() and "__pycache__" not in p.parts}
 
 
+#: the page holding the generated index of every option (the README until issue 51 moved it to the site)
+INDEX_PAGE = "docs/reference/options.md"
+
+
 #: the option-list tests (issue 50 item 1) the new components must pass in the copy, found by their names
 OPTION_TESTS = ["tests/test_configs.py", "tests/test_faults_acts_on.py", "tests/test_deploy_presets.py",
                 "tests/test_readme_tables.py", "tests/test_exports.py"]
@@ -118,7 +122,8 @@ def test_a_synthetic_system_runs_in_a_copy_and_no_other_file_changes(tmp_path):
     copy = tmp_path / "repo"
     for name in ("mosd", "conf", "tests"):
         shutil.copytree(ROOT / name, copy / name, ignore=shutil.ignore_patterns("__pycache__"))
-    for name in ("pyproject.toml", "setup.py", "README.md"):
+    for name in ("pyproject.toml", "setup.py", "README.md", INDEX_PAGE):
+        (copy / name).parent.mkdir(parents=True, exist_ok=True)
         shutil.copy2(ROOT / name, copy / name)
     before = _digests(copy)
     for path, text in _new_files().items():
@@ -130,7 +135,7 @@ def test_a_synthetic_system_runs_in_a_copy_and_no_other_file_changes(tmp_path):
         return subprocess.run([sys.executable, *argv], cwd=copy, env=env, capture_output=True, text=True,
                               timeout=timeout)
 
-    # the README's index is checked, and is stale until the page's command regenerates it
+    # the reference page's index is checked, and is stale until the page's command regenerates it
     stale = run(["-m", "pytest", "-q", "-p", "no:cacheprovider", "tests/test_readme_tables.py", "-k", "every_option"])
     assert stale.returncode == 1 and "first_order" in stale.stdout, stale.stdout[-2000:]
     listed, regenerated, ran = (run(shlex.split(command)[1:]) for command in _shell_commands())
@@ -139,8 +144,8 @@ def test_a_synthetic_system_runs_in_a_copy_and_no_other_file_changes(tmp_path):
     for option in ("`first_order`", "`intermittent`", "`synthetic`", "mosd.plants.first_order.FirstOrderLag",
                    "Acts on: sensor"):
         assert option in listed.stdout, option
-    readme = (copy / "README.md").read_text(encoding="utf-8")
-    assert "`intermittent` (on sensor)" in readme and "`first_order` (takes faults on sensor)" in readme
+    index = (copy / INDEX_PAGE).read_text(encoding="utf-8")
+    assert "`intermittent` (on sensor)" in index and "`first_order` (takes faults on sensor)" in index
     summary = next((tmp_path / "outputs" / "runs").glob("*/summary.json")).read_text()
     assert '"status": "finished"' in summary and '"model_file"' in summary  # its pipeline streams: deployable
     # the option-list tests pass in the copy, the new components among their cases
@@ -151,8 +156,8 @@ def test_a_synthetic_system_runs_in_a_copy_and_no_other_file_changes(tmp_path):
     for case in ("plant=first_order", "fault=intermittent", "experiment=synthetic", "first_order+intermittent",
                  "stream[synthetic]"):
         assert case in collected.stdout, case
-    # no file of the copy changed but the new ones and the README's generated index
+    # no file of the copy changed but the new ones and the reference page's generated index
     after = _digests(copy)
     changed = {path for path in before if after.get(path) != before[path]}
-    assert changed == {"README.md"}, changed
+    assert changed == {INDEX_PAGE}, changed
     assert set(after) - set(before) == set(_new_files()), set(after) - set(before) - set(_new_files())

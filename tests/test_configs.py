@@ -39,6 +39,8 @@ FAULTS = ", ".join(sorted(path.stem for path in (CONF / "fault").glob("*.yaml"))
 GROUPS = sorted(p.name for p in CONF.iterdir() if p.is_dir())
 OPTIONS = [(g, o) for g in GROUPS for o in _config_module.options(g)]
 README = Path(__file__).resolve().parents[1] / "README.md"
+#: the configuration reference (the README's, moved to the site by issue 51)
+OPTIONS_PAGE = README.parent / "docs" / "reference" / "options.md"
 
 
 @pytest.fixture(scope="module")
@@ -338,9 +340,10 @@ def test_the_options_command_lists_a_group_and_refuses_an_unknown_one(capsys):
 
 
 def _readme_option_rows() -> list[tuple[str, str, str]]:
-    """(group, option, class cell) of every row of the README's option tables (``| option | ...`` headers)."""
+    """(group, option, class cell) of every row of the configuration reference's option tables (``| option | ...``
+    headers): ``docs/reference/options.md``, where the README's configuration reference moved (issue 51)."""
     rows, group, in_table = [], None, False
-    for line in README.read_text().splitlines():
+    for line in OPTIONS_PAGE.read_text().splitlines():
         heading = re.match(r"^### `(\w+)`", line)
         if heading:
             group, in_table = heading.group(1), False
@@ -355,26 +358,29 @@ def _readme_option_rows() -> list[tuple[str, str, str]]:
 
 
 def test_the_readme_option_tables_agree_with_the_configs():
-    """The README's tables are a selection, never a registry: each row names an existing option and its class.
+    """The reference page's tables are a selection, never a registry: each row names an existing option and its class.
 
     The complete list is derived (``python -m mosd options``): a new component is one module and one YAML.
     """
     rows = _readme_option_rows()
     assert len(rows) >= 30 and {g for g, _, _ in rows} >= {"plant", "estimator", "detector", "optimizer"}
     for group, option, cell in rows:
-        assert option in _config_module.options(group), f"README lists {group}={option}, which conf/ lacks"
+        assert option in _config_module.options(group), (f"{OPTIONS_PAGE.name} lists {group}={option}, "
+                                                         "which conf/ lacks")
         target = OmegaConf.load(CONF / group / f"{option}.yaml").get("_target_")
         named = re.search(r"`([A-Za-z_]\w*(?:\.\w+){2,})`", cell)
         if target and named:
-            assert named.group(1) == target, f"README: {group}={option} is {named.group(1)}, conf/ says {target}"
-    assert "python -m mosd options" in README.read_text()
+            assert named.group(1) == target, (f"{OPTIONS_PAGE.name}: {group}={option} is {named.group(1)}, "
+                                              f"conf/ says {target}")
+    assert "python -m mosd options" in OPTIONS_PAGE.read_text()
+    assert "python -m mosd options" in README.read_text()  # the README points at the complete list too
 
 
-def test_readme_documents_the_top_level_keys():
-    text = README.read_text()
+def test_the_reference_documents_the_top_level_keys():
+    text = OPTIONS_PAGE.read_text()
     for key in ("seed", "scenario.duration", "budget.n_train", "budget.n_test", "budget.n_calibration",
                 "selection.rule", "selection.alpha", "progress", "outputs_root"):
-        assert f"`{key}`" in text, f"README misses key {key}"
+        assert f"`{key}`" in text, f"{OPTIONS_PAGE.name} misses key {key}"
 
 
 # -- progress and tracking helpers -----------------------------------------------------

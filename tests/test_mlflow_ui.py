@@ -95,7 +95,7 @@ def _serve(store: Path, log: Path) -> tuple[subprocess.Popen, str]:
     server = subprocess.Popen([mlflow_cli, "server", "--workers", "1", "--host", "127.0.0.1", "--port", str(port),
                                "--backend-store-uri", f"sqlite:///{store}"], stdout=log.open("w"),
                               stderr=subprocess.STDOUT, start_new_session=True,
-                              env={**os.environ, "MLFLOW_SERVER_ENABLE_JOB_EXECUTION": "false"})  # README
+                              env={**os.environ, "MLFLOW_SERVER_ENABLE_JOB_EXECUTION": "false"})  # mlflow-ui.md
     url = f"http://127.0.0.1:{port}"
     deadline = time.monotonic() + 180
     while True:
@@ -263,7 +263,7 @@ def test_the_ui_shows_the_sweep_its_children_their_comparison_and_the_hypervolum
     assert experiment.tags.get(KIND_TAG) == TRAINING_KIND
     eid, driver = experiment.experiment_id, page.driver
 
-    # the experiment's runs, at the README's address: the training runs, not the GenAI overview
+    # the runs at docs/how-to/mlflow-ui.md's address: the training runs, not the GenAI overview
     page.open(f"/experiments/{eid}?workflowType=machine_learning")
     text = page.wait_for(parent.info.run_name, "5 matching runs")
     assert "/runs" in driver.current_url and "Token Usage" not in text

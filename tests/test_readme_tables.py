@@ -1,11 +1,12 @@
-"""The README's lists of options are the components, not a hand list (issue 50 item 3).
+"""The documented lists of options are the components, not a hand list (issue 50 item 3).
 
-The index of every preset and option between the README's generated markers is
-:func:`mosd.app.options.readme_index` (``mosd options --readme README.md`` rewrites
-it): a component added (one module and one YAML) or removed makes it stale, and
-this test fails naming the option. The curated tables (the presets at the top, the
-configuration reference's per-group tables) are a selection: each of their rows
-must name an existing option (``tests/test_configs.py`` checks the classes).
+The index of every preset and option between the generated markers of the configuration
+reference, ``docs/reference/options.md`` (the README's until issue 51 moved it to the site), is
+:func:`mosd.app.options.readme_index` (``mosd options --readme docs/reference/options.md``
+rewrites it): a component added (one module and one YAML) or removed makes it stale, and
+this test fails naming the option. The curated tables (the README's presets table, the
+reference page's per-group tables) are a selection: each of their rows must name an existing
+option (``tests/test_configs.py`` checks the classes).
 """
 from __future__ import annotations
 
@@ -19,7 +20,11 @@ import pytest
 from mosd.app import options as options_module
 from mosd.app.config import groups, options
 
-README = Path(__file__).resolve().parents[1] / "README.md"
+ROOT = Path(__file__).resolve().parents[1]
+README = ROOT / "README.md"
+#: the page that holds the generated index (:data:`mosd.app.options.PAGE`)
+PAGE = ROOT / options_module.PAGE
+REGENERATE = f"run mosd options --readme {options_module.PAGE}"
 
 
 def _block(text: str) -> str:
@@ -41,12 +46,12 @@ def _named(block: str) -> set[tuple[str, str]]:
 
 
 def test_the_readme_index_names_every_option_and_no_other():
-    block = _block(README.read_text(encoding="utf-8"))
+    block = _block(PAGE.read_text(encoding="utf-8"))
     on_disk = {(g, o) for g in groups() for o in options(g)}
     named = _named(block)
-    assert not on_disk - named, f"README's index misses {sorted(on_disk - named)}: run mosd options --readme README.md"
-    assert not named - on_disk, f"README's index names {sorted(named - on_disk)}, which conf/ lacks"
-    assert block == options_module.readme_index(), "README's index is stale: run mosd options --readme README.md"
+    assert not on_disk - named, f"{options_module.PAGE}'s index misses {sorted(on_disk - named)}: {REGENERATE}"
+    assert not named - on_disk, f"{options_module.PAGE}'s index names {sorted(named - on_disk)}, which conf/ lacks"
+    assert block == options_module.readme_index(), f"{options_module.PAGE}'s index is stale: {REGENERATE}"
 
 
 def test_the_index_says_where_each_fault_acts_and_each_plant_takes_faults():
@@ -64,13 +69,16 @@ def test_the_index_says_where_each_fault_acts_and_each_plant_takes_faults():
 
 
 def test_the_curated_preset_table_names_existing_presets():
-    rows = re.findall(r"^\| `(\w+)` \|", README.read_text(encoding="utf-8").split("## Set-up")[0], re.M)
+    """Each row of the README's presets table names a preset of conf/ (that it names every preset is
+    ``tests/test_readme.py``'s check, which ``tests/test_add_a_system.py``'s throw-away system does not run)."""
+    section = README.read_text(encoding="utf-8").split("\n## The presets\n", 1)[1].split("\n## ", 1)[0]
+    rows = re.findall(r"^\| `(\w+)` \|", section, re.M)
     assert rows and set(rows) <= set(options("experiment")), set(rows) - set(options("experiment"))
 
 
 def test_the_generator_rewrites_a_stale_index_and_refuses_a_file_without_one(tmp_path):
-    text = README.read_text(encoding="utf-8")
-    stale = tmp_path / "README.md"
+    text = PAGE.read_text(encoding="utf-8")
+    stale = tmp_path / "options.md"
     stale.write_text(text.replace(_block(text), "| stale |"), encoding="utf-8")
     command = [sys.executable, "-m", "mosd", "options", "--readme"]
     done = subprocess.run([*command, str(stale)], capture_output=True, text=True, timeout=300)

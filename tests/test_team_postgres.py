@@ -7,7 +7,8 @@ created in a temporary directory and started on a free port of 127.0.0.1, with a
 at the same time, then checks the store: 10 FINISHED job runs with their artifacts, the sweep's
 parent FINISHED with its 4 children linked, and ``mosd report`` reading them all back.
 
-These are the README's "Tracking server" commands. PostgreSQL and the driver (psycopg2-binary,
+These are the commands of docs/how-to/team-store.md (the README's "Tracking server" section until
+issue 51 moved it to the site). PostgreSQL and the driver (psycopg2-binary,
 in the ``test`` and ``team`` extras) are test dependencies: when one is missing the test fails,
 it does not skip (``.ci/run`` installs the server).
 """
@@ -158,7 +159,7 @@ def test_mosd_writes_directly_to_postgresql(postgres, tmp_path, monkeypatch):
     password = urllib.parse.urlparse(postgres).password
     uri = f"{postgres}/direct".replace(f":{password}@", "@")
     # MLflow creates its tables on first use without a lock: runs that start together on an empty
-    # database race (duplicate alembic_version), so the set-up creates them once (README)
+    # database race (duplicate alembic_version), so the set-up creates them once (docs/how-to/team-store.md)
     made = subprocess.run([_mlflow_cli(), "db", "upgrade", uri], capture_output=True, text=True, timeout=300,
                           env={**os.environ, "PGPASSWORD": password})
     assert made.returncode == 0, made.stderr[-2000:]

@@ -60,7 +60,7 @@ def parser() -> argparse.ArgumentParser:
                    help="a column that is not a tag (time, label): copied to the output, not scored (repeatable)")
     p.add_argument("--chunk", type=int, default=1000, help="rows per predict call (state carried across)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar (with --opcua: no reconnect lines)")
-    live = p.add_argument_group("a live plant over OPC UA (pip install 'mosd[opcua]'; docs/OPCUA.md)")
+    live = p.add_argument_group("a live plant over OPC UA (pip install 'mosd[opcua]'; docs/how-to/opcua.md)")
     live.add_argument("--opcua", default=None, metavar="opc.tcp://HOST:PORT",
                       help="subscribe to this OPC UA server instead of reading a file")
     live.add_argument("--nodes", default=None, metavar="FILE.yaml", help="the model's input columns mapped to node "
@@ -300,7 +300,7 @@ def live_options(args, pipeline):
         raise ConfigError(f"--opcua={args.opcua!r} is not an OPC UA URL; allowed: opc.tcp://HOST:PORT[/path]")
     if parsed.username or parsed.password:
         raise ConfigError("--opcua carries a user or password; allowed: a URL without them, credentials in "
-                          "MOSD_OPCUA_USER and MOSD_OPCUA_PASSWORD (docs/OPCUA.md)")
+                          "MOSD_OPCUA_USER and MOSD_OPCUA_PASSWORD (docs/how-to/opcua.md)")
     if args.data is not None:
         raise ConfigError(f"DATA={args.data!r} with --opcua; allowed: one of a file and --opcua")
     if args.step is None:

@@ -1,4 +1,4 @@
-"""A tuned detector on a live plant over OPC UA (issue 52; docs/OPCUA.md).
+"""A tuned detector on a live plant over OPC UA (issue 52; docs/how-to/opcua.md).
 
 * :mod:`mosd.live.align` — samples aligned to the model's time step, and the training data's gap
   policy applied causally (no asyncua: tested on its own);

@@ -456,7 +456,7 @@ class LiveMonitor:
                 if not ready and isinstance(exc, ua.UaError):  # it answered: a security policy, a user refused
                     raise ConfigError(f"{self.o.url} refused the connection ({_reason(exc)}); allowed: the security "
                                       "policy and user the server accepts, in MOSD_OPCUA_SECURITY, MOSD_OPCUA_USER "
-                                      "and MOSD_OPCUA_PASSWORD (docs/OPCUA.md)") from None
+                                      "and MOSD_OPCUA_PASSWORD (docs/how-to/opcua.md)") from None
                 if not ready:
                     raise ConfigError(f"{self.o.url} did not answer ({_reason(exc)}, timeout {self.o.timeout:g} s); "
                                       "allowed: the opc.tcp:// URL of a running OPC UA server") from None
