@@ -163,3 +163,65 @@ def test_a_subgroup_stage_refuses_a_missing_residual_in_one_line():
 @pytest.mark.parametrize("name", ["OnlineSelect", "OnlineSubgroups_window", "OnlineSubgroups_channels"])
 def test_a_monitor_saved_with_its_removed_class_loads_and_scores_the_same(name):
     check_legacy(name, MonitorStage)
+
+
+# -- estimators --------------------------------------------------------------------------------------
+def _two_tank():
+    from mosd.estimators.luenberger import LuenbergerObserver
+    from mosd.faults.sensor import SensorFault
+    from mosd.noise.gaussian import GaussianNoise
+    from mosd.plants.two_tank import TwoTank
+    from mosd.scenario import Scenario
+
+    plant = TwoTank()
+    noise = GaussianNoise(process_cov=[1e-8, 1e-8], measurement_cov=[1e-6, 1e-6], n_x=2, n_y=2)
+    fault = SensorFault(kind="offset", channel=1, a=0.01, onset=60.0)
+    trace = Scenario(plant, noise, fault, 150.0).simulate(3, 3, stream="test", fault_scale=1.0)
+    return plant, noise, trace, LuenbergerObserver(poles=(0.9, 0.95))
+
+
+def _source(plant, noise):
+    from mosd.streaming import describe
+
+    return {"plant": describe(plant), "noise": describe(noise), "input_names": tuple(plant.input_names)}
+
+
+def _plant_run(trace, model, input_names, run: int) -> dict[str, np.ndarray]:
+    """Run ``run``'s raw measurements and inputs as a plant stage's columns (``y_<output>``, ``u_<input>``)."""
+    columns = {f"y_{n}": np.asarray(trace.y, float)[run, :, j] for j, n in enumerate(model.output_names)}
+    columns.update({f"u_{n}": np.asarray(trace.u, float)[run, :, j] for j, n in enumerate(input_names)})
+    return columns
+
+
+def _check_plant_stage(estimator, plant, noise, trace, extras=(), rtol=RTOL):
+    """The batch estimate of every run == its stage fed the run whole, in random chunks and row by row."""
+    from mosd.estimators.step import EstimatorStage
+
+    model = plant.model(noise)
+    batch = estimator.estimate(trace, model)
+    stage = estimator.online(model, _source(plant, noise), trace)
+    assert isinstance(stage, EstimatorStage)
+    rng = np.random.default_rng(5)
+    for run in range(trace.y.shape[0]):
+        whole = three_ways(stage, _plant_run(trace, model, plant.input_names, run), rng)
+        for j, name in enumerate(model.output_names):
+            close(whole[f"residual_{name}"], batch.r[run, :, j], rtol)
+        for name in extras:
+            close(whole[name], batch.extra[name][run], rtol)
+    return batch, stage
+
+
+def test_the_luenberger_observer_stream_is_its_batch_estimate():
+    plant, noise, trace, estimator = _two_tank()
+    batch, stage = _check_plant_stage(estimator, plant, noise, trace)
+    assert stage.inputs == ("y_h1", "y_h2", "u_q")
+    assert tuple(stage.state_vars()) == ("x_hat_0", "x_hat_1")
+    # the offset on h2 from 60 s is in the residual: the comparison is of residuals that mean something
+    fault = trace.fault_mask[0]
+    assert abs(batch.r[0, fault, 1].mean()) > 5 * abs(batch.r[0, ~fault & (np.arange(fault.size) > 20), 1].mean())
+
+
+def test_a_luenberger_observer_saved_with_its_removed_class_loads_and_scores_the_same():
+    from mosd.estimators.step import EstimatorStage
+
+    check_legacy("OnlineLuenberger", EstimatorStage)

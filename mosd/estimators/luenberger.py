@@ -8,8 +8,6 @@ longer (the gain absorbs less of it); fast ones track model error better.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 from scipy.signal import place_poles
 
@@ -17,7 +15,8 @@ from ..model import StateSpaceModel
 from ..streaming import FINITE, StateVar
 from ..types import Residuals, Trace
 from ..validation import ConfigError, Interval, Param
-from .base import Estimator, PlantStage, plant_columns
+from .base import plant_columns
+from .step import StepEstimator
 
 
 def observer_step(model: StateSpaceModel, x_hat: np.ndarray, y: np.ndarray, u: np.ndarray, gain: np.ndarray):
@@ -43,12 +42,15 @@ def jacobian(function, point: np.ndarray, step: float = 1e-7) -> np.ndarray:
     return np.stack(columns, axis=-1)
 
 
-class LuenbergerObserver(Estimator):
+class LuenbergerObserver(StepEstimator):
     """Residual r_k = y_k − h(x̂_k) of a constant-gain observer of the plant's model (module docstring).
 
     The gain places the eigenvalues of A − L C (A = ∂f/∂x, C = ∂h/∂x at the model's
     x̂_0 and the first input) at ``poles``. A missing output (NaN) gives no correction
     and a NaN residual.
+
+    Its step (:mod:`mosd.estimators.step`): :func:`observer_step` from the carried x̂ (``x_hat_<i>``,
+    started at the model's x̂_0); the batch estimate is that scan over every run from the start.
     """
 
     params = {"poles": Param(Interval(0.0, 1.0, open_high=True), "Eigenvalues of the observer's error dynamics "
@@ -71,14 +73,13 @@ class LuenbergerObserver(Estimator):
             raise ConfigError(f"estimator.poles={list(self.poles)!r} cannot be placed: {exc}") from None
 
     def estimate(self, trace: Trace, model: StateSpaceModel) -> Residuals:
-        """The residuals of every replication, all output channels."""
+        """The residuals of every replication, all output channels: :meth:`scan` from x̂_0."""
         y, u = np.asarray(trace.y, float), np.asarray(trace.u, float)
-        n_reps, n_samples, _ = y.shape
-        gain = self.gain(model, self._u0(u))
-        x_hat = np.broadcast_to(np.asarray(model.x0, float), (n_reps, model.n_x)).copy()
-        r = np.empty_like(y)
-        for k in range(n_samples):
-            r[:, k], x_hat = observer_step(model, x_hat, y[:, k], u[:, k], gain)
+        params = self.step_params(model, trace)
+        columns = {f"y_{j}": y[..., j] for j in range(y.shape[-1])}
+        columns.update({f"u_{j}": u[..., j] for j in range(u.shape[-1])})
+        out = self.scan(model, params, self.start(params), columns)
+        r = np.stack([out[f"residual_{j}"] for j in range(y.shape[-1])], axis=-1)
         return Residuals.of(trace, r=r, channels=model.output_names)
 
     @staticmethod
@@ -88,65 +89,58 @@ class LuenbergerObserver(Estimator):
         depend on the batch). For the two-tank cascade ∂f/∂x does not depend on the inflow at all."""
         return np.zeros(np.shape(u)[-1])
 
+    # -- the step (mosd.estimators.step) ---------------------------------------------------
+    def step_params(self, model: StateSpaceModel, trace: Trace | None = None) -> dict[str, np.ndarray]:
+        """The gain L placed at the model's x̂_0 (:meth:`gain`; ``trace``'s inputs say how many) and x̂_0."""
+        u = np.zeros((0, 0)) if trace is None else np.asarray(trace.u, float)
+        return {"gain": self.gain(model, self._u0(u)), "x0": np.asarray(model.x0, float)}
+
+    def step_state(self, params: dict) -> dict:
+        return {f"x_hat_{i}": (StateVar(f"The observer's estimate of state {i}.", FINITE), float(v))
+                for i, v in enumerate(params["x0"])}
+
+    def scan(self, model, params: dict, state: dict, columns: dict, trajectory: bool = False) -> dict:
+        """r_k and x̂_{k+1} of every run by :func:`observer_step` (:meth:`StepEstimator.scan`): the columns are the
+        outputs ``y_*`` then the inputs ``u_*``, in the model's order; out ``residual_<j>`` per output, by
+        position j when the columns are not the model's names (the batch), else by name."""
+        gain = np.asarray(params["gain"], float)
+        names = list(columns)
+        ys, us = names[:model.n_y], names[model.n_y:]
+        y = np.stack([columns[n] for n in ys], axis=-1)
+        u = np.stack([columns[n] for n in us], axis=-1) if us else np.zeros(y.shape[:2] + (0,))
+        runs, rows = y.shape[:2]
+        x_hat = np.stack([np.broadcast_to(np.asarray(state[f"x_hat_{i}"], float), (runs,))
+                          for i in range(model.n_x)], axis=-1).copy()
+        r = np.empty_like(y)
+        states = np.empty((runs, rows, model.n_x)) if trajectory else None
+        for k in range(rows):
+            r[:, k], x_hat = observer_step(model, x_hat, y[:, k], u[:, k], gain)
+            if trajectory:
+                states[:, k] = x_hat
+        out = {f"residual_{n[2:]}": r[..., j] for j, n in enumerate(ys)}
+        if trajectory:
+            out.update({f"x_hat_{i}": states[..., i] for i in range(model.n_x)})
+        return out
+
+    def example_row(self, model, params: dict, reads: tuple) -> np.ndarray:
+        """h(x̂_0) and zero inputs."""
+        outputs = np.asarray(model.h(np.asarray(params["x0"], float)[None]))[0]
+        return np.concatenate([outputs, np.zeros(len(reads) - len(outputs))])
+
     # -- the causal form ----------------------------------------------------------------
-    def online(self, model: StateSpaceModel = None, source=None, trace: Trace | None = None) -> "OnlineLuenberger":
-        """The observer as a stream of raw measurements and inputs (``y_<output>``, ``u_<input>`` per row).
+    def online(self, model: StateSpaceModel = None, source=None, trace: Trace | None = None):
+        """The observer as a stream of raw measurements and inputs (``y_<output>``, ``u_<input>`` per row in,
+        ``residual_<output>`` out): :class:`~mosd.estimators.step.EstimatorStage` of :meth:`scan`.
 
         ``source`` describes the plant and noise (:func:`mosd.streaming.describe`) the model is rebuilt
-        from; ``trace`` the runs whose first input the batch estimate placed the gain at.
+        from; ``trace`` the runs (their number of inputs when the plant names none).
         """
         if source is None or trace is None:
             return super().online(model)
-        gain = self.gain(model, self._u0(np.asarray(trace.u, float)))
         inputs = tuple(source.get("input_names") or (f"u{i}" for i in range(np.shape(trace.u)[-1])))
-        return OnlineLuenberger(plant=source["plant"], noise=source["noise"], gain=gain,
-                                x0=np.asarray(model.x0, float), outputs=tuple(model.output_names), inputs=inputs)
+        return self.stage(model, source, (*(f"y_{n}" for n in model.output_names), *(f"u_{n}" for n in inputs)),
+                          tuple(f"residual_{n}" for n in model.output_names), trace)
 
     def raw_stream(self, trace: Trace, model: StateSpaceModel, input_names) -> dict[str, np.ndarray]:
         """The first replication's measurements and inputs as the causal form's columns."""
         return plant_columns(trace, model, input_names)
-
-
-@dataclass
-class OnlineLuenberger(PlantStage):
-    """:class:`LuenbergerObserver`'s causal form: ``y_<output>`` and ``u_<input>`` in, ``residual_<output>`` out.
-
-    The plant's model is rebuilt from its description (``plant``, ``noise``); the state is x̂ (``x_hat_<i>``),
-    started at the model's x̂_0.
-    """
-
-    plant: dict
-    noise: dict
-    gain: np.ndarray
-    x0: np.ndarray
-    outputs_of_plant: tuple = ()
-    inputs_of_plant: tuple = ()
-
-    def __init__(self, plant, noise, gain, x0, outputs=(), inputs=(), outputs_of_plant=(), inputs_of_plant=()):
-        self.plant, self.noise = dict(plant), dict(noise)
-        self.gain, self.x0 = np.asarray(gain, float), np.asarray(x0, float)
-        self.outputs_of_plant = tuple(outputs_of_plant or outputs)
-        self.inputs_of_plant = tuple(inputs_of_plant or inputs)
-
-    def state_vars(self) -> dict[str, StateVar]:
-        return {f"x_hat_{i}": StateVar(f"The observer's estimate of state {i}.", FINITE) for i in range(len(self.x0))}
-
-    def initial_state(self) -> dict:
-        return {f"x_hat_{i}": float(v) for i, v in enumerate(self.x0)}
-
-    def example_row(self) -> np.ndarray:
-        model = self._model()
-        return np.concatenate([np.asarray(model.h(self.x0[None]))[0], np.zeros(len(self.inputs_of_plant))])
-
-    def update(self, columns, state) -> dict[str, np.ndarray]:
-        model = self._model()
-        y = np.column_stack([np.asarray(columns[f"y_{n}"], float) for n in self.outputs_of_plant])
-        u = np.column_stack([np.asarray(columns[f"u_{n}"], float) for n in self.inputs_of_plant])
-        x_hat = np.array([[float(state[f"x_hat_{i}"]) for i in range(len(self.x0))]])
-        r, states = np.empty_like(y), np.empty((len(y), len(self.x0)))
-        for k in range(len(y)):
-            residual, x_hat = observer_step(model, x_hat, y[k:k + 1], u[k:k + 1], self.gain)
-            r[k], states[k] = residual[0], x_hat[0]
-        out = {f"residual_{n}": r[:, j] for j, n in enumerate(self.outputs_of_plant)}
-        out.update({f"x_hat_{i}": states[:, i] for i in range(len(self.x0))})
-        return out
