@@ -225,3 +225,79 @@ def test_a_luenberger_observer_saved_with_its_removed_class_loads_and_scores_the
     from mosd.estimators.step import EstimatorStage
 
     check_legacy("OnlineLuenberger", EstimatorStage)
+
+
+def test_the_pca_residual_stream_is_its_batch_estimate():
+    from types import SimpleNamespace
+
+    from mosd.estimators.pca import PCAResidual
+    from mosd.estimators.step import EstimatorStage
+
+    rng = np.random.default_rng(4)
+    mixing = rng.normal(size=(3, 6))
+    fit = rng.normal(size=(1, 300, 3)) @ mixing + 0.2 * rng.normal(size=(1, 300, 6))
+    estimator = PCAResidual(n_components=3).fit(SimpleNamespace(y=fit, meta={"variables": tuple("abcdef")}))
+    Y = rng.normal(size=(3, 80, 3)) @ mixing + 0.2 * rng.normal(size=(3, 80, 6))
+    Y[1, 17, 2] = np.nan                  # a missing tag: that row's outputs are NaN, the next rows are not
+    Y[2, 40:, 0] += 3.0                   # a shift: T² and SPE move
+    trace = SimpleNamespace(y=Y, fault_mask=np.zeros((3, 80), bool), fault_label=None, fault_roles=("target",), t=None)
+    batch = estimator.estimate(trace)
+    stage = estimator.online()
+    assert isinstance(stage, EstimatorStage) and stage.state_vars() == {} and stage.inputs == tuple("abcdef")
+    for run in range(3):
+        whole = three_ways(stage, {t: Y[run, :, j] for j, t in enumerate("abcdef")}, rng)
+        close(np.column_stack([whole[f"residual_{t}"] for t in "abcdef"]), batch.r[run])
+        for name in ("t2", "spe"):
+            close(whole[name], batch.extra[name][run])
+        close(np.column_stack([whole[f"scores_{j}"] for j in range(3)]), batch.extra["scores"][run])
+    assert np.isnan(batch.extra["t2"][1, 17]) and np.isfinite(batch.extra["t2"][1, 18])
+    assert batch.extra["spe"][2, 40:].mean() > 3 * batch.extra["spe"][2, :40].mean()
+
+
+def test_a_pca_residual_saved_with_its_removed_class_loads_and_scores_the_same():
+    from mosd.estimators.step import EstimatorStage
+
+    check_legacy("OnlinePCAResidual", EstimatorStage)
+
+
+def _paper002(missing_rate: float):
+    from mosd.faults.random_amplitude import RandomAmplitudeFault
+    from mosd.noise.bounded import BoundedNoise
+    from mosd.plants.scalar_nonlinear import ScalarNonlinearPlant
+    from mosd.scenario import Scenario
+
+    plant, noise = ScalarNonlinearPlant(missing_rate=missing_rate), BoundedNoise()
+    trace = Scenario(plant, noise, RandomAmplitudeFault("sine", role="target"), 10.0).simulate(3, 3, "test")
+    return plant, noise, trace
+
+
+@pytest.mark.parametrize("kind, missing", [("fixed", "hold"), ("fixed", "skip"), ("fixed", "em"), ("entropy", "hold"),
+                                           ("entropy", "skip")])
+def test_the_gain_filter_stream_is_its_batch_estimate(kind, missing):
+    from mosd.estimators.entropy_filter import EntropyIsolationFilter, FixedGainFilter
+
+    plant, noise, trace = _paper002(0.0 if missing == "em" else 0.2)   # EM streams complete outputs only
+    model = plant.model(noise)
+    if kind == "fixed":
+        estimator = FixedGainFilter(gain=0.3, missing=missing)
+    else:
+        estimator = EntropyIsolationFilter(n_particles=50, missing=missing).fit(trace, model, np.random.default_rng(0))
+    batch = estimator.estimate(trace, model)
+    stage = estimator.online(model, _source(plant, noise), trace)
+    assert stage.inputs == ("y_y", "x_true")
+    rng = np.random.default_rng(6)
+    for run in range(3):
+        columns = {"y_y": trace.y[run, :, 0], "x_true": trace.x[run, :, 0]}
+        assert missing == "em" or np.isnan(columns["y_y"]).any()      # gaps in the stream
+        whole = three_ways(stage, columns, rng)
+        close(whole["residual_y"], batch.r[run, :, 0])
+        for name in ("error", "x_hat", "gain", "y_filled", "innovation"):
+            close(whole[name], batch.extra[name][run])
+    assert np.isnan(whole["residual_y"]).any() == (missing != "em")
+
+
+@pytest.mark.parametrize("name", ["OnlineGainFilter_fixed_hold", "OnlineGainFilter_entropy_skip"])
+def test_a_gain_filter_saved_with_its_removed_class_loads_and_scores_the_same(name):
+    from mosd.estimators.step import EstimatorStage
+
+    check_legacy(name, EstimatorStage)

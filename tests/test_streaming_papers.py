@@ -1,6 +1,6 @@
 """Papers 001–003 deploy from their raw inputs (issue 28): each estimator's causal form reproduces its batch.
 
-* paper 002's gain filters (:class:`~mosd.estimators.entropy_filter.OnlineGainFilter`): the raw output with NaN
+* paper 002's gain filters (their :class:`~mosd.estimators.step.EstimatorStage`): the raw output with NaN
   gaps in, every missing-value fill the batch has (``hold``, ``skip``; an ``em`` design refuses a gap);
 * paper 001's asynchronous IMM (:class:`~mosd.estimators.async_imm.OnlineIMM`): raw packets per fusion row,
   lost packets absent, slots in any order (out-of-order arrival), a late packet counted and not fused;
@@ -146,7 +146,7 @@ def test_paper002_em_design_on_gappy_data_has_no_raw_model_and_says_why():
     source = {"plant": describe(plant), "noise": describe(noise)}
     with pytest.raises(NoStreamingForm, match=r"^the EM fill of missing outputs \(estimator.missing=em\) .*not causal"):
         FixedGainFilter(missing="em").online(model, source, trace)
-    assert FixedGainFilter(missing="hold").online(model, source, trace).missing == "hold"
+    assert FixedGainFilter(missing="hold").online(model, source, trace).design["missing"] == "hold"
 
 
 def test_paper002_stream_past_the_designed_schedule_is_one_line():

@@ -41,7 +41,6 @@ enters the same recursion (the paper's case 2: "repair, then filter").
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -49,8 +48,8 @@ from ..faults.random_amplitude import RandomAmplitudeFault
 from ..streaming import COUNT, FINITE, NoStreamingForm, StateVar, build
 from ..types import Residuals, Trace
 from ..validation import ConfigError, Interval, Param
-from .base import Estimator, PlantStage
 from .imputation import HALF_WIDTHS, EMImputer, hold_last
+from .step import StepEstimator
 
 #: fills of a missing output: EM on lag windows (the paper), hold the last sample, or skip the correction
 MISSING = ("em", "hold", "skip")
@@ -109,7 +108,7 @@ TRUTH = "x_true"
 
 def gain_step(model, x_hat: np.ndarray, y_filled: np.ndarray, gain: float) -> np.ndarray:
     """x̂_{k+1} = f(x̂_k) + U_k (ỹ_k − h(x̂_k)) (module docstring): the one arithmetic of the batch estimate
-    and the causal form (:class:`OnlineGainFilter`). A missing ỹ_k (``skip``, and ``hold`` before the first
+    and the causal form (:meth:`_GainFilter.scan`). A missing ỹ_k (``skip``, and ``hold`` before the first
     sample) leaves the prediction uncorrected."""
     return model.f(x_hat) + gain * np.nan_to_num(y_filled - model.h(x_hat))
 
@@ -125,8 +124,30 @@ def _design_fault(law: str, role: str):
     return check
 
 
-class _GainFilter(Estimator):
-    """x̂_{k+1} = f(x̂_k) + U_k (ỹ_k − h(x̂_k)) on EM-filled outputs ỹ, vectorised over runs."""
+def gain_recursion(model, x_start: np.ndarray, y_filled: np.ndarray, gains: np.ndarray):
+    """(x̂_k, x̂_{k+1}) of every run (R, N) by :func:`gain_step` from x̂ = ``x_start`` (R,) over ỹ (R, N) with the
+    gains U_k (N,): the recursion of the batch estimate and of :meth:`_GainFilter.scan`."""
+    runs, rows = y_filled.shape
+    x_hat, x_next = np.empty((runs, rows)), np.empty((runs, rows))
+    xk = np.array(np.broadcast_to(np.asarray(x_start, float), (runs,)))
+    for k in range(rows):
+        x_hat[:, k] = xk
+        xk = gain_step(model, xk, y_filled[:, k], gains[k])
+        x_next[:, k] = xk
+    return x_hat, x_next
+
+
+class _GainFilter(StepEstimator):
+    """x̂_{k+1} = f(x̂_k) + U_k (ỹ_k − h(x̂_k)) on EM-filled outputs ỹ, vectorised over runs.
+
+    Its step (:mod:`mosd.estimators.step`): :func:`gain_recursion` from the carried x̂ (``x_hat_next``, x̂_0 = 0)
+    with the fitted schedule U_0, U_1, ... (``filter_step``: rows seen, the index into it; a fixed gain
+    repeats its one gain, ``constant``). A missing output is filled as the batch fills it: ``skip`` leaves
+    it missing (no correction), ``hold`` takes the last observed output (state ``last_output``; NaN before
+    the first). ``em`` fills a gap from the whole run's lag windows (it needs the outputs after the gap:
+    not causal), so the scan refuses a gap of an ``em`` design in one line; with no gap the EM fill is
+    the identity and the scan equals the batch.
+    """
 
     params = {
         "missing": Param(MISSING, "Fill missing outputs by EM on lag windows (em), hold the last observed output "
@@ -161,23 +182,85 @@ class _GainFilter(Estimator):
         R, N = y.shape
         gains = self._gains(N)
         y_filled = self.fill(y)
-        x_hat = np.empty((R, N))
-        xk = np.zeros(R)  # x̂_0 = 0 (paper)
-        for k in range(N):
-            x_hat[:, k] = xk
-            xk = gain_step(model, xk, y_filled[:, k], gains[k])
+        x_hat, _ = gain_recursion(model, np.zeros(R), y_filled, gains)  # x̂_0 = 0 (paper)
         r = y - model.h(x_hat)
         extra = {"error": np.asarray(trace.x, float)[..., 0] - x_hat, "gain": np.broadcast_to(gains, (R, N)).copy(),
                  "x_hat": x_hat, "y_filled": y_filled, "innovation": y_filled - model.h(x_hat)}
         return Residuals.of(trace, r[..., None], ("y",), extra=extra)
 
-    # -- the causal form ----------------------------------------------------------------
+    # -- the step (mosd.estimators.step) ---------------------------------------------------
     def _schedule(self) -> tuple[np.ndarray, bool]:
         """(the gains U_0, U_1, ... a stream uses, whether the last repeats forever)."""
         return self._gains(1), True
 
-    def online(self, model=None, source=None, trace: Trace | None = None, truth: bool = True) -> "OnlineGainFilter":
-        """The filter as a stream of raw outputs: ``y_<output>`` (NaN where missing) in, one row per sample.
+    def step_params(self, model=None, trace: Trace | None = None) -> dict[str, np.ndarray]:
+        """The gain schedule (``gains``) and whether its last gain repeats forever (``constant``)."""
+        gains, constant = self._schedule()
+        return {"gains": np.asarray(gains, float), "constant": np.asarray(bool(constant))}
+
+    def step_state(self, params: dict) -> dict:
+        out = {"x_hat_next": (StateVar("The filter's estimate x̂ of the next row's state.", FINITE), 0.0),
+               "filter_step": (StateVar("Rows filtered since the stream's start (the index into the gain schedule).",
+                                        COUNT), 0)}
+        if self.missing == "hold":
+            out["last_output"] = (StateVar("The last observed output (NaN before the first).", FINITE, missing=True),
+                                  math.nan)
+        return out
+
+    def scan(self, model, params: dict, state: dict, columns: dict, trajectory: bool = False) -> dict:
+        """The batch estimate's outputs row by row (:meth:`StepEstimator.scan`): in, the raw output ``y_<output>``
+        (NaN where missing) and optionally the simulated state ``x_true``; out ``residual_<output>`` y − h(x̂),
+        ``innovation`` ỹ − h(x̂), ``x_hat``, ``gain`` U_k, ``y_filled`` ỹ and, with ``x_true``, ``error`` x − x̂."""
+        column = next(name for name in columns if name.startswith("y_"))
+        y = np.asarray(columns[column], float)
+        runs, rows = y.shape
+        gains = self._stream_gains(params, int(np.ravel(state["filter_step"])[0]), rows)
+        y_filled = self._causal_fill(y, state, column)
+        x_hat, x_next = gain_recursion(model, state["x_hat_next"], y_filled, gains)
+        out = {f"residual_{column[2:]}": y - model.h(x_hat), "innovation": y_filled - model.h(x_hat),
+               "x_hat": x_hat, "gain": np.broadcast_to(np.asarray(gains, float), (runs, rows)), "y_filled": y_filled}
+        if TRUTH in columns:
+            out["error"] = np.asarray(columns[TRUTH], float) - x_hat
+        if trajectory:
+            out["x_hat_next"] = x_next
+            out["filter_step"] = np.broadcast_to(np.ravel(state["filter_step"])[0] + np.arange(1, rows + 1), (runs, rows))
+            if self.missing == "hold":
+                out["last_output"] = y_filled
+        return out
+
+    @staticmethod
+    def _stream_gains(params: dict, first: int, rows: int) -> np.ndarray:
+        """U_first ... U_{first+rows−1}; a stream longer than a designed schedule is refused, as the batch refuses
+        runs longer than it."""
+        gains = np.asarray(params["gains"], float)
+        if bool(params["constant"]):
+            return np.broadcast_to(gains[-1], (rows,))
+        if first + rows > gains.shape[0]:
+            raise ConfigError(f"the stream is longer than the designed gain schedule ({gains.shape[0]} rows; "
+                              f"row {gains.shape[0] - first} of this chunk is past it); allowed: streams of at "
+                              f"most {gains.shape[0]} rows (fit on longer runs)")
+        return gains[first:first + rows]
+
+    def _causal_fill(self, y: np.ndarray, state: dict, column: str) -> np.ndarray:
+        """ỹ of the rows ``y`` (R, N) from what the stream has seen (class docstring)."""
+        if self.missing == "hold":
+            last = np.broadcast_to(np.asarray(state["last_output"], float), (y.shape[0],))
+            return hold_last(np.concatenate([last[:, None], y], axis=1))[:, 1:]
+        if self.missing == "em" and np.isnan(y).any():
+            row = int(np.flatnonzero(np.isnan(y).any(axis=0))[0])
+            raise ConfigError(f"input column {column!r} row {row} is missing: this design fills a gap "
+                              f"by EM on the whole run's lag windows (estimator.missing=em needs the outputs after "
+                              f"the gap), which a stream has not seen; allowed: no gap, or a design with "
+                              f"estimator.missing=hold or skip")
+        return y
+
+    def example_row(self, model, params: dict, reads: tuple) -> np.ndarray:
+        return np.zeros(len(reads))
+
+    # -- the causal form ----------------------------------------------------------------
+    def online(self, model=None, source=None, trace: Trace | None = None, truth: bool = True):
+        """The filter as a stream of raw outputs: ``y_<output>`` (NaN where missing) in, one row per sample
+        (:class:`~mosd.estimators.step.EstimatorStage` of :meth:`scan`).
 
         ``source`` describes the plant and noise the model is rebuilt from (:func:`mosd.streaming.describe`).
         ``truth``: the stream also carries the simulated state (column ``x_true``) and the stage outputs the
@@ -193,10 +276,9 @@ class _GainFilter(Estimator):
             raise NoStreamingForm("the EM fill of missing outputs (estimator.missing=em) uses the whole run's lag "
                                   "windows, outputs after each gap included: not causal (estimator.missing=hold "
                                   "or skip streams)")
-        gains, constant = self._schedule()
-        return OnlineGainFilter(plant=source["plant"], noise=source["noise"], gains=np.asarray(gains, float),
-                                constant=bool(constant), missing=self.missing,
-                                output_name=plant.output_names[0], truth=bool(truth))
+        name = plant.output_names[0]
+        return self.stage(model, source, (f"y_{name}", *((TRUTH,) if truth else ())),
+                          (f"residual_{name}", "innovation", "x_hat", "gain", "y_filled", *(("error",) if truth else ())))
 
     def raw_stream(self, trace: Trace, model, input_names) -> dict[str, np.ndarray]:
         """The first replication's outputs (NaN where missing) and simulated state as the causal form's columns."""
@@ -342,96 +424,3 @@ class EntropyIsolationFilter(_GainFilter):
     def __repr__(self) -> str:
         return (f"EntropyIsolationFilter(n_particles={self.n_particles}, R1={self.R1:g}, R2={self.R2:g}, "
                 f"gain_box=[{self.gain_low:g}, {self.gain_high:g}], missing={self.missing!r})")
-
-
-@dataclass
-class OnlineGainFilter(PlantStage):
-    """The causal form of :class:`EntropyIsolationFilter` and :class:`FixedGainFilter` (paper 002).
-
-    In per row: the raw output ``y_<output>`` (NaN where it is missing) and, with ``truth``, the simulated
-    state ``x_true``. Out: ``residual_<output>`` y − h(x̂), ``innovation`` ỹ − h(x̂), ``x_hat``, ``gain`` U_k,
-    ``y_filled`` ỹ and, with ``truth``, ``error`` x − x̂: the batch estimate's outputs row by row (one
-    arithmetic: :func:`gain_step`). The gain schedule U_0, U_1, ... is the fitted design's (``gains``; a
-    fixed-gain filter repeats its one gain, ``constant``); a stream longer than the design is refused,
-    as the batch refuses runs longer than it.
-
-    A missing output is filled as the batch fills it: ``skip`` leaves it missing (no correction), ``hold``
-    takes the last observed output (state ``last_output``; NaN before the first: no correction). ``em``
-    fills a gap from the whole run's lag windows (it needs the outputs after the gap: not causal), so a
-    gap in the stream of an ``em`` design is refused with one line; with no gap the EM fill is the
-    identity and the stream equals the batch. State: ``x_hat_next`` (x̂ of the next row, x̂_0 = 0) and
-    ``filter_step`` (rows seen: the index into the schedule).
-    """
-
-    plant: dict
-    noise: dict
-    gains: np.ndarray
-    constant: bool
-    missing: str
-    output_name: str = "y"
-    truth: bool = True
-
-    @property
-    def inputs(self) -> tuple[str, ...]:
-        return (f"y_{self.output_name}", *((TRUTH,) if self.truth else ()))
-
-    @property
-    def outputs(self) -> tuple[str, ...]:
-        return (f"residual_{self.output_name}", "innovation", "x_hat", "gain", "y_filled",
-                *(("error",) if self.truth else ()))
-
-    def state_vars(self) -> dict[str, StateVar]:
-        out = {"x_hat_next": StateVar("The filter's estimate x̂ of the next row's state.", FINITE),
-               "filter_step": StateVar("Rows filtered since the stream's start (the index into the gain schedule).",
-                                       COUNT)}
-        if self.missing == "hold":
-            out["last_output"] = StateVar("The last observed output (NaN before the first).", FINITE, missing=True)
-        return out
-
-    def initial_state(self) -> dict:
-        out = {"x_hat_next": 0.0, "filter_step": 0}   # x̂_0 = 0 (paper)
-        if self.missing == "hold":
-            out["last_output"] = math.nan
-        return out
-
-    def example_row(self) -> np.ndarray:
-        return np.zeros(len(self.inputs))
-
-    def _fill(self, y: np.ndarray, state) -> np.ndarray:
-        if self.missing == "hold":
-            return hold_last(np.concatenate([[float(state["last_output"])], y])[None])[0, 1:]
-        if self.missing == "em" and np.isnan(y).any():
-            row = int(np.flatnonzero(np.isnan(y))[0])
-            raise ConfigError(f"input column 'y_{self.output_name}' row {row} is missing: this design fills a gap "
-                              f"by EM on the whole run's lag windows (estimator.missing=em needs the outputs after "
-                              f"the gap), which a stream has not seen; allowed: no gap, or a design with "
-                              f"estimator.missing=hold or skip")
-        return y
-
-    def update(self, columns, state) -> dict[str, np.ndarray]:
-        model = self._model()
-        y = np.asarray(columns[f"y_{self.output_name}"], float)
-        rows, first = len(y), int(state["filter_step"])
-        if self.constant:
-            gains = np.broadcast_to(self.gains[-1], (rows,))
-        elif first + rows > self.gains.shape[0]:
-            raise ConfigError(f"the stream is longer than the designed gain schedule ({self.gains.shape[0]} rows; "
-                              f"row {self.gains.shape[0] - first} of this chunk is past it); allowed: streams of at "
-                              f"most {self.gains.shape[0]} rows (fit on longer runs)")
-        else:
-            gains = self.gains[first:first + rows]
-        y_filled = self._fill(y, state)
-        x_hat, x_next = np.empty(rows), np.empty(rows)
-        xk = np.array([float(state["x_hat_next"])])
-        for k in range(rows):
-            x_hat[k] = xk[0]
-            xk = gain_step(model, xk, y_filled[k:k + 1], gains[k])
-            x_next[k] = xk[0]
-        out = {f"residual_{self.output_name}": y - model.h(x_hat), "innovation": y_filled - model.h(x_hat),
-               "x_hat": x_hat, "gain": np.array(gains, float), "y_filled": y_filled,
-               "x_hat_next": x_next, "filter_step": first + np.arange(1, rows + 1, dtype=np.int64)}
-        if self.truth:
-            out["error"] = np.asarray(columns[TRUTH], float) - x_hat
-        if self.missing == "hold":
-            out["last_output"] = y_filled
-        return out

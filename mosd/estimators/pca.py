@@ -13,20 +13,23 @@ tunes the number of components itself.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from ..detectors.pca import PCAModel, project
-from ..streaming import OnlineStage
 from ..types import Residuals, Trace
 from ..validation import ConfigError, Interval, Param
-from .base import Estimator
+from .step import StepEstimator
 
 
-class PCAResidual(Estimator):
-    """T², SPE and scores of a PCA fitted on fault-free runs (module docstring)."""
+class PCAResidual(StepEstimator):
+    """T², SPE and scores of a PCA fitted on fault-free runs (module docstring).
+
+    Its step (:mod:`mosd.estimators.step`) is :func:`pca_residual` of each row on its own: no state. The
+    batch estimate and the served stage (the tags in by name; ``residual_<tag>``, ``t2``, ``spe`` and
+    ``scores_<j>`` out) run that one function with the fitted arrays of :meth:`step_params`.
+    """
 
     params = {
         "n_components": Param(Interval(1, 10_000, integer=True), "Principal components a (and below the number of "
@@ -51,9 +54,7 @@ class PCAResidual(Estimator):
 
     def estimate(self, trace: Trace, model: Any = None) -> Residuals:
         fitted = self._fitted()
-        a = self.n_components
-        residual, t2, spe, scores = pca_residual(trace.y, fitted.mean, fitted.scale, fitted.loadings[:, :a],
-                                                 fitted.eigenvalues[:a])
+        residual, t2, spe, scores = pca_residual(trace.y, **self.step_params())
         extra = {"t2": t2, "spe": spe, "scores": scores}
         return Residuals.of(trace, r=residual, channels=fitted.names, extra=extra)
 
@@ -64,14 +65,33 @@ class PCAResidual(Estimator):
                               "(the experiment does this)")
         return fitted
 
-    # -- the causal form ----------------------------------------------------------------
-    def online(self, model: Any = None, source=None, trace: Trace | None = None) -> "OnlinePCAResidual":
-        """The fitted PCA as a stream of the measured tags (one column per variable, by its name): memoryless."""
+    # -- the step (mosd.estimators.step) ---------------------------------------------------
+    def step_params(self, model: Any = None, trace: Trace | None = None) -> dict[str, np.ndarray]:
+        """The fitted PCA's mean, scale, first a loadings and eigenvalues (:func:`pca_residual`'s arrays)."""
         fitted, a = self._fitted(), self.n_components
-        return OnlinePCAResidual(tags=tuple(fitted.names), mean=np.asarray(fitted.mean, float),
-                                 scale=np.asarray(fitted.scale, float),
-                                 loadings=np.ascontiguousarray(fitted.loadings[:, :a], dtype=float),
-                                 eigenvalues=np.asarray(fitted.eigenvalues[:a], float))
+        return {"mean": np.asarray(fitted.mean, float), "scale": np.asarray(fitted.scale, float),
+                "loadings": np.ascontiguousarray(fitted.loadings[:, :a], dtype=float),
+                "eigenvalues": np.asarray(fitted.eigenvalues[:a], float)}
+
+    def scan(self, model, params: dict, state: dict, columns: dict, trajectory: bool = False) -> dict:
+        """:func:`pca_residual` of every row (:meth:`StepEstimator.scan`); the columns are the tags in the fitted
+        order (their names: ``residual_<tag>`` out)."""
+        tags = list(columns)
+        residual, t2, spe, scores = pca_residual(np.stack([columns[t] for t in tags], axis=-1), **params)
+        out = {f"residual_{tag}": residual[..., j] for j, tag in enumerate(tags)}
+        out.update({"t2": t2, "spe": spe})
+        out.update({f"scores_{j}": scores[..., j] for j in range(scores.shape[-1])})
+        return out
+
+    def example_row(self, model, params: dict, reads: tuple) -> np.ndarray:
+        return np.asarray(params["mean"], float)
+
+    # -- the causal form ----------------------------------------------------------------
+    def online(self, model: Any = None, source=None, trace: Trace | None = None):
+        """The fitted PCA as a stream of the measured tags (one column per variable, by its name): memoryless."""
+        tags, a = tuple(self._fitted().names), self.n_components
+        return self.stage(None, None, tags, (*(f"residual_{tag}" for tag in tags), "t2", "spe",
+                                             *(f"scores_{j}" for j in range(a))))
 
     def raw_stream(self, trace: Trace, model: Any, input_names=()) -> dict[str, np.ndarray]:
         """The first replication's measurements, one column per variable (the causal form's inputs)."""
@@ -86,7 +106,7 @@ def pca_residual(Y, mean, scale, loadings, eigenvalues):
     taken in a fixed order over one row's own numbers (both products through
     :func:`mosd.detectors.pca.project`, not a BLAS product, whose kernel a BLAS picks by the row count):
     a series gives the same bits in one call, in chunks or row by row, so the batch estimate and
-    :class:`OnlinePCAResidual` agree bit for bit. A row with a missing value gives NaN.
+    :meth:`PCAResidual.scan` agree bit for bit. A row with a missing value gives NaN.
     """
     Z = (np.asarray(Y, float) - mean) / scale
     m, a = loadings.shape
@@ -99,35 +119,3 @@ def pca_residual(Y, mean, scale, loadings, eigenvalues):
     for i in range(m):
         spe += residual[..., i] ** 2
     return residual, t2, spe, t
-
-
-@dataclass
-class OnlinePCAResidual(OnlineStage):
-    """:class:`PCAResidual`'s causal form: the tags in (by name), ``residual_<tag>``, ``t2``, ``spe`` and
-    ``scores_<j>`` out (:func:`pca_residual`); no state (each row is scored on its own)."""
-
-    tags: tuple
-    mean: np.ndarray
-    scale: np.ndarray
-    loadings: np.ndarray
-    eigenvalues: np.ndarray
-
-    @property
-    def inputs(self) -> tuple[str, ...]:
-        return tuple(self.tags)
-
-    @property
-    def outputs(self) -> tuple[str, ...]:
-        return (*(f"residual_{tag}" for tag in self.tags), "t2", "spe",
-                *(f"scores_{j}" for j in range(len(self.eigenvalues))))
-
-    def example_row(self) -> np.ndarray:
-        return np.asarray(self.mean, float)
-
-    def update(self, columns, state) -> dict[str, np.ndarray]:
-        Y = np.column_stack([np.asarray(columns[tag], float) for tag in self.tags])
-        residual, t2, spe, scores = pca_residual(Y, self.mean, self.scale, self.loadings, self.eigenvalues)
-        out = {f"residual_{tag}": residual[:, j] for j, tag in enumerate(self.tags)}
-        out.update({"t2": t2, "spe": spe})
-        out.update({f"scores_{j}": scores[:, j] for j in range(scores.shape[1])})
-        return out
