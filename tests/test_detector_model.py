@@ -1,8 +1,8 @@
 """The tuned recorded-data detector as an MLflow pyfunc model, and ``python -m mosd monitor`` (issues 24, 28).
 
-* :class:`mosd.detectors.pca.OnlinePCA` (``PCADetector.online``) alarms where :class:`PCADetector.decide`
-  alarms (EWMA and persistence included), bit for bit, in one call, in chunks and row by row with the
-  state carried;
+* the served PCA (``PCADetector.online``: the generic :class:`~mosd.detectors.latent_stage.LatentStage`) alarms
+  where :class:`PCADetector.decide` alarms (EWMA and persistence included), bit for bit, in one call, in chunks
+  and row by row with the state carried;
 * a missing or extra column is a one-line error naming it; column order does not matter;
 * end to end: a ``data=table`` run logs the model, its URI is in the summary, and ``mosd monitor`` on the
   test split's rows gives the run's own test FAR and MDR and the detector's alarms row by row.
@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mosd.detectors.pca import PCADetector
+from mosd.detectors.pca import PCADetector, PCAModel
 from mosd.monitors.outputs import OutputMonitor
 from mosd.streaming import OnlinePipeline
 from mosd.validation import ConfigError
@@ -44,7 +44,7 @@ def _same(a, b):
 
 
 class FittedPCA:
-    """The pipeline a PCA run deploys (the selection monitor → OnlinePCA), scored on tag rows."""
+    """The pipeline a PCA run deploys (the selection monitor → the PCA's generic stage), scored on tag rows."""
 
     def __init__(self, detector, calibration, tags=TAGS):
         self.pipeline = OnlinePipeline([OutputMonitor(burn_in=0).online(tuple(tags)), detector.online(calibration, tags)])
@@ -104,7 +104,7 @@ def test_top_contributors_are_the_largest_of_the_model_s_contributions():
     fitted = FittedPCA(PCADetector(fit_runs=1, max_components=5, n_components=2), calibration)
     rows = np.concatenate([X[600:]] * 8)
     out = fitted.score(rows)
-    c_t2, c_spe = fitted.pca.model().contributions(rows, 2)
+    c_t2, c_spe = PCAModel.from_fitted(fitted.pca.fitted).contributions(rows, 2)
     for name, c in (("t2", c_t2), ("spe", c_spe)):
         expected = [";".join(TAGS[j] for j in order[:3]) for order in np.argsort(-c, axis=1, kind="stable")]
         assert list(out[f"top_{name}"]) == expected
@@ -121,8 +121,8 @@ def test_spe_includes_what_lies_outside_the_loadings_when_fewer_fit_rows_than_ta
 
     X, _ = plant()
     fitted = FittedPCA(PCADetector(fit_runs=1, max_components=3, n_components=2), np.stack([X[:5], X[5:10]]))
-    assert fitted.pca.loadings.shape[1] < len(TAGS)                          # 5 rows, 6 tags: rank 5
-    model = fitted.pca.model()
+    assert fitted.pca.fitted["loadings"].shape[1] < len(TAGS)               # 5 rows, 6 tags: rank 5
+    model = PCAModel.from_fitted(fitted.pca.fitted)
     expected = _Projected.of(model, X[None, 600:]).spe[0, :, 1]
     assert np.array_equal(fitted.score(X[600:])["spe"], expected)
     # SPE is the squared norm of the residual (I − Pₐ Pₐᵀ) z, the part outside the loadings included

@@ -1,15 +1,16 @@
 """Monitor families on the family base (issue 29, :mod:`mosd.detectors.latent`).
 
-For every family: the deployed generic stage (:class:`OnlineLatent`) decides exactly what the tuning's
-population decides, in one call, in chunks and after a save/load round trip; each family's statistics
-against a direct formula on a small case (in the family's own test below).
+For every family: the deployed generic stage (:class:`~mosd.detectors.latent_stage.LatentStage`) decides
+exactly what the tuning's population decides, in one call, in chunks and after a save/load round trip; each
+family's statistics against a direct formula on a small case (in the family's own test below).
 """
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from mosd.detectors.latent import LatentDetector, OnlineLatent, lag_state, lagged
+from mosd.detectors.latent_stage import LatentStage
+from mosd.detectors.latent import LatentDetector, lag_state, lagged
 from mosd.detectors.pca import PCADetector
 from mosd.monitors.outputs import OutputMonitor
 from mosd.streaming import OnlinePipeline
@@ -40,7 +41,7 @@ def stream_equals_population(detector: LatentDetector, X: np.ndarray, tmp_path=N
     expected = detector.decide(calibration, X[None, n_cal:])
     columns = monitor.stream(outputs, TAGS)
     stage = LatentDetector.online(detector, calibration, tuple(columns))
-    assert isinstance(stage, OnlineLatent)
+    assert isinstance(stage, LatentStage)
     pipeline = OnlinePipeline([monitor.online(tuple(columns)), stage])
     whole = check_chunks(pipeline, columns)
     assert np.array_equal(whole["alarm"], expected.decision[0].astype(bool))
@@ -55,20 +56,26 @@ def stream_equals_population(detector: LatentDetector, X: np.ndarray, tmp_path=N
     return whole, expected
 
 
-def test_pca_family_generic_stage_equals_its_own_stage_and_population(tmp_path):
+def test_pca_family_generic_stage_equals_population_compiled_and_numpy(tmp_path):
     X = plant_rows()
     detector = PCADetector(n_components=2, alpha=0.02, lam=0.4, persistence=2, fit_runs=1, max_components=4)
     whole, expected = stream_equals_population(detector, X, tmp_path)
     assert 0 < expected.decision.sum() < expected.decision.size
-    # PCA's own stage (with the contributing tags) scores the same bits
+    # the served PCA scores its rows in one compiled pass (with the contributing tags); the NumPy blocks give
+    # the same numbers (the kernel's sums are the array form's, tests/test_pca_fused_scoring.py)
+    from mosd import kernels
+
     calibration = np.stack([X[:200], X[200:400]])
-    own = detector.online(calibration, TAGS)
+    stage = detector.online(calibration, TAGS)
     columns = {"point": np.ones(300, np.int64), **{f"z_{j}": X[400:, j - 1] for j in range(1, 6)}}
-    a = own.update(columns, own.initial_state())
-    generic = LatentDetector.online(detector, calibration, TAGS)
-    b = generic.update(columns, generic.initial_state())
-    for key in ("t2", "spe", "t2_smoothed", "spe_smoothed", "ratio", "alarm"):
-        assert _same(a[key], b[key]), key
+    a = stage.update(columns, stage.initial_state())
+    with kernels.disabled():
+        b = detector.online(calibration, TAGS).update(columns, stage.initial_state())
+    for key in ("t2", "spe", "t2_smoothed", "spe_smoothed", "ratio"):
+        np.testing.assert_allclose(a[key], b[key], rtol=1e-12, atol=0, err_msg=key)
+    for key in ("alarm", "top_t2", "top_spe"):
+        assert np.array_equal(a[key], b[key]), key
+    assert set(a["top_spe"][a["alarm"]]) - {""}
 
 
 def test_family_params_are_the_common_ones_after_the_familys_own():

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from mosd.detectors.cva import CVADetector
-from mosd.detectors.latent import LatentDetector, OnlineLatent, flat_statistic, increment_scale
+from mosd.detectors.latent_stage import LatentStage
+from mosd.detectors.latent import LatentDetector, flat_statistic, increment_scale
 from mosd.detectors.pca import PCADetector
 from mosd.detectors.sfa import SFADetector
 from mosd.validation import ConfigError
@@ -88,7 +89,7 @@ def test_pca_with_flatline_is_served_by_the_generic_stage():
     calibration = np.stack([X[:200], X[200:400]])
     stage = PCADetector(n_components=2, lam=0.5, fit_runs=1, max_components=4, flatline=0.3).online(
         calibration, tuple("abcde"))
-    assert isinstance(stage, OnlineLatent) and "flat" in stage.names
+    assert isinstance(stage, LatentStage) and "flat" in stage.names
     assert {"flat_last_1", "flat_ewma_5"} <= set(stage.state_vars())
     assert PCADetector(n_components=2, fit_runs=1, max_components=4).names() == ("t2", "spe")
 

@@ -314,11 +314,13 @@ def test_model_files_written_before_the_pipeline_still_load(tmp_path):
     X = rng.normal(size=(300, 4))
     pca = detector.online(X[None], tuple("abcd"))
     (tmp_path / "pca").mkdir()
-    meta = {k: getattr(pca, k) for k in ("n_fit", "n_components", "alpha", "lam", "persistence", "statistic",
-                                         "t2_limit", "spe_limit", "t2_start", "spe_start")}
+    # the fields the old OnlinePCA wrote, from the generic stage that replaced it
+    limits, starts = dict(zip(pca.names, pca.limits)), dict(zip(pca.names, pca.starts))
+    meta = {"n_fit": int(pca.fitted["n"]), **{k: pca.design[k] for k in ("n_components", "alpha", "lam", "persistence",
+                                                                         "statistic")},
+            "t2_limit": limits["t2"], "spe_limit": limits["spe"], "t2_start": starts["t2"], "spe_start": starts["spe"]}
     np.savez(tmp_path / "pca" / "pca_detector.npz", meta=np.array(json.dumps({**meta, "fill": "hold"})),
-             mean=pca.mean, scale=pca.scale, loadings=pca.loadings, eigenvalues=pca.eigenvalues,
-             tags=np.array(list("abcd")))
+             **{k: pca.fitted[k] for k in ("mean", "scale", "loadings", "eigenvalues")}, tags=np.array(list("abcd")))
     old = load_fitted(tmp_path / "pca" / "pca_detector.npz")
     assert old.fill == "hold" and old.inputs == tuple("abcd")
     rows = {t: X[:, j] for j, t in enumerate("abcd")}

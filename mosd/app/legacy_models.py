@@ -24,7 +24,7 @@ def _read(path: Path) -> tuple[dict, dict]:
 def load_legacy(path: str | Path) -> OnlinePipeline:
     """The pipeline of an old ``chart_detector.npz`` or ``pca_detector.npz``."""
     from ..detectors.chart import OnlineChart
-    from ..detectors.pca import OnlinePCA
+    from ..detectors.latent_stage import legacy_online_pca
     from ..monitors.step import LEGACY as LEGACY_MONITORS
 
     path = Path(path)
@@ -44,6 +44,6 @@ def load_legacy(path: str | Path) -> OnlinePipeline:
                             limit_value=float(meta["limit_value"]), n=n)
         return OnlinePipeline([monitor, chart], fill=fill)
     tags = tuple(str(t) for t in arrays.pop("tags"))
-    pca = OnlinePCA(tags=tags, **arrays, **meta)
+    pca = legacy_online_pca({"tags": tags, **arrays, **meta})   # the generic stage of the same PCA
     select = LEGACY_MONITORS["mosd.monitors.outputs.OnlineSelect"]({"columns": tags, "burn_in": 0})
     return OnlinePipeline([select, pca], fill=fill)

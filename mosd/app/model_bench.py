@@ -51,15 +51,15 @@ def monitor_benchmark(quick: bool = False) -> dict:
     pca = pipeline.stages[-1]
     repeats = 5 if quick else 25
     X = frame.to_numpy()
-    a = pca.n_components
-    P = np.ascontiguousarray(np.asarray(pca.loadings).T)
-    inverse = 1.0 / np.asarray(pca.eigenvalues)[:a, None]
+    a, fitted = pca.design["n_components"], pca.fitted   # the generic stage's design and PCA model
+    P = np.ascontiguousarray(np.asarray(fitted["loadings"]).T)
+    inverse = 1.0 / np.asarray(fitted["eigenvalues"])[:a, None]
 
     def floor():
         # the least any T² and SPE scoring does: standardise, one projection, two sums per row
         # (one BLAS thread, the whole array at once, no DataFrame in or out, no EWMA, no alarm)
         with _one_blas_thread():
-            Z = (X - pca.mean) / pca.scale
+            Z = (X - fitted["mean"]) / fitted["scale"]
             squares = P @ Z.T
             squares *= squares
             return np.sum(squares[:a] * inverse, axis=0), np.sum(squares[a:], axis=0)

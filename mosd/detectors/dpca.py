@@ -77,6 +77,9 @@ class DPCADetector(PCADetector):
     def state(self, fitted, design):
         return lag_state(self._m(fitted), int(fitted["lags"]))
 
-    def online(self, calibration_z, inputs):
-        """The generic :class:`~mosd.detectors.latent.OnlineLatent` (its state carries the lag buffer)."""
-        return LatentDetector.online(self, calibration_z, inputs)
+    def score_rows(self, fitted, X, design, carried, explain=None):
+        """The base's (:meth:`score` on the lagged rows, the lag buffer carried), not PCA's per-row top tags."""
+        return LatentDetector.score_rows(self, fitted, X, design, carried, explain)
+
+    def explained(self, design) -> tuple[str, ...]:
+        return ()

@@ -4,8 +4,9 @@ A monitor family (PCA, DPCA, CVA, slow features, per-tag charts, ICA, kernel PCA
 is a :class:`LatentDetector` subclass that supplies four things; the base does everything else the
 same way for every family: the EWMA of each statistic, the limits (theoretical or empirical on
 held-back calibration runs), the combined rule, the persistence, the optimiser's population, the
-figures' statistics and the causal streaming stage (:class:`OnlineLatent` on the contract of
-:mod:`mosd.streaming`). Every family is therefore tuned, scored, saved and served with no extra code.
+figures' statistics and the causal streaming stage (the generic
+:class:`~mosd.detectors.latent_stage.LatentStage` on the contract of :mod:`mosd.streaming`). Every family is
+therefore tuned, scored, saved and served with no extra code.
 
 The contract of a family
 ------------------------
@@ -56,25 +57,30 @@ What the base does (for every statistic S of the design)
 * ratio_k = max over the alarmed statistics of S̃_k / limit; alarm when ratio > 1 for
   ``persistence`` consecutive rows (:func:`~mosd.detectors.base.persistent`).
 
-The tuning (:meth:`LatentDetector.population`), the figures (:meth:`LatentDetector.statistics`)
-and the deployed stage (:class:`OnlineLatent`) run these same functions, so a design scores the
-same bits in all three (``tests/test_families.py`` checks it per family).
+All of it is one recursion, written once: :meth:`LatentDetector.scan` (``step_params`` → the design's
+fitted model, limits and starts; ``step_state`` → the declared state; ``scan(params, state, rows)`` → each
+row's statistics, ratio and alarm, and the state after it). The tuning and the test evaluation
+(:meth:`LatentDetector.population`, every run from its start) and the served stage
+(:class:`~mosd.detectors.latent_stage.LatentStage`, the rows it is given from the state it is given) both
+call it, so a stream scored whole, in chunks or row by row decides what the population decides
+(``tests/test_step_latent.py``, ``tests/test_families.py``).
 """
 from __future__ import annotations
 
 import copy
-import json
 import math
-from dataclasses import dataclass, field
 from functools import reduce
 from typing import Mapping
 
 import numpy as np
 
-from .. import kernels
-from ..streaming import COUNT, FINITE, SQUARES, OnlineStage, StateVar, build, describe, points_of, spread
+from ..streaming import COUNT, FINITE, LEGACY_STAGES, SQUARES, StateVar
 from ..validation import Component, ConfigError, Interval, Param, check_choice
 from .base import Decisions, Detector, persistent, run_lengths
+from .latent_helpers import _smoothed, empirical_limit, flat_statistic, increment_scale, smoothed_values
+# the families import the row-wise helpers from here
+from .latent_helpers import complete_rows, ewma_from, lag_state, lagged, scaling  # noqa: F401 (re-exported)
+
 
 LIMITS = ("theoretical", "empirical")
 
@@ -127,6 +133,10 @@ def lam_floor(run_length: int) -> float:
     return 2.0 / (float(run_length) / MEMORIES_PER_RUN + 1.0)
 
 
+#: rows × runs below which :meth:`LatentDetector.scan` counts the persistence with the reference
+#: :func:`~mosd.detectors.base.run_lengths` (the same integers as the compiled :func:`~mosd.detectors.base.persistent`,
+#: whose call costs more than a served row's whole count)
+SMALL = 4096
 #: the smallest empirical limit, relative to the statistic's in-control scale (``LatentDetector._parts``)
 RESOLUTION = 1e-6
 #: entries a detector's cache keeps (fits, scores of data sets): a tuning needs a few per distinct fit
@@ -251,6 +261,7 @@ class LatentDetector(Detector):
     def __getstate__(self):
         state = dict(self.__dict__)
         state["_cache"] = {}
+        state.pop("_rows", None)   # a family's per-stream scratch (PCA's contribution maps and label tables)
         return state
 
     def fit_rows(self, calibration_z: np.ndarray) -> np.ndarray:
@@ -347,10 +358,18 @@ class LatentDetector(Detector):
         return self.limits == "empirical" or lam < 1.0
 
     def _parts(self, calibration_z: np.ndarray, z: np.ndarray, design: Mapping, names) -> dict:
-        """{name: (smoothed statistic (R, K), limit, start)} of one design: what every decision shares."""
+        """{name: (smoothed statistic (R, K), limit, start)} of one design on z: what the figures plot."""
+        params = self.step_params(calibration_z, design, names)
+        own = self._scored(params["fitted"], z, design)
+        lam = float(design["lam"])
+        return {name: (smoothed_values(own[name], lam, params["starts"][name]), params["limits"][name],
+                       params["starts"][name]) for name in params["names"]}
+
+    def _limits(self, calibration_z: np.ndarray, design: Mapping, names) -> dict:
+        """{name: (limit, start)} of one design: each statistic's (1 − α) limit and its EWMA's start."""
         fitted = self.fitted(calibration_z, design)
         fit, held = self._split(calibration_z)
-        own, on_fit = self._scored(fitted, z, design), self._scored(fitted, fit, design)
+        on_fit = self._scored(fitted, fit, design)
         alpha, lam = float(design["alpha"]), float(design["lam"])
         floor = self.lam_floor_of(calibration_z)
         if lam < 1.0 and lam < floor * (1.0 - 1e-9):
@@ -366,7 +385,6 @@ class LatentDetector(Detector):
         out = {}
         for name in names:
             start = self._start(on_fit[name])
-            value = smoothed_values(own[name], lam, start)
             limit = None if self._empirical(lam) or name == self.FLAT else self.limit(fitted, name, alpha, design)
             if limit is None:
                 on_held = self._scored(fitted, held, design)[name]
@@ -378,17 +396,19 @@ class LatentDetector(Detector):
                 # in-control scale the limit is numerical, not statistical
                 scale = max(abs(start), float(np.nanmax(np.abs(smoothed))) if np.isfinite(smoothed).any() else 0.0)
                 limit = max(limit, RESOLUTION * scale)
-            out[name] = (value, float(limit), start)
+            out[name] = (float(limit), start)
         return out
 
     def _start(self, on_fit: np.ndarray) -> float:
         """A statistic's in-control mean on the fit runs (its EWMA's start), once per scored array."""
         return self._remember(("start", id(on_fit)), (on_fit,), lambda: float(np.nanmean(on_fit)))
 
-    def _alarmed(self) -> tuple[str, ...]:
+    def _alarmed(self, design: Mapping | None = None) -> tuple[str, ...]:
+        """The statistics a design (default: this one) alarms on."""
+        design = self.get_params() if design is None else design
         # the flat statistic is a check beside the family's: it stays on when one family statistic is chosen
-        extra = self.names()[len(self.STATISTICS):]
-        return self.names() if self.statistic == "combined" else (self.statistic, *extra)
+        names = self.names(design)
+        return names if design["statistic"] == "combined" else (design["statistic"], *names[len(self.STATISTICS):])
 
     def statistics(self, calibration_z: np.ndarray, z: np.ndarray, design: dict | None = None) -> dict:
         """Every statistic of one design on z (smoothed when lam < 1) and its limit: what the figures plot.
@@ -402,31 +422,155 @@ class LatentDetector(Detector):
                 for key, v in ((name, value), (f"{name}_limit", limit))}
 
     def population(self, calibration_features: np.ndarray, features: np.ndarray, X: np.ndarray) -> Decisions:
-        """Decisions of every design in X (P, d), columns in the order of ``tunable``.
+        """Decisions of every design in X (P, d), columns in the order of ``tunable``: :meth:`scan` per design.
 
         The statistic is the ratio to the limit (the largest over the alarmed statistics), so the threshold is 1.
         """
         X = np.atleast_2d(np.asarray(X, float))
-        names = self._alarmed()
-        statistic = np.empty((X.shape[0],) + np.shape(features)[:2])
+        shape = (X.shape[0],) + np.shape(features)[:2]
+        statistic, alarm = np.empty(shape), np.empty(shape, np.int8)
+        for p, row in enumerate(X):
+            design = self.design_values(row)
+            # only the alarmed statistics: the others would be smoothed for nothing
+            out = self.scan(self.step_params(calibration_features, design, self._alarmed(design)), None, features)
+            statistic[p], alarm[p] = out["ratio"], out["alarm"]
+        return Decisions(statistic, np.ones((X.shape[0], 1, 1)), alarm)
+
+    # -- the one recursion: tuning, test evaluation and the served stage ------------------------
+    def step_params(self, calibration_z: np.ndarray, design: Mapping | None = None, names=None) -> dict:
+        """One design's parameters of :meth:`scan`, calibrated on ``calibration_z`` (R, K, m).
+
+        Returns ``{"design": every declared parameter's value, "fitted": the family's model (:meth:`fit`),
+        "names": the statistics scored, "limits" and "starts": name → its limit and its EWMA's start (the mean on
+        the fit rows)}``; ``names`` defaults to every statistic of the design (:meth:`names`).
+        """
+        design = self.design_values() if design is None else dict(design)
+        names = self.names(design) if names is None else tuple(names)
+        limits = self._limits(calibration_z, design, names)
+        return {"design": design, "fitted": self.fitted(calibration_z, design), "names": names,
+                "limits": {name: limit for name, (limit, _) in limits.items()},
+                "starts": {name: start for name, (_, start) in limits.items()}}
+
+    def step_state(self, params: Mapping) -> dict[str, tuple[StateVar, float]]:
+        """The state :meth:`scan` carries, declared once: name → (declaration, value at a stream's start).
+
+        ``ewma_<S>`` per statistic (from its start), ``run_length`` and the family's own (:meth:`state_all`).
+        """
+        own = self.state_all(params["fitted"], params["design"])
+        return {**{f"ewma_{name}": (StateVar(f"EWMA of {name} after the last row.", SQUARES),
+                                    float(params["starts"][name])) for name in params["names"]},
+                "run_length": (StateVar("Consecutive points above the limit.", COUNT), 0), **own}
+
+    def scan(self, params: Mapping, state: Mapping | None, X: np.ndarray, trajectory: bool = False,
+             explain: tuple[str, ...] | None = None) -> dict[str, np.ndarray]:
+        """Every statistic, its smoothed value and limit, the ratio and the alarm of one design on the rows X.
+
+        The one decision of the family (module docstring, "What the base does"): the tuning's and the test's
+        population (:meth:`population`, from a run's start) and the served stage
+        (:class:`~mosd.detectors.latent_stage.LatentStage`, from the carried state) both run it.
+
+        Parameters
+        ----------
+        params : dict
+            :meth:`step_params`.
+        state : dict or None
+            The declared state (:meth:`step_state`) before the first row, each a scalar or one value per run
+            (R,); None: every run from its start, the family's statistics cached per data set (a tuning scores
+            the same runs for many designs).
+        X : ndarray, shape (R, K, m)
+            Rows of the tags (or the monitor's points).
+        trajectory : bool
+            Also return every state variable after each row, (R, K).
+        explain : tuple of str, optional
+            The tags' names: also return the family's per-row explanation (:meth:`explained`).
+
+        Returns
+        -------
+        dict of ndarray
+            ``<S>``, ``<S>_smoothed`` (R, K) and ``<S>_limit`` (a float) per statistic S of ``params["names"]``,
+            ``ratio`` (the largest S̃/limit over the alarmed statistics, NaN on a row not scored) and ``alarm``
+            (R, K), bool; with ``trajectory`` the state after each row; with ``explain`` the explanation.
+        """
+        design, fitted = params["design"], params["fitted"]
+        X = np.asarray(X, float)
+        extra: dict = {}
+        if state is None and not trajectory and explain is None:
+            stats, after, state = self._scored(fitted, X, design), {}, {}
+        else:
+            # the declarations once per params (a served stream calls this per row)
+            declared = self._remember(("step_state", id(params)), (params,), lambda: self.step_state(params))
+            state = {**{name: value for name, (_, value) in declared.items()}, **(state or {})}
+            own = {name: _per_run(state[name], X.shape[0]) for name in declared
+                   if name != "run_length" and not name.startswith("ewma_")}
+            stats, after, extra = self.score_rows(fitted, X, design, own, explain)
+        lam, alarmed = float(design["lam"]), self._alarmed(design)
+        out: dict[str, np.ndarray] = {}
+        ratios = []
         with np.errstate(divide="ignore", invalid="ignore"):
-            for p, row in enumerate(X):
-                parts = self._parts(calibration_features, features, self.design_values(row), names)
-                statistic[p] = reduce(np.fmax, [value / limit for value, limit, _ in parts.values()])
-            above = statistic > 1.0
-        lengths = self.tunable["persistence"].round(X[:, list(self.tunable).index("persistence")], clip=True)
-        alarm = persistent(above, lengths.astype(int))
-        return Decisions(statistic, np.ones((X.shape[0], 1, 1)), alarm.astype(np.int8))
+            for name in params["names"]:
+                values, start, limit = stats[name], float(params["starts"][name]), float(params["limits"][name])
+                previous = _previous(state.get(f"ewma_{name}", start), X.shape[0])
+                if trajectory:  # the EWMA carries on through an unscored row (as its start): the state needs it
+                    smooth = out[f"ewma_{name}"] = _smoothed(values, lam, start, previous, masked=False)
+                    value = np.where(np.isfinite(values), smooth, np.nan)
+                else:
+                    value = _smoothed(values, lam, start, previous, masked=True)
+                out[name], out[f"{name}_smoothed"], out[f"{name}_limit"] = values, value, limit
+                if name in alarmed:
+                    ratios.append(value / limit)
+            ratio = reduce(np.fmax, ratios)
+            above = ratio > 1.0
+        carried = np.asarray(state.get("run_length", 0), np.int64)
+        carried = carried.reshape(-1) if carried.size > 1 else int(carried)
+        if above.size >= SMALL:
+            held, run = persistent(above[None], int(design["persistence"]), carried, counts=True)
+            held, run = held[0], run[0]
+        else:  # a few rows (a served stream): the reference count, without the compiled call's set-up
+            run = run_lengths(above, carried)
+            held = run >= int(design["persistence"])
+        out["ratio"], out["alarm"] = ratio, held
+        if trajectory:
+            out["run_length"] = run
+            out.update(after)
+        return {**out, **extra}
+
+    def score_rows(self, fitted: Mapping, X: np.ndarray, design: Mapping, carried: Mapping,
+                   explain: tuple[str, ...] | None = None):
+        """:meth:`score_all` on rows from the carried family state, and the per-row explanation (:meth:`explained`)
+        when ``explain`` names the tags: (statistics, state after each row, explanation). A family whose
+        explanation comes with its scores in one pass (PCA's top tags) overrides it."""
+        statistics, after = self.score_all(fitted, X, design, carried)
+        return statistics, after, {}
+
+    def explained(self, design: Mapping) -> tuple[str, ...]:
+        """The names of the per-row explanation :meth:`score_rows` adds (none by default; PCA: its top tags)."""
+        return ()
 
     # -- the causal form ----------------------------------------------------------------
-    def online(self, calibration_z: np.ndarray, inputs) -> "OnlineLatent":
-        """This design calibrated on ``calibration_z`` (R, K, m) as an :class:`OnlineLatent` on the columns ``inputs``."""
+    def online(self, calibration_z: np.ndarray, inputs):
+        """This design calibrated on ``calibration_z`` (R, K, m) as the served stage on the columns ``inputs``: the
+        generic :class:`~mosd.detectors.latent_stage.LatentStage` holding :meth:`step_params`."""
+        from .latent_stage import LatentStage
+
         calibration_z = np.asarray(calibration_z, float)
-        design = self.design_values()
-        parts = self._parts(calibration_z, calibration_z[:1, :1], design, self.names(design))
-        return OnlineLatent(tags=point_names(inputs, calibration_z.shape[-1]), detector=json.dumps(describe(self)),
-                            names=self.names(design), limits=tuple(p[1] for p in parts.values()),
-                            starts=tuple(p[2] for p in parts.values()), fitted=dict(self.fitted(calibration_z, design)))
+        params = self.step_params(calibration_z)
+        cls = type(self)
+        names = params["names"]
+        return LatentStage(tags=point_names(inputs, calibration_z.shape[-1]),
+                           detector=f"{cls.__module__}.{cls.__qualname__}", design=params["design"], names=names, limits=tuple(params["limits"][n] for n in names),
+                           starts=tuple(params["starts"][n] for n in names), fitted=dict(params["fitted"]))
+
+
+def _per_run(value, runs: int) -> np.ndarray:
+    """A carried state value (a scalar, or one per run) as (runs,)."""
+    value = np.asarray(value, float).reshape(-1)
+    return value if len(value) == runs else np.full(runs, value[0])
+
+
+def _previous(value, runs: int):
+    """An EWMA's carried value: a float when the runs share it (the compiled smoothing), else (runs, 1)."""
+    value = np.asarray(value, float)
+    return float(value.reshape(-1)[0]) if value.size == 1 else value.reshape(runs, 1)
 
 
 def point_names(inputs, m: int) -> tuple[str, ...]:
@@ -436,247 +580,12 @@ def point_names(inputs, m: int) -> tuple[str, ...]:
     return names if len(names) == m else tuple(f"z_{j}" for j in range(1, m + 1))
 
 
-@dataclass
-class OnlineLatent(OnlineStage):
-    """Any family's causal form: tag rows in; each statistic, its smoothed value and limit, the ratio and the alarm out.
+def _legacy_latent(fields: Mapping):
+    """The :class:`~mosd.detectors.latent_stage.LatentStage` of an ``OnlineLatent`` an older model saved."""
+    from .latent_stage import legacy_online_latent
 
-    ``detector`` is the tuned design (:func:`mosd.streaming.describe` as JSON: the family's class and
-    params), ``fitted`` the family's model (arrays and scalars, saved as ``fitted.<name>``), ``limits``
-    and ``starts`` the calibrated limit and the EWMA's start (the mean on the fit rows) of each
-    statistic in ``names``. The state: ``ewma_<S>`` per statistic, ``run_length`` and the family's own
-    (:meth:`LatentDetector.state`, e.g. a lag buffer). Outputs per row: ``<S>``, ``<S>_smoothed``,
-    ``<S>_limit`` for each statistic, ``ratio`` and ``alarm``.
-    """
-
-    tags: tuple
-    detector: str
-    names: tuple
-    limits: tuple
-    starts: tuple
-    fitted: dict = field(default_factory=dict)
-
-    def _family(self) -> LatentDetector:
-        family = self.__dict__.get("_built")
-        if family is None:
-            family = self.__dict__["_built"] = build(json.loads(self.detector))
-        return family
-
-    def _design(self) -> dict:
-        return self.__dict__.get("_values") or self.__dict__.setdefault("_values", self._family().design_values())
-
-    @property
-    def inputs(self) -> tuple[str, ...]:
-        return ("point", *(f"z_{j}" for j in range(1, len(self.tags) + 1)))
-
-    @property
-    def outputs(self) -> tuple[str, ...]:
-        return (*(f"{n}{suffix}" for n in self.names for suffix in ("", "_smoothed", "_limit")), "ratio", "alarm")
-
-    def state_vars(self) -> dict[str, StateVar]:
-        own = {name: var for name, (var, _) in self._family().state_all(self.fitted, self._design()).items()}
-        return {**{f"ewma_{n}": StateVar(f"EWMA of {n} after the last row.", SQUARES) for n in self.names},
-                "run_length": StateVar("Consecutive points above the limit.", COUNT), **own}
-
-    def initial_state(self) -> dict:
-        own = {name: initial for name, (_, initial) in self._family().state_all(self.fitted, self._design()).items()}
-        return {**{f"ewma_{n}": float(s) for n, s in zip(self.names, self.starts)}, "run_length": 0, **own}
-
-    def example_row(self) -> np.ndarray:
-        mean = self.fitted.get("mean")
-        return np.asarray(mean, float)[: len(self.tags)] if mean is not None else np.zeros(len(self.tags))
-
-    def update(self, columns, state) -> dict[str, np.ndarray]:
-        rows, at, X = points_of(columns, len(self.tags))
-        return spread(rows, at, self.score(X, state), state)
-
-    def score(self, X: np.ndarray, state) -> dict[str, np.ndarray]:
-        """Outputs and state after each row of X (rows, m: the tags in order), from ``state``."""
-        family, design = self._family(), self._design()
-        own = family.state_all(self.fitted, design)
-        carried = {k: np.asarray([state[k]], float) for k in own} or None
-        stats, after = family.score_all(self.fitted, np.asarray(X, float)[None], design, carried)
-        lam = float(design["lam"])
-        out: dict[str, np.ndarray] = {k: np.asarray(v)[0] for k, v in after.items()}
-        ratios = []
-        alarmed = family._alarmed()
-        for name, limit, start in zip(self.names, self.limits, self.starts):
-            values = np.asarray(stats[name])[0]
-            smooth = ewma_from(values, lam, float(start), previous=float(state[f"ewma_{name}"]))
-            value = np.where(np.isfinite(values), smooth, np.nan)
-            out[name], out[f"{name}_smoothed"], out[f"{name}_limit"] = values, value, np.full(len(values), float(limit))
-            out[f"ewma_{name}"] = smooth
-            if name in alarmed:
-                with np.errstate(invalid="ignore", divide="ignore"):
-                    ratios.append(value / limit)
-        ratio = reduce(np.fmax, ratios)
-        with np.errstate(invalid="ignore"):
-            above = ratio > 1.0
-        run = run_lengths(above, int(state["run_length"]))
-        out["ratio"], out["alarm"], out["run_length"] = ratio, run >= int(design["persistence"]), run
-        return out
-
-    def save_fields(self) -> tuple[dict, dict[str, np.ndarray]]:
-        meta = {"tags": {"tuple": list(self.tags)}, "detector": self.detector, "names": {"tuple": list(self.names)},
-                "limits": {"tuple": [float(v) for v in self.limits]},
-                "starts": {"tuple": [float(v) for v in self.starts]}, "fitted_scalars": {}}
-        arrays = {}
-        for name, value in self.fitted.items():
-            if isinstance(value, np.ndarray):
-                arrays[f"fitted.{name}"] = value
-            else:
-                meta["fitted_scalars"][name] = value.item() if isinstance(value, np.generic) else value
-        return meta, arrays
-
-    @classmethod
-    def from_fields(cls, meta: Mapping, arrays: Mapping[str, np.ndarray]) -> "OnlineLatent":
-        fitted = {**meta.get("fitted_scalars", {}),
-                  **{k.split(".", 1)[1]: np.asarray(v) for k, v in arrays.items() if k.startswith("fitted.")}}
-        return cls(tags=tuple(meta["tags"]["tuple"]), detector=meta["detector"], names=tuple(meta["names"]["tuple"]),
-                   limits=tuple(meta["limits"]["tuple"]), starts=tuple(meta["starts"]["tuple"]), fitted=fitted)
+    return legacy_online_latent(fields)
 
 
-# -- helpers for dynamic families ------------------------------------------------------------
-def lag_state(m: int, lags: int, prefix: str = "lag") -> dict[str, tuple[StateVar, float]]:
-    """The declared state of a buffer of the last ``lags`` rows of m variables: ``<prefix><j>_<i>`` is
-    variable i of the row j steps back (NaN, JSON null, before a stream has that many rows)."""
-    return {f"{prefix}{j}_{i}": (StateVar(f"Variable {i} of the row {j} step(s) back.", FINITE, missing=True), math.nan)
-            for j in range(1, lags + 1) for i in range(1, m + 1)}
-
-
-def lagged(X: np.ndarray, lags: int, carried: Mapping | None = None, prefix: str = "lag"):
-    """The causal lagged rows [x_k, x_{k−1}, ..., x_{k−lags}] of X (R, K, m) and the buffer after each row.
-
-    Rows before a run's start come from ``carried`` (:func:`lag_state`'s names, (R,) each) or are NaN.
-
-    Returns
-    -------
-    rows : ndarray, shape (R, K, (lags + 1) m)
-        Row k: x_k, then x_{k−1}, ... (blocks of m).
-    after : dict
-        ``<prefix><j>_<i>`` → (R, K): the buffer after each row (x_{k−j+1}).
-    """
-    X = np.asarray(X, float)
-    R, K, m = X.shape
-    history = np.full((R, lags, m), np.nan)
-    if carried:
-        for j in range(1, lags + 1):
-            for i in range(1, m + 1):
-                history[:, lags - j, i - 1] = np.asarray(carried[f"{prefix}{j}_{i}"], float).reshape(R)
-    full = np.concatenate([history, X], axis=1)     # row lags + k is x_k
-    rows = np.concatenate([full[:, lags - j: lags - j + K] for j in range(lags + 1)], axis=-1)
-    after = {f"{prefix}{j}_{i}": full[:, lags - j + 1: lags - j + 1 + K, i - 1]
-             for j in range(1, lags + 1) for i in range(1, m + 1)}
-    return rows, after
-
-
-def complete_rows(rows: np.ndarray) -> np.ndarray:
-    """The rows (…, n) with every value finite, as (N, n): what a family fits on."""
-    flat = np.asarray(rows, float).reshape(-1, np.shape(rows)[-1])
-    return flat[np.all(np.isfinite(flat), axis=1)]
-
-
-def scaling(rows: np.ndarray, family: str, least: int = 3) -> tuple[np.ndarray, np.ndarray]:
-    """Mean and standard deviation (ddof = 1) of the complete rows (N, m); one line naming a constant variable."""
-    if len(rows) < least:
-        raise ConfigError(f"the {family} calibration has {len(rows)} complete rows; allowed: at least {least}")
-    mean, scale = rows.mean(axis=0), rows.std(axis=0, ddof=1)
-    flat = np.flatnonzero(~(scale > 1e-12 * np.maximum(1.0, np.abs(mean))))
-    if flat.size:
-        raise ConfigError(f"variable {flat[0] + 1} is constant over the {family} calibration rows; allowed: "
-                          "variables that vary (drop constant columns)")
-    return mean, scale
-
-
-def empirical_limit(values: np.ndarray, alpha: float) -> float:
-    """The (1 − α) quantile of the finite values (NumPy's linear interpolation)."""
-    values = np.asarray(values, float)
-    values = values[np.isfinite(values)]
-    if values.size == 0:
-        raise ConfigError("no finite held-back calibration point for an empirical limit; allowed: calibration "
-                          "data with complete rows")
-    return float(np.quantile(values, 1.0 - alpha))
-
-
-def ewma_from(x: np.ndarray, lam: float, start: float, previous: float | None = None) -> np.ndarray:
-    """E_k = λ x_k + (1 − λ) E_{k−1} along the last axis, from E_{−1} = ``previous`` (default ``start``).
-
-    A missing point (NaN) enters as ``start``, the in-control mean: what a
-    fault-free point adds on average. ``previous``: the carried E of a stream scored in parts
-    (a float, or an array that broadcasts against x's rows).
-
-    Compiled (:mod:`mosd.kernels.latent`) for a float ``previous``; SciPy's ``lfilter`` below is the
-    reference, used with the kernels off: the same bits.
-    """
-    return _smoothed(x, lam, start, previous, masked=False)
-
-
-def smoothed_values(x: np.ndarray, lam: float, start: float) -> np.ndarray:
-    """A statistic's smoothed value: :func:`ewma_from` where x is finite, NaN where it is not (no alarm there)."""
-    return _smoothed(x, lam, start, None, masked=True)
-
-
-def _smoothed(x, lam: float, start: float, previous, masked: bool) -> np.ndarray:
-    x = np.asarray(x, float)
-    if np.ndim(previous) == 0 and x.ndim >= 1 and x.size and kernels.enabled():
-        from ..kernels.latent import smooth_rows
-
-        # a statistic is often a strided view (one of a family's stacked statistics): read in place, not copied
-        rows = x if x.ndim == 2 else x.reshape(-1, x.shape[-1])
-        out = smooth_rows(rows, float(lam), float(start), float(start if previous is None else previous),
-                          masked, np.empty(rows.shape))
-        return out.reshape(x.shape)
-    filled = np.where(np.isfinite(x), x, start)
-    if lam < 1.0 and x.shape[-1] != 0:
-        # imported here: scipy.signal pulls in scipy.stats (ARCHITECTURE: not on every run's start)
-        from scipy.signal import lfilter
-
-        zi = np.full(filled.shape[:-1] + (1,), (1.0 - lam) * (start if previous is None else previous))
-        filled = lfilter([lam], [1.0, -(1.0 - lam)], filled, axis=-1, zi=zi)[0]
-    return np.where(np.isfinite(x), filled, np.nan) if masked else filled
-
-
-def increment_scale(runs: np.ndarray) -> np.ndarray:
-    """Mean squared increment of each tag (m,) within the runs (R, K, m): the in-control scale of ``flat``."""
-    steps = np.diff(np.asarray(runs, float), axis=1).reshape(-1, np.shape(runs)[-1])
-    steps = steps[np.all(np.isfinite(steps), axis=1)]
-    if len(steps) < 2:
-        raise ConfigError(f"the flatline statistic has {len(steps)} complete increments in the fit runs; allowed: "
-                          "at least 2 (detector.flatline=null turns it off)")
-    scale = np.mean(steps**2, axis=0)
-    flat = np.flatnonzero(~(scale > 0.0))
-    if flat.size:
-        raise ConfigError(f"variable {flat[0] + 1} never changes over the fit runs, so its increments cannot "
-                          "collapse; allowed: detector.flatline=null, or variables that vary")
-    return scale
-
-
-def flat_statistic(X: np.ndarray, scale: np.ndarray, smoothing: float, carried: Mapping | None = None):
-    """The largest collapse of a tag's increments, per row: a stuck valve or a frozen transmitter.
-
-    Each tag's squared increment over its in-control mean square, u_{k,i} = (x_{k,i} − x_{k−1,i})² / s_i
-    (:func:`increment_scale`), is smoothed, v_{k,i} = λ_f u_{k,i} + (1 − λ_f) v_{k−1,i} from v = 1 (the
-    exponentially weighted moving variance of MacGregor & Harris 1993, of the increments so that a slow drift
-    does not move it), and the row's statistic is flat_k = max(0, max_i −ln v_{k,i}) (larger increments are the
-    other statistics' business; at 0 it stays a square's domain): small in control, growing by
-    −ln(1 − λ_f) per row while any tag stays exactly constant. Upper-tail statistics of a model (T², SPE) see
-    no such tag: its values stay at their mean. A missing increment (a run's first row without a carried
-    value, a missing value) enters as 1 (in control); an incomplete row is not scored.
-
-    Returns (flat (R, K), after: ``flat_last_<i>``, ``flat_ewma_<i>`` (R, K) each).
-    """
-    X = np.asarray(X, float)
-    R, K, m = X.shape
-    last = np.full((R, 1, m), np.nan)
-    start = np.ones((R, m))
-    if carried:
-        last[:, 0] = np.column_stack([np.asarray(carried[f"flat_last_{i}"], float).reshape(R)
-                                      for i in range(1, m + 1)])
-        start = np.column_stack([np.asarray(carried[f"flat_ewma_{i}"], float).reshape(R) for i in range(1, m + 1)])
-    steps = np.moveaxis(np.diff(np.concatenate([last, X], axis=1), axis=1) ** 2 / scale, -1, 1)  # (R, m, K)
-    # a missing increment enters as 1, the in-control value; each tag's EWMA continues from its carried value
-    v = ewma_from(steps, float(smoothing), 1.0, previous=start[..., None])
-    complete = np.all(np.isfinite(X), axis=-1)
-    flat = np.where(complete, np.maximum(-np.log(np.maximum(v, np.finfo(float).tiny).min(axis=1)), 0.0), np.nan)
-    after = {**{f"flat_last_{i}": X[..., i - 1] for i in range(1, m + 1)},
-             **{f"flat_ewma_{i}": v[:, i - 1] for i in range(1, m + 1)}}
-    return flat, after
+# the class models saved before LatentStage name: loading one imports this module, which finds its translation
+LEGACY_STAGES["mosd.detectors.latent.OnlineLatent"] = _legacy_latent

@@ -34,10 +34,14 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import linalg, special
 
-from ..streaming import COUNT, SQUARES, OnlineStage, StateVar, points_of, spread
+from ..streaming import LEGACY_STAGES
 from ..validation import ConfigError, Interval, Param
-from .base import run_lengths
 from .latent import LIMITS, LatentDetector, empirical_limit, ewma_from, latent_params, point_names  # noqa: F401 (re-exported)
+from .latent import flat_statistic
+from .pca_rows import TOP, top_indices, top_labels
+
+#: rows scored per block by the NumPy path of :func:`stream_scores` (the (block, m) intermediates stay in cache)
+BLOCK = 2048
 
 STATISTICS = ("combined", "t2", "spe")
 
@@ -212,7 +216,7 @@ def project(Z: np.ndarray, loadings: np.ndarray) -> np.ndarray:
 @dataclass
 class _Projected:
     """T²(a) and SPE(a) of every point, for every a or for one: the one PCA scoring (the tuning's population,
-    the test evaluation and the deployed :class:`OnlinePCA` all run :meth:`of`)."""
+    the test evaluation and, with one component count, the served stage's rows all run :meth:`of`)."""
 
     t2: np.ndarray      # (R, K, r): T² with a = 1..r components at index a - 1 (one a: (R, K, 1))
     spe: np.ndarray     # (R, K, r): SPE with a = 1..r components at index a - 1 (one a: (R, K, 1))
@@ -256,6 +260,42 @@ class _Projected:
             t2, spe = t2.reshape(shape), spe.reshape(shape) + outside[..., None]
         nan = ~finite[..., None]
         return cls(np.where(nan, np.nan, t2), np.where(nan, np.nan, spe), finite)
+
+
+def stream_scores(model, X: np.ndarray, a: int, top: bool, cache: dict):
+    """T², SPE (rows,), the complete rows (rows,) and, with ``top``, the indices of each row's :data:`TOP`
+    largest contributions to T² and to SPE ({"t2", "spe"} → (rows, TOP), largest first) of the rows X
+    (rows, m) with ``a`` components; ``cache`` keeps the contribution maps of the NumPy path."""
+    from .. import kernels
+
+    n = len(X)
+    if kernels.enabled() and model.loadings.shape[1] >= model.m:
+        from ..kernels.projection import scores
+
+        t2, spe, finite, top_t2, top_spe = scores(
+            np.ascontiguousarray(X, dtype=float), model.mean, model.scale, np.ascontiguousarray(model.loadings),
+            model.eigenvalues, a, min(TOP, model.m) if top else 0)
+        return t2, spe, finite, ({"t2": top_t2, "spe": top_spe} if top else None)
+    t2, spe, finite = np.empty(n), np.empty(n), np.empty(n, bool)
+    # blocks of BLOCK rows, so that the (block, m) intermediates stay in cache (buffers made once per call);
+    # every step is row by row, so the blocks change no bit
+    index = {"t2": np.empty((n, min(TOP, model.m)), np.intp), "spe": np.empty((n, min(TOP, model.m)), np.intp)}
+    block = max(min(BLOCK, n), 1)
+    Z_buffer, c_buffer = np.empty((block, model.m)), np.empty((block, model.m))
+    with _one_blas_thread():
+        for lo in range(0, n, BLOCK):
+            hi = min(lo + BLOCK, n)
+            proj = _Projected.of(model, X[lo:hi], components=a)
+            t2[lo:hi], spe[lo:hi], finite[lo:hi] = proj.t2[:, 0], proj.spe[:, 0], proj.finite
+            if top:
+                Z = np.subtract(X[lo:hi], model.mean, out=Z_buffer[:hi - lo])
+                Z /= model.scale
+                ok = finite[lo:hi]
+                if not ok.all():
+                    Z[~ok] = 0.0
+                for name in ("t2", "spe"):
+                    index[name][lo:hi] = top_indices(model, a, Z, name, c_buffer[:hi - lo], cache)
+    return t2, spe, finite, (index if top else None)
 
 
 class PCADetector(LatentDetector):
@@ -316,214 +356,37 @@ class PCADetector(LatentDetector):
             model.names = tuple(names)
         return model
 
-    # -- the causal form: the generic stage plus each row's top contributing tags ---------------
-    def online(self, calibration_z: np.ndarray, inputs) -> "OnlinePCA":
-        """This tuned design calibrated on ``calibration_z`` (R, K, m) as an :class:`OnlinePCA` on the columns ``inputs``.
+    # -- the served stage's rows: one component count, and each row's top contributing tags ----------
+    def score_rows(self, fitted, X, design, carried, explain=None):
+        """T² and SPE of one stream's rows (:func:`~mosd.detectors.pca_rows.stream_scores`: the compiled one-pass
+        scoring, the bits of the tuning's projection) and, with ``explain`` (the tags), each row's :data:`TOP`
+        tags contributing most to each (``top_t2``, ``top_spe``: ``tag;tag;tag``, '' on a row not scored)."""
+        model = self._model(fitted)
+        a = model.check_components(design["n_components"])
+        X = np.asarray(X, float)
+        cache = self.__dict__.setdefault("_rows", {})
+        t2, spe, finite, index = stream_scores(model, X.reshape(-1, X.shape[-1]), a, explain is not None, cache)
+        shape = X.shape[:-1]
+        statistics, after = {"t2": t2.reshape(shape), "spe": spe.reshape(shape)}, {}
+        if design.get("flatline"):  # the base's flat statistic beside T² and SPE
+            flat, after = flat_statistic(X, fitted["flat_scale"], float(design["flatline"]), carried)
+            statistics[self.FLAT] = flat
+        extra = {} if explain is None else {
+            f"top_{name}": top_labels(index[name], finite, tuple(explain), cache).reshape(shape)
+            for name in ("t2", "spe")}
+        return statistics, after, extra
 
-        The generic :class:`~mosd.detectors.latent.OnlineLatent` scores the same T², SPE and alarms
-        (``tests/test_families.py``); :class:`OnlinePCA` adds the tags contributing most per row.
-        """
-        calibration_z = np.asarray(calibration_z, float)
-        generic = super().online(calibration_z, inputs)
-        if self.flatline:  # OnlinePCA scores T² and SPE only: the base's flat statistic needs the generic stage
-            return generic
-        model = self._model(generic.fitted)
-        limits, starts = dict(zip(generic.names, generic.limits)), dict(zip(generic.names, generic.starts))
-        return OnlinePCA(tags=point_names(inputs, len(model.mean)), mean=model.mean, scale=model.scale,
-                         loadings=model.loadings, eigenvalues=model.eigenvalues, n_fit=int(model.n),
-                         n_components=int(self.n_components), alpha=float(self.alpha), lam=float(self.lam),
-                         persistence=int(self.persistence), statistic=str(self.statistic),
-                         t2_limit=float(limits["t2"]), spe_limit=float(limits["spe"]),
-                         # the in-control mean the tuning starts its EWMA from
-                         t2_start=float(starts["t2"]), spe_start=float(starts["spe"]))
-
-
-#: variables named per row in ``top_t2`` / ``top_spe``
-TOP = 3
-#: rows scored per block by the deployed PCA (the (block, m) intermediates stay in cache)
-BLOCK = 2048
+    def explained(self, design) -> tuple[str, ...]:
+        return ("top_t2", "top_spe")
 
 
-@dataclass
-class OnlinePCA(OnlineStage):
-    """A tuned :class:`PCADetector`'s causal form: tag rows in; T², SPE, their limits, the alarm and the top tags out.
+def _legacy_pca(fields):
+    """The generic stage of an ``OnlinePCA`` an older model saved
+    (:func:`~mosd.detectors.latent_stage.legacy_online_pca`)."""
+    from .latent_stage import legacy_online_pca
 
-    The fitted pipeline of a recorded-data run: the standardisation (mean and standard deviation of the
-    fit rows), the PCA (loadings, eigenvalues), the tuned design (components a, α, EWMA λ, persistence)
-    and its calibrated limits. Scores are :meth:`_Projected.of` (the tuning's own arithmetic), the EWMA
-    is :func:`ewma_from` and the persistence count :func:`~mosd.detectors.base.run_lengths`, each
-    continued from the carried state: ``ewma_t2``, ``ewma_spe`` (the EWMAs; at a stream's start the mean
-    T²/SPE of the fit rows, where the tuning starts them) and ``run_length`` (consecutive points above the
-    limit). A row with a missing value has no scores and no alarm.
-
-    Outputs per row: ``t2``, ``spe`` (raw), ``t2_smoothed``, ``spe_smoothed``, ``t2_limit``, ``spe_limit``,
-    ``ratio`` (the alarmed statistic over its limit: the larger of the two for the combined rule),
-    ``alarm`` and ``top_t2``/``top_spe``: the :data:`TOP` variables contributing most (``tag;tag;tag``).
-    """
-
-    tags: tuple
-    mean: np.ndarray
-    scale: np.ndarray
-    loadings: np.ndarray      # (m, r): every component (the SPE tail sums over those left out)
-    eigenvalues: np.ndarray   # (r,)
-    n_fit: int
-    n_components: int
-    alpha: float
-    lam: float
-    persistence: int
-    statistic: str
-    t2_limit: float
-    spe_limit: float
-    t2_start: float
-    spe_start: float
-
-    @property
-    def inputs(self) -> tuple[str, ...]:
-        return ("point", *(f"z_{j}" for j in range(1, len(self.tags) + 1)))
-
-    @property
-    def outputs(self) -> tuple[str, ...]:
-        return ("t2", "spe", "t2_smoothed", "spe_smoothed", "t2_limit", "spe_limit", "ratio", "alarm", "top_t2",
-                "top_spe")
-
-    def state_vars(self) -> dict[str, StateVar]:
-        return {"ewma_t2": StateVar("EWMA of T² after the last row, a sum of squares.", SQUARES),
-                "ewma_spe": StateVar("EWMA of SPE after the last row, a sum of squares.", SQUARES),
-                "run_length": StateVar("Consecutive points above the limit.", COUNT)}
-
-    def initial_state(self) -> dict:
-        return {"ewma_t2": float(self.t2_start), "ewma_spe": float(self.spe_start), "run_length": 0}
-
-    def example_row(self) -> np.ndarray:
-        return np.asarray(self.mean, float)
-
-    def model(self) -> PCAModel:
-        """A :class:`PCAModel` with these arrays (no refit)."""
-        model = PCAModel.__new__(PCAModel)
-        model.names, model.n, model.m = tuple(self.tags), int(self.n_fit), len(self.tags)
-        model.mean, model.scale = np.asarray(self.mean, float), np.asarray(self.scale, float)
-        model.loadings, model.eigenvalues = np.asarray(self.loadings, float), np.asarray(self.eigenvalues, float)
-        return model
-
-    def update(self, columns, state, top: bool = True) -> dict[str, np.ndarray]:
-        rows, at, X = points_of(columns, len(self.tags))
-        return spread(rows, at, self.score(X, state, top), state)
-
-    def score(self, X: np.ndarray, state, top: bool = True) -> dict[str, np.ndarray]:
-        """Outputs and state after each row of X (rows, m: the tags in order), from ``state``."""
-        n, a = len(X), int(self.n_components)
-        model = self.__dict__.get("_model") or self.__dict__.setdefault("_model", self.model())
-        raw = {"t2": np.empty(n), "spe": np.empty(n)}
-        finite = np.empty(n, bool)
-        from .. import kernels
-
-        fused = kernels.enabled() and model.loadings.shape[1] >= model.m
-        index = None
-        if fused:  # one pass per row, the same bits as _Projected.of (kernels.projection.scores)
-            from ..kernels.projection import scores
-
-            k = min(TOP, model.m) if top else 0
-            raw["t2"], raw["spe"], finite, top_t2, top_spe = scores(
-                np.ascontiguousarray(X, dtype=float), model.mean, model.scale, np.ascontiguousarray(model.loadings),
-                model.eigenvalues, a, k)
-            index = {"t2": top_t2, "spe": top_spe}
-        else:
-            # blocks of BLOCK rows, so that the (block, m) intermediates stay in cache (buffers made once per
-            # call); every step is row by row, so the blocks change no bit
-            index = {"t2": np.empty((n, TOP), np.intp), "spe": np.empty((n, TOP), np.intp)} if top else None
-            block = min(BLOCK, n)
-            Z_buffer, c_buffer = np.empty((block, model.m)), np.empty((block, model.m))
-            with _one_blas_thread():
-                for lo in range(0, n, BLOCK):
-                    hi = min(lo + BLOCK, n)
-                    proj = _Projected.of(model, X[lo:hi], components=a)
-                    raw["t2"][lo:hi], raw["spe"][lo:hi] = proj.t2[:, 0], proj.spe[:, 0]
-                    finite[lo:hi] = proj.finite
-                    if top:
-                        Z = np.subtract(X[lo:hi], self.mean, out=Z_buffer[:hi - lo])
-                        Z /= self.scale
-                        ok = finite[lo:hi]
-                        if not ok.all():
-                            Z[~ok] = 0.0
-                        for name in ("t2", "spe"):
-                            index[name][lo:hi] = self._top(Z, name, c_buffer[:hi - lo])
-        tops = {name: self._labels(index[name], finite) for name in ("t2", "spe")} if top else None
-        out: dict[str, np.ndarray] = {}
-        ratios = []
-        for name, start, limit in (("t2", self.t2_start, self.t2_limit), ("spe", self.spe_start, self.spe_limit)):
-            values = raw[name]
-            smooth = ewma_from(values, self.lam, float(start), previous=float(state[f"ewma_{name}"]))
-            value = np.where(finite, smooth, np.nan)
-            out[name], out[f"{name}_smoothed"], out[f"{name}_limit"] = values, value, np.full(n, float(limit))
-            out[f"ewma_{name}"] = smooth
-            if self.statistic in ("combined", name):
-                with np.errstate(invalid="ignore"):
-                    ratios.append(value / limit)
-        ratio = ratios[0] if len(ratios) == 1 else np.fmax(ratios[0], ratios[1])
-        with np.errstate(invalid="ignore"):
-            above = ratio > 1.0
-        run = run_lengths(above, int(state["run_length"]))
-        out["ratio"], out["alarm"], out["run_length"] = ratio, run >= self.persistence, run
-        for name in ("t2", "spe"):
-            out[f"top_{name}"] = tops[name] if top else np.full(n, "", dtype=object)
-        return out
-
-    def _top(self, Z: np.ndarray, name: str, out: np.ndarray) -> np.ndarray:
-        """Indices of the :data:`TOP` largest contributions per standardised row of Z (0 where missing), largest
-        first; ``out`` (rows, m) is scratch.
-
-        T²: c_i = z_i (Pₐ Λₐ⁻¹ Pₐᵀ z)_i; SPE: c_i = e_i², e = (I − Pₐ Pₐᵀ) z (:meth:`PCAModel.contributions`),
-        each one product with an (m, m) matrix made once.
-        """
-        maps = self.__dict__.get("_maps")
-        if maps is None:
-            a, P = int(self.n_components), np.asarray(self.loadings, float)
-            maps = self.__dict__["_maps"] = {
-                "t2": (P[:, :a] / np.asarray(self.eigenvalues)[:a]) @ P[:, :a].T,
-                "spe": np.eye(len(P)) - P[:, :a] @ P[:, :a].T}
-        c = np.matmul(Z, maps[name], out=out)
-        if name == "t2":
-            c *= Z
-        else:
-            c *= c
-        return _largest(c, TOP)
-
-    def _labels(self, index: np.ndarray, finite: np.ndarray) -> np.ndarray:
-        """``tag;tag;tag`` per row of (n, TOP) indices, largest first ('' where the row is not scored): each
-        combination joined once (a few hundred in a file), then looked up in a table of every combination."""
-        out = self._joined(index)
-        if not finite.all():
-            out[~finite] = ""
-        return out
-
-    def _joined(self, index: np.ndarray) -> np.ndarray:
-        m, k = len(self.tags), index.shape[1]
-        code = np.zeros(len(index), np.int64)
-        for j in range(k):
-            code = code * m + index[:, j]
-        if m**k > 1 << 20:  # too many combinations for a table: join each distinct one of this block
-            unique, inverse = np.unique(code, return_inverse=True)
-            joined = [";".join(self.tags[(c // m**(k - 1 - j)) % m] for j in range(k)) for c in unique.tolist()]
-            return np.array(joined, dtype=object)[inverse.reshape(-1)]
-        table = self.__dict__.get("_label_table")
-        if table is None:
-            table = self.__dict__["_label_table"] = (np.full(m**k, None, dtype=object), np.zeros(m**k, bool))
-        labels, filled = table
-        for c in np.unique(code[~filled[code]]).tolist():
-            parts, rest = [], c
-            for _ in range(k):
-                rest, j = divmod(rest, m)
-                parts.append(self.tags[j])
-            labels[c], filled[c] = ";".join(reversed(parts)), True
-        return labels[code]
+    return legacy_online_pca(fields)
 
 
-def _largest(c: np.ndarray, k: int) -> np.ndarray:
-    """Column indices of the k largest values of every row of c, largest first (c is overwritten)."""
-    rows = np.arange(len(c))
-    out = np.empty((len(c), min(k, c.shape[1])), np.intp)
-    for j in range(out.shape[1]):
-        out[:, j] = winner = np.argmax(c, axis=1)
-        if j + 1 < out.shape[1]:
-            c[rows, winner] = -np.inf
-    return out
+# the class models saved before the generic stage name: loading one imports this module, which finds its translation
+LEGACY_STAGES["mosd.detectors.pca.OnlinePCA"] = _legacy_pca
