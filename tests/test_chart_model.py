@@ -1,9 +1,9 @@
 """The main command's tuned chart as the run's deployed pipeline on a residual stream (issues 24 and 28).
 
-* the pipeline (:class:`~mosd.monitors.subgroups.OnlineSubgroups` → :class:`~mosd.detectors.chart.OnlineChart`,
-  built by the components' ``online``) gives the statistics, limits and alarms of :meth:`Chart.decide` (bit
-  for bit, its limit included), for every mean–variance chart and limit, in one call, in chunks and row by
-  row with the state carried;
+* the pipeline (:class:`~mosd.monitors.step.MonitorStage` of the subgroup monitor → the chart's
+  :class:`~mosd.detectors.step.StepStage`, built by the components' ``online``) gives the statistics, limits
+  and alarms of :meth:`Chart.decide` (bit for bit, its limit included), for every mean–variance chart and
+  limit, in one call, in chunks and row by row with the state carried;
 * end to end (slow): the main command (small budget) logs a loadable model, and the model, in-process chunk
   by chunk through MLflow's params, through ``mosd monitor`` and through ``mlflow models serve``, alarms on
   the run's own raw test replications (the sensors and the controller's command: the CESCKF residual
@@ -139,7 +139,7 @@ def test_no_causal_form_for_a_whole_series_filter_and_the_state_names():
     with pytest.raises(NoStreamingForm, match="whole residual series"):
         MSOEWMA().online(calibration_z)   # its wavelet prefilter filters the whole residual series
     chart = EWMA(lam=0.2, L=2.5, limit="time_varying").online(calibration_z)   # the EWMA chart: L is its width
-    assert (chart.design["L"], np.isnan(chart.limit_value)) == (2.5, True)
+    assert (chart.design["L"], np.isnan(chart.step["limit"])) == (2.5, True)
     monitor = SubgroupMonitor(n=N)
     monitor.mean_, monitor.std_ = np.zeros(1), np.ones(1)
     pipeline = OnlinePipeline([monitor.online(("residual_y",)), chart])

@@ -27,8 +27,8 @@ import pytest
 
 from mosd.app import model_state
 from mosd.data.table import Table
-from mosd.detectors.chart import OnlineChart
 from mosd.detectors.pca import PCADetector
+from mosd.detectors.step import StepStage
 from mosd.monitors.outputs import OutputMonitor
 from mosd.monitors.step import MonitorStage
 from mosd.streaming import OnlinePipeline
@@ -231,8 +231,8 @@ def test_impossible_chart_state_is_refused_naming_the_param():
     chart = OnlinePipeline([
         MonitorStage(monitor="mosd.monitors.subgroups.SubgroupMonitor", design={"n": 5, "burn_in": 10},
                      fitted={"mean": np.array([0.0]), "std": np.array([1.0])}, columns=("residual_x",)),
-        OnlineChart(detector="mosd.detectors.mean_variance.SSDEWMA", design={"lam": 0.2, "K": 3.0, "limit": "phase1"},
-                    limit_value=2.0, n=5)])
+        StepStage(detector="mosd.detectors.mean_variance.SSDEWMA", design={"lam": 0.2, "K": 3.0, "limit": "phase1"},
+                  step={"lam": 0.2, "width": 3.0, "limit": 2.0}, n=5)])
     rows = pd.DataFrame({"residual_x": np.random.default_rng(0).normal(size=40)})
     assert chart.predict_frame(rows)["subgroup"].max() == 6
     for name, value, problem in [("samples_seen", -1, "is out of range"), ("smooth_u_1", float("inf"), "is not finite"),

@@ -1140,7 +1140,7 @@ def test_a_run_whose_artifacts_did_not_fit_is_failed_and_mosd_log_completes_it_o
 
     from mosd.app import pending
     from mosd.app.tracker import RunTracker
-    from mosd.detectors.chart import OnlineChart
+    from mosd.detectors.step import StepStage
     from mosd.monitors.step import MonitorStage
     from mosd.streaming import OnlinePipeline
 
@@ -1149,9 +1149,9 @@ def test_a_run_whose_artifacts_did_not_fit_is_failed_and_mosd_log_completes_it_o
     model = OnlinePipeline([
         MonitorStage(monitor="mosd.monitors.subgroups.SubgroupMonitor", design={"n": 5, "burn_in": 20},
                      fitted={"mean": np.array([0.3]), "std": np.array([2.0])}, columns=("residual_a",)),
-        OnlineChart(detector="mosd.detectors.mean_variance.SSDEWMA", design={"lam": 0.25, "K": 1.0,
-                                                                             "limit": "theoretical"},
-                    limit_value=float("nan"), n=5)]).save(run_dir / "model")
+        StepStage(detector="mosd.detectors.mean_variance.SSDEWMA", design={"lam": 0.25, "K": 1.0,
+                                                                           "limit": "theoretical"},
+                  step={"lam": 0.25, "width": 1.0, "limit": float("nan")}, n=5)]).save(run_dir / "model")
     copy = LocalArtifactRepository.log_artifact
 
     def disk_full(self, local_file, artifact_path=None):

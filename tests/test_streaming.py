@@ -304,7 +304,7 @@ def test_model_files_written_before_the_pipeline_still_load(tmp_path):
     monitor = SubgroupMonitor(n=5, burn_in=20)
     monitor.mean_, monitor.std_ = mean, std
     chart = SSDEWMA(lam=0.25, K=1.0).online(rng.standard_normal((2, 50, 5)))
-    chart.limit_value = 2.5
+    chart.step["limit"] = 2.5
     new = OnlinePipeline([monitor.online(("residual_a",)), chart])
     stream = {"residual_a": 0.3 + 2.0 * rng.standard_normal(400)}
     a, b = old.update(stream), new.update(stream)

@@ -23,7 +23,7 @@ def _read(path: Path) -> tuple[dict, dict]:
 
 def load_legacy(path: str | Path) -> OnlinePipeline:
     """The pipeline of an old ``chart_detector.npz`` or ``pca_detector.npz``."""
-    from ..detectors.chart import OnlineChart
+    from ..detectors.step import legacy_stage
     from ..detectors.latent_stage import legacy_online_pca
     from ..monitors.step import LEGACY as LEGACY_MONITORS
 
@@ -40,8 +40,9 @@ def load_legacy(path: str | Path) -> OnlinePipeline:
             detector, design = "mosd.detectors.ewma_chart.EWMA", {"lam": meta["lam"], "L": meta["K"]}
         else:
             detector, design = f"mosd.detectors.mean_variance.{meta['chart']}", {"lam": meta["lam"], "K": meta["K"]}
-        chart = OnlineChart(detector=detector, design={**design, "limit": meta["limit"]},
-                            limit_value=float(meta["limit_value"]), n=n)
+        chart = legacy_stage("mosd.detectors.chart.OnlineChart", {   # the chart stage such files named
+            "detector": detector, "design": {**design, "limit": meta["limit"]},
+            "limit_value": float(meta["limit_value"]), "n": n, "denoiser": {}})
         return OnlinePipeline([monitor, chart], fill=fill)
     tags = tuple(str(t) for t in arrays.pop("tags"))
     pca = legacy_online_pca({"tags": tags, **arrays, **meta})   # the generic stage of the same PCA

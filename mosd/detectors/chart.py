@@ -7,12 +7,15 @@ Every chart follows the same lifecycle::
     alarms = chart.alarms(subgroups.z)       # bool (R, K)
 
 and declares its parameters once in ``params`` (:class:`~mosd.validation.Param`;
-those an optimiser may tune form ``tunable``). The statistic is split so that tuning is cheap: :meth:`Chart.features`
-computes what does not depend on the tunable parameters once (U_k, V_k of
-eqs. 19–20), :meth:`Chart.raw_statistic` the part that does (the EWMA
-recursions), and the denoiser runs on a whole population of candidates at once
-(:meth:`Chart.population_statistics`). :meth:`Chart.population` is the
-:class:`~mosd.detectors.base.Detector` contract: statistic > limit.
+those an optimiser may tune form ``tunable``). :meth:`Chart.features` computes what does not depend on the
+tunable parameters once (U_k, V_k of eqs. 19–20). The rest is the chart's one step, a
+:class:`~mosd.detectors.step.StepDetector`'s :meth:`Chart.scan`: the EWMA update of the features from the
+smoothed parts of the last ``order`` subgroups (:func:`mosd.kernels.ewma.ewma_step`), the statistic of the
+smoothed parts (:func:`mosd.kernels.ewma.combine_step`), the normalisation, the denoiser (a causal one on its
+window of earlier statistics), the limit and the decision statistic > limit. The population (tuning, the test
+evaluation), the served chart (:class:`~mosd.detectors.step.StepStage` on the ``subgroup`` rows) and
+``statistic``/``alarms`` run that scan; the fused tuning kernel (:mod:`mosd.kernels.chart`) calls the same
+step functions.
 
 Limits (docs/DECISIONS.md §3):
 
@@ -39,29 +42,33 @@ every one within Monte Carlo error):
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Mapping
 from typing import ClassVar
 
 import numpy as np
 
 from ..denoisers.base import NoDenoiser
-from ..streaming import FINITE, NoStreamingForm, OnlineStage, StateVar, build, mosd_class
+from ..streaming import FINITE, NoStreamingForm, StateVar, build, describe
 from ..validation import ConfigError, Param, check_choice
-from .base import Decisions, Detector
-from .statistics import ewma_continue, mean_and_sd
+from .statistics import ewma_coefficients, mean_and_sd
+from .step import StepDetector
 
 
 def _denoiser(key: str, value, owner):
-    """None -> the identity; otherwise anything with ``denoise(x)``."""
+    """None -> the identity; a saved description ({"class", "params"}) -> its denoiser; otherwise anything
+    with ``denoise(x)``."""
     if value is None:
         return NoDenoiser()
+    if isinstance(value, Mapping) and "class" in value:
+        value = build(value)
     if not callable(getattr(value, "denoise", None)):
         raise ConfigError(f"{key}={value!r} is not a denoiser; allowed: an object with denoise(x), e.g. denoise=wavelet")
     return value
 
 
-class Chart(Detector):
-    """Base class: subclasses declare their tunable ``params`` and define ``features`` and ``raw_statistic``."""
+class Chart(StepDetector):
+    """Base class: subclasses declare their tunable ``params`` (λ ``lam`` and the limit's width, named
+    :attr:`width`) and define ``features``, :attr:`combine` and ``control_limit``."""
 
     params = {
         "limit": Param(lambda key, value, chart: check_choice(key, value, chart.limits),
@@ -76,6 +83,12 @@ class Chart(Detector):
     parts: ClassVar[tuple[str, ...]] = ()
     #: how many times the features are smoothed (1: EWMA, 2: double EWMA)
     order: ClassVar[int] = 1
+    #: the statistic of the smoothed parts (:func:`mosd.kernels.ewma.combine_step`): "abs", "ss" or "max"
+    combine: ClassVar[str] = "abs"
+    #: the tunable parameter that is the limit's width (K, or the EWMA chart's L)
+    width: ClassVar[str] = "K"
+    #: the served chart's points: the monitor's completed subgroups
+    points: ClassVar[str] = "subgroup"
 
     def __init__(self, limit: str = "phase1", denoiser=None):
         self._assign(locals())
@@ -99,35 +112,43 @@ class Chart(Detector):
         """True when l_k depends on subgroups 1..k only (needed for run lengths)."""
         return bool(getattr(self.denoiser, "is_causal", True))
 
+    @property
+    def _window(self) -> int:
+        """Earlier raw statistics a causal denoiser's window needs (0: no denoiser, or a whole-series one)."""
+        if isinstance(self.denoiser, NoDenoiser) or not self.is_causal:
+            return 0
+        return max(int(getattr(self.denoiser, "window", 1) or 1) - 1, 0)
+
     # -- the statistic ----------------------------------------------------------------
     def features(self, z: np.ndarray) -> np.ndarray:
         """Everything that does not depend on the tunable parameters, shape (..., F, K)."""
         raise NotImplementedError
 
-    def raw_statistic(self, features: np.ndarray) -> np.ndarray:
-        """The chart statistic before denoising, shape (..., K)."""
+    def control_limit(self, n_points: int) -> np.ndarray:
+        """UCL_k for k = 1..n_points."""
         raise NotImplementedError
 
-    def normalise(self, raw: np.ndarray) -> np.ndarray:
-        """Parameter-dependent rescaling applied before denoising (identity by default)."""
-        return raw
+    def _scale(self, n_points: int) -> np.ndarray:
+        """σ²_k (or σ_k) of the raw statistic in control, k = 1..n_points: what ``"normalised"`` divides by."""
+        raise NotImplementedError
 
-    def plotted(self, raw: np.ndarray) -> np.ndarray:
-        """Map a raw statistic to the plotted one: normalise, then denoise."""
-        return self.denoiser.denoise(self.normalise(raw))
+    def raw_statistic(self, features: np.ndarray) -> np.ndarray:
+        """The chart statistic before normalising and denoising, shape (..., K): :meth:`scan`'s first part."""
+        flat = np.asarray(features, float)
+        runs = flat.reshape((-1,) + flat.shape[-2:])
+        raw, _ = self._smoothed(self._own(), self.start(0), runs, False)
+        return raw[0].reshape(flat.shape[:-2] + flat.shape[-1:])
 
     def statistic(self, z: np.ndarray) -> np.ndarray:
-        """The plotted statistic l_k for standardised subgroups z (..., K, n)."""
-        return self.plotted(self.raw_statistic(self.features(z)))
+        """The plotted statistic l_k for standardised subgroups z (..., K, n): :meth:`scan` from a stream's start."""
+        features = np.asarray(self.features(z), float)
+        runs = features.reshape((-1,) + features.shape[-2:])
+        out = self.scan(self._own(), self.start(0), runs)["statistic"][0]
+        return out.reshape(features.shape[:-2] + features.shape[-1:])
 
     def population_statistics(self, features: np.ndarray, X: np.ndarray) -> np.ndarray:
-        """Plotted statistics for a population of parameter vectors X (P, d): (P, ..., K).
-
-        The parameter-dependent recursion runs once per candidate; the denoiser
-        runs once on the whole stack.
-        """
-        charts = self.candidates(X)
-        return self.denoiser.denoise(np.stack([c.normalise(c.raw_statistic(features)) for c in charts]))
+        """Plotted statistics for a population of parameter vectors X (P, d) on features (R, F, K): (P, R, K)."""
+        return self.scan(self._design_params(X), self.start(0), features)["statistic"]
 
     def population_limits(self, phase1_statistics: np.ndarray, X: np.ndarray) -> np.ndarray:
         """Control limits (P, K) for parameter vectors X given each one's Phase-I statistic (P, ..., K)."""
@@ -137,23 +158,148 @@ class Chart(Detector):
             for chart, l1 in zip(self.candidates(X), phase1_statistics)
         ])
 
-    def population(self, calibration_features: np.ndarray, features: np.ndarray, X: np.ndarray) -> Decisions:
-        """Plotted statistics, limits fitted on the calibration (Phase-I) statistics, alarms = statistic > limit."""
-        X = np.atleast_2d(np.asarray(X, float))
-        n_calibration = calibration_features.shape[0]
-        stats = self.population_statistics(np.concatenate([calibration_features, features], axis=0), X)
-        limits = self.population_limits(stats[:, :n_calibration], X)[:, None, :]  # (P, 1, K)
-        statistic = stats[:, n_calibration:]
-        return Decisions(statistic, limits, (statistic > limits).astype(np.int8))
+    # -- the one step (mosd.detectors.step) ---------------------------------------------
+    def _design_params(self, X: np.ndarray) -> dict[str, np.ndarray]:
+        """λ and the width of every design of X (P, d), validated as ``candidates`` validates them; no limit."""
+        charts = self.candidates(X)
+        return {"lam": np.array([c.lam for c in charts], float),
+                "width": np.array([getattr(c, self.width) for c in charts], float),
+                "limit": np.full(len(charts), np.nan)}
 
-    def statistic_of_smoothed(self, smoothed: np.ndarray) -> np.ndarray:
-        """The raw statistic from the smoothed features (parts first, shape (F, ...)): the part of
-        :meth:`raw_statistic` after the EWMA, which the causal form continues."""
-        raise NotImplementedError
+    def _own(self) -> dict[str, np.ndarray]:
+        """This chart's own λ and width as a population of one, without a limit."""
+        return {"lam": np.array([float(self.lam)]), "width": np.array([float(getattr(self, self.width))]),
+                "limit": np.array([np.nan])}
+
+    def step_params(self, X: np.ndarray, calibration_features: np.ndarray | None = None) -> dict[str, np.ndarray]:
+        """λ, width and limit per design of X (P, d): a Phase-I limit (``"phase1"``, ``"normalised"``, eq. 27)
+        fitted on the scan of ``calibration_features`` (R, F, K) from a stream's start; NaN for a model limit,
+        which :meth:`scan` computes at each subgroup."""
+        params = self._design_params(X)
+        if self.limit not in self.model_limits:
+            if calibration_features is None:
+                raise ValueError(f"{type(self).__name__} with limit={self.limit!r} needs the calibration features")
+            phase1 = self.scan(params, self.start(0), calibration_features)["statistic"]
+            params["limit"] = self.population_limits(phase1, X)[:, 0]
+        return params
+
+    def step_state(self, n: int) -> dict[str, tuple[StateVar, float]]:
+        """The smoothed parts of the last ``order`` subgroups, and a causal denoiser's window of raw statistics."""
+        state = {f"smooth_{part}_{lag}": (StateVar(f"Smoothed {part} of the subgroup {lag} back.", FINITE), 0.0)
+                 for part in self.parts for lag in range(1, self.order + 1)}
+        state.update({f"raw_{lag}": (StateVar(f"The statistic before denoising, {lag} subgroups back.", FINITE), 0.0)
+                      for lag in range(1, self._window + 1)})
+        return state
+
+    def scan(self, params, state, features, trajectory=False, number=None) -> dict[str, np.ndarray]:
+        """Statistic, limit and decision of every design (P) on every run (R) at every subgroup (K).
+
+        Parameters
+        ----------
+        params : dict of ndarray
+            :meth:`step_params` (``lam``, ``width``, ``limit``), leading axis P.
+        state : dict of ndarray
+            :meth:`step_state`'s variables before the first subgroup, broadcastable to (P, R).
+        features : ndarray, shape (R, F, K)
+            :meth:`features` of the subgroups.
+        trajectory : bool
+            Also return each state variable after each subgroup, shape (P, R, K).
+        number : ndarray of int, shape (K,), optional
+            The subgroups' numbers since the stream's start (1-based, consecutive; default 1..K): where a
+            model limit, the normalisation and a causal denoiser's prefix stand.
+
+        Returns
+        -------
+        dict of ndarray
+            ``statistic`` (P, R, K), ``limit`` (broadcastable to it), ``decision`` (P, R, K) int8; with
+            ``trajectory`` also the state variables.
+        """
+        features = np.asarray(features, float)
+        n_points = features.shape[-1]
+        number = np.arange(1, n_points + 1) if number is None else np.asarray(number, np.int64)
+        raw, smoothed = self._smoothed(params, state, features, trajectory)
+        lams, widths = np.asarray(params["lam"], float), np.asarray(params["width"], float)
+        if self.limit == "normalised" and n_points:   # eq. 31 (or 29): χ²₂ at every k in control
+            raw = raw / np.stack([self.with_params(lam=lam)._scale(int(number[-1]))[number - 1] for lam in lams])[:, None]
+        statistic = self._denoised(raw, state, int(number[0]) - 1 if n_points else 0)
+        if self.limit in self.model_limits:
+            limit = np.stack([self.with_params(**{"lam": lam, self.width: width}).control_limit(
+                int(number[-1]) if n_points else 0)[number - 1] for lam, width in zip(lams, widths)])[:, None, :]
+        else:
+            limit = np.asarray(params["limit"], float).reshape(-1, 1, 1)
+        out = {"statistic": statistic, "limit": limit, "decision": (statistic > limit).astype(np.int8)}
+        if trajectory:
+            out.update(smoothed)
+            out.update(self._raw_trajectory(raw, state))
+        return out
+
+    def _smoothed(self, params, state, features, trajectory) -> tuple[np.ndarray, dict]:
+        """The raw statistic (P, R, K) of every design: each part's ``order``-fold EWMA continued from the
+        carried ``smooth_*`` state, combined (:func:`mosd.kernels.ewma.chart_recursion`); with ``trajectory``
+        the ``smooth_*`` state after every subgroup."""
+        from ..kernels.ewma import COMBINE_ABS, COMBINE_MAX, COMBINE_SS, chart_recursion
+
+        runs, n_parts, n_points = features.shape
+        lams = np.asarray(params["lam"], float)
+        gains, feedback = ewma_coefficients(lams, self.order)
+        combine = {"abs": COMBINE_ABS, "ss": COMBINE_SS, "max": COMBINE_MAX}[self.combine]
+        # time-major and part-major: column f·R + r is part f of run r
+        columns = np.ascontiguousarray(np.moveaxis(features, -1, 0).transpose(0, 2, 1).reshape(n_points, n_parts * runs))
+        parts = self.parts if len(self.parts) == n_parts else tuple(f"part{f}" for f in range(n_parts))
+        names = [[f"smooth_{part}_{lag}" for lag in range(1, self.order + 1)] for part in parts]
+        raw = np.empty((len(lams), runs, n_points))
+        history = {}
+        smoothed = np.empty_like(columns)
+        statistic = np.empty((n_points, runs))
+        for p in range(len(lams)):
+            past = np.empty((self.order, n_parts * runs))
+            for f in range(n_parts):
+                for lag in range(self.order):
+                    past[lag, f * runs:(f + 1) * runs] = _design_row(state.get(names[f][lag], 0.0), p, runs)
+            start = past.copy()
+            chart_recursion(columns, float(gains[p]), np.ascontiguousarray(feedback[p]), past, combine, smoothed,
+                            statistic)
+            raw[p] = statistic.T
+            if trajectory:
+                for f in range(n_parts):
+                    values = np.concatenate([start[::-1, f * runs:(f + 1) * runs], smoothed[:, f * runs:(f + 1) * runs]])
+                    for lag in range(1, self.order + 1):   # after subgroup k: the smoothed part lag − 1 before
+                        history.setdefault(names[f][lag - 1], np.empty((len(lams), runs, n_points)))[p] = \
+                            values[self.order - lag + 1:self.order - lag + 1 + n_points].T
+        return raw, history
+
+    def _denoised(self, raw: np.ndarray, state: dict, seen: int) -> np.ndarray:
+        """The denoiser on the raw statistic (P, R, K) after ``seen`` earlier subgroups: a causal one's window
+        continues from the carried ``raw_*`` (denoising them and these together gives each new point its
+        window, or its prefix while fewer than the window came before); a whole-series one from a stream's
+        start only."""
+        if isinstance(self.denoiser, NoDenoiser):
+            return raw
+        carried = min(seen, self._window)
+        if seen and not carried:
+            raise NoStreamingForm(f"the denoiser {type(self.denoiser).__name__} filters the whole series")
+        if carried:
+            before = np.stack([np.broadcast_to(np.asarray(state[f"raw_{lag}"], float), raw.shape[:2])
+                               for lag in range(carried, 0, -1)], axis=-1)
+            raw = np.concatenate([before, raw], axis=-1)
+        if raw.shape[-1] == carried:
+            return raw[..., carried:]
+        return self.denoiser.denoise(raw)[..., carried:]
+
+    def _raw_trajectory(self, raw: np.ndarray, state: dict) -> dict[str, np.ndarray]:
+        """The ``raw_*`` window after every subgroup: the carried values, then this scan's raw statistics."""
+        w = self._window
+        if not w:
+            return {}
+        before = [np.broadcast_to(np.asarray(state[f"raw_{lag}"], float), raw.shape[:2]) for lag in range(w, 0, -1)]
+        values = np.concatenate([np.stack(before, axis=-1), raw], axis=-1)
+        n_points = raw.shape[-1]
+        return {f"raw_{lag}": values[..., w - lag + 1:w - lag + 1 + n_points] for lag in range(1, w + 1)}
 
     # -- the causal form ----------------------------------------------------------------
-    def online(self, calibration_z: np.ndarray, inputs=None) -> OnlineChart:
-        """This tuned chart with its limit fitted on ``calibration_z`` (R, K, n) as an :class:`OnlineChart`.
+    def online(self, calibration_z: np.ndarray, inputs=None):
+        """This tuned chart, its limit fitted on ``calibration_z`` (R, K, n), as a served
+        :class:`~mosd.detectors.step.StepStage` on the monitor's ``subgroup`` rows.
 
         Raises :class:`~mosd.streaming.NoStreamingForm` where no causal form exists: a whole-series
         denoiser (the paper's wavelet needs the whole series; the causal wavelet streams, its window of
@@ -167,23 +313,25 @@ class Chart(Detector):
                 raise NoStreamingForm(f"the denoiser {type(self.denoiser).__name__} filters the whole series: no "
                                       "decision exists before the series ends (with denoise=none or "
                                       "denoise=wavelet_causal the chart streams)")
-            if not callable(getattr(self.denoiser, "causal_tail", None)):
+            if not getattr(self.denoiser, "window", None):
                 raise NoStreamingForm(f"the causal denoiser {type(self.denoiser).__name__} has no streaming form")
-        fitted = self.clone()
-        limit_value = np.nan
-        if self.limit not in ("theoretical", "time_varying"):
-            fitted.fit(np.asarray(calibration_z, float))
-            limit_value = float(fitted.control_limit(1)[0])
-        design = {**self.tunable_params(), "limit": self.limit}
-        design = {k: (float(v) if not isinstance(v, str) else v) for k, v in design.items()}
-        cls = type(self)
-        n = int(np.shape(calibration_z)[-1])
-        denoiser = {}
-        if not isinstance(self.denoiser, NoDenoiser):
-            kind = type(self.denoiser)
-            denoiser = {"class": f"{kind.__module__}.{kind.__qualname__}", "params": self.denoiser.get_params()}
-        return OnlineChart(detector=f"{cls.__module__}.{cls.__qualname__}", design=design, limit_value=limit_value, n=n,
-                           denoiser=denoiser)
+        return super().online(calibration_z, inputs)
+
+    def stage_design(self) -> dict:
+        """The tuned parameters, the limit rule and the denoiser as its description (None: none)."""
+        design = {**{k: float(v) for k, v in self.tunable_params().items()}, "limit": self.limit}
+        design["denoiser"] = None if isinstance(self.denoiser, NoDenoiser) else describe(self.denoiser)
+        return design
+
+    def stage_outputs(self) -> tuple[str, ...]:
+        """The features of each completed subgroup (U_k as ``u``, V_k as ``v``), then the decision's outputs."""
+        return (*self.parts, "statistic", "limit", "decision", "alarm")
+
+    def scan_points(self, params, state, Z, number) -> dict[str, np.ndarray]:
+        features = self.features(Z[None])                                       # (1, F, k)
+        out = self.scan(params, state, features, trajectory=True, number=number)
+        out.update({part: features[:, f][None] for f, part in enumerate(self.parts)})
+        return out
 
     # -- the limit --------------------------------------------------------------------
     def fit(self, z_phase1: np.ndarray) -> "Chart":
@@ -191,13 +339,9 @@ class Chart(Detector):
         return self.fit_statistic(self.statistic(z_phase1))
 
     def fit_statistic(self, l_phase1: np.ndarray) -> "Chart":
-        """Set the limit from an already computed Phase-I plotted statistic (..., K)."""
+        """Set the limit from an already computed Phase-I plotted statistic (..., K) (eq. 27's E{l}, sd{l})."""
         self.center_, self.scale_ = mean_and_sd(l_phase1)
         return self
-
-    def control_limit(self, n_points: int) -> np.ndarray:
-        """UCL_k for k = 1..n_points."""
-        raise NotImplementedError
 
     def alarms(self, z: np.ndarray) -> np.ndarray:
         """Boolean alarms (..., K): plotted statistic above the control limit."""
@@ -214,114 +358,8 @@ class Chart(Detector):
         return f"{type(self).__name__}({params}, limit={self.limit!r}, denoiser={self.denoiser!r})"
 
 
-@dataclass
-class OnlineChart(OnlineStage):
-    """A tuned chart's causal form: standardised subgroups in (``subgroup``, ``z_1`` ... ``z_n``), decisions out.
-
-    On each row that completes subgroup k: the features (U_k, V_k of eqs. 19–20; U_k alone for the
-    EWMA chart) as ``u``/``v``, the plotted ``statistic`` and its ``limit``, ``alarm`` (statistic >
-    limit). Rows that complete no subgroup give NaN and no alarm. The recursion is the charts' one
-    (:func:`~mosd.detectors.statistics.ewma_continue`), continued from the carried state: the smoothed
-    features of the last ``order`` subgroups (``smooth_u_1``, ``smooth_u_2``, ``smooth_v_1``, ...).
-
-    Attributes
-    ----------
-    detector : str
-        The chart's class (``module.Class``).
-    design : dict
-        Its parameters (the tuned ones and the limit rule).
-    limit_value : float
-        The constant limit fitted on the calibration runs; NaN for a limit that changes with k.
-    n : int
-        Points per subgroup.
-    """
-
-    detector: str
-    design: dict
-    limit_value: float
-    n: int
-    denoiser: dict = None   # a causal denoiser: {"class": "module.Class", "params": {...}}; empty: none
-
-    def _chart(self) -> "Chart":
-        cached = self.__dict__.get("_chart_object")
-        if cached is None:
-            denoiser = build(self.denoiser) if self.denoiser else None
-            cached = self.__dict__["_chart_object"] = mosd_class(self.detector)(**self.design, denoiser=denoiser)
-        return cached
-
-    @property
-    def window(self) -> int:
-        """Raw statistics the causal denoiser's window carries (0 without one)."""
-        return int(self._chart().denoiser.window) - 1 if self.denoiser else 0
-
-    @property
-    def parts(self) -> tuple[str, ...]:
-        return tuple(self._chart().parts)
-
-    @property
-    def order(self) -> int:
-        return int(self._chart().order)
-
-    @property
-    def inputs(self) -> tuple[str, ...]:
-        return ("subgroup", *(f"z_{j}" for j in range(1, self.n + 1)))
-
-    @property
-    def outputs(self) -> tuple[str, ...]:
-        return (*self.parts, "statistic", "limit", "alarm")
-
-    def state_vars(self) -> dict[str, StateVar]:
-        out = {f"smooth_{part}_{lag}": StateVar(f"Smoothed {part} of the subgroup {lag} back.", FINITE)
-               for part in self.parts for lag in range(1, self.order + 1)}
-        out.update({f"raw_{lag}": StateVar(f"The statistic before denoising, {lag} subgroups back.", FINITE)
-                    for lag in range(1, self.window + 1)})
-        return out
-
-    def initial_state(self) -> dict:
-        return {name: 0.0 for name in self.state_vars()}
-
-    def update(self, columns, state) -> dict[str, np.ndarray]:
-        chart, parts, order = self._chart(), self.parts, self.order
-        number_of_row = np.asarray(columns["subgroup"], np.int64)
-        rows = len(number_of_row)
-        at = np.flatnonzero(number_of_row > 0)
-        complete = len(at)
-        z = np.column_stack([np.asarray(columns[f"z_{j}"], float) for j in range(1, self.n + 1)])[at]
-        features = chart.features(z[None])[0] if complete else np.empty((len(parts), 0))   # (parts, k)
-        past = np.array([[float(state[f"smooth_{part}_{lag}"]) for part in parts] for lag in range(1, order + 1)])
-        smoothed = ewma_continue(features.T, chart.lam, order, past)[0].T                 # (parts, k)
-        number = number_of_row[at]
-        statistic = chart.statistic_of_smoothed(smoothed) if complete else np.empty(0)
-        if self.design.get("limit") == "normalised" and complete:
-            statistic = statistic / chart._scale(int(number[-1]))[number - 1]
-        raw = statistic
-        if self.window and complete:   # the causal denoiser: its window of earlier statistics, then these
-            seen = int(number[0]) - 1                                       # subgroups before this chunk
-            carried = np.array([float(state[f"raw_{lag}"]) for lag in range(min(seen, self.window), 0, -1)])
-            history = np.concatenate([carried, raw])
-            statistic = chart.denoiser.causal_tail(history, complete, seen - len(carried))
-        if np.isnan(self.limit_value):
-            limit = chart.control_limit(int(number[-1]))[number - 1] if complete else np.empty(0)
-        else:
-            limit = np.full(complete, self.limit_value)
-        out: dict[str, np.ndarray] = {}
-        for name, values in (*zip(parts, features), ("statistic", statistic), ("limit", limit)):
-            column = np.full(rows, np.nan)
-            column[at] = values
-            out[name] = column
-        out["alarm"] = np.zeros(rows, bool)
-        out["alarm"][at] = statistic > limit
-        # the state after every row: the last completed subgroup's smoothed values carried forward
-        closes = number_of_row > 0
-        last = np.maximum.accumulate(np.where(closes, np.cumsum(closes) - 1, -1)) if rows else np.zeros(0, int)
-        for s, part in enumerate(parts):
-            history = np.asarray([*(float(state[f"smooth_{part}_{lag}"]) for lag in range(order, 0, -1)),
-                                  *smoothed[s]])                # oldest first: the carried values, then this chunk's
-            for lag in range(1, order + 1):
-                out[f"smooth_{part}_{lag}"] = history[last + order - lag + 1]
-        if self.window:
-            w = self.window
-            history = np.asarray([*(float(state[f"raw_{lag}"]) for lag in range(w, 0, -1)), *raw])
-            for lag in range(1, w + 1):
-                out[f"raw_{lag}"] = history[last + w - lag + 1]
-        return out
+def _design_row(value, p: int, runs: int) -> np.ndarray:
+    """Design p's row (R,) of a state variable broadcastable to (P, R)."""
+    value = np.asarray(value, float)
+    value = value.reshape((1, 1)) if value.ndim == 0 else value
+    return np.broadcast_to(value[min(p, value.shape[0] - 1)], (runs,))

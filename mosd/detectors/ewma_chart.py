@@ -7,7 +7,7 @@ import numpy as np
 
 from ..validation import ConfigError, Interval, Param
 from .chart import Chart
-from .statistics import ewma, ewma_variance, subgroup_mean_statistic
+from .statistics import ewma_variance, subgroup_mean_statistic
 
 
 def _prefilter(key: str, value, chart):
@@ -24,7 +24,8 @@ def _prefilter(key: str, value, chart):
 class EWMA(Chart):
     """Two-sided EWMA chart on the subgroup-mean statistic U_k (eq. 19, Roberts 1959).
 
-    E_k = (1−λ)E_{k−1} + λU_k, E_0 = 0; plotted |E_k| (after optional denoising).
+    E_k = (1−λ)E_{k−1} + λU_k, E_0 = 0; plotted |E_k| (after optional denoising): the chart's step
+    (:meth:`~mosd.detectors.chart.Chart.scan`) with the statistic ``combine="abs"``.
     Limits: ``"asymptotic"`` L·sqrt(λ/(2−λ)), ``"time_varying"`` L·σ_{E_k} (eq. 29),
     ``"phase1"`` E{|E|} + L·sd{|E|} from fault-free data.
     """
@@ -37,7 +38,7 @@ class EWMA(Chart):
     }
     limits = ("asymptotic", "time_varying", "phase1")
     model_limits = ("asymptotic", "time_varying")
-    parts, order = ("u",), 1
+    parts, order, combine, width = ("u",), 1, "abs", "L"
 
     def __init__(self, lam: float = 0.2, L: float = 3.0, limit: str = "asymptotic", denoiser=None):
         super().__init__(limit=limit, denoiser=denoiser)
@@ -45,12 +46,6 @@ class EWMA(Chart):
 
     def features(self, z: np.ndarray) -> np.ndarray:
         return subgroup_mean_statistic(z)[..., None, :]
-
-    def raw_statistic(self, features: np.ndarray) -> np.ndarray:
-        return np.abs(ewma(features[..., 0, :], self.lam))
-
-    def statistic_of_smoothed(self, smoothed: np.ndarray) -> np.ndarray:
-        return np.abs(smoothed[0])
 
     def control_limit(self, n_points: int) -> np.ndarray:
         if self.limit == "asymptotic":

@@ -156,9 +156,9 @@ def supports(detector, objectives) -> bool:
     if not isinstance(detector, _MeanVarianceChart) or getattr(detector, "limit", None) != "phase1":
         return False
     same = [(name, owner) for owner, names in ((Chart, ("population", "population_limits", "fit_statistic",
-                                                         "_phase1_limit", "plotted")),
-                                                (_MeanVarianceChart, ("population_statistics", "_combine",
-                                                                      "control_limit", "normalise", "features")))
+                                                         "_phase1_limit", "step_params", "scan", "_smoothed",
+                                                         "_denoised")),
+                                                (_MeanVarianceChart, ("control_limit", "features")))
             for name in names]
     if any(getattr(cls, name) is not getattr(owner, name) for name, owner in same):
         return False

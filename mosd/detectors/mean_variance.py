@@ -10,7 +10,7 @@ from scipy import special
 
 from ..validation import Interval, Param
 from .chart import Chart
-from .statistics import dewma_variance, ewma, ewma_time_major, ewma_variance, subgroup_mean_statistic, subgroup_variance_statistic
+from .statistics import dewma_variance, ewma_variance, subgroup_mean_statistic, subgroup_variance_statistic
 
 
 
@@ -35,7 +35,8 @@ class _MeanVarianceChart(Chart):
 
     Both statistics are smoothed ``order`` times with the same λ (1: EWMA, eqs.
     21–22; 2: double EWMA, eqs. 23–24) and combined as a sum of squares
-    (``combine="ss"``, eq. 25) or as the larger absolute value (``"max"``).
+    (``combine="ss"``, eq. 25) or as the larger absolute value (``"max"``): the chart's step
+    (:meth:`~mosd.detectors.chart.Chart.scan`, :func:`mosd.kernels.ewma.combine_step`).
 
     Limits: ``"phase1"`` (eq. 27), ``"theoretical"`` and ``"normalised"`` (module
     docstring). The theoretical limit uses the exact in-control law at each k:
@@ -67,41 +68,9 @@ class _MeanVarianceChart(Chart):
     def features(self, z: np.ndarray) -> np.ndarray:
         return np.stack([subgroup_mean_statistic(z), subgroup_variance_statistic(z)], axis=-2)
 
-    def raw_statistic(self, features: np.ndarray) -> np.ndarray:
-        return self._combine(ewma(features, self.lam, order=self.order))
-
-    def population_statistics(self, features: np.ndarray, X: np.ndarray) -> np.ndarray:
-        charts = self.candidates(X)
-        # statistic-major columns, so each part is a contiguous block of every time row
-        by_part = np.moveaxis(features, -2, 0)  # (2, ..., K)
-        smoothed = ewma_time_major(by_part, [c.lam for c in charts], order=self.order)  # (K, P, 2·M)
-        smoothed = smoothed.reshape(smoothed.shape[:2] + (2, -1))  # (K, P, 2, M)
-        raw = self._combine(smoothed, axis=2)  # (K, P, M)
-        raw = np.ascontiguousarray(np.moveaxis(raw, 0, -1)).reshape((len(charts),) + features.shape[:-2] + (-1,))
-        if self.limit == "normalised":
-            raw = np.stack([c.normalise(r) for c, r in zip(charts, raw)])
-        return self.denoiser.denoise(raw)
-
-    def statistic_of_smoothed(self, smoothed: np.ndarray) -> np.ndarray:
-        return self._combine(smoothed, axis=0)
-
-    def _combine(self, smoothed: np.ndarray, axis: int = -2) -> np.ndarray:
-        """Mean and variance parts (index 0 and 1 along ``axis``) → one statistic."""
-        mean_part, variance_part = np.moveaxis(smoothed, axis, 0)[:2]  # views, no copies
-        if self.combine == "ss":
-            out = np.square(mean_part)
-            out += np.square(variance_part)
-            return out
-        return np.maximum(np.abs(mean_part), np.abs(variance_part))
-
     def _scale(self, n_points: int) -> np.ndarray:
         var = self.smoothed_variance(n_points)
         return var if self.combine == "ss" else np.sqrt(var)
-
-    def normalise(self, raw: np.ndarray) -> np.ndarray:
-        if self.limit == "normalised":
-            return raw / self._scale(raw.shape[-1])
-        return raw
 
     def control_limit(self, n_points: int) -> np.ndarray:
         if self.limit != "theoretical":

@@ -54,30 +54,16 @@ def ewma_continue(columns: np.ndarray, lam: float, order: int, past: np.ndarray)
     """The ``order``-fold EWMA of time-major ``columns`` (K, C) continued from ``past`` (order, C).
 
     ``past`` holds y_{−1}, y_{−2}, ... of every column (zeros: a stream's start). Returns the
-    smoothed columns (K, C) and the new ``past``. Compiled (:func:`mosd.kernels.ewma.ewma_recursion`)
-    when the kernels are on, else the same arithmetic in NumPy; the one recursion of every chart.
+    smoothed columns (K, C) and the new ``past``: :func:`mosd.kernels.ewma.ewma_recursion`, the one
+    recursion of every chart (compiled; plain Python where numba's JIT is disabled).
     """
+    from ..kernels.ewma import ewma_recursion
+
     columns = np.ascontiguousarray(columns, dtype=float)
     gain, feedback = ewma_coefficients([lam], order)
     past = np.array(past, float, copy=True).reshape(order, columns.shape[1])
     out = np.empty_like(columns)
-    from .. import kernels
-
-    if kernels.enabled():
-        from ..kernels.ewma import ewma_recursion
-
-        ewma_recursion(columns, float(gain[0]), np.ascontiguousarray(feedback[0]), past, out)
-        return out, past
-    g, f = float(gain[0]), feedback[0]
-    scratch = np.empty(columns.shape[1])
-    for k in range(columns.shape[0]):
-        current = out[k]
-        np.multiply(g, columns[k], out=current)
-        for lag in range(order):
-            np.multiply(past[lag], f[lag], out=scratch)
-            current += scratch
-        past[1:] = past[:-1].copy()
-        past[0] = current
+    ewma_recursion(columns, float(gain[0]), np.ascontiguousarray(feedback[0]), past, out)
     return out, past
 
 
@@ -119,42 +105,18 @@ def ewma_coefficients(lams, order: int = 1) -> tuple[np.ndarray, np.ndarray]:
 def ewma_time_major(x: np.ndarray, lams: np.ndarray, order: int = 1) -> np.ndarray:
     """:func:`ewma` of x (..., K) for many smoothing parameters, time-major: (K, P, M).
 
-    M indexes the flattened leading axes of x. The ``order``-fold EWMA is the IIR filter λ^order / (1 − (1−λ)z⁻¹)^order; its
-    difference equation runs over time on all (candidate, sequence) columns
-    together: compiled (:func:`mosd.kernels.ewma.ewma_population`, bit-identical)
-    when the kernels are enabled, otherwise one NumPy step per time point — which
-    for a population of candidates still beats one filter call per candidate (see
-    ``python -m mosd.bench``). Columns never mix, so a candidate's result does not
-    depend on which other candidates share the call.
+    M indexes the flattened leading axes of x. The ``order``-fold EWMA is the IIR filter
+    λ^order / (1 − (1−λ)z⁻¹)^order; its difference equation runs over time on all (candidate,
+    sequence) columns: :func:`mosd.kernels.ewma.ewma_population`, each candidate through the one
+    recursion :func:`mosd.kernels.ewma.ewma_recursion`. Columns never mix, so a candidate's result
+    does not depend on which other candidates share the call.
     """
+    from ..kernels.ewma import ewma_population
+
     n_points = x.shape[-1]
     columns = np.ascontiguousarray(np.asarray(x, float).reshape(-1, n_points).T)  # time-major (K, M)
     gain, feedback = ewma_coefficients(lams, order)
-    from .. import kernels
-
-    if kernels.enabled():
-        from ..kernels.ewma import ewma_population
-
-        return ewma_population(columns, gain, np.ascontiguousarray(feedback))
-    return _ewma_time_major_numpy(columns, gain, feedback)
-
-
-def _ewma_time_major_numpy(columns: np.ndarray, gain: np.ndarray, feedback: np.ndarray) -> np.ndarray:
-    """The reference recursion: y_k = g·x_k + Σ_lag y_{k−lag}·f_lag, one NumPy step per time point."""
-    n_points = columns.shape[0]
-    shape = (gain.size, columns.shape[1])
-    coefficients = [np.ascontiguousarray(np.broadcast_to(feedback[:, i, None], shape)) for i in range(feedback.shape[1])]
-    gains = np.ascontiguousarray(np.broadcast_to(gain[:, None], shape))
-    out = np.zeros((n_points,) + shape)
-    scratch = np.empty(shape)
-    for k in range(n_points):
-        current = out[k]
-        np.multiply(gains, columns[k], out=current)
-        for lag, coefficient in enumerate(coefficients, start=1):
-            if k >= lag:
-                np.multiply(out[k - lag], coefficient, out=scratch)
-                current += scratch
-    return out
+    return ewma_population(columns, gain, np.ascontiguousarray(feedback))
 
 
 def dewma_variance(lam: float, n_points: int) -> np.ndarray:

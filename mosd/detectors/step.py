@@ -22,6 +22,7 @@ both.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
@@ -33,8 +34,13 @@ class StepDetector(Detector):
     """A detector whose decision is one causal recursion (module docstring).
 
     Subclasses implement :meth:`step_params`, :meth:`step_state` and :meth:`scan`; ``features`` (the
-    parameter-free part) as any detector.
+    parameter-free part) as any detector. A detector on other points than the monitor's ``point`` rows
+    (a chart's subgroups) names their column in :attr:`points` and, where its scan needs the points'
+    numbers or gives more outputs, overrides :meth:`scan_points` and :meth:`stage_outputs`.
     """
+
+    #: the input column numbering the points (0: a row that completes none) of the served form
+    points: ClassVar[str] = "point"
 
     def step_params(self, X: np.ndarray, calibration_features: np.ndarray | None = None) -> dict[str, np.ndarray]:
         """Each design's parameters of the step, arrays with leading axis P (one per row of X (P, d))."""
@@ -83,9 +89,24 @@ class StepDetector(Detector):
         calibration_z = np.asarray(calibration_z, float)
         params = self.step_params(self.design(), self.features(calibration_z))
         cls = type(self)
-        return StepStage(detector=f"{cls.__module__}.{cls.__qualname__}", design=_plain(self.get_params()),
+        return StepStage(detector=f"{cls.__module__}.{cls.__qualname__}", design=_plain(self.stage_design()),
                          step={k: _plain(np.asarray(v).reshape(-1)[0]) for k, v in params.items()},
                          n=int(calibration_z.shape[-1]))
+
+    # -- the served form's hooks (StepStage) -------------------------------------------------
+    def stage_design(self) -> dict:
+        """The parameters the served form rebuilds this detector from (JSON-able): ``get_params``."""
+        return self.get_params()
+
+    def stage_outputs(self) -> tuple[str, ...]:
+        """The served form's per-row outputs."""
+        return ("statistic", "limit", "decision", "alarm")
+
+    def scan_points(self, params: dict, state: dict, Z: np.ndarray, number: np.ndarray) -> dict[str, np.ndarray]:
+        """:meth:`scan` of one stream's points Z (k, n), numbered ``number`` (k,), with its trajectory: the served
+        form's call. Returns the outputs of :meth:`stage_outputs` but ``alarm``, and the state variables, each
+        broadcastable to (1, 1, k)."""
+        return self.scan(params, state, self.features(Z[None]), trajectory=True)
 
 
 def _plain(value):
@@ -119,6 +140,14 @@ class StepStage(PointDecision):
     step: dict
     n: int
 
+    @property
+    def inputs(self) -> tuple[str, ...]:
+        return (self._detector().points, *(f"z_{j}" for j in range(1, self.n + 1)))
+
+    @property
+    def outputs(self) -> tuple[str, ...]:
+        return self._detector().stage_outputs()
+
     def _detector(self) -> StepDetector:
         cached = self.__dict__.get("_built")
         if cached is None:
@@ -139,13 +168,14 @@ class StepStage(PointDecision):
 
     def update(self, columns, state) -> dict[str, np.ndarray]:
         detector = self._detector()
-        rows, at, Z = points_of(columns, self.n)
+        rows, at, Z = points_of(columns, self.n, detector.points)
+        number = np.asarray(columns[detector.points], np.int64)[at]
         params = {k: np.asarray([v]) for k, v in self.step.items()}
         carried = {name: np.full((1, 1), float(state[name])) for name in self._declared()}
-        out = detector.scan(params, carried, detector.features(Z[None]), trajectory=True)
+        out = detector.scan_points(params, carried, Z, number)
         count = len(at)
         per_point = {name: np.broadcast_to(out[name], (1, 1, count))[0, 0]
-                     for name in ("statistic", "limit", "decision")}
+                     for name in self.outputs if name != "alarm"}
         per_point["decision"] = per_point["decision"].astype(np.int64)
         per_point["alarm"] = per_point["decision"] > 0
         for name, (var, _) in self._declared().items():
@@ -173,6 +203,11 @@ LEGACY = {
         {"mu_T": f["mu_T"], "persistence": f["persistence"], "labels": list(f["labels"]["tuple"])
          if isinstance(f["labels"], dict) else list(f["labels"])},
         {"mu_T": f["mu_T"], "persistence": f["persistence"]}),
+    # a chart's causal form before the chart was a StepDetector: the same state variables, read by name
+    "mosd.detectors.chart.OnlineChart": lambda f: (
+        f["detector"], {**f["design"], "denoiser": f.get("denoiser") or None},
+        {"lam": f["design"]["lam"], "width": f["design"]["L" if "L" in f["design"] else "K"],
+         "limit": f["limit_value"]}),
 }
 
 

@@ -23,10 +23,12 @@ candidates rounded up to :data:`_VECTOR`), so a caller may split a population
 into as many slices as it has threads: a slice of 6 to 8 costs 0.6-0.75 of a
 full block, of 4 0.4-0.6, not a whole one (the rest is each step's latency).
 
-Each step reproduces the reference's arithmetic in its order (the recursion of
-``ewma_time_major``, PyWavelets' sums via :mod:`mosd.kernels.wavelet`, NumPy's
-pairwise summation for the mean and standard deviation of ``fit_statistic``),
-so FAR and MDR come out bit-identical; ``tests/test_kernels.py`` checks it.
+Each step is the chart's own (:meth:`mosd.detectors.chart.Chart.scan`): the EWMA update
+:func:`mosd.kernels.ewma.ewma_step` and the statistic :func:`mosd.kernels.ewma.combine_step`, called here
+as there, the whole-series wavelet :func:`mosd.kernels.wavelet.denoise_row` the denoiser runs; the Phase-I
+limit's sums are NumPy's pairwise summation (:func:`mean_std`, which ``fit_statistic`` calls) accumulated as
+the points come. So FAR and MDR come out as the alarm counts of the chart's decisions;
+``tests/test_kernels.py`` and ``tests/test_step_chart.py`` check it.
 """
 from __future__ import annotations
 
@@ -39,7 +41,7 @@ from . import configure_compiler
 
 configure_compiler()  # before this module's first compile
 
-from .ewma import ewma_step
+from .ewma import COMBINE_MAX, COMBINE_SS, combine_step, ewma_step
 from .wavelet import denoise_row, work_size
 
 _BLOCK = 128  # NumPy's pairwise-summation block (PW_BLOCKSIZE)
@@ -187,8 +189,9 @@ def _statistics(u_run, v_run, k0, k1, order, combine_max, lanes, width, out, cou
     u_run, v_run: the run's U_k and V_k (K,); ``lanes``: the lanes' coefficients and the recursion's two past
     values of both parts, carried from the previous call (from k0 = 0, the run's start, a zero state), of
     which the first ``width`` lanes are computed (:data:`_VECTOR`).
-    Each value is :func:`mosd.kernels.ewma.ewma_step`'s (the one arithmetic of the charts), the combination
-    the reference's: max(|U|, |V|) or U² + V². The statistic goes to out[k − k0, lane], or with ``count``
+    Each value is :func:`mosd.kernels.ewma.ewma_step`'s and each statistic
+    :func:`mosd.kernels.ewma.combine_step`'s (max(|U|, |V|) or U² + V²): the chart's step, the one its scan
+    (:meth:`mosd.detectors.chart.Chart.scan`) runs. The statistic goes to out[k − k0, lane], or with ``count``
     is scored at once as training run ``r`` of ``faulty``: a healthy point above a lane's limit adds to its
     field ALARMS, a target-fault point not above it to MISSES (from k0 = 0, zeros; counted in floats, exact
     far beyond any run's length, and as arithmetic, so that the lane loop stays one vector loop).
@@ -196,6 +199,7 @@ def _statistics(u_run, v_run, k0, k1, order, combine_max, lanes, width, out, cou
     g, f1, f2 = _GAIN * _LANES, _F1 * _LANES, _F2 * _LANES
     u1, u2, v1, v2 = _U1 * _LANES, _U2 * _LANES, _V1 * _LANES, _V2 * _LANES
     limit, alarms, misses = _LIMIT * _LANES, _ALARMS * _LANES, _MISSES * _LANES
+    combine = COMBINE_MAX if combine_max else COMBINE_SS
     if k0 == 0:
         for lane in range(width):
             lanes[u1 + lane] = 0.0
@@ -219,11 +223,7 @@ def _statistics(u_run, v_run, k0, k1, order, combine_max, lanes, width, out, cou
             lanes[v2 + lane] = lanes[v1 + lane]
             lanes[u1 + lane] = a
             lanes[v1 + lane] = b
-            if combine_max:
-                s = max(abs(a), abs(b))
-            else:
-                s = a * a
-                s += b * b
+            s = combine_step(a, b, combine)
             if count:
                 alarm = 1.0 * (s > lanes[limit + lane])
                 lanes[alarms + lane] += alarm * healthy

@@ -30,6 +30,27 @@ def ewma_step(x, gain, f1, f2, p1, p2, order):
     return y
 
 
+#: how a chart combines its smoothed parts (a, b) into its statistic (:func:`combine_step`)
+COMBINE_ABS, COMBINE_SS, COMBINE_MAX = 0, 1, 2
+
+
+@njit(cache=True, nogil=True, inline="always")
+def combine_step(a, b, combine):
+    """The chart statistic of one point's smoothed parts: |a| (the EWMA chart, eq. 21), a² + b² (the SS charts,
+    eq. 25) or max(|a|, |b|) (the max charts), for ``combine`` COMBINE_ABS, COMBINE_SS, COMBINE_MAX.
+
+    The one combination of every chart: the scan (:func:`chart_recursion`, the population and the served
+    chart) and the fused candidate evaluation (:mod:`mosd.kernels.chart`) both take each value from here.
+    """
+    if combine == COMBINE_SS:  # the paper's chart first: one test on the tuning kernel's path
+        s = a * a
+        s += b * b
+        return s
+    if combine == COMBINE_MAX:
+        return max(abs(a), abs(b))
+    return abs(a)
+
+
 @njit(cache=True, nogil=True)
 def ewma_recursion(x, gain, feedback, past, out):
     """The ``order``-fold EWMA recursion with its state: the one implementation of the charts' arithmetic.
@@ -37,7 +58,7 @@ def ewma_recursion(x, gain, feedback, past, out):
     out[k, c] = gain·x[k, c], then += y_{k−lag, c}·feedback[lag−1] for lag = 1..order, in that order
     (the reference's order, so every caller gets the same bits). The tuning's population
     (:func:`ewma_population`), the fused candidate evaluation (:mod:`mosd.kernels.chart`) and the
-    deployed chart (:class:`mosd.detectors.chart.OnlineChart`) all run it.
+    served chart (:meth:`mosd.detectors.chart.Chart.scan`, through :func:`chart_recursion`) all run it.
 
     Parameters
     ----------
@@ -83,6 +104,32 @@ def ewma_recursion(x, gain, feedback, past, out):
 
 
 @njit(cache=True, nogil=True)
+def chart_recursion(x, gain, feedback, past, combine, smoothed, statistic):
+    """One chart's steps over time: :func:`ewma_recursion` of every part, then :func:`combine_step` per point.
+
+    Parameters
+    ----------
+    x : float64 (K, F·M), time-major
+        The features, part-major: columns f·M .. f·M + M − 1 are part f of the M runs (F = 1 or 2).
+    gain, feedback, past
+        As :func:`ewma_recursion` (``past`` continued in place: the chart's carried state).
+    combine : int
+        COMBINE_ABS, COMBINE_SS or COMBINE_MAX.
+    smoothed : float64 (K, F·M)
+        The smoothed parts, written.
+    statistic : float64 (K, M)
+        The raw chart statistic of each run at each point, written.
+    """
+    ewma_recursion(x, gain, feedback, past, smoothed)
+    n_points, n_runs = statistic.shape
+    second = n_runs if x.shape[1] > n_runs else 0  # the second part's columns (the first again for one part)
+    for k in range(n_points):
+        row = smoothed[k]
+        for m in range(n_runs):
+            statistic[k, m] = combine_step(row[m], row[second + m], combine)
+
+
+@njit(cache=True, nogil=True)
 def ewma_population(columns, gain, feedback):
     """out[k, p, m] = gain[p]·columns[k, m] + Σ_lag out[k−lag, p, m]·feedback[p, lag−1], from a zero state.
 
@@ -119,3 +166,4 @@ def warm_up() -> None:
     """Load (or compile) the kernel."""
     ewma_population(np.zeros((3, 2)), np.ones(1), np.zeros((1, 2)))
     ewma_recursion(np.zeros((3, 2)), 1.0, np.zeros(2), np.zeros((2, 2)), np.zeros((3, 2)))
+    chart_recursion(np.zeros((3, 2)), 1.0, np.zeros(2), np.zeros((2, 2)), COMBINE_SS, np.zeros((3, 2)), np.zeros((3, 1)))
