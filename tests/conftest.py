@@ -1,5 +1,8 @@
 """Fixtures shared by several test modules, and the pytest-xdist set-up of the README's test command."""
+import contextlib
+import importlib.util
 import os
+import shutil
 
 import numpy as np
 import pytest
@@ -98,3 +101,54 @@ def fresh_python():
 def stop_process_group():
     """``stop_process_group(process)``: stop a test's server process group (mlflow server, its workers)."""
     return serving.stop_process_group
+
+
+@contextlib.contextmanager
+def _exclusive(path):
+    """Hold an exclusive lock on ``path`` (created if missing) for the block: one process at a time.
+
+    ``fcntl.flock`` (POSIX): the kernel drops the lock when its holder dies, so a killed worker never
+    leaves it held. Where fcntl is missing (Windows) nothing is shared: the caller builds per process.
+    """
+    import fcntl
+
+    with open(path, "a") as handle:
+        fcntl.flock(handle, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(handle, fcntl.LOCK_UN)
+
+
+@pytest.fixture(scope="session")
+def shared_build(tmp_path_factory):
+    """``shared_build(key, build)``: the folder ``build(folder)`` filled, once for the whole test session.
+
+    For a fixture several test modules need the same of, such as a tiny tuned and logged run
+    (tests/test_opcua.py, tests/test_detector_model.py, tests/test_reliability_53.py,
+    tests/test_served_families.py): trained once, not once per module and per worker. Under pytest-xdist
+    each worker is a session of its own, so the folder lies in the temporary directory the workers share
+    (the parent of each worker's own, pytest-xdist's documented way) under a file lock: the first worker
+    to need it builds it while the others wait, then all read it. A build that fails leaves no mark
+    and the next test to need it builds it again (and fails the same way, in its own report). Tests
+    only read the folder: what they write goes to their own ``tmp_path``.
+    """
+    base = tmp_path_factory.getbasetemp()
+    root = (base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base) / "shared-builds"
+    root.mkdir(exist_ok=True)
+    lock = _exclusive
+    if importlib.util.find_spec("fcntl") is None:  # pragma: no cover - not on Linux or macOS: each worker its own
+        root, lock = base / "shared-builds", contextlib.nullcontext
+        root.mkdir(exist_ok=True)
+
+    def get(key: str, build):
+        folder = root / key
+        with lock(root / f"{key}.lock"):
+            if not (folder / ".built").exists():
+                shutil.rmtree(folder, ignore_errors=True)  # a build that failed half-way
+                folder.mkdir()
+                build(folder)
+                (folder / ".built").touch()
+        return folder
+
+    return get

@@ -170,27 +170,44 @@ def _mosd(args, cwd, outputs):
                           timeout=600)
 
 
-@pytest.fixture(scope="module")
-def logged_run(tmp_path_factory):
-    """A data=table run of the generated plant (tracking on), its model URI and summary."""
+def plant_table():
+    """:func:`plant` as the table a run reads: time (s), the tags, the fault label."""
     import pandas as pd
 
-    import mlflow  # noqa: F401  (a test dependency: a missing one fails, never skips)
-    tmp_path = tmp_path_factory.mktemp("logged")
     X, label = plant()
     table = pd.DataFrame(X, columns=TAGS)
     table.insert(0, "time", np.arange(len(X)) * 60.0)
     table["fault"] = label
-    csv = tmp_path / "plant.csv"
-    table.to_csv(csv, index=False)
-    outputs = tmp_path / "out"
+    return table
+
+
+def build_logged_run(folder: Path) -> None:
+    """A data=table run of the generated plant (tracking on) in ``folder``: plant.csv, out/ (runs, mlflow.db) and
+    the run's stdout (stdout.txt); the tiny tuned run tests/test_opcua.py monitors too (``shared_build``)."""
+    csv = folder / "plant.csv"
+    plant_table().to_csv(csv, index=False)
     run = _mosd([f"data.path={csv}", "data=table", "data.time_column=time", "data.label_column=fault",
                  "estimator=measured", "monitor=signals", "detector=pca", "detector.max_components=4",
                  "detector.n_components=2", "optimizer.pop_size=8", "optimizer.n_gen=2", "progress=false"],
-                tmp_path, outputs)
+                folder, folder / "out")
     assert run.returncode == 0, run.stderr[-2000:]
-    uri = re.search(r"model (models:/\S+) \(runs:/(\w+)/detector\)", run.stdout)
-    assert uri, run.stdout[-2000:]
+    (folder / "stdout.txt").write_text(run.stdout)
+
+
+@pytest.fixture(scope="module")
+def logged_run(tmp_path_factory, shared_build):
+    """The data=table run of :func:`build_logged_run` (shared, read only), its model URI and summary; ``tmp`` is
+    this module's own folder for what the tests write."""
+    import mlflow  # noqa: F401  (a test dependency: a missing one fails, never skips)
+    built = shared_build("pca-table-run", build_logged_run)
+    tmp_path = tmp_path_factory.mktemp("logged")
+    X, _ = plant()
+    csv = built / "plant.csv"
+    table = plant_table()
+    outputs = built / "out"
+    stdout = (built / "stdout.txt").read_text()
+    uri = re.search(r"model (models:/\S+) \(runs:/(\w+)/detector\)", stdout)
+    assert uri, stdout[-2000:]
     summary = json.loads(next((outputs / "runs").glob("*/summary.json")).read_text())
     params = summary["params"]
     detector = PCADetector(max_components=4, **{k: params[k] for k in ("n_components", "alpha", "lam",

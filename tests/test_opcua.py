@@ -1,6 +1,6 @@
 """``mosd monitor --opcua`` against the replay server, a real asyncua server on 127.0.0.1 (issue 52).
 
-* a tuned model (the tiny ``data=table`` run of tests/test_detector_model.py) monitoring a replay of its
+* a tuned model (the tiny ``data=table`` run of tests/test_detector_model.py, shared) monitoring a replay of its
   test rows writes the alarms ``mosd monitor`` writes on the file, and its outputs back to OPC UA nodes;
 * a monitor SIGKILLed and restarted with the same ``--state``, and a server SIGKILLed and restarted
   mid-stream (its history holds the rows due meanwhile), each end with the uninterrupted run's log;
@@ -33,7 +33,7 @@ from mosd.app.detector_model import load_fitted  # noqa: E402
 from mosd.data.table import _fill  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from test_detector_model import PACKAGE_PARENT, TAGS, _mosd, plant  # noqa: E402
+from test_detector_model import PACKAGE_PARENT, TAGS, _mosd, build_logged_run, plant_table  # noqa: E402
 
 #: replay speed: a 60 s step every 20 ms
 SPEED = 3000
@@ -83,24 +83,14 @@ def live_args(url, model, tmp, name, epoch, step=60):
 
 
 @pytest.fixture(scope="module")
-def tuned(tmp_path_factory):
-    """The tiny tuned run: its model URI, store, pipeline.npz, test rows (CSV) and the same rows with Bad cells."""
-    import pandas as pd
-
+def tuned(tmp_path_factory, shared_build):
+    """The tiny tuned run (tests/test_detector_model.py's, trained once per session): its model URI, store,
+    pipeline.npz, and in this module's own folder the test rows (CSV) and the same rows with Bad cells."""
+    built = shared_build("pca-table-run", build_logged_run)
     tmp = tmp_path_factory.mktemp("opcua")
-    X, label = plant()
-    table = pd.DataFrame(X, columns=TAGS)
-    table.insert(0, "time", np.arange(len(X)) * 60.0)
-    table["fault"] = label
-    table.to_csv(tmp / "plant.csv", index=False)
-    outputs = tmp / "out"
-    run = _mosd([f"data.path={tmp / 'plant.csv'}", "data=table", "data.time_column=time", "data.label_column=fault",
-                 "estimator=measured", "monitor=signals", "detector=pca", "detector.max_components=4",
-                 "detector.n_components=2", "optimizer.pop_size=8", "optimizer.n_gen=2", "progress=false"],
-                tmp, outputs)
-    assert run.returncode == 0, run.stderr[-2000:]
-    uri = re.search(r"model (models:/\S+) ", run.stdout).group(1)
-    test = table.iloc[900:].drop(columns=["fault"]).reset_index(drop=True)
+    outputs = built / "out"
+    uri = re.search(r"model (models:/\S+) ", (built / "stdout.txt").read_text()).group(1)
+    test = plant_table().iloc[900:].drop(columns=["fault"]).reset_index(drop=True)
     test.to_csv(tmp / "test.csv", index=False)
     coded = test.astype(object)
     rng = np.random.default_rng(0)
@@ -109,7 +99,7 @@ def tuned(tmp_path_factory):
         coded.iloc[r, c] = "Bad"
     coded.to_csv(tmp / "coded.csv", index=False)
     npz = next(outputs.glob("runs/*/model/pipeline.npz"))
-    return dict(tmp=tmp, uri=uri, tracking=f"sqlite:///{outputs / 'mlflow.db'}", npz=npz, test=test,
+    return dict(tmp=tmp, uri=uri, tracking=f"sqlite:///{outputs / 'mlflow.db'}", outputs=outputs, npz=npz, test=test,
                 coded=coded, bad=len(set(cells)))
 
 
@@ -155,7 +145,7 @@ def test_replayed_test_rows_give_the_file_s_alarms_and_are_written_back(tuned, s
     if True:
         live = monitor([*live_args(url, tuned["uri"], tmp, "live", epoch), "--tracking-uri", tuned["tracking"]])
         file = _mosd(["monitor", "--model", tuned["uri"], str(tmp / "test.csv"), "--keep", "time", "--out",
-                      str(tmp / "file.csv"), "--tracking-uri", tuned["tracking"]], tmp, tmp / "out")
+                      str(tmp / "file.csv"), "--tracking-uri", tuned["tracking"]], tmp, tuned["outputs"])
         out, err = live.communicate(timeout=300)
         assert live.returncode == 0, err[-2000:]
         assert file.returncode == 0, file.stderr[-2000:]

@@ -293,21 +293,33 @@ def _families() -> list[str]:
 FAMILIES = _families()
 
 
-def _monitor_a_runs_own_stream(tmp_path: Path, *run_args: str) -> None:
-    """Run with MLflow on, then re-score the run's test_stream.parquet with its logged model, as the README does."""
+def build_family_run(family: str):
+    """``build(folder)`` for ``shared_build``: a table run of ``family`` with MLflow on in ``folder`` (plant.csv,
+    run/, outputs/mlflow.db, the run's stdout in stdout.txt); the run tests/test_served_families.py serves too."""
+    def build(folder: Path) -> None:
+        _labelled_csv(folder / "plant.csv")
+        run = _mosd(folder, *[a for a in TAB if a != "tracking=none"], "data.path=plant.csv", f"detector={family}",
+                    "hydra.run.dir=run", "progress=false")
+        assert run.returncode == 0, run.stderr[-3000:]
+        (folder / "stdout.txt").write_text(run.stdout)
+    return build
+
+
+def _monitor_a_runs_own_stream(tmp_path: Path, folder: Path) -> None:
+    """Re-score the test_stream.parquet of the run in ``folder`` (MLflow on: run/, outputs/mlflow.db, stdout.txt)
+    with its logged model, as the README does; what monitor writes goes to ``tmp_path``."""
     import re
 
     import pandas as pd
 
-    run = _mosd(tmp_path, *run_args, "hydra.run.dir=run", "progress=false")
-    assert run.returncode == 0, run.stderr[-3000:]
-    model = re.search(r"model (models:/\S+)", run.stdout)
-    assert model, run.stdout[-3000:]
-    scored = _mosd(tmp_path / "run", "monitor", "--model", model.group(1), "--tracking-uri",
-                   f"sqlite:///{tmp_path / 'outputs' / 'mlflow.db'}", "--out", "scored.csv", "test_stream.parquet")
+    model = re.search(r"model (models:/\S+)", (folder / "stdout.txt").read_text())
+    assert model, (folder / "stdout.txt").read_text()[-3000:]
+    stream_path = folder / "run" / "test_stream.parquet"
+    scored = _mosd(tmp_path, "monitor", "--model", model.group(1), "--tracking-uri",
+                   f"sqlite:///{folder / 'outputs' / 'mlflow.db'}", "--out", "scored.csv", str(stream_path))
     assert scored.returncode == 0 and "Traceback" not in scored.stderr, scored.stderr[-3000:]
-    stream = pd.read_parquet(tmp_path / "run" / "test_stream.parquet")
-    out = pd.read_csv(tmp_path / "run" / "scored.csv")
+    stream = pd.read_parquet(stream_path)
+    out = pd.read_csv(tmp_path / "scored.csv")
     assert len(out) == len(stream) and f"{len(stream)} of {len(stream)} rows agree" in scored.stdout, scored.stdout
     # the run's own alarms, row by row, and the first one named with its statistics beside their limits
     assert out["alarm"].to_numpy(bool).tolist() == stream["alarm"].to_numpy(bool).tolist()
@@ -317,11 +329,9 @@ def _monitor_a_runs_own_stream(tmp_path: Path, *run_args: str) -> None:
         assert line and "(limit " in line.group(1), scored.stdout
 
 
-def test_monitor_rescores_a_cva_runs_own_stream(tmp_path):
+def test_monitor_rescores_a_cva_runs_own_stream(tmp_path, shared_build):
     """Before: rc 1, KeyError: 't2_smoothed' after scoring, --out never written."""
-    _labelled_csv(tmp_path / "plant.csv")
-    _monitor_a_runs_own_stream(tmp_path, *[a for a in TAB if a != "tracking=none"], "data.path=plant.csv",
-                               "detector=cva")
+    _monitor_a_runs_own_stream(tmp_path, shared_build("table-run-cva", build_family_run("cva")))
 
 
 def test_the_first_alarm_line_reads_each_familys_own_columns():
@@ -340,16 +350,18 @@ def test_the_first_alarm_line_reads_each_familys_own_columns():
 
 @pytest.mark.slow
 @pytest.mark.parametrize("family", FAMILIES)
-def test_monitor_rescores_every_familys_run_on_a_table(tmp_path, family):
-    _labelled_csv(tmp_path / "plant.csv")
-    _monitor_a_runs_own_stream(tmp_path, *[a for a in TAB if a != "tracking=none"], "data.path=plant.csv",
-                               f"detector={family}")
+def test_monitor_rescores_every_familys_run_on_a_table(tmp_path, family, shared_build):
+    # the run is shared (trained once) with test_monitor_rescores_a_cva_runs_own_stream and test_served_families
+    _monitor_a_runs_own_stream(tmp_path, shared_build(f"table-run-{family}", build_family_run(family)))
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("family", ["cva", "tag_ewma"])
 def test_monitor_rescores_a_te_run(tmp_path, family):
-    _monitor_a_runs_own_stream(tmp_path, "+experiment=tep", "debug=tiny", f"detector={family}")
+    run = _mosd(tmp_path, "+experiment=tep", "debug=tiny", f"detector={family}", "hydra.run.dir=run", "progress=false")
+    assert run.returncode == 0, run.stderr[-3000:]
+    (tmp_path / "stdout.txt").write_text(run.stdout)
+    _monitor_a_runs_own_stream(tmp_path, tmp_path)
 
 
 @pytest.mark.slow

@@ -10,36 +10,33 @@ run's own alarm on every row: for CVA (a dynamic family: its lagged rows are sta
 from __future__ import annotations
 
 import re
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-from test_reliability_53 import TAB, _labelled_csv, _mosd
+from test_reliability_53 import build_family_run
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("family", ["cva", "tag_ewma"])
-def test_the_served_model_gives_the_runs_own_alarms(tmp_path, family, stop_process_group):
+def test_the_served_model_gives_the_runs_own_alarms(family, stop_process_group, shared_build):
     import pandas as pd
     from mlflow import MlflowClient
     from mlflow.models import get_model_info
 
     from mosd.app.serving import predict_served, start_model_server
 
-    _labelled_csv(tmp_path / "plant.csv")
-    run = _mosd(tmp_path, *[a for a in TAB if a != "tracking=none"], "data.path=plant.csv", f"detector={family}",
-                "hydra.run.dir=run", "progress=false")
-    assert run.returncode == 0, run.stderr[-3000:]
-    model = re.search(r"model (models:/\S+)", run.stdout).group(1)
-    tracking = f"sqlite:///{tmp_path / 'outputs' / 'mlflow.db'}"
+    # the run tests/test_reliability_53.py re-scores with mosd monitor: trained once, shared (read only)
+    folder = shared_build(f"table-run-{family}", build_family_run(family))
+    model = re.search(r"model (models:/\S+)", (folder / "stdout.txt").read_text()).group(1)
+    tracking = f"sqlite:///{folder / 'outputs' / 'mlflow.db'}"
     MlflowClient(tracking)  # the store the model's URI resolves in
     import mlflow
 
     mlflow.set_tracking_uri(tracking)
     state_names = [p.name for p in get_model_info(model).signature.params.params]
     assert state_names, "the model declares its state as params"
-    stream = pd.read_parquet(tmp_path / "run" / "test_stream.parquet")
+    stream = pd.read_parquet(folder / "run" / "test_stream.parquet")
     reference = stream.attrs.get("mosd_reference") or ["time", "decision", "alarm"]
     inputs = stream.drop(columns=[c for c in stream.columns if c in set(reference) | {"time", "decision", "alarm"}])
     server, port = start_model_server(model, tracking, timeout=300)
