@@ -1,6 +1,6 @@
 """The main command's estimator streams raw measurements and inputs (issue 28): the CESCKF dedicated observer.
 
-* :class:`~mosd.estimators.residuals.OnlineDedicatedObserver` fed the raw ``y_<output>``/``u_<input>`` columns
+* the dedicated observer's :class:`~mosd.estimators.step.EstimatorStage` fed the raw ``y_<output>``/``u_<input>`` columns
   gives the batch estimator's residuals (bit for bit with the compiled filter, ~1e-12 on the NumPy path), in
   one call, in chunks of any size and row by row, and after a save/load with its state through JSON;
 * the batch filter going on from a :class:`~mosd.estimators.cubature.FilterStart` is the one call's filter;
@@ -16,7 +16,8 @@ import pytest
 
 from mosd import kernels
 from mosd.estimators.cubature import CESCKF, CubatureKalmanFilter, FilterStart
-from mosd.estimators.residuals import DedicatedObserverResidual, OnlineDedicatedObserver
+from mosd.estimators.residuals import DedicatedObserverResidual
+from mosd.estimators.step import EstimatorStage
 from mosd.faults.sensor import SensorFault
 from mosd.noise.gaussian import GaussianNoise
 from mosd.plants.mould_oscillator import MouldOscillator
@@ -108,7 +109,7 @@ def test_state_survives_save_load_and_json(tmp_path):
     state = json.loads(json.dumps(pipeline.final_state(head)))
     assert state["filter_step"] == 37 and len(state) == 1 + 3 + 6 + 1   # step, x̂, lower root of P, u_{k−1}
     loaded = OnlinePipeline.load(pipeline.save(tmp_path))
-    assert isinstance(loaded.stages[0], OnlineDedicatedObserver)
+    assert isinstance(loaded.stages[0], EstimatorStage) and loaded.stages[0].estimator.endswith(".DedicatedObserverResidual")
     tail = loaded.update({k: v[37:] for k, v in columns.items()}, state)
     for key in pipeline.outputs:
         assert np.array_equal(np.concatenate([head[key], tail[key]]), whole[key]), key

@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from mosd.estimators.cubature import CESCKF
-from mosd.estimators.residuals import InnovationResidual, OnlineDedicatedObserver
+from mosd.estimators.residuals import InnovationResidual
+from mosd.estimators.step import EstimatorStage
 from mosd.streaming import OnlinePipeline
 
 from test_streaming import check_chunks  # one call == chunks of 1, 2, 5, 13 rows
@@ -18,7 +19,7 @@ def test_the_innovation_streams_the_batch_innovations_in_any_chunks():
     first = scenario.simulate(3, 1, stream="test", fault_scale=1.0)
     estimator = InnovationResidual(filter=CESCKF())
     model, stage = _stage(estimator, first)
-    assert isinstance(stage, OnlineDedicatedObserver) and stage.monitored == ()
+    assert isinstance(stage, EstimatorStage) and stage.estimator == "mosd.estimators.residuals.InnovationResidual"
     batch = estimator.estimate(trace, model).r[0]
     columns = estimator.raw_stream(first, model, PLANT.input_names)
     assert tuple(columns) == RAW and stage.inputs == RAW

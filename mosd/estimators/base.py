@@ -14,7 +14,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from ..streaming import NoStreamingForm, OnlineStage, build
+from ..streaming import NoStreamingForm
 from ..types import Residuals, Trace
 from ..validation import Component
 
@@ -69,27 +69,3 @@ def plant_columns(trace: Trace, model: Any, input_names) -> dict[str, np.ndarray
     names = tuple(input_names or (f"u{i}" for i in range(u.shape[-1])))
     columns.update({f"u_{name}": u[:, j] for j, name in enumerate(names)})
     return columns
-
-
-class PlantStage(OnlineStage):
-    """An estimator's causal form that rebuilds its plant's model from the description it saves (dataclass
-    fields ``plant`` and ``noise``, as :func:`mosd.streaming.describe` gives them).
-
-    By default it reads the plant's raw columns, ``y_<output>`` and ``u_<input>`` (fields
-    ``outputs_of_plant``, ``inputs_of_plant``), and writes ``residual_<output>``.
-    """
-
-    def _model(self):
-        """The plant's state-space model, built once per stage."""
-        cached = self.__dict__.get("_model_object")
-        if cached is None:
-            cached = self.__dict__["_model_object"] = build(self.plant).model(build(self.noise))
-        return cached
-
-    @property
-    def inputs(self) -> tuple[str, ...]:
-        return (*(f"y_{n}" for n in self.outputs_of_plant), *(f"u_{n}" for n in self.inputs_of_plant))
-
-    @property
-    def outputs(self) -> tuple[str, ...]:
-        return tuple(f"residual_{n}" for n in self.outputs_of_plant)

@@ -198,7 +198,7 @@ class _GainFilter(StepEstimator):
         gains, constant = self._schedule()
         return {"gains": np.asarray(gains, float), "constant": np.asarray(bool(constant))}
 
-    def step_state(self, params: dict) -> dict:
+    def step_state(self, params: dict, reads: tuple = ()) -> dict:
         out = {"x_hat_next": (StateVar("The filter's estimate x̂ of the next row's state.", FINITE), 0.0),
                "filter_step": (StateVar("Rows filtered since the stream's start (the index into the gain schedule).",
                                         COUNT), 0)}

@@ -95,7 +95,7 @@ class LuenbergerObserver(StepEstimator):
         u = np.zeros((0, 0)) if trace is None else np.asarray(trace.u, float)
         return {"gain": self.gain(model, self._u0(u)), "x0": np.asarray(model.x0, float)}
 
-    def step_state(self, params: dict) -> dict:
+    def step_state(self, params: dict, reads: tuple = ()) -> dict:
         return {f"x_hat_{i}": (StateVar(f"The observer's estimate of state {i}.", FINITE), float(v))
                 for i, v in enumerate(params["x0"])}
 

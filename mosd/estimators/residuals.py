@@ -5,28 +5,28 @@ update. :class:`DedicatedObserverResidual` (the default) updates the filter with
 *other* sensors only and compares the monitored sensor with its prediction, so a
 sensor bias is not absorbed by the state estimate (see :mod:`mosd.estimators.cubature`).
 
-Causal form (issue 28, :mod:`mosd.streaming`): :class:`OnlineDedicatedObserver` takes the plant's raw
+Causal form (issue 28, :mod:`mosd.streaming`; one step, issue 50: :mod:`mosd.estimators.step`): the served
+:class:`~mosd.estimators.step.EstimatorStage` of either residual takes the plant's raw
 columns, one row per sample: ``y_<output>`` for every sensor and ``u_<input>`` for every input of the
 model's f. For the main command (the mould oscillator in closed loop) the deployed model's inputs are
 ``y_x_p``, ``y_theta``, ``y_n`` and ``u_i_q``, the speed controller's current command (the run's
 ``test_stream.parquet`` holds exactly those), and its outputs ``residual_x_p``, ``residual_theta``,
 ``residual_n`` feed the monitor. Row k's residual uses u_{k−1} (carried), its own u_k drives row k+1's
-prediction, as in the batch filter. Each chunk runs :meth:`DedicatedObserverResidual.residuals`, the batch
+prediction, as in the batch filter. Each chunk runs the estimator's ``residuals``, the batch
 estimate's own arithmetic, from the carried :class:`~mosd.estimators.cubature.FilterStart` (the compiled
-CESCKF kernel resumes from it): the stream's residuals are the batch's bit for bit with the kernel
+CESCKF kernel resumes from it; :meth:`FilterStep.scan`): the stream's residuals are the batch's bit for bit with the kernel
 (``tests/test_streaming_cesckf.py``).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
 from ..model import StateSpaceModel
-from ..streaming import COUNT, FINITE, NoStreamingForm, StateVar, build, describe
+from ..streaming import COUNT, FINITE, NoStreamingForm, StateVar, describe
 from ..types import Residuals, Trace
 from ..validation import ConfigError, Interval, Param, check_int
-from .base import Estimator, PlantStage, plant_columns
+from .base import plant_columns
+from .step import StepEstimator
 from .cubature import CESCKF, FilterResult, FilterStart, _CubatureFilterBase, _lower_sqrt
 
 
@@ -61,7 +61,100 @@ def _check_trace(trace: Trace, model: StateSpaceModel) -> None:
         raise ValueError(f"trace has {trace.y.shape[-1]} output channels but the model {model.n_y}")
 
 
-class InnovationResidual(Estimator):
+class FilterStep(StepEstimator):
+    """The step of a cubature-filter residual (:mod:`mosd.estimators.step`): the estimator's ``residuals`` (the
+    batch estimate's arithmetic, the compiled CESCKF kernel where the batch uses it) from the carried
+    :class:`~mosd.estimators.cubature.FilterStart`:
+
+    * ``filter_step``: rows seen (0: the next row is the first sample, predicted by x̂_0, P_0);
+    * ``x_filt_<i>``: x̂_{k|k} of state i (eq. 12);
+    * ``sqrt_cov_filt_<i>_<j>`` (j ≤ i): the lower square root S_{k|k} of P_{k|k} (eq. 18), carried as the
+      root, not as P, so that a chunked stream is bit for bit one call (diagonal ≥ 0);
+    * ``u_last_<input>``: the row's input u_k, which drives the next row's prediction (eqs. 4–5).
+
+    Before the first row the state holds the prior (x̂_0, chol(P_0), u = 0), which ``filter_step = 0``
+    ignores. A missing measurement (NaN) is left out of the update as in the batch; an input must be a
+    finite number (the state would become NaN).
+    """
+
+    def residuals(self, model: StateSpaceModel, y: np.ndarray, u, start: FilterStart | None = None):
+        raise NotImplementedError
+
+    def step_params(self, model: StateSpaceModel, trace: Trace | None = None) -> dict[str, np.ndarray]:
+        """x̂_0 and the lower root of P_0: the state before the first row."""
+        return {"x0": np.asarray(model.x0, float), "sqrt_p0": _lower_sqrt(np.asarray(model.P0, float))}
+
+    def step_state(self, params: dict, reads: tuple = ()) -> dict:
+        x0, root = np.asarray(params["x0"], float), np.asarray(params["sqrt_p0"], float)
+        out = {"filter_step": (StateVar("Rows the filter has seen (0: start from x̂_0, P_0).", COUNT), 0)}
+        out.update({f"x_filt_{i}": (StateVar(f"x̂_k|k of state {i} (eq. 12).", FINITE), float(v))
+                    for i, v in enumerate(x0)})
+        for i, j, name in _root_names(len(x0)):
+            out[name] = (StateVar(f"Entry ({i}, {j}) of the lower root S_k|k of P_k|k (eq. 18).",
+                                  _ROOT_DIAGONAL if i == j else FINITE), float(root[i, j]))
+        out.update({f"u_last_{n[2:]}": (StateVar(f"The last row's input {n[2:]} (drives the next prediction).", FINITE),
+                                        0.0) for n in reads if n.startswith("u_")})
+        return out
+
+    def scan(self, model, params: dict, state: dict, columns: dict, trajectory: bool = False) -> dict:
+        """The residual of every output (:meth:`StepEstimator.scan`): the columns are the outputs ``y_*`` then the
+        inputs ``u_*``, in the model's order; out ``residual_<output>``."""
+        names = list(columns)
+        ys, us = names[:model.n_y], names[model.n_y:]
+        y = np.stack([np.asarray(columns[n], float) for n in ys], axis=-1)
+        runs, rows, n_x = y.shape[0], y.shape[1], model.n_x
+        u = np.stack([np.asarray(columns[n], float) for n in us], axis=-1) if us else np.zeros((runs, rows, 0))
+        bad = ~np.isfinite(u)
+        if bad.any():
+            _, row, col = np.argwhere(bad)[0]
+            raise ConfigError(f"input column {us[col]!r} row {row} is {float(u[0, row, col])!r}, not a finite number; "
+                              f"allowed: numbers (the filter's prediction needs every input)")
+        step = int(np.ravel(state["filter_step"])[0])
+        if rows == 0:
+            r, x_filt, root = np.empty((runs, 0, len(ys))), np.empty((runs, 0, n_x)), np.empty((runs, 0, n_x, n_x))
+        elif step == 0:   # from the prior: every run in one call, as the batch estimate
+            r, _, res, _ = self.residuals(model, y, u)
+            x_filt, root = res.x_filt, res.sqrt_cov_filt
+        else:
+            parts = [self.residuals(model, y[k:k + 1], u[k:k + 1], _start(state, k, n_x, us)) for k in range(runs)]
+            r = np.concatenate([p[0] for p in parts])
+            x_filt = np.concatenate([p[2].x_filt for p in parts])
+            root = np.concatenate([p[2].sqrt_cov_filt for p in parts])
+        out = {f"residual_{n[2:]}": r[..., c] for c, n in enumerate(ys)}
+        if trajectory:
+            out["filter_step"] = np.broadcast_to(step + 1 + np.arange(rows), (runs, rows))
+            out.update({f"x_filt_{i}": x_filt[..., i] for i in range(n_x)})
+            out.update({name: root[..., i, j] for i, j, name in _root_names(n_x)})
+            out.update({f"u_last_{n[2:]}": u[..., c] for c, n in enumerate(us)})
+        return out
+
+    def example_row(self, model, params: dict, reads: tuple) -> np.ndarray:
+        """h(x̂_0) and zero inputs."""
+        outputs = np.asarray(model.h(np.asarray(params["x0"], float)[None]))[0]
+        return np.concatenate([outputs, np.zeros(len(reads) - len(outputs))])
+
+    def raw_stream(self, trace: Trace, model: StateSpaceModel, input_names) -> dict[str, np.ndarray]:
+        """The first replication's measurements and inputs as the causal form's columns."""
+        return plant_columns(trace, model, input_names)
+
+
+def _root_names(n_x: int) -> list[tuple[int, int, str]]:
+    return [(i, j, f"sqrt_cov_filt_{i}_{j}") for i in range(n_x) for j in range(i + 1)]
+
+
+def _start(state: dict, run: int, n_x: int, inputs) -> FilterStart:
+    """The :class:`FilterStart` of run ``run`` of the carried ``state``."""
+    def value(name):
+        return float(np.broadcast_to(np.asarray(state[name], float), (run + 1,))[run])
+
+    root = np.zeros((n_x, n_x))
+    for i, j, name in _root_names(n_x):
+        root[i, j] = value(name)
+    return FilterStart(np.array([value(f"x_filt_{i}") for i in range(n_x)]), root,
+                       np.array([value(f"u_last_{n[2:]}") for n in inputs]))
+
+
+class InnovationResidual(FilterStep):
     """The paper's residual: the innovation r_k = y_k − ŷ_{k|k−1} of a filter using every sensor (eq. 7)."""
 
     params = {"filter": _FILTER}
@@ -83,24 +176,20 @@ class InnovationResidual(Estimator):
 
     def residuals(self, model: StateSpaceModel, y: np.ndarray, u, start: FilterStart | None = None):
         """(r, cov, the filter's result, ŷ) of ``y`` (R, N, n_y): the one arithmetic of :meth:`estimate` and of
-        the causal form (:class:`OnlineDedicatedObserver` with no channel left out, from the carried ``start``)."""
+        the causal form (:meth:`FilterStep.scan`, from the carried ``start``)."""
         res = (self.filter.filter(model, y, u) if start is None
                else self.filter.filter(model, y, u, start=start))
         return res.innovation, res.innovation_cov, res, res.y_pred
 
     def online(self, model: StateSpaceModel = None, source=None, trace: Trace | None = None):
         """The innovation as a stream of the plant's raw measurements and inputs: ``y_<output>`` and
-        ``u_<input>`` in, ``residual_<output>`` out (:class:`OnlineDedicatedObserver` with ``monitored=()``)."""
+        ``u_<input>`` in, ``residual_<output>`` out (:class:`FilterStep`'s stage)."""
         if source is None or trace is None or type(self).estimate is not InnovationResidual.estimate:
             return super().online(model)
-        return _online_filter(self, model, source, trace, monitored=())
-
-    def raw_stream(self, trace: Trace, model: StateSpaceModel, input_names) -> dict[str, np.ndarray]:
-        """The first replication's measurements and inputs as the causal form's columns."""
-        return plant_columns(trace, model, input_names)
+        return _online_filter(self, model, source, trace)
 
 
-class DedicatedObserverResidual(Estimator):
+class DedicatedObserverResidual(FilterStep):
     """Residual of a filter that never sees the monitored sensors (docs/DECISIONS.md §1).
 
     The filter updates with the other channels only (``model.restrict_outputs``);
@@ -146,7 +235,7 @@ class DedicatedObserverResidual(Estimator):
 
     def residuals(self, model: StateSpaceModel, y: np.ndarray, u, start: FilterStart | None = None):
         """(r, cov, the filter's result, ŷ) of ``y`` (R, N, n_y): the one arithmetic of :meth:`estimate`
-        and of the causal form (:class:`OnlineDedicatedObserver`, which passes the carried ``start``)."""
+        and of the causal form (:meth:`FilterStep.scan`, which passes the carried ``start``)."""
         n_y = model.n_y
         if max(self.monitored) >= n_y or len(self.monitored) >= n_y:
             raise ConfigError(
@@ -181,16 +270,12 @@ class DedicatedObserverResidual(Estimator):
             # a subclass that changes the estimate would deploy an arithmetic its run did not use
             return super().online(model)
         _check_monitored("estimator.monitored", self.monitored, self)
-        return _online_filter(self, model, source, trace, monitored=tuple(int(m) for m in self.monitored))
-
-    def raw_stream(self, trace: Trace, model: StateSpaceModel, input_names) -> dict[str, np.ndarray]:
-        """The first replication's measurements and inputs as the causal form's columns."""
-        return plant_columns(trace, model, input_names)
+        return _online_filter(self, model, source, trace)
 
 
-def _online_filter(estimator, model: StateSpaceModel, source, trace: Trace, monitored: tuple) -> "OnlineDedicatedObserver":
-    """The causal form of a cubature-filter residual (``monitored``: the channels left out of the update; none:
-    the innovation), its plant, noise and filter rebuilt from their descriptions."""
+def _online_filter(estimator, model: StateSpaceModel, source, trace: Trace):
+    """The causal form of a cubature-filter residual (:class:`FilterStep`), its plant, noise and filter rebuilt from
+    their descriptions where it runs."""
     if type(estimator.filter).filter is not _CubatureFilterBase.filter:
         raise NoStreamingForm(f"the filter {type(estimator.filter).__name__} overrides filter(): its stream would not "
                               f"be the run's arithmetic")
@@ -199,120 +284,8 @@ def _online_filter(estimator, model: StateSpaceModel, source, trace: Trace, moni
     if foreign:
         raise NoStreamingForm(f"the {foreign[0]} is not mosd's: a deployed model rebuilds mosd's classes only")
     inputs = tuple(source.get("input_names") or (f"u{i}" for i in range(np.shape(trace.u)[-1])))
-    sqrt_p0 = _lower_sqrt(np.asarray(model.P0, float))
-    return OnlineDedicatedObserver(
-        plant=parts["plant"], noise=parts["noise"], filter=parts["filter"], monitored=monitored,
-        x0=np.asarray(model.x0, float), sqrt_p0=sqrt_p0, outputs_of_plant=tuple(model.output_names),
-        inputs_of_plant=inputs)
-
-
-@dataclass
-class OnlineDedicatedObserver(PlantStage):
-    """:class:`DedicatedObserverResidual`'s causal form: ``y_<output>``, ``u_<input>`` in, ``residual_<output>`` out
-    (with ``monitored=()``, :class:`InnovationResidual`'s: the innovation of every channel).
-
-    Each chunk goes through :meth:`DedicatedObserverResidual.residuals` (the batch arithmetic: the
-    compiled CESCKF kernel where the batch used it) from the carried state, a
-    :class:`~mosd.estimators.cubature.FilterStart`:
-
-    * ``filter_step``: rows seen (0: the next row is the first sample, predicted by x̂_0, P_0);
-    * ``x_filt_<i>``: x̂_{k|k} of state i (eq. 12);
-    * ``sqrt_cov_filt_<i>_<j>`` (j ≤ i): the lower square root S_{k|k} of P_{k|k} (eq. 18), carried as the
-      root, not as P, so that a chunked stream is bit for bit one call (diagonal ≥ 0);
-    * ``u_last_<input>``: the row's input u_k, which drives the next row's prediction (eqs. 4–5).
-
-    Before the first row the state holds the prior (x̂_0, chol(P_0), u = 0), which ``filter_step = 0``
-    ignores. A missing measurement (NaN) is left out of the update as in the batch; an input must be a
-    finite number (the state would become NaN).
-    """
-
-    plant: dict
-    noise: dict
-    filter: dict
-    monitored: tuple
-    x0: np.ndarray
-    sqrt_p0: np.ndarray
-    outputs_of_plant: tuple = ()
-    inputs_of_plant: tuple = ()
-
-    def __post_init__(self):
-        self.plant, self.noise, self.filter = dict(self.plant), dict(self.noise), dict(self.filter)
-        self.monitored = tuple(int(m) for m in self.monitored)
-        self.x0, self.sqrt_p0 = np.asarray(self.x0, float), np.asarray(self.sqrt_p0, float)
-        self.outputs_of_plant, self.inputs_of_plant = tuple(self.outputs_of_plant), tuple(self.inputs_of_plant)
-
-    def _built(self):
-        """(the model, the residual generator), rebuilt once from their descriptions."""
-        cached = self.__dict__.get("_generator")
-        if cached is None:
-            cached = self.__dict__["_generator"] = (
-                DedicatedObserverResidual(filter=build(self.filter), monitored=self.monitored) if self.monitored
-                else InnovationResidual(filter=build(self.filter)))  # no channel left out: the innovation (eq. 7)
-        return self._model(), cached
-
-    @property
-    def _n_x(self) -> int:
-        return len(self.x0)
-
-    def _root_names(self):
-        cached = self.__dict__.get("_roots")  # four times per served row: made once
-        if cached is None:
-            cached = self.__dict__["_roots"] = [(i, j, f"sqrt_cov_filt_{i}_{j}") for i in range(self._n_x)
-                                                for j in range(i + 1)]
-        return cached
-
-
-    def state_vars(self) -> dict[str, StateVar]:
-        out = {"filter_step": StateVar("Rows the filter has seen (0: start from x̂_0, P_0).", COUNT)}
-        out.update({f"x_filt_{i}": StateVar(f"x̂_k|k of state {i} (eq. 12).", FINITE) for i in range(self._n_x)})
-        for i, j, name in self._root_names():
-            out[name] = StateVar(f"Entry ({i}, {j}) of the lower root S_k|k of P_k|k (eq. 18).",
-                                 _ROOT_DIAGONAL if i == j else FINITE)
-        out.update({f"u_last_{n}": StateVar(f"The last row's input {n} (drives the next prediction).", FINITE)
-                    for n in self.inputs_of_plant})
-        return out
-
-    def initial_state(self) -> dict:
-        state = {"filter_step": 0}
-        state.update({f"x_filt_{i}": float(v) for i, v in enumerate(self.x0)})
-        state.update({name: float(self.sqrt_p0[i, j]) for i, j, name in self._root_names()})
-        state.update({f"u_last_{n}": 0.0 for n in self.inputs_of_plant})
-        return state
-
-    def example_row(self) -> np.ndarray:
-        model, _ = self._built()
-        return np.concatenate([np.asarray(model.h(self.x0[None]))[0], np.zeros(len(self.inputs_of_plant))])
-
-    def update(self, columns, state) -> dict[str, np.ndarray]:
-        model, generator = self._built()
-        y = np.column_stack([np.asarray(columns[f"y_{n}"], float) for n in self.outputs_of_plant])
-        u = (np.column_stack([np.asarray(columns[f"u_{n}"], float) for n in self.inputs_of_plant])
-             if self.inputs_of_plant else np.zeros((len(y), 0)))
-        bad = ~np.isfinite(u)
-        if bad.any():
-            row, col = np.argwhere(bad)[0]
-            raise ConfigError(f"input column 'u_{self.inputs_of_plant[col]}' row {row} is {float(u[row, col])!r}, not a "
-                              f"finite number; allowed: numbers (the filter's prediction needs every input)")
-        rows, n_x = len(y), self._n_x
-        step = int(state["filter_step"])
-        start = None
-        if step > 0:
-            root = np.zeros((n_x, n_x))
-            for i, j, name in self._root_names():
-                root[i, j] = float(state[name])
-            start = FilterStart(np.array([float(state[f"x_filt_{i}"]) for i in range(n_x)]), root,
-                                np.array([float(state[f"u_last_{n}"]) for n in self.inputs_of_plant]))
-        if rows == 0:
-            r, x_filt, sqrt_cov = np.empty((0, len(self.outputs_of_plant))), np.empty((0, n_x)), np.empty((0, n_x, n_x))
-        else:
-            r, _, res, _ = generator.residuals(model, y[None], u[None], start)
-            r, x_filt, sqrt_cov = r[0], res.x_filt[0], res.sqrt_cov_filt[0]
-        out = {f"residual_{n}": r[:, c] for c, n in enumerate(self.outputs_of_plant)}
-        out["filter_step"] = step + 1 + np.arange(rows, dtype=np.int64)
-        out.update({f"x_filt_{i}": x_filt[:, i] for i in range(n_x)})
-        out.update({name: sqrt_cov[:, i, j] for i, j, name in self._root_names()})
-        out.update({f"u_last_{n}": u[:, c] for c, n in enumerate(self.inputs_of_plant)})
-        return out
+    return estimator.stage(model, source, (*(f"y_{n}" for n in model.output_names), *(f"u_{n}" for n in inputs)),
+                           tuple(f"residual_{n}" for n in model.output_names), trace)
 
 
 #: a diagonal entry of a Cholesky factor: non-negative, finite

@@ -40,8 +40,9 @@ class StepEstimator(Estimator):
         model does not (its number of inputs)."""
         return {}
 
-    def step_state(self, params: dict) -> dict[str, tuple[StateVar, float]]:
-        """The carried state: name → (declaration, value at a stream's start); empty without memory."""
+    def step_state(self, params: dict, reads: tuple = ()) -> dict[str, tuple[StateVar, float]]:
+        """The carried state: name → (declaration, value at a stream's start); empty without memory. ``reads``:
+        the input columns (a state variable may be named after one: the last input ``u_last_<input>``)."""
         return {}
 
     def scan(self, model, params: dict, state: dict, columns: dict, trajectory: bool = False) -> dict[str, np.ndarray]:
@@ -67,9 +68,9 @@ class StepEstimator(Estimator):
         """
         raise NotImplementedError
 
-    def start(self, params: dict) -> dict[str, np.ndarray]:
+    def start(self, params: dict, reads: tuple = ()) -> dict[str, np.ndarray]:
         """The state at a stream's start as arrays of shape (1,) (broadcast over any number of runs)."""
-        return {name: np.full(1, value) for name, (_, value) in self.step_state(params).items()}
+        return {name: np.full(1, value) for name, (_, value) in self.step_state(params, reads).items()}
 
     def example_row(self, model, params: dict, reads: tuple) -> np.ndarray:
         """An input row the served stage shows as its example (zeros unless the estimator knows better)."""
@@ -141,7 +142,7 @@ class EstimatorStage(OnlineStage):
         if cached is None:
             estimator = mosd_class(self.estimator, "estimator class")(**build_params(self.design))
             model = None if self.plant is None else build(self.plant).model(build(self.noise))
-            cached = self.__dict__["_cache"] = (estimator, model, estimator.step_state(self.fitted))
+            cached = self.__dict__["_cache"] = (estimator, model, estimator.step_state(self.fitted, self.reads))
         return cached
 
     @property
