@@ -2,7 +2,8 @@
 
 Fast: the README has at most 200 lines, none over 300 characters; its fenced blocks are ``bash`` (commands)
 or ``text`` (output); every relative link names a file of the repository; its presets table names every
-preset; every ``pip install`` names extras that pyproject.toml declares.
+preset; every ``pip install`` names extras that pyproject.toml declares; a command quoted inline (a
+reference, not a step to run) names an existing module.
 
 Slow (:func:`test_the_readme_commands_run`): every ``bash`` block, in order, in one empty directory, as one
 bash session (``bash -euo pipefail``), with these substitutions, each checked otherwise:
@@ -85,6 +86,20 @@ def test_the_readme_links_name_files_of_the_repository():
     assert len(links) >= 20, links
     missing = [link for link in links if not (ROOT / link).is_file()]
     assert not missing, f"README.md links to missing files: {missing}"
+
+
+def test_the_readme_inline_commands_name_existing_modules():
+    """The commands quoted inline (`python -m MODULE ...`, references to the blocks' and the site's commands)
+    name modules that exist; the ``mosd`` subcommands among them are ones the app knows."""
+    import importlib.util
+
+    inline = re.findall(r"`python -m ([\w.]+)([^`]*)`", _text())
+    assert len(inline) >= 3, inline
+    for module, rest in inline:
+        assert importlib.util.find_spec(module) is not None, f"README names python -m {module}, which does not exist"
+        sub = rest.split()[0] if rest.split() else ""
+        if module == "mosd" and sub and not sub.startswith(("+", "-")) and "=" not in sub:
+            assert sub in ("monitor", "options", "report", "ui", "log"), f"README: python -m mosd {sub}?"
 
 
 def test_the_readme_presets_table_names_every_preset():
