@@ -128,8 +128,9 @@ class Chart(StepDetector):
         """UCL_k for k = 1..n_points."""
         raise NotImplementedError
 
-    def _scale(self, n_points: int) -> np.ndarray:
-        """σ²_k (or σ_k) of the raw statistic in control, k = 1..n_points: what ``"normalised"`` divides by."""
+    def _scale(self, n_points: int, lam=None) -> np.ndarray:
+        """σ²_k (or σ_k) of the raw statistic in control, k = 1..n_points: what ``"normalised"`` divides by;
+        for this chart's λ, or for every λ of ``lam`` (P, 1): (P, n_points)."""
         raise NotImplementedError
 
     def raw_statistic(self, features: np.ndarray) -> np.ndarray:
@@ -220,7 +221,7 @@ class Chart(StepDetector):
         raw, smoothed = self._smoothed(params, state, features, trajectory)
         lams, widths = np.asarray(params["lam"], float), np.asarray(params["width"], float)
         if self.limit == "normalised" and n_points:   # eq. 31 (or 29): χ²₂ at every k in control
-            raw = raw / np.stack([self.with_params(lam=lam)._scale(int(number[-1]))[number - 1] for lam in lams])[:, None]
+            raw = raw / self._scale(int(number[-1]), lams[:, None])[:, None, number - 1]
         statistic = self._denoised(raw, state, int(number[0]) - 1 if n_points else 0)
         if self.limit in self.model_limits:
             limit = np.stack([self.with_params(**{"lam": lam, self.width: width}).control_limit(
@@ -247,16 +248,17 @@ class Chart(StepDetector):
         columns = np.ascontiguousarray(np.moveaxis(features, -1, 0).transpose(0, 2, 1).reshape(n_points, n_parts * runs))
         parts = self.parts if len(self.parts) == n_parts else tuple(f"part{f}" for f in range(n_parts))
         names = [[f"smooth_{part}_{lag}" for lag in range(1, self.order + 1)] for part in parts]
+        # every design's carried values, laid out as the columns: (P, order, F·R)
+        pasts = np.stack([np.concatenate([np.broadcast_to(np.asarray(state.get(names[f][lag], 0.0), float),
+                                                          (len(lams), runs)) for f in range(n_parts)], axis=-1)
+                          for lag in range(self.order)], axis=1)
         raw = np.empty((len(lams), runs, n_points))
         history = {}
         smoothed = np.empty_like(columns)
         statistic = np.empty((n_points, runs))
         for p in range(len(lams)):
-            past = np.empty((self.order, n_parts * runs))
-            for f in range(n_parts):
-                for lag in range(self.order):
-                    past[lag, f * runs:(f + 1) * runs] = _design_row(state.get(names[f][lag], 0.0), p, runs)
-            start = past.copy()
+            past = pasts[p].copy()   # contiguous: continued in place by the recursion
+            start = pasts[p]
             chart_recursion(columns, float(gains[p]), np.ascontiguousarray(feedback[p]), past, combine, smoothed,
                             statistic)
             raw[p] = statistic.T
@@ -357,9 +359,3 @@ class Chart(StepDetector):
         params = ", ".join(f"{k}={getattr(self, k):.6g}" for k in self.tunable)
         return f"{type(self).__name__}({params}, limit={self.limit!r}, denoiser={self.denoiser!r})"
 
-
-def _design_row(value, p: int, runs: int) -> np.ndarray:
-    """Design p's row (R,) of a state variable broadcastable to (P, R)."""
-    value = np.asarray(value, float)
-    value = value.reshape((1, 1)) if value.ndim == 0 else value
-    return np.broadcast_to(value[min(p, value.shape[0] - 1)], (runs,))

@@ -59,17 +59,19 @@ class _MeanVarianceChart(Chart):
         super().__init__(limit=limit, denoiser=denoiser)
         self._assign(locals())
 
-    def smoothed_variance(self, n_points: int) -> np.ndarray:
-        """In-control variance of the smoothed statistics at k = 1..n_points (eq. 29 or 31)."""
+    def smoothed_variance(self, n_points: int, lam=None) -> np.ndarray:
+        """In-control variance of the smoothed statistics at k = 1..n_points (eq. 29 or 31), for this chart's λ
+        or for ``lam`` (P, 1): (P, n_points)."""
+        lam = self.lam if lam is None else lam
         if self.order == 1:
-            return ewma_variance(self.lam, n_points)
-        return dewma_variance(self.lam, n_points)
+            return ewma_variance(lam, n_points)
+        return dewma_variance(lam, n_points)
 
     def features(self, z: np.ndarray) -> np.ndarray:
         return np.stack([subgroup_mean_statistic(z), subgroup_variance_statistic(z)], axis=-2)
 
-    def _scale(self, n_points: int) -> np.ndarray:
-        var = self.smoothed_variance(n_points)
+    def _scale(self, n_points: int, lam=None) -> np.ndarray:
+        var = self.smoothed_variance(n_points, lam)
         return var if self.combine == "ss" else np.sqrt(var)
 
     def control_limit(self, n_points: int) -> np.ndarray:

@@ -120,12 +120,13 @@ def ewma_time_major(x: np.ndarray, lams: np.ndarray, order: int = 1) -> np.ndarr
 
 
 def dewma_variance(lam: float, n_points: int) -> np.ndarray:
-    """σ²_{W_k} = λ⁴ Σ_{j=1..k} j²(1−λ)^{2(j−1)} for k = 1..n_points (eq. 31)."""
+    """σ²_{W_k} = λ⁴ Σ_{j=1..k} j²(1−λ)^{2(j−1)} for k = 1..n_points (eq. 31); λ a number or (P, 1)."""
     j = np.arange(1, n_points + 1)
-    return lam**4 * np.cumsum(j**2 * (1.0 - lam) ** (2 * (j - 1)))
+    # lam may be an array of shape (P, 1): each row is its λ's sequence (a cumulative sum runs in order either way)
+    return lam**4 * np.cumsum(j**2 * (1.0 - lam) ** (2 * (j - 1)), axis=-1)
 
 
 def ewma_variance(lam: float, n_points: int) -> np.ndarray:
-    """σ²_{Y_k} = λ(1 − (1−λ)^{2k})/(2 − λ) for k = 1..n_points (eq. 29)."""
+    """σ²_{Y_k} = λ(1 − (1−λ)^{2k})/(2 − λ) for k = 1..n_points (eq. 29); λ a number or (P, 1)."""
     k = np.arange(1, n_points + 1)
     return lam * (1.0 - (1.0 - lam) ** (2 * k)) / (2.0 - lam)
