@@ -187,8 +187,13 @@ def _plain(value):
     return value.item() if hasattr(value, "item") else value
 
 
-def score_file(model, frame, chunk: int = 1000, progress: bool = False):
-    """The model's output for every row of ``frame``, scored in chunks with the state carried."""
+def score_file(model, frame, chunk: int = 1000, progress: bool = False, first_chunk_s: list | None = None):
+    """The model's output for every row of ``frame``, scored in chunks with the state carried.
+
+    ``first_chunk_s``: a list that gets the seconds the first chunk took (where a first call compiles its kernels).
+    """
+    import time
+
     import pandas as pd
 
     parts, state = [], None
@@ -201,7 +206,10 @@ def score_file(model, frame, chunk: int = 1000, progress: bool = False):
 
         bar = tqdm(total=len(frame), unit="row", desc="monitor", file=sys.stderr)
     for start in range(0, len(frame), chunk):
+        t0 = time.perf_counter()
         out = model.predict(frame.iloc[start:start + chunk], params=state)
+        if first_chunk_s is not None and start == 0:
+            first_chunk_s.append(time.perf_counter() - t0)
         parts.append(out)
         state = {name: _plain(out[name].iloc[-1]) for name in names}
         if bar is not None:
@@ -209,6 +217,50 @@ def score_file(model, frame, chunk: int = 1000, progress: bool = False):
     if bar is not None:
         bar.close()
     return pd.concat(parts) if parts else model.predict(frame)
+
+
+def kernels_key(fitted) -> str:
+    """What decides the kernels ``mosd monitor`` compiles for a model: its pipeline's stage classes."""
+    stages = getattr(fitted, "stages", None) or [fitted]
+    return "monitor " + " > ".join(f"{type(s).__module__}.{type(s).__qualname__}" for s in stages)
+
+
+def announce_compile(fitted) -> bool:
+    """Print :func:`compile_notice` on stderr when there is one; whether it was printed."""
+    notice = compile_notice(fitted)
+    if notice:
+        print(notice, file=sys.stderr, flush=True)
+    return bool(notice)
+
+
+def compile_notice(fitted) -> str | None:
+    """The line printed before a first call that compiles numba kernels (issue 51: 50-70 s without a word), or None.
+
+    None when the kernels scoring ``fitted`` needs are in numba's on-disk cache (:func:`mosd.kernels.first_call`,
+    from mosd's own record in the cache folder and numba's index files), with the kernels off, or where the check
+    itself fails (the line is a courtesy: scoring goes on either way).
+    """
+    from .. import kernels
+
+    try:
+        pending = kernels.first_call(kernels_key(fitted))
+    except Exception:  # noqa: BLE001 - an unreadable cache is compiled into like an empty one: no reason to stop
+        return None
+    if pending is None:
+        return None
+    seconds = pending.get("seconds")
+    about = f"about {max(1, round(seconds))} s" if isinstance(seconds, (int, float)) else "up to about a minute"
+    return f"mosd monitor: compiling kernels (first call, {about}; cached afterwards)"
+
+
+def _record_first_call(fitted, seconds: float) -> None:
+    """Note in the cache folder what this first call compiled (:func:`mosd.kernels.record_first_call`)."""
+    from .. import kernels
+
+    try:
+        kernels.record_first_call(kernels_key(fitted), seconds)
+    except Exception:  # noqa: BLE001 - the record only spares a later call the notice; the scores are written
+        pass
 
 
 #: how the first-alarm line names a statistic (the rest by their column name, upper case: T2S, Q, I2E, CUSUM)
@@ -421,7 +473,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             if found:
                 raise ConfigError(f"column {found[0]!r} of {path} {kind} ({len(found)} such); allowed: the model's "
                                   f"{len(names)} tags in any order, other columns named with --keep")
-        fill = getattr(getattr(model.unwrap_python_model(), "fitted", None), "fill", "none")
+        fitted = getattr(model.unwrap_python_model(), "fitted", None)
+        fill = getattr(fitted, "fill", "none")
         if fill != "none":
             # the training data's policy for historian error codes and gaps (mosd.data.table), on the whole file
             import pandas as pd
@@ -434,8 +487,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             values, _, kept = _fill(values, np.zeros(len(values), int), fill)
             frame = frame.iloc[kept]
             tags = pd.DataFrame(values, columns=tags.columns, index=frame.index)
+        progress = not args.no_progress and sys.stderr.isatty()
+        # on a terminal, as the progress bar: a one-line error on stderr stays the only line where it is read
+        notice, first_chunk_s = progress and announce_compile(fitted), []
         try:
-            out = score_file(model, tags, args.chunk, progress=not args.no_progress and sys.stderr.isatty())
+            out = score_file(model, tags, args.chunk, progress=progress, first_chunk_s=first_chunk_s)
         except ConfigError:
             raise
         except Exception as exc:  # MLflow wraps the model's ConfigError (schema enforcement, or predict)
@@ -448,6 +504,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ConfigError as exc:
         print(f"mosd monitor: error: {redacted(str(exc))}", file=sys.stderr)
         return 2
+    if notice and first_chunk_s:
+        _record_first_call(fitted, first_chunk_s[0])
     for position, column in enumerate(args.keep):  # first, in the order given
         out.insert(position, column, frame[column].to_numpy())
     for position, column in enumerate(reference, start=len(args.keep)):

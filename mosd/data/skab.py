@@ -208,7 +208,7 @@ def _read(path: str, mtime: float, labelled: bool, key: str):
     try:
         import pandas as pd
     except ImportError:
-        raise ConfigError('data=skab needs pandas: pip install ".[table]"') from None
+        raise ConfigError('data=skab needs pandas, a dependency of mosd: pip install "pandas>=2.0"') from None
     try:
         frame = pd.read_csv(path, sep=SEP)
     except Exception as exc:

@@ -442,7 +442,7 @@ def _read(path: Path):
     try:
         import pandas as pd
     except ImportError:
-        raise ConfigError('data=table needs pandas: pip install ".[table]"') from None
+        raise ConfigError('data=table needs pandas, a dependency of mosd: pip install "pandas>=2.0"') from None
     if not path.is_file():
         raise ConfigError(f"data.path={str(path)!r}: no such file; allowed: a .csv or .parquet file")
     suffixes = "".join(path.suffixes[-2:]).lower()
@@ -451,7 +451,8 @@ def _read(path: Path):
             try:
                 import pyarrow  # noqa: F401
             except ImportError:
-                raise ConfigError('data=table needs pyarrow for Parquet files: pip install ".[table]"') from None
+                raise ConfigError('data=table needs pyarrow for Parquet files, a dependency of mosd: '
+                                  'pip install "pyarrow>=14"') from None
             return pd.read_parquet(path)
         if path.suffix.lower() == ".csv" or suffixes.endswith((".csv.gz", ".csv.bz2", ".csv.zip")):
             # the header first: a refused file is not read whole

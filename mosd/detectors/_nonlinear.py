@@ -11,7 +11,7 @@ import numpy as np
 from ..validation import ConfigError
 
 #: the optional package each family needs and how the user installs it
-EXTRAS = {"sklearn": ('scikit-learn', 'pip install ".[ml]"'),
+EXTRAS = {"sklearn": ("scikit-learn", 'pip install "scikit-learn>=1.3" (a dependency of mosd)'),
           "torch": ("PyTorch", 'pip install ".[nn]" (on Linux the CPU wheel first: README, section PyTorch)')}
 
 

@@ -233,3 +233,78 @@ def compile_module(name: str) -> tuple[str, float]:
         module = importlib.import_module(f"{__name__}.{name}")
         getattr(module, "warm_up_all", module.warm_up)()  # ahead of time: every variant, not only the common one
     return name, time.perf_counter() - t0
+
+
+#: the file in numba's cache folder where a first call of a command (``mosd monitor``) records, for each kind of
+#: pipeline, the kernel modules it compiled and the seconds that took: the next call on the same cache then knows,
+#: by reading the modules' index files, whether it compiles again (a cache cleared, a new mosd or numba)
+FIRST_CALLS = "mosd-first-calls.json"
+
+
+def cache_folder():
+    """The folder numba caches mosd's kernels in (a :class:`~pathlib.Path`); None with the kernels off.
+
+    ``NUMBA_CACHE_DIR`` (numba's documented setting, which :func:`available` may have moved to a usable folder),
+    else numba's own ``__pycache__`` beside the kernels.
+    """
+    if not enabled():
+        return None
+    from pathlib import Path
+
+    import numba
+
+    return Path(numba.config.CACHE_DIR or Path(__file__).resolve().parent / "__pycache__")
+
+
+def _first_calls(folder) -> dict:
+    import json
+
+    try:
+        record = json.loads((folder / FIRST_CALLS).read_text())
+    except (OSError, ValueError):  # none yet, or damaged: as if never called
+        return {}
+    return record if isinstance(record, dict) else {}
+
+
+def first_call(key: str) -> dict | None:
+    """Whether a call of kind ``key`` (e.g. a pipeline's stage classes) will compile kernels first.
+
+    None when it will not: the kernels are off, or every module the last first call of ``key`` compiled is in the
+    cache for its current source (:func:`cached`), or, ``key`` never recorded, every kernel module is (compiled
+    ahead: ``python -m mosd.kernels``). Else what was recorded of that call: ``{"modules": [...], "seconds": s}``,
+    or ``{}`` when ``key`` was never recorded with this cache.
+    """
+    folder = cache_folder()
+    if folder is None:
+        return None
+    record = _first_calls(folder).get(key)
+    if isinstance(record, dict) and isinstance(record.get("modules"), list):
+        return None if all(name in MODULES and cached(name) for name in record["modules"]) else record
+    return None if all(cached(name) for name in MODULES) else {}
+
+
+def record_first_call(key: str, seconds: float) -> None:
+    """Record, for ``key``, the kernel modules this process has in the cache now and ``seconds`` (the first call).
+
+    The modules are those the call imported (:data:`MODULES` in ``sys.modules``) and that are cached: a module
+    imported but never called compiled nothing and is left out. Written whole (a temporary file renamed), so
+    that a concurrent reader sees the old record or the new one; a cache folder that cannot be written records
+    nothing (the next call prints its notice again).
+    """
+    import json
+    import sys
+    import tempfile
+
+    folder = cache_folder()
+    if folder is None:
+        return
+    modules = [name for name in MODULES if f"{__name__}.{name}" in sys.modules and cached(name)]
+    record = _first_calls(folder)
+    record[key] = {"modules": modules, "seconds": round(float(seconds), 1)}
+    try:
+        with tempfile.NamedTemporaryFile("w", dir=folder, prefix=FIRST_CALLS, suffix=".tmp", delete=False) as f:
+            json.dump(record, f, indent=1, sort_keys=True)
+        os.replace(f.name, folder / FIRST_CALLS)
+    except OSError:
+        with contextlib.suppress(OSError, NameError):
+            os.unlink(f.name)
