@@ -341,3 +341,49 @@ def test_a_cubature_filter_residual_saved_with_its_removed_class_loads_and_score
     pipeline = check_legacy(name, EstimatorStage)
     expected = "DedicatedObserverResidual" if name == "OnlineDedicatedObserver" else "InnovationResidual"
     assert pipeline.stages[0].estimator == f"mosd.estimators.residuals.{expected}"
+
+
+@pytest.mark.parametrize("path", ["compiled", "numpy"])
+@pytest.mark.parametrize("fusion", ["equivalent_measurement", "sequential"])
+def test_the_imm_stream_is_its_batch_estimate(fusion, path):
+    """Paper 001's IMM on raw packets, one row per fusion instant: each run's stream is the batch (the time loop
+    is the batch's, compiled or NumPy; probabilities and states to 1e-12 relative, 1e-12 absolute near 0)."""
+    import contextlib
+
+    from mosd import kernels
+    from mosd.estimators.async_imm import AsyncIMMFusion, IntervalMeasurements, packet_columns
+    from mosd.estimators.step import EstimatorStage
+    from mosd.faults.actuator import ActuatorFault
+    from mosd.noise.continuous import ContinuousWhiteNoise
+    from mosd.plants.networked_target import NetworkedTarget
+    from mosd.scenario import Scenario
+
+    plant, noise = NetworkedTarget(), ContinuousWhiteNoise()
+    trace = Scenario(plant, noise, ActuatorFault(), 41.0).simulate(4, 3, "test")
+    model = plant.model(noise)
+    estimator = AsyncIMMFusion(transition=[[0.975, 0.0125, 0.0125], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]], fusion=fusion)
+    with kernels.disabled() if path == "numpy" else contextlib.nullcontext():
+        batch = estimator.estimate(trace, model)
+        stage = estimator.online(model, _source(plant, noise), trace)
+        assert isinstance(stage, EstimatorStage)
+        grouped = IntervalMeasurements.of(trace, model.sensor_names, np.asarray(trace.t, float))
+        rng = np.random.default_rng(8)
+        for run in range(3):
+            one = IntervalMeasurements(*(np.asarray(a)[run:run + 1] for a in (grouped.t, grouped.y, grouped.sensor,
+                                                                                 grouped.valid)))
+            columns = packet_columns(one, int(stage.fitted["slots"]), int(stage.fitted["n_y"]))
+            whole = three_ways(stage, columns, rng)
+            mu = np.column_stack([whole[f"mode_probabilities_{m}"] for m in range(3)])
+            close(mu, batch.extra["mode_probabilities"][run], atol=1e-12)
+            close(np.column_stack([whole[f"x_filt_{i}"] for i in range(model.n_x)]), batch.extra["x_filt"][run],
+                  atol=1e-12)
+            close(np.column_stack([whole[f"fault_amplitudes_{m}"] for m in range(2)]),
+                  batch.extra["fault_amplitudes"][run], atol=1e-12)
+            assert np.array_equal(whole["n_measurements"], batch.extra["n_measurements"][run])
+    assert batch.extra["mode_probabilities"][..., 1:].max() > 0.5    # a fault model wins somewhere
+
+
+def test_an_imm_saved_with_its_removed_class_loads_and_scores_the_same():
+    from mosd.estimators.step import EstimatorStage
+
+    check_legacy("OnlineIMM", EstimatorStage)

@@ -2,7 +2,7 @@
 
 * paper 002's gain filters (their :class:`~mosd.estimators.step.EstimatorStage`): the raw output with NaN
   gaps in, every missing-value fill the batch has (``hold``, ``skip``; an ``em`` design refuses a gap);
-* paper 001's asynchronous IMM (:class:`~mosd.estimators.async_imm.OnlineIMM`): raw packets per fusion row,
+* paper 001's asynchronous IMM (its :class:`~mosd.estimators.step.EstimatorStage`): raw packets per fusion row,
   lost packets absent, slots in any order (out-of-order arrival), a late packet counted and not fused;
 * paper 003's neural observer (:class:`~mosd.estimators.neural_observer.OnlineObserver`): the flight log with
   gaps in, the trained network run in NumPy from its saved weight arrays.
@@ -213,6 +213,7 @@ def test_paper001_out_of_order_and_late_packets_are_fused_as_the_batch_would():
     estimator = AsyncIMMFusion(transition=PAPER001_TRANSITION)
     source = {"plant": describe(plant), "noise": describe(noise)}
     stage = estimator.online(model, source, trace)
+    slots = int(stage.fitted["slots"])              # packet slots per row
     pipeline = OnlinePipeline([stage])
     columns = estimator.raw_stream(trace, model, ())
     ordered = pipeline.update(columns)
@@ -221,9 +222,9 @@ def test_paper001_out_of_order_and_late_packets_are_fused_as_the_batch_would():
     shuffled = {k: v.copy() for k, v in columns.items()}
     fields = ["sensor", "time", "y0", "y1"]
     for row in range(len(columns["packet0_time"])):
-        order = rng.permutation(stage.slots)
+        order = rng.permutation(slots)
         for field in fields:
-            values = np.array([columns[f"packet{j}_{field}"][row] for j in range(stage.slots)])
+            values = np.array([columns[f"packet{j}_{field}"][row] for j in range(slots)])
             for j, source_slot in enumerate(order):
                 shuffled[f"packet{j}_{field}"][row] = values[source_slot]
     assert not _same(shuffled["packet0_time"], columns["packet0_time"])
@@ -231,10 +232,10 @@ def test_paper001_out_of_order_and_late_packets_are_fused_as_the_batch_would():
     assert all(_same(out[k], ordered[k]) for k in pipeline.outputs)
     # a packet that arrives one fusion interval late: counted, not fused; the batch with that packet lost
     row = 20
-    slot = int(np.flatnonzero([np.isfinite(columns[f"packet{j}_time"][row]) for j in range(stage.slots)])[0])
+    slot = int(np.flatnonzero([np.isfinite(columns[f"packet{j}_time"][row]) for j in range(slots)])[0])
     sensor, tau = int(columns[f"packet{slot}_sensor"][row]), columns[f"packet{slot}_time"][row]
     late = {k: v.copy() for k, v in columns.items()}
-    free = int(np.flatnonzero([np.isnan(late[f"packet{j}_time"][row + 1]) for j in range(stage.slots)])[0])
+    free = int(np.flatnonzero([np.isnan(late[f"packet{j}_time"][row + 1]) for j in range(slots)])[0])
     for field in fields:
         late[f"packet{free}_{field}"][row + 1] = late[f"packet{slot}_{field}"][row]
         late[f"packet{slot}_{field}"][row] = np.nan

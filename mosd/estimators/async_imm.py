@@ -43,15 +43,14 @@ The decision (§4, step 3: fault i when μ_i > μ_T for L steps) belongs to
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
 
-from ..streaming import COUNT, FINITE, NoStreamingForm, OnlineStage, StateVar, build, describe
+from ..streaming import COUNT, FINITE, LEGACY_STAGES, NoStreamingForm, StateVar, build
 from ..types import Residuals, Trace
 from ..validation import ConfigError, Interval, Param, check_in, check_names
-from .base import Estimator
+from .step import EstimatorStage, StepEstimator, build_params
 
 FUSION_RULES = ("equivalent_measurement", "sequential")
 _LOG_2PI = math.log(2.0 * math.pi)
@@ -80,7 +79,7 @@ def _check_initial(value) -> np.ndarray:
     return arr
 
 
-class AsyncIMMFusion(Estimator):
+class AsyncIMMFusion(StepEstimator):
     """IMM over {normal, fault 1..d_f} models fusing asynchronous lossy sensors (module docstring).
 
     Outputs, in ``Residuals.extra`` on the fusion grid (index 0 = the prior at t_0):
@@ -195,7 +194,7 @@ class AsyncIMMFusion(Estimator):
 
     def _filter(self, meas, grid, step, H, Rm, trans, start):
         """(μ, x̂_m, P_m, log Λ_m, fused x̂, fused P) on every row of ``grid``: the one time loop of the batch
-        estimate and the causal form (:class:`OnlineIMM`).
+        estimate and the causal form (:meth:`scan`).
 
         ``start`` = (μ (M,), x̂ (M, n), P (M, n, n)) is the state before row 0, which is not updated (the
         prior at t_0 of a run, or the state a stream carries with ``grid[0]`` its last fusion instant).
@@ -231,9 +230,119 @@ class AsyncIMMFusion(Estimator):
         fused_x, fused_P = fuse(out_mu, out_x, out_P)
         return out_mu, out_x, out_P, out_ll, fused_x, fused_P
 
+    # -- the step (mosd.estimators.step) ---------------------------------------------------
+    def _start_params(self, model) -> dict[str, np.ndarray]:
+        """μ_0, x̂_0 and P_0 of every model (the state before a stream's first row)."""
+        models = self.model_set(model)
+        M, n = len(models), models[0].n_x
+        _, mu0 = self._probabilities(M)
+        return {"mu0": np.asarray(mu0, float), "x0": np.array(np.broadcast_to(models[0].x0, (M, n)), float),
+                "P0": np.array(np.broadcast_to(models[0].P0, (M, n, n)), float)}
+
+    def step_params(self, model, trace: Trace | None = None) -> dict[str, np.ndarray]:
+        """The start state, the fusion grid t0 + k·period of ``trace`` and the packet slots a row holds."""
+        grid = np.asarray(trace.t, float)
+        out = self._start_params(model)
+        out.update({"t0": np.asarray(float(grid[0])), "period": np.asarray(float(grid[1] - grid[0])),
+                    "slots": np.asarray(float(self._slots(trace, model))),
+                    "n_y": np.asarray(float(model.sensors[0].H.shape[0])), "n_x": np.asarray(float(model.n_x))})
+        return out
+
+    def step_state(self, params: dict, reads: tuple = ()) -> dict:
+        M, n = np.shape(params["x0"])
+        mus, xs, Ps = state_names(M, n)
+        declared = {"imm_step": (StateVar("Fusion instants seen since the stream's start.", COUNT), 0)}
+        declared.update({k: (StateVar("A model's probability after the row.", Interval(0.0, 1.0)), float(v))
+                         for k, v in zip(mus, np.ravel(params["mu0"]))})
+        declared.update({k: (StateVar("An entry of a model's state estimate after the row.", FINITE), float(v))
+                         for k, v in zip(xs, np.ravel(params["x0"]))})
+        declared.update({k: (StateVar("An entry of a model's covariance after the row.", FINITE), float(v))
+                         for k, v in zip(Ps, np.ravel(params["P0"]))})
+        return declared
+
+    def _setup(self, model):
+        """(the model set, transition matrix, H, R, the plant's sensor index → the fused one, the transitions),
+        made once per model."""
+        cached = self.__dict__.get("_stream_setup")
+        if cached is None or cached[0] is not model:
+            names = tuple(self.sensors or model.sensor_names)
+            models = self.model_set(model)
+            trans, _ = self._probabilities(len(models))
+            index = [model.sensor_names.index(n) for n in names]
+            H = np.stack([models[0].sensors[i].H for i in index])
+            Rm = np.stack([models[0].sensors[i].R for i in index])
+            fused = np.full(len(model.sensor_names), -1)
+            fused[index] = np.arange(len(index))     # the plant's sensor index -> the fused one (-1: not fused)
+            cached = self.__dict__["_stream_setup"] = (model, (trans, H, Rm, fused, _Transitions(models)))
+        return cached[1]
+
+    def scan(self, model, params: dict, state: dict, columns: dict, trajectory: bool = False) -> dict:
+        """One row per fusion instant t_k = t0 + k·period, its packets in (:meth:`StepEstimator.scan`; each run
+        on its own, R = 1 when served).
+
+        In per row: slot j ``packet<j>_sensor`` (the sensor's index in the plant's sensor list),
+        ``packet<j>_time`` (its sample instant τ) and ``packet<j>_y<c>`` (its measurement); a slot with no
+        packet is NaN. Packets may come in any slot order (out-of-order arrival): they are fused in the
+        order of their sample instants (ties: sensor order), as the batch orders an interval's packets. A
+        lost packet is simply absent. A packet sampled in (t_{k−1}, t_k] belongs to row k (the batch's
+        grouping, within 1e-9 s of t_k); one that arrives later than its interval (τ <= t_{k−1}) can no
+        longer be fused and is counted in ``late_packets`` (the batch's trace with that packet lost); one
+        sampled after t_k is refused (one line). Row 0 of a stream is the prior at t0 (no update: its
+        packets are ignored, as the batch ignores samples at or before t_0); packets of sensors the design
+        does not fuse are ignored.
+
+        Out per row: ``mode_probabilities_<m>`` (m = 0 the normal model), ``x_filt_<i>``,
+        ``fault_amplitudes_<m>``, ``fault_estimate_<m>``, ``n_measurements``, ``late_packets``; state
+        ``imm_step`` (rows seen) and each model's μ, x̂ and P after the row. The time loop is the batch's
+        (:meth:`_filter`: the compiled kernel, or the NumPy reference).
+        """
+        runs = np.shape(next(iter(columns.values())))[0]
+        parts = [self._scan_run(model, params, {k: np.ravel(np.broadcast_to(v, (runs,)))[r] for k, v in state.items()},
+                                {k: np.asarray(v)[r] for k, v in columns.items()}) for r in range(runs)]
+        return {k: np.stack([p[k] for p in parts]) for k in parts[0]}
+
+    def _scan_run(self, model, params: dict, state: dict, columns: dict) -> dict:
+        """:meth:`scan` of one run (columns (N,), state scalars)."""
+        trans, H, Rm, fused, step = self._setup(model)
+        rows = len(next(iter(columns.values())))
+        first = int(state["imm_step"])
+        M, n = np.shape(params["x0"])
+        n_x, t0, period = int(params["n_x"]), float(params["t0"]), float(params["period"])
+        mus, xs, Ps = state_names(M, n)
+        t, y, sensor, valid, late = _packets(columns, rows, first, fused, params)
+        # the batch's loop on a grid whose row 0 is the state carried in (not updated): the last fusion instant
+        # before the chunk, or at the stream's start the chunk's first row (the prior at t0)
+        lead = 0 if first == 0 else 1
+        tail = 1 if rows + lead < 2 else 0    # the loop runs on two rows at least; an extra empty one is dropped
+        grid = t0 + (first - lead + np.arange(lead + rows + tail)) * period
+
+        def pad(a, fill):
+            return np.concatenate([np.full((1, lead) + a.shape[2:], fill, a.dtype), a,
+                                   np.full((1, tail) + a.shape[2:], fill, a.dtype)], axis=1)
+
+        meas = IntervalMeasurements(pad(t, np.nan), pad(y, np.nan), pad(sensor, 0), pad(valid, False))
+        start = (np.array([float(state[k]) for k in mus]), np.array([float(state[k]) for k in xs]).reshape(M, n),
+                 np.array([float(state[k]) for k in Ps]).reshape(M, n, n))
+        out_mu, out_x, out_P, _, fused_x, _ = self._filter(meas, grid, step, H, Rm, trans, start)
+        keep = slice(lead, lead + rows)
+        mu, x, P, fx = out_mu[0, keep], out_x[0, keep], out_P[0, keep], fused_x[0, keep]
+        out = {f"mode_probabilities_{m}": mu[:, m] for m in range(M)}
+        out.update({f"x_filt_{i}": fx[:, i] for i in range(n_x)})
+        out.update({f"fault_amplitudes_{m}": x[:, m + 1, n_x] for m in range(M - 1)})
+        out.update({f"fault_estimate_{m}": mu[:, m + 1] * x[:, m + 1, n_x] for m in range(M - 1)})
+        out["n_measurements"] = valid[0].sum(axis=1).astype(np.int64)
+        out["late_packets"] = late.astype(np.int64)
+        out["imm_step"] = first + np.arange(1, rows + 1, dtype=np.int64)
+        out.update({k: mu[:, m] for m, k in enumerate(mus)})
+        flat_x, flat_P = x.reshape(rows, -1), P.reshape(rows, -1)
+        out.update({k: flat_x[:, i] for i, k in enumerate(xs)})
+        out.update({k: flat_P[:, i] for i, k in enumerate(Ps)})
+        return out
+
     # -- the causal form ----------------------------------------------------------------
-    def online(self, model=None, source=None, trace: Trace | None = None) -> "OnlineIMM":
-        """The filter as a stream of raw packets, one row per fusion instant t_k (:class:`OnlineIMM`).
+    def online(self, model=None, source=None, trace: Trace | None = None):
+        """The filter as a stream of raw packets, one row per fusion instant t_k (:meth:`scan`, served by the
+        generic :class:`~mosd.estimators.step.EstimatorStage`).
 
         ``source`` describes the plant and noise the model is rebuilt from (:func:`mosd.streaming.describe`);
         ``trace`` gives the fusion grid and each sensor's shortest sampling period, which bound the packets
@@ -244,10 +353,9 @@ class AsyncIMMFusion(Estimator):
         grid = np.asarray(trace.t, float)
         if grid.size < 2 or not np.allclose(np.diff(grid), grid[1] - grid[0], rtol=0.0, atol=1e-12):
             raise NoStreamingForm("the IMM's causal form needs fusion instants on a uniform grid (t0 + k·T)")
-        n_models = len(self.model_set(model))
-        return OnlineIMM(plant=source["plant"], noise=source["noise"], estimator=describe(self),
-                         t0=float(grid[0]), period=float(grid[1] - grid[0]), slots=self._slots(trace, model),
-                         n_models=n_models, n_aug=model.n_x + 1, n_x=model.n_x, n_y=int(model.sensors[0].H.shape[0]))
+        n_y = int(model.sensors[0].H.shape[0])
+        return self.stage(model, source, packet_names(self._slots(trace, model), n_y),
+                          output_names(len(self.model_set(model)), model.n_x), trace)
 
     @staticmethod
     def _slots(trace: Trace, model) -> int:
@@ -476,168 +584,86 @@ def packet_columns(grouped: "IntervalMeasurements", slots: int, n_y: int) -> dic
     return out
 
 
-@dataclass
-class OnlineIMM(OnlineStage):
-    """:class:`AsyncIMMFusion`'s causal form: one row per fusion instant t_k = t0 + k·period, its packets in.
+def _packets(columns, rows: int, first: int, fused, p: dict):
+    """Per row the fusable packets, time-ordered, as (R = 1) slot arrays, and the late ones counted
+    (:meth:`AsyncIMMFusion.scan`; ``p``: the step's scalars t0, period, slots, n_y)."""
+    slots, n_y, t0, period = int(p["slots"]), int(p["n_y"]), float(p["t0"]), float(p["period"])
+    sensor = np.column_stack([np.asarray(columns[f"packet{j}_sensor"], float) for j in range(slots)])
+    tau = np.column_stack([np.asarray(columns[f"packet{j}_time"], float) for j in range(slots)])
+    y = np.stack([np.column_stack([np.asarray(columns[f"packet{j}_y{c}"], float) for c in range(n_y)])
+                  for j in range(slots)], axis=1).reshape(rows, slots, n_y)
+    present = np.isfinite(sensor) & np.isfinite(tau)
+    known = present & (sensor >= 0) & (sensor < len(fused)) & (sensor == np.round(sensor))
+    if (present & ~known).any():
+        row, j = np.argwhere(present & ~known)[0]
+        raise ConfigError(f"input column 'packet{j}_sensor' row {row} is {float(sensor[row, j])!r}; allowed: a sensor's "
+                          f"index 0..{len(fused) - 1} (NaN: no packet)")
+    index = np.where(known, sensor, 0).astype(np.int64)
+    use = known & (fused[index] >= 0)
+    k = first + np.arange(rows)
+    t_k = t0 + k * period
+    t_prev = t0 + (k - 1) * period
+    # the batch's grouping: τ belongs to k when t_{k−1} < τ − 1e-9 <= t_k
+    shifted = tau - _SAME_INSTANT
+    future = use & ~(shifted <= t_k[:, None])
+    if future.any():
+        row, j = np.argwhere(future)[0]
+        raise ConfigError(f"input column 'packet{j}_time' row {row} is {float(tau[row, j])!r}, after the row's fusion "
+                          f"instant {float(t_k[row])!r}; allowed: sample instants up to the row's fusion instant "
+                          f"(t0 + k·{period:g} s)")
+    late = use & ~(shifted > t_prev[:, None]) & (k[:, None] > 0)
+    use &= ~late & (k[:, None] > 0)
+    n_valid = use.sum(axis=1)
+    width = int(n_valid.max(initial=0))
+    out_t = np.full((1, rows, width), np.nan)
+    out_y = np.full((1, rows, width, n_y), np.nan)
+    out_s = np.zeros((1, rows, width), np.int64)
+    valid = np.zeros((1, rows, width), bool)
+    for r in np.flatnonzero(n_valid):
+        at = np.flatnonzero(use[r])
+        at = at[np.lexsort((fused[index[r, at]], tau[r, at]))]
+        count = len(at)
+        out_t[0, r, :count], out_y[0, r, :count] = tau[r, at], y[r, at]
+        out_s[0, r, :count], valid[0, r, :count] = fused[index[r, at]], True
+    return out_t, out_y, out_s, valid, late.sum(axis=1)
 
-    In per row: ``slots`` packet slots, slot j ``packet<j>_sensor`` (the sensor's index in the plant's
-    sensor list), ``packet<j>_time`` (its sample instant τ) and ``packet<j>_y<c>`` (its measurement); a slot
-    with no packet is NaN. Packets may come in any slot order (out-of-order arrival): they are fused in
-    the order of their sample instants (ties: sensor order), as the batch orders an interval's packets. A
-    lost packet is simply absent. A packet sampled in (t_{k−1}, t_k] belongs to row k (the batch's
-    grouping, within 1e-9 s of t_k); one that arrives later than its interval (τ <= t_{k−1}) can no longer
-    be fused and is counted in ``late_packets`` (the batch's trace with that packet lost); one sampled
-    after t_k is refused (one line). Row 0 of a stream is the prior at t0 (no update: its packets are
-    ignored, as the batch ignores samples at or before t_0); packets of sensors the design does not fuse
-    are ignored.
 
-    Out per row: ``mode_probabilities_<m>`` (m = 0 the normal model), ``x_filt_<i>``, ``fault_amplitudes_<m>``,
-    ``fault_estimate_<m>``, ``n_measurements``, ``late_packets``. State: ``imm_step`` (rows seen) and each
-    model's μ, x̂ and P after the row (``imm_mu_<m>``, ``imm_x_<m>_<i>``, ``imm_P_<m>_<i>_<j>``). The time loop
-    is the batch's (:meth:`AsyncIMMFusion._filter`: the compiled kernel, or the NumPy reference).
-    """
+def packet_names(slots: int, n_y: int) -> tuple[str, ...]:
+    """The causal form's input columns: per slot j ``packet<j>_sensor``, ``packet<j>_time``, ``packet<j>_y<c>``."""
+    names = []
+    for j in range(slots):
+        names += [f"packet{j}_sensor", f"packet{j}_time", *(f"packet{j}_y{c}" for c in range(n_y))]
+    return tuple(names)
 
-    plant: dict
-    noise: dict
-    estimator: dict
-    t0: float
-    period: float
-    slots: int
-    n_models: int
-    n_aug: int
-    n_x: int
-    n_y: int
 
-    def _setup(self):
-        cached = self.__dict__.get("_setup_object")
-        if cached is None:
-            estimator = build(self.estimator)
-            model = build(self.plant).model(build(self.noise))
-            names = tuple(estimator.sensors or model.sensor_names)
-            models = estimator.model_set(model)
-            trans, mu0 = estimator._probabilities(len(models))
-            index = [model.sensor_names.index(n) for n in names]
-            H = np.stack([models[0].sensors[i].H for i in index])
-            Rm = np.stack([models[0].sensors[i].R for i in index])
-            fused = np.full(len(model.sensor_names), -1)
-            fused[index] = np.arange(len(index))     # the plant's sensor index -> the fused one (-1: not fused)
-            cached = self.__dict__["_setup_object"] = (estimator, models, trans, mu0, H, Rm, fused,
-                                                       _Transitions(models))
-        return cached
+def output_names(n_models: int, n_x: int) -> tuple[str, ...]:
+    """The causal form's output columns (:meth:`AsyncIMMFusion.scan`)."""
+    d_f = n_models - 1
+    return (*(f"mode_probabilities_{m}" for m in range(n_models)), *(f"x_filt_{i}" for i in range(n_x)),
+            *(f"fault_amplitudes_{m}" for m in range(d_f)), *(f"fault_estimate_{m}" for m in range(d_f)),
+            "n_measurements", "late_packets")
 
-    @property
-    def inputs(self) -> tuple[str, ...]:
-        names = []
-        for j in range(self.slots):
-            names += [f"packet{j}_sensor", f"packet{j}_time", *(f"packet{j}_y{c}" for c in range(self.n_y))]
-        return tuple(names)
 
-    @property
-    def outputs(self) -> tuple[str, ...]:
-        d_f = self.n_models - 1
-        return (*(f"mode_probabilities_{m}" for m in range(self.n_models)), *(f"x_filt_{i}" for i in range(self.n_x)),
-                *(f"fault_amplitudes_{m}" for m in range(d_f)), *(f"fault_estimate_{m}" for m in range(d_f)),
-                "n_measurements", "late_packets")
+def state_names(n_models: int, n_aug: int):
+    """(μ, x̂, P) state names of every model: ``imm_mu_<m>``, ``imm_x_<m>_<i>``, ``imm_P_<m>_<i>_<j>``."""
+    M, n = n_models, n_aug
+    return ([f"imm_mu_{m}" for m in range(M)], [f"imm_x_{m}_{i}" for m in range(M) for i in range(n)],
+            [f"imm_P_{m}_{i}_{j}" for m in range(M) for i in range(n) for j in range(n)])
 
-    def _state_names(self):
-        M, n = self.n_models, self.n_aug
-        return ([f"imm_mu_{m}" for m in range(M)], [f"imm_x_{m}_{i}" for m in range(M) for i in range(n)],
-                [f"imm_P_{m}_{i}_{j}" for m in range(M) for i in range(n) for j in range(n)])
 
-    def state_vars(self) -> dict[str, StateVar]:
-        mus, xs, Ps = self._state_names()
-        declared = {"imm_step": StateVar("Fusion instants seen since the stream's start.", COUNT)}
-        declared.update({k: StateVar("A model's probability after the row.", Interval(0.0, 1.0)) for k in mus})
-        declared.update({k: StateVar("An entry of a model's state estimate after the row.", FINITE) for k in xs})
-        declared.update({k: StateVar("An entry of a model's covariance after the row.", FINITE) for k in Ps})
-        return declared
+def _legacy_imm(fields) -> EstimatorStage:
+    """An old ``OnlineIMM`` (plant, noise, estimator, t0, period, slots, n_models, n_aug, n_x, n_y) as the
+    :class:`~mosd.estimators.step.EstimatorStage` of its :class:`AsyncIMMFusion` (the start state from the
+    rebuilt model, as the old stage took it)."""
+    estimator = build(fields["estimator"])
+    model = build(fields["plant"]).model(build(fields["noise"]))
+    params = estimator._start_params(model)
+    params.update({k: np.asarray(float(fields[k])) for k in ("t0", "period", "slots", "n_y", "n_x")})
+    build_params(fields["estimator"]["params"])   # a design that does not rebuild fails here, not when scoring
+    return EstimatorStage(estimator=fields["estimator"]["class"], design=dict(fields["estimator"]["params"]),
+                          fitted=params, plant=dict(fields["plant"]), noise=dict(fields["noise"]),
+                          reads=packet_names(int(fields["slots"]), int(fields["n_y"])),
+                          writes=output_names(int(fields["n_models"]), int(fields["n_x"])))
 
-    def initial_state(self) -> dict:
-        _, models, _, mu0, *_ = self._setup()
-        mus, xs, Ps = self._state_names()
-        M, n = self.n_models, self.n_aug
-        x = np.broadcast_to(models[0].x0, (M, n)).ravel()
-        P = np.broadcast_to(models[0].P0, (M, n, n)).ravel()
-        return {"imm_step": 0, **{k: float(v) for k, v in zip(mus, mu0)}, **{k: float(v) for k, v in zip(xs, x)},
-                **{k: float(v) for k, v in zip(Ps, P)}}
 
-    def example_row(self) -> np.ndarray:
-        return np.zeros(len(self.inputs))
-
-    def _packets(self, columns, rows: int, first: int, fused):
-        """Per row the fusable packets, time-ordered, as (R = 1) slot arrays, and the late ones counted."""
-        sensor = np.column_stack([np.asarray(columns[f"packet{j}_sensor"], float) for j in range(self.slots)])
-        tau = np.column_stack([np.asarray(columns[f"packet{j}_time"], float) for j in range(self.slots)])
-        y = np.stack([np.column_stack([np.asarray(columns[f"packet{j}_y{c}"], float) for c in range(self.n_y)])
-                      for j in range(self.slots)], axis=1).reshape(rows, self.slots, self.n_y)
-        present = np.isfinite(sensor) & np.isfinite(tau)
-        known = present & (sensor >= 0) & (sensor < len(fused)) & (sensor == np.round(sensor))
-        if (present & ~known).any():
-            row, j = np.argwhere(present & ~known)[0]
-            raise ConfigError(f"input column 'packet{j}_sensor' row {row} is {float(sensor[row, j])!r}; allowed: a sensor's "
-                              f"index 0..{len(fused) - 1} (NaN: no packet)")
-        index = np.where(known, sensor, 0).astype(np.int64)
-        use = known & (fused[index] >= 0)
-        k = first + np.arange(rows)
-        t_k = self.t0 + k * self.period
-        t_prev = self.t0 + (k - 1) * self.period
-        # the batch's grouping: τ belongs to k when t_{k−1} < τ − 1e-9 <= t_k
-        shifted = tau - _SAME_INSTANT
-        future = use & ~(shifted <= t_k[:, None])
-        if future.any():
-            row, j = np.argwhere(future)[0]
-            raise ConfigError(f"input column 'packet{j}_time' row {row} is {float(tau[row, j])!r}, after the row's fusion "
-                              f"instant {float(t_k[row])!r}; allowed: sample instants up to the row's fusion instant "
-                              f"(t0 + k·{self.period:g} s)")
-        late = use & ~(shifted > t_prev[:, None]) & (k[:, None] > 0)
-        use &= ~late & (k[:, None] > 0)
-        n_valid = use.sum(axis=1)
-        width = int(n_valid.max(initial=0))
-        out_t = np.full((1, rows, width), np.nan)
-        out_y = np.full((1, rows, width, self.n_y), np.nan)
-        out_s = np.zeros((1, rows, width), np.int64)
-        valid = np.zeros((1, rows, width), bool)
-        for r in np.flatnonzero(n_valid):
-            at = np.flatnonzero(use[r])
-            at = at[np.lexsort((fused[index[r, at]], tau[r, at]))]
-            count = len(at)
-            out_t[0, r, :count], out_y[0, r, :count] = tau[r, at], y[r, at]
-            out_s[0, r, :count], valid[0, r, :count] = fused[index[r, at]], True
-        return out_t, out_y, out_s, valid, late.sum(axis=1)
-
-    def update(self, columns, state) -> dict[str, np.ndarray]:
-        estimator, models, trans, mu0, H, Rm, fused, step = self._setup()
-        rows = len(next(iter(columns.values())))
-        first = int(state["imm_step"])
-        M, n = self.n_models, self.n_aug
-        mus, xs, Ps = self._state_names()
-        t, y, sensor, valid, late = self._packets(columns, rows, first, fused)
-        # the batch's loop on a grid whose row 0 is the state carried in (not updated): the last fusion instant
-        # before the chunk, or at the stream's start the chunk's first row (the prior at t0)
-        lead = 0 if first == 0 else 1
-        tail = 1 if rows + lead < 2 else 0    # the loop runs on two rows at least; an extra empty one is dropped
-        total = lead + rows + tail
-        grid = self.t0 + (first - lead + np.arange(total)) * self.period
-
-        def pad(a, fill):
-            return np.concatenate([np.full((1, lead) + a.shape[2:], fill, a.dtype), a,
-                                   np.full((1, tail) + a.shape[2:], fill, a.dtype)], axis=1)
-
-        meas = IntervalMeasurements(pad(t, np.nan), pad(y, np.nan), pad(sensor, 0), pad(valid, False))
-        start = (np.array([float(state[k]) for k in mus]), np.array([float(state[k]) for k in xs]).reshape(M, n),
-                 np.array([float(state[k]) for k in Ps]).reshape(M, n, n))
-        out_mu, out_x, out_P, _, fused_x, _ = estimator._filter(meas, grid, step, H, Rm, trans, start)
-        keep = slice(lead, lead + rows)
-        mu, x, P, fx = out_mu[0, keep], out_x[0, keep], out_P[0, keep], fused_x[0, keep]
-        out = {f"mode_probabilities_{m}": mu[:, m] for m in range(M)}
-        out.update({f"x_filt_{i}": fx[:, i] for i in range(self.n_x)})
-        out.update({f"fault_amplitudes_{m}": x[:, m + 1, self.n_x] for m in range(M - 1)})
-        out.update({f"fault_estimate_{m}": mu[:, m + 1] * x[:, m + 1, self.n_x] for m in range(M - 1)})
-        out["n_measurements"] = valid[0].sum(axis=1).astype(np.int64)
-        out["late_packets"] = late.astype(np.int64)
-        out["imm_step"] = first + np.arange(1, rows + 1, dtype=np.int64)
-        out.update({k: mu[:, m] for m, k in enumerate(mus)})
-        flat_x, flat_P = x.reshape(rows, -1), P.reshape(rows, -1)
-        out.update({k: flat_x[:, i] for i, k in enumerate(xs)})
-        out.update({k: flat_P[:, i] for i, k in enumerate(Ps)})
-        return out
+LEGACY_STAGES["mosd.estimators.async_imm.OnlineIMM"] = _legacy_imm

@@ -93,7 +93,9 @@ def describe_params(component) -> dict:
         if hasattr(value, "get_params") and hasattr(value, "params"):
             cls = type(value)
             return {"class": f"{cls.__module__}.{cls.__qualname__}", "params": describe_params(value)}
-        if isinstance(value, (tuple, list, np.ndarray)):
+        if isinstance(value, np.ndarray):
+            return value.tolist()
+        if isinstance(value, (tuple, list)):
             return [plain(v) for v in value]
         return value.item() if isinstance(value, np.generic) else value
 
