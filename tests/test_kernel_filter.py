@@ -121,7 +121,7 @@ def test_changed_physics_takes_the_reference_path(trace):
         assert np.array_equal(getattr(got, name), getattr(ref, name), equal_nan=True)
 
 
-def test_compiled_closed_loop_simulation_is_bit_identical():
+def test_compiled_closed_loop_simulation_is_the_numpy_simulation():
     from mosd.faults import SensorFault
 
     plant, noise = MouldOscillator(), GaussianNoise()
@@ -129,8 +129,12 @@ def test_compiled_closed_loop_simulation_is_bit_identical():
     got = scenario.simulate(4, 3, stream="test", fault_scale=0.01)
     with kernels.disabled():
         ref = scenario.simulate(4, 3, stream="test", fault_scale=0.01)
-    for name in ("x", "y", "u", "fault_mask"):
-        assert np.array_equal(getattr(got, name), getattr(ref, name)), name
+    # two code paths (numba's loop, the NumPy code): the plant's cos is the C library's in one and NumPy's in the
+    # other, which on some CPUs (AVX-512) is a vectorised cos a last bit apart; a run of the stable loop keeps
+    # such a bit near 1e-15 relative, so 1e-12 says "the same simulation" on any CPU (issue 50)
+    for name in ("x", "y", "u"):
+        np.testing.assert_allclose(getattr(got, name), getattr(ref, name), rtol=1e-12, atol=1e-12, err_msg=name)
+    np.testing.assert_array_equal(got.fault_mask, ref.fault_mask)  # booleans: exactly
 
 
 def test_compiled_output_prediction_matches_the_reference(trace):
