@@ -16,8 +16,8 @@ population of designs; :class:`StepStage` (``mosd monitor``, the served model) r
 ``scan`` with one design's ``step_params`` on the rows it is given, from the state it is given. There
 is no second implementation of the decision to keep equal: a stream scored whole, in chunks or row by
 row gives the same decisions as the population (``tests/test_step.py``). Where the recursion has a
-compiled kernel (the persistence rule, :func:`mosd.detectors.base.persistent`), the scan calls it for
-both.
+compiled kernel (the persistence rule, :func:`mosd.detectors.base.persistent`; the charts' EWMA step,
+:mod:`mosd.kernels.ewma`), the scan calls it for both.
 """
 from __future__ import annotations
 
@@ -120,8 +120,9 @@ def _plain(value):
 
 @dataclass
 class StepStage(PointDecision):
-    """A :class:`StepDetector`'s causal form: points in (``point``, ``z_1`` ... ``z_n``); ``statistic``,
-    ``limit``, ``decision`` and ``alarm`` out; the state the detector declares, carried.
+    """A :class:`StepDetector`'s causal form: points in (``point``, ``z_1`` ... ``z_n``; a chart's ``subgroup``:
+    the detector's :attr:`~StepDetector.points`); ``statistic``, ``limit``, ``decision`` and ``alarm`` out
+    (:meth:`~StepDetector.stage_outputs`: a chart's U_k, V_k too); the state the detector declares, carried.
 
     Attributes
     ----------

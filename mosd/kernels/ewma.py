@@ -1,9 +1,11 @@
-"""The EWMA recursion of the charts, compiled, with its state: :func:`ewma_recursion`.
+"""The charts' step, compiled: the EWMA update :func:`ewma_step` and the statistic :func:`combine_step`.
 
-The NumPy reference (:func:`mosd.detectors.statistics._ewma_time_major_numpy`, the path with the
-kernels off and the tests' oracle) runs one Python iteration per time step over all (candidate,
-column) pairs; here the recursion is one compiled loop. The arithmetic is the reference's, in its
-order — y_k = g·x_k, then y_k += y_{k−lag}·f_lag for lag = 1..order — so the results are bit-identical.
+They are the one definition of a chart's recursion (issue 50): :func:`ewma_recursion` (``ewma()``, the
+population's :func:`ewma_population`) and :func:`chart_recursion` (:meth:`mosd.detectors.chart.Chart.scan`:
+the population, the test evaluation, the served chart) run them, and so does the fused tuning kernel
+(:mod:`mosd.kernels.chart`). y_k = g·x_k, then y_k += y_{k−lag}·f_lag for lag = 1..order, in that order.
+There is no NumPy copy of them: with numba's JIT disabled they run as plain Python (the tests' NumPy oracle
+of the EWMA is in ``tests/test_kernels.py``).
 """
 from __future__ import annotations
 
