@@ -136,7 +136,7 @@ def lam_floor(run_length: int) -> float:
 #: rows × runs below which :meth:`LatentDetector.scan` counts the persistence with the reference
 #: :func:`~mosd.detectors.base.run_lengths` (the same integers as the compiled :func:`~mosd.detectors.base.persistent`,
 #: whose call costs more than a served row's whole count)
-SMALL = 4096
+SMALL = 256
 #: the smallest empirical limit, relative to the statistic's in-control scale (``LatentDetector._parts``)
 RESOLUTION = 1e-6
 #: entries a detector's cache keeps (fits, scores of data sets): a tuning needs a few per distinct fit
@@ -429,11 +429,16 @@ class LatentDetector(Detector):
         X = np.atleast_2d(np.asarray(X, float))
         shape = (X.shape[0],) + np.shape(features)[:2]
         statistic, alarm = np.empty(shape), np.empty(shape, np.int8)
+        lengths = np.empty(X.shape[0], np.int64)
         for p, row in enumerate(X):
             design = self.design_values(row)
             # only the alarmed statistics: the others would be smoothed for nothing
-            out = self.scan(self.step_params(calibration_features, design, self._alarmed(design)), None, features)
-            statistic[p], alarm[p] = out["ratio"], out["alarm"]
+            params = self.step_params(calibration_features, design, self._alarmed(design))
+            statistic[p] = self.scan(params, None, features, persist=False)["ratio"]
+            lengths[p] = design["persistence"]
+        # the scan's persistence rule over the designs' batch axis at once (one compiled call, not one per design)
+        with np.errstate(invalid="ignore"):
+            alarm[:] = persistent(statistic > 1.0, lengths)
         return Decisions(statistic, np.ones((X.shape[0], 1, 1)), alarm)
 
     # -- the one recursion: tuning, test evaluation and the served stage ------------------------
@@ -462,7 +467,7 @@ class LatentDetector(Detector):
                 "run_length": (StateVar("Consecutive points above the limit.", COUNT), 0), **own}
 
     def scan(self, params: Mapping, state: Mapping | None, X: np.ndarray, trajectory: bool = False,
-             explain: tuple[str, ...] | None = None) -> dict[str, np.ndarray]:
+             explain: tuple[str, ...] | None = None, persist: bool = True) -> dict[str, np.ndarray]:
         """Every statistic, its smoothed value and limit, the ratio and the alarm of one design on the rows X.
 
         The one decision of the family (module docstring, "What the base does"): the tuning's and the test's
@@ -483,6 +488,9 @@ class LatentDetector(Detector):
             Also return every state variable after each row, (R, K).
         explain : tuple of str, optional
             The tags' names: also return the family's per-row explanation (:meth:`explained`).
+        persist : bool
+            Apply the persistence (``alarm``); False: the ratio only, for a caller that applies the same rule
+            (:func:`~mosd.detectors.base.persistent`) to many designs at once (:meth:`population`).
 
         Returns
         -------
@@ -519,6 +527,8 @@ class LatentDetector(Detector):
                 if name in alarmed:
                     ratios.append(value / limit)
             ratio = reduce(np.fmax, ratios)
+            if not persist:
+                return {**out, "ratio": ratio, **extra}
             above = ratio > 1.0
         carried = np.asarray(state.get("run_length", 0), np.int64)
         carried = carried.reshape(-1) if carried.size > 1 else int(carried)
