@@ -70,7 +70,10 @@ def runs_of(outputs: Path, experiment: str = "mosd"):
     (["+fault=offset_var", "detector.lam=1.5"], r"detector\.lam=1\.5 is out of range; allowed: \(0, 1\)"),
     (["+fault=offset_var", "optimizer.pop_size=0"], r"optimizer\.pop_size=0 is out of range; allowed: integers"),
     # a fault acting where the plant takes none (issue 50: a TypeError in the dry run before)
-    (["+fault=actuator", "plant=two_tank", "noise=two_tank"], r"^mosd: error: fault=ActuatorFault\(.*\) acts on an "
+    (["+fault=actuator", "plant=two_tank", "noise=two_tank"], r"^mosd: error: fault=ActuatorFault acts on an "
+     r"actuator, but plant two_tank takes faults acting on sensor only; allowed: " + re.escape(SENSOR_FAULTS)),
+    # the preset's keys for its own sensor fault (fault.channel) are not the reason given (they were before)
+    (["+experiment=two_tank", "fault=actuator"], r"^mosd: error: fault=ActuatorFault acts on an "
      r"actuator, but plant two_tank takes faults acting on sensor only; allowed: " + re.escape(SENSOR_FAULTS)),
 ])
 def test_errors_are_one_line_exit_2_and_leave_nothing(tmp_path, args, expected):

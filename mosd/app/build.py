@@ -209,6 +209,20 @@ def check_recorded_pipeline(cfg) -> None:
                           f"measured variables; {allowed}")
 
 
+def _check_fault_target(plant, node) -> None:
+    """Where the fault acts against where the plant takes faults, before the fault's keys are checked."""
+    from hydra.utils import get_object
+
+    from ..plants.base import check_fault_class
+
+    try:
+        fault_class = get_object(str(node.get("_target_")))
+    except Exception:
+        return  # instantiate_section says that the target cannot be imported
+    if isinstance(fault_class, type):
+        check_fault_class(plant, fault_class)
+
+
 def build(cfg) -> Setup:
     """Validate a composed config and build every component (no simulation, no output)."""
     check_keys(cfg)
@@ -238,6 +252,7 @@ def build(cfg) -> Setup:
         if _takes(cfg.noise.get("_target_"), "n_x"):
             noise_extra = {"n_x": len(plant.state_names), "n_y": len(plant.output_names)}
         noise = instantiate_section("noise", cfg.noise, **noise_extra)
+        _check_fault_target(plant, cfg.fault)
         fault = instantiate_section("fault", cfg.fault)
     estimator = instantiate_section("estimator", cfg.estimator)
     monitor = instantiate_section("monitor", cfg.monitor)

@@ -71,6 +71,18 @@ class Plant(Component):
                                   f"1..{len(self.input_names)} ({', '.join(self.input_names)})")
 
 
+def check_fault_class(plant: Plant, fault_class: type) -> None:
+    """Refuse a fault class that cannot act on ``plant`` before its parameters are read.
+
+    A preset's keys for its own fault (two_tank's ``fault.channel``) do not fit another fault class; the
+    reason to give is then where the fault acts, not a key the user never wrote (:meth:`Plant.check_fault`
+    checks the built fault's channel or actuator afterwards).
+    """
+    acts_on = getattr(fault_class, "acts_on", None)
+    if isinstance(acts_on, str) and acts_on and acts_on not in plant.fault_targets:
+        raise ConfigError(_wrong_target(plant, fault_class.__name__, acts_on))
+
+
 def fault_classes(targets: Sequence[str]) -> list[str]:
     """Names of the fault classes of :mod:`mosd.faults` that act on one of ``targets`` (found, not listed)."""
     from .. import faults
@@ -87,7 +99,8 @@ def _wrong_target(plant: Plant, fault, acts_on: str) -> str:
     phrase = {"sensor": "a sensor", "actuator": "an actuator", "state": "the state"}
     where = f"acts on {phrase.get(acts_on, repr(acts_on))}" if acts_on else "declares no acts_on"
     classes = ", ".join(fault_classes(plant.fault_targets)) or "none"
-    return (f"fault={fault!r} {where}, but plant {name} takes faults acting on "
+    label = fault if isinstance(fault, str) else repr(fault)
+    return (f"fault={label} {where}, but plant {name} takes faults acting on "
             f"{' or '.join(plant.fault_targets)} only; "
             f"allowed: {classes} (`mosd options fault` lists each option's acts_on)")
 
