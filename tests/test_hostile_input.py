@@ -269,7 +269,7 @@ def test_the_model_file_is_written_atomically(fitted_pca, tmp_path, monkeypatch)
         fitted.save(tmp_path)
     assert saved.read_bytes() == before and sorted(p.name for p in tmp_path.iterdir()) == [saved.name]
     monkeypatch.undo()
-    assert OnlinePipeline.load(saved).stages[-1].t2_limit == fitted.stages[-1].t2_limit
+    assert OnlinePipeline.load(saved).stages[-1].limits == fitted.stages[-1].limits
 
 
 # -- 2. mosd monitor: --out and the store checked before scoring; stdin; --keep order ------------------
