@@ -387,3 +387,46 @@ def test_an_imm_saved_with_its_removed_class_loads_and_scores_the_same():
     from mosd.estimators.step import EstimatorStage
 
     check_legacy("OnlineIMM", EstimatorStage)
+
+
+def test_the_neural_observer_stream_is_its_batch_estimate():
+    """Paper 003 (torch trains; the served ObserverStep runs the same rollout and filter step in NumPy): every run
+    of a gappy flight log streamed whole, in chunks and row by row gives the batch's outputs. The batch rolls all
+    windows out at once and the stream one window a row, so the rollout's products have different batch shapes:
+    relative 1e-10."""
+    import dataclasses
+
+    pytest.importorskip("torch")
+    from mosd.estimators.neural_observer import MultiStepNeuralObserver
+    from mosd.estimators.step import EstimatorStage
+    from mosd.faults.ramp import RampFault
+    from mosd.noise.gaussian import GaussianNoise
+    from mosd.plants.flapping_wing import FlappingWingMAV
+    from mosd.scenario import Scenario
+
+    plant = FlappingWingMAV()
+    noise = GaussianNoise(process_cov=0.0, measurement_cov=[0.0025, 0.0025, 2.5e-5, 1.0e-6, 1.0e-6], n_x=6, n_y=5)
+    model = plant.model(noise)
+    training = Scenario(plant, noise, None, 30.0).simulate(1, 2, "estimator")
+    trace = Scenario(plant, noise, RampFault(rate=1.0, onset=15.0), 30.0).simulate(1, 2, "test")
+    y = trace.y.copy()
+    y[0, 40, 0] = y[1, 41, 1] = y[0, 100, 2] = np.nan             # gaps in the log
+    trace = dataclasses.replace(trace, y=y)
+    estimator = MultiStepNeuralObserver(window=3, epochs=3, cache_dir=None, progress=False)
+    estimator.fit(training, model, np.random.default_rng(0))
+    batch = estimator.estimate(trace, model)
+    stage = estimator.online(model, _source(plant, noise), trace)
+    assert isinstance(stage, EstimatorStage) and stage.plant is None   # served without the plant: weights only
+    rng = np.random.default_rng(9)
+    for run in range(2):
+        whole = three_ways(stage, {f"y_{n}": y[run, :, j] for j, n in enumerate(model.output_names)}, rng)
+        close(whole["residual_gps_altitude"], batch.r[run, :, 0], 1e-10, 1e-12)
+        for name in ("chi2", "observer_residual", "observer_residual_scaled", "observer_chi2", "h_hat", "h_filtered"):
+            close(whole[name], batch.extra[name][run], 1e-10, 1e-12)
+    assert np.isnan(batch.extra["h_hat"][:, :3]).all() and np.isfinite(batch.extra["h_hat"][1, 3:40]).all()
+
+
+def test_a_neural_observer_saved_with_its_removed_class_loads_and_scores_the_same():
+    from mosd.estimators.step import EstimatorStage
+
+    check_legacy("OnlineObserver", EstimatorStage)

@@ -4,7 +4,7 @@
   gaps in, every missing-value fill the batch has (``hold``, ``skip``; an ``em`` design refuses a gap);
 * paper 001's asynchronous IMM (its :class:`~mosd.estimators.step.EstimatorStage`): raw packets per fusion row,
   lost packets absent, slots in any order (out-of-order arrival), a late packet counted and not fused;
-* paper 003's neural observer (:class:`~mosd.estimators.neural_observer.OnlineObserver`): the flight log with
+* paper 003's neural observer (:class:`~mosd.estimators.neural_observer.ObserverStep`'s stage): the flight log with
   gaps in, the trained network run in NumPy from its saved weight arrays.
 
 For each: the raw stream in one call, row by row and in arbitrary chunks (and after a save/load) gives the
@@ -260,7 +260,8 @@ def test_paper001_out_of_order_and_late_packets_are_fused_as_the_batch_would():
 
 # -- paper 003 ---------------------------------------------------------------------------------------
 def test_paper003_flight_log_with_gaps_reproduces_the_batch_without_torch_at_serving(tmp_path):
-    from mosd.estimators.neural_observer import MultiStepNeuralObserver, OnlineObserver
+    from mosd.estimators.neural_observer import MultiStepNeuralObserver
+    from mosd.estimators.step import EstimatorStage
     from mosd.faults.ramp import RampFault
     from mosd.noise.gaussian import GaussianNoise
     from mosd.plants.flapping_wing import FlappingWingMAV
@@ -280,11 +281,12 @@ def test_paper003_flight_log_with_gaps_reproduces_the_batch_without_torch_at_ser
     detector = AdaptiveChi2Detector(alpha=0.05, a=1.0, b=0.5, lag=1, persistence=2)
     calibration_z = monitor.transform(batch).z
     pipeline, columns = _pipeline(estimator, trace, model, plant, noise, monitor, detector, batch, calibration_z)
-    assert isinstance(pipeline.stages[0], OnlineObserver)
+    assert isinstance(pipeline.stages[0], EstimatorStage)
+    assert pipeline.stages[0].estimator == "mosd.estimators.neural_observer.ObserverStep"
     assert pipeline.inputs == tuple(f"y_{n}" for n in plant.output_names)
     saved = pipeline.save(tmp_path / "saved")
     with np.load(saved, allow_pickle=False) as arrays:               # the network travels as weight arrays
-        assert {"s0.w1", "s0.b1", "s0.w2", "s0.b2", "s0.w3", "s0.b3"} <= set(arrays.files)
+        assert {f"s0.fitted.{k}" for k in ("w1", "b1", "w2", "b2", "w3", "b3")} <= set(arrays.files)
     whole = check_chunks(OnlinePipeline([pipeline.stages[0]]), columns, tmp_path)
     _close(whole["residual_gps_altitude"], batch.r[0, :, 0])
     for name in ("chi2", "observer_residual", "observer_residual_scaled", "observer_chi2", "h_hat", "h_filtered"):
@@ -300,7 +302,7 @@ def test_paper003_model_is_served_without_torch(tmp_path):
     import sys
     from pathlib import Path
 
-    from mosd.estimators.neural_observer import OnlineObserver
+    from mosd.estimators.neural_observer import ObserverStep, observer_outputs
 
     window, channels, width = 2, ("a", "b", "c"), 4
     rng = np.random.default_rng(1)
@@ -309,9 +311,10 @@ def test_paper003_model_is_served_without_torch(tmp_path):
                "w3": rng.normal(size=(window, width, 1)), "b3": rng.normal(size=(window, 1)),
                "input_mean": np.zeros(3), "input_std": np.ones(3), "step_mean": np.array(0.0),
                "step_std": np.array(1.0)}
-    stage = OnlineObserver(channels=channels, window=window, altitude_channel=0, velocity_channel=1,
-                           filter_altitude_channel=0, residual_mean=0.0, residual_std=1.0, dt=0.2, q=0.01, r_var=0.01,
-                           **weights)
+    fitted = {**weights, "residual_mean": np.array(0.0), "residual_std": np.array(1.0), "dt": np.array(0.2),
+              "q": np.array(0.01), "r_var": np.array(0.01)}
+    stage = ObserverStep(window=window, altitude_channel=0).stage(None, None, tuple(f"y_{n}" for n in channels),
+                                                                  observer_outputs(channels, 0), fitted=fitted)
     pipeline = OnlinePipeline([stage])
     columns = {f"y_{n}": rng.normal(size=20) for n in channels}
     expected = pipeline.update(columns)["h_hat"]

@@ -43,17 +43,17 @@ import math
 import os
 import sys
 import tempfile
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ..streaming import COUNT, FINITE, SQUARES, OnlineStage, StateVar
+from ..streaming import COUNT, FINITE, LEGACY_STAGES, SQUARES, StateVar
 from ..types import Residuals, Trace
 from ..validation import ConfigError, Interval, Param
 from .base import Estimator
 from .ekf import AltitudeKalmanFilter, kalman_start, kalman_step
+from .step import EstimatorStage, StepEstimator
 
 WEIGHTINGS = ("linear", "uniform")
 _LAYERS = ("w1", "b1", "w2", "b2", "w3", "b3")
@@ -63,7 +63,7 @@ DEFAULT_CACHE = "~/.cache/mosd/observers"
 def rollout(params, scaling, h0: np.ndarray, C: np.ndarray) -> np.ndarray:
     """Predictions (..., N) of the N-step rollout from h0 (...) with inputs C (..., N, c), in NumPy from the
     trained weight arrays ``params`` (w1 … b3, one slice per step) and ``scaling``: the one arithmetic of the
-    batch prediction and the causal form (:class:`OnlineObserver`); no torch."""
+    batch prediction and the causal form (:class:`ObserverStep`); no torch."""
     p, s = params, scaling
     h_prev, outputs = h0, []
     for j in range(C.shape[-2]):
@@ -382,19 +382,20 @@ class MultiStepNeuralObserver(Estimator):
 
 
     # -- the causal form ----------------------------------------------------------------
-    def online(self, model: Any = None, source=None, trace: Trace | None = None) -> "OnlineObserver":
-        """The fitted observer and its χ² filter as a stream of the flight log: ``y_<channel>`` in per row
-        (:class:`OnlineObserver`), served in NumPy from the trained weight arrays (no torch)."""
+    def online(self, model: Any = None, source=None, trace: Trace | None = None):
+        """The fitted observer and its χ² filter as a stream of the flight log: ``y_<channel>`` in per row, served by
+        :class:`ObserverStep` (the same rollout, in NumPy from the trained weight arrays: no torch)."""
         if source is None or not hasattr(self, "params_"):
             return super().online(model)
         names = tuple(model.output_names)
-        arrays = {k: np.asarray(v, float) for k, v in {**self.params_, **self.scaling_}.items()}
-        return OnlineObserver(channels=names, window=int(self.window), altitude_channel=int(self.altitude_channel),
-                              velocity_channel=int(self.ekf.velocity_channel),
-                              filter_altitude_channel=int(self.ekf.altitude_channel),
-                              residual_mean=float(self.residual_mean_), residual_std=float(self.residual_std_),
-                              dt=float(model.dt), q=float(self.ekf.process_variance(model)),
-                              r_var=float(model.gps_variance), **arrays)
+        fitted = {k: np.asarray(v, float) for k, v in {**self.params_, **self.scaling_}.items()}
+        fitted.update({"residual_mean": np.asarray(float(self.residual_mean_)),
+                       "residual_std": np.asarray(float(self.residual_std_)), "dt": np.asarray(float(model.dt)),
+                       "q": np.asarray(float(self.ekf.process_variance(model))),
+                       "r_var": np.asarray(float(model.gps_variance))})
+        served = ObserverStep(window=self.window, altitude_channel=self.altitude_channel, ekf=self.ekf)
+        return served.stage(None, None, tuple(f"y_{n}" for n in names),
+                            observer_outputs(names, int(self.ekf.altitude_channel)), fitted=fitted)
 
     def raw_stream(self, trace: Trace, model: Any, input_names) -> dict[str, np.ndarray]:
         """The first replication's flight log, one column per logged channel (``y_<channel>``)."""
@@ -402,101 +403,107 @@ class MultiStepNeuralObserver(Estimator):
         return {f"y_{name}": y[:, j] for j, name in enumerate(model.output_names)}
 
 
-@dataclass
-class OnlineObserver(OnlineStage):
-    """:class:`MultiStepNeuralObserver`'s causal form: the flight log in, the observer's and the filter's outputs out.
+class ObserverStep(StepEstimator):
+    """The served half of :class:`MultiStepNeuralObserver`: its recursion over the flight log, in NumPy from the
+    trained weight arrays (no torch, no training: it is what a deployed model rebuilds).
 
     In per row: every logged channel ``y_<channel>`` (NaN where a sample is missing). Out:
     ``residual_<altitude>`` (the filter's innovation), ``chi2``, ``observer_residual``,
     ``observer_residual_scaled``, ``observer_chi2``, ``h_hat`` and ``h_filtered`` — the batch estimate's
-    outputs row by row. ĥ_k is the N-step rollout (:func:`rollout`, the batch's arithmetic, in NumPy from the
-    saved weight arrays) from h_{k−N} over C_{k−N} … C_{k−1}, NaN for k < N; the filter steps by
-    :func:`~mosd.estimators.ekf.kalman_step`. State: ``observer_rows`` (rows seen), the last N rows of the log
-    (``observer_lag<l>_<channel>``, l = 1 the previous row; NaN before the stream has them) and the filter's
-    ``kf_z`` and ``kf_P``.
+    outputs row by row. ĥ_k is the N-step rollout (:func:`rollout`, the batch's arithmetic) from h_{k−N}
+    over C_{k−N} … C_{k−1}, NaN for k < N; the filter steps by :func:`~mosd.estimators.ekf.kalman_step`.
+    State: ``observer_rows`` (rows seen), the last N rows of the log (``observer_lag<l>_<channel>``, l = 1
+    the previous row; NaN before the stream has them) and the filter's ``kf_z`` and ``kf_P``. The fitted
+    arrays: the weights and scalings, the observer's validation error (``residual_mean``, ``residual_std``)
+    and the filter's ``dt``, ``q``, ``r_var``.
     """
 
-    channels: tuple
-    window: int
-    altitude_channel: int
-    velocity_channel: int
-    filter_altitude_channel: int
-    residual_mean: float
-    residual_std: float
-    dt: float
-    q: float
-    r_var: float
-    w1: np.ndarray
-    b1: np.ndarray
-    w2: np.ndarray
-    b2: np.ndarray
-    w3: np.ndarray
-    b3: np.ndarray
-    input_mean: np.ndarray
-    input_std: np.ndarray
-    step_mean: np.ndarray
-    step_std: np.ndarray
+    params = {"window": MultiStepNeuralObserver.params["window"],
+              "altitude_channel": MultiStepNeuralObserver.params["altitude_channel"],
+              "ekf": MultiStepNeuralObserver.params["ekf"]}
 
-    @property
-    def inputs(self) -> tuple[str, ...]:
-        return tuple(f"y_{n}" for n in self.channels)
+    def __init__(self, window: int = 12, altitude_channel: int = 0, ekf: AltitudeKalmanFilter | None = None):
+        self._assign(locals())
 
-    @property
-    def outputs(self) -> tuple[str, ...]:
-        return (f"residual_{self.channels[self.filter_altitude_channel]}", "chi2", "observer_residual",
-                "observer_residual_scaled", "observer_chi2", "h_hat", "h_filtered")
+    def step_state(self, params: dict, reads: tuple = ()) -> dict:
+        lags = {f"observer_lag{lag}_{n[2:]}": (StateVar("A logged value of an earlier row (the rollout's window; NaN: "
+                                                        "not seen).", FINITE, missing=True), math.nan)
+                for lag in range(self.window, 0, -1) for n in reads}
+        return {"observer_rows": (StateVar("Log rows seen since the stream's start.", COUNT), 0), **lags,
+                "kf_z": (StateVar("The χ² filter's altitude estimate after the row.", FINITE), 0.0),
+                "kf_P": (StateVar("The χ² filter's variance after the row.", SQUARES), 1e6)}
 
-    def _lags(self) -> list[str]:
-        return [f"observer_lag{lag}_{n}" for lag in range(self.window, 0, -1) for n in self.channels]
+    def scan(self, model, params: dict, state: dict, columns: dict, trajectory: bool = False) -> dict:
+        """The batch estimate's outputs row by row (class docstring; :meth:`StepEstimator.scan`), each run on its
+        own (R = 1 when served); the columns are the logged channels in the log's order."""
+        runs = np.shape(next(iter(columns.values())))[0]
+        parts = [self._scan_run(params, {k: np.ravel(np.broadcast_to(v, (runs,)))[r] for k, v in state.items()},
+                                {k: np.asarray(v, float)[r] for k, v in columns.items()}) for r in range(runs)]
+        return {k: np.stack([p[k] for p in parts]) for k in parts[0]}
 
-    def state_vars(self) -> dict[str, StateVar]:
-        declared = {"observer_rows": StateVar("Log rows seen since the stream's start.", COUNT)}
-        declared.update({k: StateVar("A logged value of an earlier row (the rollout's window; NaN: not seen).",
-                                     FINITE, missing=True) for k in self._lags()})
-        declared["kf_z"] = StateVar("The χ² filter's altitude estimate after the row.", FINITE)
-        declared["kf_P"] = StateVar("The χ² filter's variance after the row.", SQUARES)
-        return declared
-
-    def initial_state(self) -> dict:
-        return {"observer_rows": 0, **{k: math.nan for k in self._lags()}, "kf_z": 0.0, "kf_P": 1e6}
-
-    def example_row(self) -> np.ndarray:
-        return np.zeros(len(self.channels))
-
-    def update(self, columns, state) -> dict[str, np.ndarray]:
-        N, width = self.window, len(self.channels)
-        Y = np.column_stack([np.asarray(columns[f"y_{n}"], float) for n in self.channels])
+    def _scan_run(self, params: dict, state: dict, columns: dict) -> dict:
+        names = [n[2:] for n in columns]
+        N, width = self.window, len(names)
+        Y = np.column_stack([columns[f"y_{n}"] for n in names])
         rows, first = len(Y), int(state["observer_rows"])
-        lags = self._lags()
+        lags = [f"observer_lag{lag}_{n}" for lag in range(N, 0, -1) for n in names]
         history = np.concatenate([np.array([float(state[k]) for k in lags]).reshape(N, width), Y])
-        params = {k: getattr(self, k) for k in ("w1", "b1", "w2", "b2", "w3", "b3")}
-        scaling = {k: getattr(self, k) for k in ("input_mean", "input_std", "step_mean", "step_std")}
+        weights = {k: params[k] for k in _LAYERS}
+        scaling = {k: params[k] for k in ("input_mean", "input_std", "step_mean", "step_std")}
         others = [c for c in range(width) if c != self.altitude_channel]
         h_hat = np.full(rows, np.nan)
         for i in range(rows):
             if first + i >= N:   # rows k − N … k − 1 of the log are history[i : i + N]
                 past = history[i:i + N]
-                h_hat[i] = rollout(params, scaling, past[:1, self.altitude_channel], past[None, :, others])[0, -1]
+                h_hat[i] = rollout(weights, scaling, past[:1, self.altitude_channel], past[None, :, others])[0, -1]
         error = Y[:, self.altitude_channel] - h_hat
-        alt, vel = self.filter_altitude_channel, self.velocity_channel
+        alt, vel = self.ekf.altitude_channel, self.ekf.velocity_channel
+        dt, q, r_var = float(params["dt"]), float(params["q"]), float(params["r_var"])
         r, S, z_out, P_out = (np.full(rows, np.nan) for _ in range(4))
         z, P = np.array([float(state["kf_z"])]), np.array([float(state["kf_P"])])
         for i in range(rows):
             if first + i == 0:
-                z, P = kalman_start(Y[:1, alt], self.r_var)
+                z, P = kalman_start(Y[:1, alt], r_var)
             else:
                 r[i:i + 1], S[i:i + 1], z, P = kalman_step(z, P, Y[i:i + 1, alt], history[N + i - 1:N + i, vel],
-                                                           Y[i:i + 1, vel], self.dt, self.q, self.r_var)
+                                                           Y[i:i + 1, vel], dt, q, r_var)
             z_out[i], P_out[i] = z[0], P[0]
-        out = {f"residual_{self.channels[alt]}": r, "chi2": r * r / S, "observer_residual": np.abs(error),
-               "observer_residual_scaled": np.abs(error) / self.residual_std,
-               "observer_chi2": ((error - self.residual_mean) / self.residual_std) ** 2, "h_hat": h_hat,
-               "h_filtered": z_out, "kf_z": z_out, "kf_P": P_out,
+        mean, std = float(params["residual_mean"]), float(params["residual_std"])
+        out = {f"residual_{names[alt]}": r, "chi2": r * r / S, "observer_residual": np.abs(error),
+               "observer_residual_scaled": np.abs(error) / std, "observer_chi2": ((error - mean) / std) ** 2,
+               "h_hat": h_hat, "h_filtered": z_out, "kf_z": z_out, "kf_P": P_out,
                "observer_rows": first + np.arange(1, rows + 1, dtype=np.int64)}
         for lag in range(N, 0, -1):        # after row i the row lag back is history[N + i + 1 − lag]
-            for c, n in enumerate(self.channels):
+            for c, n in enumerate(names):
                 out[f"observer_lag{lag}_{n}"] = history[N + 1 - lag:N + 1 - lag + rows, c]
         return out
+
+
+def observer_outputs(names, filter_altitude_channel: int) -> tuple[str, ...]:
+    """The served observer's output columns (:class:`ObserverStep`)."""
+    return (f"residual_{names[filter_altitude_channel]}", "chi2", "observer_residual", "observer_residual_scaled",
+            "observer_chi2", "h_hat", "h_filtered")
+
+
+def _legacy_observer(fields) -> EstimatorStage:
+    """An old ``OnlineObserver`` (channels, window, the three channel indices, the validation error, dt, q, r_var
+    and the weight arrays) as the :class:`~mosd.estimators.step.EstimatorStage` of its :class:`ObserverStep`."""
+    names = tuple(str(n) for n in (fields["channels"]["tuple"] if isinstance(fields["channels"], dict)
+                                   else fields["channels"]))
+    ekf = {"class": "mosd.estimators.ekf.AltitudeKalmanFilter",
+           "params": {"altitude_channel": int(fields["filter_altitude_channel"]),
+                      "velocity_channel": int(fields["velocity_channel"])}}
+    keys = (*_LAYERS, "input_mean", "input_std", "step_mean", "step_std", "residual_mean", "residual_std", "dt", "q",
+            "r_var")
+    return EstimatorStage(estimator="mosd.estimators.neural_observer.ObserverStep",
+                          design={"window": int(fields["window"]), "altitude_channel": int(fields["altitude_channel"]),
+                                  "ekf": ekf},
+                          fitted={k: np.asarray(fields[k], float) for k in keys}, plant=None, noise=None,
+                          reads=tuple(f"y_{n}" for n in names),
+                          writes=observer_outputs(names, int(fields["filter_altitude_channel"])))
+
+
+LEGACY_STAGES["mosd.estimators.neural_observer.OnlineObserver"] = _legacy_observer
 
 
 def _progress(total: int, description: str, enabled: bool):

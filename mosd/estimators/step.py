@@ -76,12 +76,14 @@ class StepEstimator(Estimator):
         """An input row the served stage shows as its example (zeros unless the estimator knows better)."""
         return np.zeros(len(reads))
 
-    def stage(self, model, source, reads, writes, trace=None) -> "EstimatorStage":
+    def stage(self, model, source, reads, writes, trace=None, fitted=None) -> "EstimatorStage":
         """This fitted estimator's causal form on the columns ``reads``, giving ``writes``; ``source`` the
-        plant's and noise's descriptions (:func:`mosd.streaming.describe`), or None when the step needs no model."""
+        plant's and noise's descriptions (:func:`mosd.streaming.describe`), or None when the step needs no model;
+        ``fitted``: the step's arrays when another object holds them (default :meth:`step_params`)."""
         cls = type(self)
         return EstimatorStage(estimator=f"{cls.__module__}.{cls.__qualname__}", design=describe_params(self),
-                              fitted={k: np.asarray(v) for k, v in self.step_params(model, trace).items()},
+                              fitted={k: np.asarray(v) for k, v in
+                                      (self.step_params(model, trace) if fitted is None else fitted).items()},
                               plant=None if source is None else dict(source["plant"]),
                               noise=None if source is None else dict(source["noise"]),
                               reads=tuple(reads), writes=tuple(writes))
