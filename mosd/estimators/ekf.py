@@ -38,7 +38,7 @@ def kalman_start(y0: np.ndarray, r_var: float):
 
 def kalman_step(z, P, y, v_previous, v, dt: float, q: float, r_var: float):
     """(r_k, S_k, z_k, P_k) from (z_{k−1}, P_{k−1}), y_k and v_d at k − 1 and k (module docstring): the one
-    arithmetic of the batch filter and the causal form (:class:`~mosd.estimators.neural_observer.OnlineObserver`).
+    arithmetic of the batch filter and the causal form (:class:`~mosd.estimators.neural_observer.ObserverStep`).
     A missing y_k skips the update (r_k, S_k NaN); a missing velocity skips the climb."""
     climb = -0.5 * dt * (v_previous + v)
     z_pred = z + np.where(np.isfinite(climb), climb, 0.0)
