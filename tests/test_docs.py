@@ -6,6 +6,10 @@ The convention (docs/index.md, "Writing these pages"): in those pages every ````
 ```` ```python ```` block runs, each page in its own empty directory, its blocks in order; a command that
 cannot run here goes in a ```` ```console ```` block (shown, not run), and ```` ```sh ````/```` ```shell ````
 are refused there. A missing docs dependency (the ``docs`` extra, also in ``test``) fails, it never skips.
+
+The OPC UA how-to (``how-to/opcua.md``) runs too: it needs the ``opcua`` and ``te`` extras (both in ``test``),
+and one of its blocks starts a replay server on 127.0.0.1:4840 that the block stops when it ends (its own
+process group is killed as well). The README's commands run in ``tests/test_readme.py``.
 """
 from __future__ import annotations
 
