@@ -126,9 +126,10 @@ class SubgroupMonitor(StepMonitor):
         done_before = max(seen - self.burn_in, 0)               # post-burn-in samples before this chunk
         if self.subgroup == "channels":
             at = np.flatnonzero(live)
-            out = {"at": at, "point": done_before + np.arange(1, len(at) + 1), "z": (X[:, at] - mean) / std}
+            out = {"at": at, "point": done_before + np.arange(1, len(at) + 1), "z": (X[:, rows - len(at):] - mean) / std}
         else:
-            out = self._scan_window(mean, std, state, X[:, live, 0], done_before, trajectory)
+            # the rows past the burn-in are a suffix of the chunk: a view, not a copy
+            out = self._scan_window(mean, std, state, X[:, rows - int(live.sum()):, 0], done_before, trajectory)
             out["at"] = np.flatnonzero(live & ((after + 1) % self.n == 0))
             if trajectory:
                 out.update(self._pending(out.pop("raw"), after, live, done_before))
@@ -143,7 +144,8 @@ class SubgroupMonitor(StepMonitor):
         runs = live_rows.shape[0]
         pending = np.stack([np.broadcast_to(np.asarray(state[f"pending_{j}"], float), (runs,))
                             for j in range(1, held + 1)], axis=-1) if held else np.empty((runs, 0))
-        raw = np.concatenate([pending, live_rows], axis=1)     # post-burn-in samples from the subgroup's start
+        # post-burn-in samples from the subgroup's start (the rows themselves when no subgroup is unfinished)
+        raw = np.concatenate([pending, live_rows], axis=1) if held else live_rows
         complete = raw.shape[1] // n
         z = ((raw[:, :complete * n] - mean[0]) / std[0]).reshape(runs, complete, n)
         out = {"point": (done_before - held) // n + np.arange(1, complete + 1), "z": z}
