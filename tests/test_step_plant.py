@@ -430,3 +430,22 @@ def test_a_neural_observer_saved_with_its_removed_class_loads_and_scores_the_sam
     from mosd.estimators.step import EstimatorStage
 
     check_legacy("OnlineObserver", EstimatorStage)
+
+
+def test_files_naming_removed_classes_load_in_a_fresh_process():
+    """A process that has imported no monitor or estimator yet loads the saved files of a removed monitor and a
+    removed estimator class (the module each names registers what replaced it) and scores what they scored."""
+    import subprocess
+    import sys
+
+    code = ("import sys, numpy as np; from mosd.streaming import OnlinePipeline as P\n"
+            "for name in sys.argv[1:]:\n"
+            "    p = P.load(name); s = np.load(name + '/stream.npz')\n"
+            "    out = p.update({k[3:]: s[k] for k in s.files if k.startswith('in.')})\n"
+            "    ok = all(np.allclose(out[k[4:]], s[k], rtol=1e-12, atol=0, equal_nan=True) for k in s.files\n"
+            "             if k.startswith('out.'))\n"
+            "    print(type(p.stages[0]).__name__, ok)\n")
+    names = [str(LEGACY / n) for n in ("OnlineSubgroups_window", "OnlineLuenberger", "OnlineIMM")]
+    done = subprocess.run([sys.executable, "-c", code, *names], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout.split() == ["MonitorStage", "True", "EstimatorStage", "True", "EstimatorStage", "True"]
