@@ -141,7 +141,7 @@ def test_scan_over_runs_continues_from_a_state_per_run(name):
     calibration, test = data()
     expected = detector.population(calibration, test, detector.design())
     params = detector.step_params(calibration)
-    first = detector.scan(params, None if name == "pca" else {}, test[:, :50], trajectory=True)
+    first = detector.scan(params, None, test[:, :50], trajectory=True)          # from a stream's start
     state = {key: first[key][:, -1] for key in detector.step_state(params)}
     assert all(v.shape == (2,) for v in state.values())
     second = detector.scan(params, state, test[:, 50:], trajectory=True)
