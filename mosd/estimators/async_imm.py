@@ -50,7 +50,7 @@ import numpy as np
 from ..streaming import COUNT, FINITE, LEGACY_STAGES, NoStreamingForm, StateVar, build
 from ..types import Residuals, Trace
 from ..validation import ConfigError, Interval, Param, check_in, check_names
-from .step import EstimatorStage, StepEstimator, build_params
+from .step import EstimatorStage, StepEstimator, build_params, each_run
 
 FUSION_RULES = ("equivalent_measurement", "sequential")
 _LOG_2PI = math.log(2.0 * math.pi)
@@ -296,10 +296,8 @@ class AsyncIMMFusion(StepEstimator):
         ``imm_step`` (rows seen) and each model's μ, x̂ and P after the row. The time loop is the batch's
         (:meth:`_filter`: the compiled kernel, or the NumPy reference).
         """
-        runs = np.shape(next(iter(columns.values())))[0]
-        parts = [self._scan_run(model, params, {k: np.ravel(np.broadcast_to(v, (runs,)))[r] for k, v in state.items()},
-                                {k: np.asarray(v)[r] for k, v in columns.items()}) for r in range(runs)]
-        return {k: np.stack([p[k] for p in parts]) for k in parts[0]}
+        return each_run(lambda run_state, run_columns: self._scan_run(model, params, run_state, run_columns),
+                        state, columns)
 
     def _scan_run(self, model, params: dict, state: dict, columns: dict) -> dict:
         """:meth:`scan` of one run (columns (N,), state scalars)."""

@@ -53,7 +53,7 @@ from ..types import Residuals, Trace
 from ..validation import ConfigError, Interval, Param
 from .base import Estimator
 from .ekf import AltitudeKalmanFilter, kalman_start, kalman_step
-from .step import EstimatorStage, StepEstimator
+from .step import EstimatorStage, StepEstimator, each_run
 
 WEIGHTINGS = ("linear", "uniform")
 _LAYERS = ("w1", "b1", "w2", "b2", "w3", "b3")
@@ -436,10 +436,7 @@ class ObserverStep(StepEstimator):
     def scan(self, model, params: dict, state: dict, columns: dict, trajectory: bool = False) -> dict:
         """The batch estimate's outputs row by row (class docstring; :meth:`StepEstimator.scan`), each run on its
         own (R = 1 when served); the columns are the logged channels in the log's order."""
-        runs = np.shape(next(iter(columns.values())))[0]
-        parts = [self._scan_run(params, {k: np.ravel(np.broadcast_to(v, (runs,)))[r] for k, v in state.items()},
-                                {k: np.asarray(v, float)[r] for k, v in columns.items()}) for r in range(runs)]
-        return {k: np.stack([p[k] for p in parts]) for k in parts[0]}
+        return each_run(lambda run_state, run_columns: self._scan_run(params, run_state, run_columns), state, columns)
 
     def _scan_run(self, params: dict, state: dict, columns: dict) -> dict:
         names = [n[2:] for n in columns]

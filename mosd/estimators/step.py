@@ -89,6 +89,21 @@ class StepEstimator(Estimator):
                               reads=tuple(reads), writes=tuple(writes))
 
 
+def each_run(run, state: dict, columns: dict) -> dict[str, np.ndarray]:
+    """A scan of one run at a time: ``run(state, columns)`` with the run's state as numbers and its columns (N,),
+    its outputs stacked to (R, N) (for a step written per run: a served stream is one run)."""
+    runs = np.shape(next(iter(columns.values())))[0]
+
+    def one(r):
+        return run({k: np.asarray(v).reshape(-1)[0 if np.size(v) == 1 else r] for k, v in state.items()},
+                   {k: np.asarray(v)[r] for k, v in columns.items()})
+
+    if runs == 1:
+        return {k: np.asarray(v)[None] for k, v in one(0).items()}
+    parts = [one(r) for r in range(runs)]
+    return {k: np.stack([p[k] for p in parts]) for k in parts[0]}
+
+
 def describe_params(component) -> dict:
     """The parameters of ``component`` as JSON: a component among them as ``{"class", "params"}`` (recursively)."""
     def plain(value):
@@ -171,11 +186,11 @@ class EstimatorStage(OnlineStage):
         estimator, model, declared = self._built()
         rows = len(np.asarray(columns[self.reads[0]])) if self.reads else 0
         given = {name: np.asarray(columns[name], float).reshape(1, rows) for name in self.reads}
-        carried = {name: np.full(1, state[name], dtype=float) for name in declared}
+        carried = {name: np.array([float(state[name])]) for name in declared}
         out = estimator.scan(model, self.fitted, carried, given, trajectory=True)
-        result = {name: np.broadcast_to(out[name], (1, rows))[0] for name in self.writes}
+        result = {name: _row(out[name], rows) for name in self.writes}
         for name, (var, _) in declared.items():
-            values = np.broadcast_to(out[name], (1, rows))[0]
+            values = _row(out[name], rows)
             result[name] = values.astype(np.int64) if var.integer else values.astype(float)
         return result
 
@@ -191,6 +206,12 @@ class EstimatorStage(OnlineStage):
         names = {k: tuple(v["tuple"] if isinstance(v, dict) else v) for k, v in meta.items() if k in ("reads", "writes")}
         return cls(estimator=meta["estimator"], design=dict(meta["design"]), fitted=fitted, plant=meta["plant"],
                    noise=meta["noise"], **names)
+
+
+def _row(values, rows: int) -> np.ndarray:
+    """The one run of a scan's output (1, N) (or one broadcastable to it) as (N,)."""
+    values = np.asarray(values)
+    return values[0] if values.shape == (1, rows) else np.broadcast_to(values, (1, rows))[0]
 
 
 def _names(fields, key) -> tuple:

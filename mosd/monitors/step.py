@@ -184,7 +184,7 @@ class MonitorStage(OnlineStage):
         X = (np.column_stack([np.asarray(columns[c], float) for c in self.columns]) if self.columns
              else np.empty((0, 0)))
         rows = len(X)
-        carried = {name: np.full(1, state[name]) for name in self._declared()}
+        carried = {name: np.array([state[name]]) for name in self._declared()}
         out = monitor.scan(self.fitted, carried, X[None], trajectory=True)
         at = out["at"]
         number = np.zeros(rows, np.int64)
@@ -199,7 +199,8 @@ class MonitorStage(OnlineStage):
                 column[at] = out["z"][0, :, j]
                 result[name] = column
         for name, (var, _) in self._declared().items():
-            values = np.broadcast_to(out[name], (1, rows))[0]
+            values = np.asarray(out[name])
+            values = values[0] if values.shape == (1, rows) else np.broadcast_to(values, (1, rows))[0]
             result[name] = values.astype(np.int64) if var.integer else values.astype(float)
         return result
 
