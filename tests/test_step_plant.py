@@ -449,3 +449,14 @@ def test_files_naming_removed_classes_load_in_a_fresh_process():
     done = subprocess.run([sys.executable, "-c", code, *names], capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr[-2000:]
     assert done.stdout.split() == ["MonitorStage", "True", "EstimatorStage", "True", "EstimatorStage", "True"]
+
+
+@pytest.mark.parametrize("name", sorted(p.name for p in LEGACY.iterdir() if p.is_dir()))
+def test_an_empty_chunk_scores_no_row_and_keeps_the_state(name):
+    """An empty request (a poll that found no new row) to any converted stage: no output row, the state unchanged
+    (the old IMM stage failed on it)."""
+    pipeline, columns, _ = legacy(name)
+    state = pipeline.final_state(pipeline.update({k: v[:5] for k, v in columns.items()}))
+    out = pipeline.update({k: v[:0] for k, v in columns.items()}, state)
+    assert all(len(v) == 0 for v in out.values()) and set(out) == set(pipeline.outputs)
+    assert pipeline.final_state(out, state) == pipeline.check_state(state)

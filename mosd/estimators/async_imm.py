@@ -307,6 +307,10 @@ class AsyncIMMFusion(StepEstimator):
         M, n = np.shape(params["x0"])
         n_x, t0, period = int(params["n_x"]), float(params["t0"]), float(params["period"])
         mus, xs, Ps = state_names(M, n)
+        if rows == 0:   # an empty request: no row scored, the state stays where it was
+            counts = ("n_measurements", "late_packets", "imm_step")
+            return {k: np.empty(0, np.int64 if k in counts else float)
+                    for k in (*output_names(M, n_x), "imm_step", *mus, *xs, *Ps)}
         t, y, sensor, valid, late = _packets(columns, rows, first, fused, params)
         # the batch's loop on a grid whose row 0 is the state carried in (not updated): the last fusion instant
         # before the chunk, or at the stream's start the chunk's first row (the prior at t0)
