@@ -66,7 +66,9 @@ class FusedChartEvaluation:
         self.v = np.ascontiguousarray(both[:, 1, :])
         self.n_calibration = n_calibration
         n_points = both.shape[-1]
-        self.faulty = np.ascontiguousarray(np.broadcast_to(np.asarray(fault_mask, bool), (features.shape[0], n_points)))
+        # a writable copy: a read-only mask (a broadcast view of a full-shape mask stays one) is another numba
+        # signature than the one compiled ahead (kernels.chart._warm_up_arguments), so the run would compile again
+        self.faulty = np.array(np.broadcast_to(np.asarray(fault_mask, bool), (features.shape[0], n_points)), order="C")
         self.n_faulty = self.faulty.sum(axis=-1)
         self.n_healthy = (~self.faulty).sum(axis=-1)
         self.denoise = wavelet_plan is not None
