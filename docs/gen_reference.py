@@ -2,27 +2,28 @@
 
 Run by the ``gen-files`` plugin of ``mkdocs.yml`` at every build (nothing it writes is in the repository):
 
-* ``reference/config/index.md``: every preset's choices (:func:`mosd.app.options.readme_index`);
+* ``reference/config/index.md``: every preset's choices and every group's options, with where each fault
+  acts and where each plant takes faults (:func:`mosd.app.options.option_index`);
 * ``reference/config/<group>.md``: every option of ``conf/<group>/`` with its class, description and keys
   (default, the class's declared domain, the YAML's comment), from :func:`mosd.app.options.listing`, what
   ``python -m mosd options GROUP`` prints;
 * ``reference/api/<package>.md``: the docstrings of the package's modules (mkdocstrings);
 * ``reference/SUMMARY.md``: the section's navigation (literate-nav), which also lists ``reference/options.md``,
-  the one page of the section kept in the repository (the curated option tables with the papers' context and
-  the index that ``mosd options --readme docs/reference/options.md`` rewrites).
+  the one page of the section kept in the repository (the curated option tables with the papers' context).
 
-A new config group, option or module appears without editing this file or ``mkdocs.yml``.
+A new config group, option or module appears without editing this file, ``mkdocs.yml`` or any page: the
+index is generated here, never committed (issue 50 item 3: a new system touches no other file). Imported
+under the name ``gen_reference`` (``tests/test_readme_tables.py``, ``tests/test_add_a_system.py``) it only
+defines the page functions; run by mkdocs-gen-files it writes the pages.
 """
 from __future__ import annotations
 
 import pkgutil
 from pathlib import Path
 
-import mkdocs_gen_files
-
 import mosd
 from mosd.app.config import groups
-from mosd.app.options import listing, readme_index
+from mosd.app.options import listing, option_index
 
 #: the packages whose modules get an API page, in the navigation's order, with a line on each
 PACKAGES = {
@@ -63,8 +64,12 @@ def config_pages() -> dict[str, str]:
         "# Configuration\n\n"
         "Every run composes one option per config group (`group=option` on the command line, `+group=option` "
         "for a group without a default such as `fault`) and any key of it (`group.key=value`). A preset "
-        "(`+experiment=NAME`) chooses one option per group; its choices over `conf/config.yaml`'s defaults:\n\n"
-        + readme_index() + "\n\n"
+        "(`+experiment=NAME`) chooses one option per group; the presets' choices over `conf/config.yaml`'s "
+        "defaults, then every option of every group. A fault acts on a sensor, an actuator or the state, and "
+        "a plant takes the faults that act where it injects them (`+fault=NAME` of another kind is one line, "
+        "exit 2). This page is generated from `conf/` and the classes when the site is built; the "
+        "[configuration reference](../options.md) adds the papers' context.\n\n"
+        + option_index(group_pages=True) + "\n\n"
         "One page per group lists each option's class, its description and its keys: the default (the YAML's "
         "value), the domain the class declares (what preflight checks) and the YAML's comment. "
         "`python -m mosd options [GROUP ...]` prints the same tables.\n")}
@@ -112,8 +117,8 @@ def api_pages() -> dict[str, str]:
 
 
 def summary() -> str:
-    # options.md is a page of the repository (the curated tables and the generated index that
-    # ``mosd options --readme docs/reference/options.md`` rewrites), not one this script writes
+    # options.md is a page of the repository (the curated tables with the papers' context), not one this
+    # script writes
     lines = ["* [Configuration reference](options.md)", "* [Configuration](config/index.md)"]
     lines += [f"    * [{g}](config/{g}.md)" for g in groups()]
     lines += ["* API", *[f"    * [{p}](api/{p}.md)" for p in PACKAGES]]
@@ -121,9 +126,14 @@ def summary() -> str:
 
 
 def write() -> None:
+    """Write every page into the build's virtual files (mkdocs-gen-files; the ``docs`` extra)."""
+    import mkdocs_gen_files  # here, not at the top: the tests import the page functions without the extra
+
     for path, text in {**config_pages(), **api_pages(), "SUMMARY.md": summary()}.items():
         with mkdocs_gen_files.open(f"reference/{path}", "w") as out:
             out.write(text)
 
 
-write()
+# mkdocs-gen-files runs this file (runpy, "<run_path>"); the tests import it as ``gen_reference`` for the pages
+if __name__ != "gen_reference":
+    write()

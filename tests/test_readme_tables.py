@@ -1,35 +1,33 @@
 """The documented lists of options are the components, not a hand list (issue 50 item 3).
 
-The index of every preset and option between the generated markers of the configuration
-reference, ``docs/reference/options.md`` (the README's until issue 51 moved it to the site), is
-:func:`mosd.app.options.readme_index` (``mosd options --readme docs/reference/options.md``
-rewrites it): a component added (one module and one YAML) or removed makes it stale, and
-this test fails naming the option. The curated tables (the README's presets table, the
-reference page's per-group tables) are a selection: each of their rows must name an existing
-option (``tests/test_configs.py`` checks the classes).
+The index of every preset and option, :func:`mosd.app.options.option_index`, is on the site's
+generated configuration page (``reference/config/index.md``, written by ``docs/gen_reference.py`` when
+the site is built, never committed), next to a generated page per config group: a component added (one
+module and one YAML) appears there with no file to edit, and this test fails naming an option the
+generated pages miss. The curated tables (the README's presets table, the reference page's per-group
+tables) are a selection: each of their rows must name an existing option (``tests/test_configs.py``
+checks the classes; ``tests/test_readme.py`` that the README's presets table names every preset).
 """
 from __future__ import annotations
 
+import importlib.util
 import re
-import subprocess
-import sys
 from pathlib import Path
 
-import pytest
-
+import mosd.app
 from mosd.app import options as options_module
 from mosd.app.config import groups, options
 
 ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"
-#: the page that holds the generated index (:data:`mosd.app.options.PAGE`)
-PAGE = ROOT / options_module.PAGE
-REGENERATE = f"run mosd options --readme {options_module.PAGE}"
 
 
-def _block(text: str) -> str:
-    start, stop = text.index(options_module.BEGIN), text.index(options_module.END)
-    return text[start + len(options_module.BEGIN):stop].strip("\n")
+def _gen_reference():
+    """docs/gen_reference.py imported as ``gen_reference``: its page functions, nothing written."""
+    spec = importlib.util.spec_from_file_location("gen_reference", ROOT / "docs" / "gen_reference.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
 
 
 def _named(block: str) -> set[tuple[str, str]]:
@@ -37,25 +35,29 @@ def _named(block: str) -> set[tuple[str, str]]:
     named = set()
     for line in block.splitlines():
         cells = [c.strip() for c in line.strip("|").split("|")]
-        group = re.fullmatch(r"`(\w+)`", cells[0])
-        if line.startswith("| `") and len(cells) == 2 and group:
+        group = re.fullmatch(r"\[?`(\w+)`(?:\]\(\w+\.md\))?", cells[0])
+        if line.startswith("| ") and len(cells) == 2 and group:
             named |= {(group.group(1), name) for name in re.findall(r"`(\w+)`", cells[1])}
         elif line.startswith("| `") and group:
             named.add(("experiment", group.group(1)))
     return named
 
 
-def test_the_readme_index_names_every_option_and_no_other():
-    block = _block(PAGE.read_text(encoding="utf-8"))
+def test_the_generated_index_names_every_option_and_no_other():
+    pages = _gen_reference().config_pages()
+    index = options_module.option_index(group_pages=True)
+    assert index in pages["config/index.md"], "the site's configuration page does not show option_index()"
     on_disk = {(g, o) for g in groups() for o in options(g)}
-    named = _named(block)
-    assert not on_disk - named, f"{options_module.PAGE}'s index misses {sorted(on_disk - named)}: {REGENERATE}"
-    assert not named - on_disk, f"{options_module.PAGE}'s index names {sorted(named - on_disk)}, which conf/ lacks"
-    assert block == options_module.readme_index(), f"{options_module.PAGE}'s index is stale: {REGENERATE}"
+    named = _named(index)
+    assert not on_disk - named, f"the generated index misses {sorted(on_disk - named)}"
+    assert not named - on_disk, f"the generated index names {sorted(named - on_disk)}, which conf/ lacks"
+    # each option also has its section on its group's generated page
+    for group, name in sorted(on_disk):
+        assert f"## `{name}` {{#{name}}}" in pages[f"config/{group}.md"], (group, name)
 
 
 def test_the_index_says_where_each_fault_acts_and_each_plant_takes_faults():
-    row = {line.split("|")[1].strip(): line for line in options_module.readme_index().splitlines()
+    row = {line.split("|")[1].strip(): line for line in options_module.option_index().splitlines()
            if line.startswith("| `")}
     for name in options("fault"):
         acts_on = options_module.option("fault", name).acts_on
@@ -76,23 +78,9 @@ def test_the_curated_preset_table_names_existing_presets():
     assert rows and set(rows) <= set(options("experiment")), set(rows) - set(options("experiment"))
 
 
-def test_the_generator_rewrites_a_stale_index_and_refuses_a_file_without_one(tmp_path):
-    text = PAGE.read_text(encoding="utf-8")
-    stale = tmp_path / "options.md"
-    stale.write_text(text.replace(_block(text), "| stale |"), encoding="utf-8")
-    command = [sys.executable, "-m", "mosd", "options", "--readme"]
-    done = subprocess.run([*command, str(stale)], capture_output=True, text=True, timeout=300)
-    assert done.returncode == 0, done.stderr
-    assert _block(stale.read_text(encoding="utf-8")) == options_module.readme_index()
-    plain = tmp_path / "plain.md"
-    plain.write_text("no markers\n", encoding="utf-8")
-    refused = subprocess.run([*command, str(plain)], capture_output=True, text=True, timeout=300)
-    assert refused.returncode == 2 and len(refused.stderr.strip().splitlines()) == 1, refused.stderr
-    assert "allowed: both markers" in refused.stderr and "Traceback" not in refused.stderr
-    assert plain.read_text(encoding="utf-8") == "no markers\n"
-
-
-@pytest.mark.parametrize("text", ["no block at all", options_module.END + "\n" + options_module.BEGIN])
-def test_with_index_refuses_missing_or_swapped_markers(text):
-    with pytest.raises(ValueError, match="allowed: both markers, in that order"):
-        options_module.with_index(text)
+def test_the_options_command_has_no_page_rewriting_flag(capsys):
+    """The index is generated when the site is built: ``--readme`` (which rewrote a committed copy) is gone,
+    and asking for it is one line, exit 2."""
+    assert mosd.app.main(["options", "--readme", "docs/reference/options.md"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == "mosd: error: options: unrecognized arguments: --readme", err
