@@ -60,7 +60,7 @@ def test_ica_sources_and_statistics_match_fastica(rows, new_rows):
         np.testing.assert_allclose(stats["spe"][:, a - 1], spe, rtol=1e-8, atol=1e-10)
     # all components kept: nothing left over
     np.testing.assert_allclose(stats["spe"][:, -1], 0.0, atol=1e-10)
-    one = model.statistics(new_rows, components=2)
+    one = model.statistics(new_rows, components=2)  # the same computation, sliced: exact
     for name in ("i2", "i2e", "spe"):
         np.testing.assert_array_equal(one[name][:, 0], stats[name][:, 1])
 
@@ -229,6 +229,7 @@ def test_kpca_family_served_equals_its_population_with_theoretical_limits(tmp_pa
     for p, (a, width, alpha, lam, persistence) in enumerate(designs):
         alone = detector.with_params(n_components=a, width=width, alpha=alpha, lam=lam, persistence=persistence)
         decided = alone.decide(calibration, X[None, 400:])
+        # exact: a design's fit and statistics are the same calls on the same arrays, together or alone
         np.testing.assert_array_equal(together.statistic[p], decided.statistic)
         np.testing.assert_array_equal(together.decision[p], decided.decision)
 
@@ -308,6 +309,6 @@ def test_served_models_score_from_saved_arrays_without_sklearn_or_torch(tmp_path
         monkeypatch.delitem(sys.modules, module)
     for name, (path, expected) in saved.items():
         again = OnlinePipeline.load(path).update(columns)
-        for key in ("ratio", "alarm", "spe"):
+        for key in ("ratio", "alarm", "spe"):  # exact: the served NumPy code, before and after, on the saved arrays
             np.testing.assert_array_equal(again[key], expected[key], err_msg=f"{name}: {key}")
         assert 0 < np.sum(np.isfinite(again["ratio"]))

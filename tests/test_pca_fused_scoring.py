@@ -18,6 +18,9 @@ def test_the_fused_scores_are_the_array_form_s_bits(m, n_fit):
         t2, spe, complete, _, _ = scores(X, model.mean, model.scale, np.ascontiguousarray(model.loadings),
                                          model.eigenvalues, a, 0)
         np.testing.assert_array_equal(complete, expected.finite)
+        # exact on purpose: both sides are one arithmetic on every CPU: (x − mean)/scale, the projection in
+        # project's order, squares, divisions and the sums in the same order, each a correctly rounded IEEE
+        # operation (NumPy's SIMD loops for these round alike; numba fuses nothing without fastmath)
         np.testing.assert_array_equal(t2, expected.t2[:, 0])
         np.testing.assert_array_equal(spe, expected.spe[:, 0])
     assert np.isnan(t2[[3, 50, 699]]).all() and np.isfinite(np.delete(t2, [3, 50, 699])).all()

@@ -108,6 +108,8 @@ def test_adaptive_chi2_detector_stream_equals_its_population(b, lag):
     pipeline, columns = _pipeline(monitor, detector, outputs, z)
     whole = check_chunks(pipeline, columns)
     assert np.array_equal(whole["decision"][5:], decided.decision[0])
+    # exact: the stream and the population run the same scan (a χ² quantile per design, b·E², a sum: elementwise
+    # IEEE operations that round alike in any shape), so the same limits and decisions
     assert np.array_equal(whole["limit"][5:], np.broadcast_to(decided.threshold, decided.statistic.shape)[0],
                           equal_nan=True)
     assert 0 < decided.decision.sum() < decided.decision.size
@@ -118,7 +120,6 @@ def test_pca_stream_with_missing_rows_equals_its_population():
     X = rng.normal(size=(700, 2)) @ rng.normal(size=(2, 5)) + 0.3 * rng.normal(size=(700, 5))
     X[550:, 1] += 1.2
     X[520, 3] = np.nan                                  # a missing value: no scores, no alarm on that row
-    outputs = Residuals(r=X[None], fault_mask=np.zeros((1, 700), bool), channels=tuple("abcde"))
     monitor = OutputMonitor(outputs=["residual"])
     calibration = X[None, :400]
     detector = PCADetector(n_components=2, alpha=0.02, lam=0.4, persistence=2, fit_runs=None, max_components=4)
@@ -283,6 +284,8 @@ def test_an_estimator_streams_raw_measurements_and_inputs_as_its_batch_estimate(
     columns = observer.raw_stream(first, model, plant.input_names)
     assert set(columns) == {"y_h1", "y_h2", "u_q"}
     whole = check_chunks(pipeline, columns)
+    # exact: the stream and the batch both step observer_step (elementwise operations and sqrt, correctly
+    # rounded; the correction summed in a fixed order, no BLAS), one run or three
     assert np.array_equal(np.column_stack([whole["residual_h1"], whole["residual_h2"]]), batch[0])
 
 
@@ -324,5 +327,6 @@ def test_model_files_written_before_the_pipeline_still_load(tmp_path):
     old = load_fitted(tmp_path / "pca" / "pca_detector.npz")
     assert old.fill == "hold" and old.inputs == tuple("abcd")
     rows = {t: X[:, j] for j, t in enumerate("abcd")}
+    # exact: the old file loads as the same generic stage with the same arrays: one code path
     assert np.array_equal(old.update(rows)["ratio"], OnlinePipeline([OutputMonitor().online(tuple("abcd")), pca])
                           .update(rows)["ratio"])
