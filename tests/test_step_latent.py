@@ -23,20 +23,9 @@ import pytest
 
 from mosd.detectors.latent_stage import LatentStage
 from mosd.streaming import OnlinePipeline
+from step_checks import RTOL, clear_of_the_limit
 
 TAGS = tuple("abcde")
-RTOL = 1e-12
-
-
-def clear_of_the_limit(statistic, limit, key=""):
-    """Decisions are compared exactly where their statistics are compared to RTOL: sound while no statistic lies
-    within RTOL of its limit (only there could the two computations fall on opposite sides; with persistence a
-    flip would carry into the next points, so such points could not simply be left out). Checked, not assumed:
-    these data place none there (a difference above RTOL fails the statistics' comparison first)."""
-    s, lim = np.asarray(statistic, float), np.asarray(limit, float)
-    with np.errstate(invalid="ignore"):
-        near = np.abs(s - lim) <= 2 * RTOL * np.abs(lim)
-    assert not near.any(), f"{key}: statistics within {RTOL:g} of the limit at {np.flatnonzero(near)[:5]}"
 
 
 def plant(n: int, seed: int) -> np.ndarray:
