@@ -126,8 +126,10 @@ def _example_path():
     serves). In the tracking side process nothing else needs numba: its import and the load of the compiled
     filter from its cache cost ~1.3 s there, on the run's last wait, for two rows that the NumPy reference
     path scores in ~0.02 s with the same columns and dtypes (values within ~1e-13, :mod:`mosd.kernels`; the
-    signature records only names and types). A process that has the kernels loaded (a sweep's jobs log
-    in-process) keeps them: :func:`mosd.kernels.disabled` is a process-wide switch, for one caller only.
+    signature records only names and types). A stage whose one step is compiled code (a chart's
+    :func:`mosd.kernels.ewma.chart_recursion`) still loads numba and its cached kernel. A process that has the
+    kernels loaded (a sweep's jobs log in-process) keeps them: :func:`mosd.kernels.disabled` is a process-wide
+    switch, for one caller only.
     """
     import contextlib
     import sys

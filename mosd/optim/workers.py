@@ -205,10 +205,16 @@ def shutdown_pool() -> None:
             executor.shutdown(wait=True, kill_workers=True)
         except Exception:  # a broken pool is what a signal leaves behind
             pass
-    import signal
+    import psutil
 
+    killed = []
     for pid in pool_pids():  # a pool joblib.Parallel started (Hydra's joblib launcher): idle workers, killed
         try:
-            os.kill(pid, signal.SIGKILL)
-        except OSError:
+            worker = psutil.Process(pid)
+            worker.kill()
+            killed.append(worker)
+        except psutil.Error:  # it ended meanwhile
             pass
+    # a SIGKILL is delivered asynchronously: wait until they are gone (a loaded machine took longer than the
+    # caller's next look at its children), a few seconds at most
+    psutil.wait_procs(killed, timeout=5)
