@@ -432,7 +432,8 @@ def workload_in_own_process(name: str, quick: bool = False) -> tuple[list, dict]
     raises its thresholds for returning memory to the kernel after large frees, so after the main command's
     workload paper 001's evaluation took 8 ms a population in this process against 18-19 ms in a fresh one
     (its temporaries, tens of MB, were then no longer mapped and unmapped at each call), and its 2-worker
-    speed-up compared a fresh worker with that faster process (docs/SCALING.md, session 12).
+    speed-up compared a fresh worker with that faster process (docs/SCALING.md, "Each workload of the scale
+    section in its own process; the allocator").
     """
     import json
 
