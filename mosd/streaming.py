@@ -118,13 +118,18 @@ class OnlineStage:
         """The per-row outputs (without the state)."""
         raise NotImplementedError
 
-    def state_vars(self) -> dict[str, StateVar]:
-        """The carried state, declared once: name → :class:`StateVar` (empty for a stage without memory)."""
+    def declared_state(self) -> dict[str, tuple[StateVar, float | int]]:
+        """The carried state, declared once: name → (:class:`StateVar`, value at a stream's start); empty for a
+        stage without memory. A stage served from a component's step returns the component's ``step_state``."""
         return {}
 
+    def state_vars(self) -> dict[str, StateVar]:
+        """The carried state's declarations: name → :class:`StateVar` (:meth:`declared_state`)."""
+        return {name: var for name, (var, _) in self.declared_state().items()}
+
     def initial_state(self) -> dict[str, float | int]:
-        """The state at a stream's start."""
-        return {}
+        """The state at a stream's start (:meth:`declared_state`)."""
+        return {name: value for name, (_, value) in self.declared_state().items()}
 
     def update(self, columns: Mapping[str, np.ndarray], state: Mapping) -> dict[str, np.ndarray]:
         """One output row per input row: the outputs and, per state variable, its value after the row."""

@@ -16,10 +16,11 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from typing import Mapping
+from functools import cached_property
 
 import numpy as np
 
-from ..streaming import OnlineStage, StateVar, mosd_class, points_of, spread
+from ..streaming import OnlineStage, mosd_class, points_of, spread
 
 
 @dataclass
@@ -54,26 +55,24 @@ class LatentStage(OnlineStage):
     starts: tuple
     fitted: dict = field(default_factory=dict)
 
+    @cached_property
     def _family(self):
-        family = self.__dict__.get("_built")
-        if family is None:
-            family = self.__dict__["_built"] = mosd_class(self.detector, "detector class")(**self.design)
-        return family
+        return mosd_class(self.detector, "detector class")(**self.design)
 
     def params(self) -> dict:
         """The family's :meth:`~mosd.detectors.latent.LatentDetector.step_params` this stage holds."""
         cached = self.__dict__.get("_params")
         if cached is None:
             cached = self.__dict__["_params"] = {
-                "design": self._family().design_values(), "fitted": self.fitted, "names": tuple(self.names),
+                "design": self._family.design_values(), "fitted": self.fitted, "names": tuple(self.names),
                 "limits": dict(zip(self.names, map(float, self.limits))),
                 "starts": dict(zip(self.names, map(float, self.starts)))}
         return cached
 
-    def _declared(self) -> dict:
+    def declared_state(self) -> dict:
         cached = self.__dict__.get("_state")
         if cached is None:
-            cached = self.__dict__["_state"] = self._family().step_state(self.params())
+            cached = self.__dict__["_state"] = self._family.step_state(self.params())
         return cached
 
     @property
@@ -86,14 +85,8 @@ class LatentStage(OnlineStage):
         if cached is None:
             cached = self.__dict__["_outputs"] = (
                 *(f"{n}{suffix}" for n in self.names for suffix in ("", "_smoothed", "_limit")), "ratio", "alarm",
-                *self._family().explained(self.params()["design"]))
+                *self._family.explained(self.params()["design"]))
         return cached
-
-    def state_vars(self) -> dict[str, StateVar]:
-        return {name: var for name, (var, _) in self._declared().items()}
-
-    def initial_state(self) -> dict:
-        return {name: value for name, (_, value) in self._declared().items()}
 
     def example_row(self) -> np.ndarray:
         mean = self.fitted.get("mean")
@@ -107,8 +100,8 @@ class LatentStage(OnlineStage):
 
     def score(self, X: np.ndarray, state, top: bool = True) -> dict[str, np.ndarray]:
         """Outputs and state after each row of X (rows, m: the tags in order), from ``state``."""
-        family, params = self._family(), self.params()
-        declared = self._declared()
+        family, params = self._family, self.params()
+        declared = self.declared_state()
         carried = {name: state[name] for name in declared}
         out = family.scan(params, carried, np.asarray(X, float)[None], trajectory=True,
                           explain=tuple(self.tags) if top else None)

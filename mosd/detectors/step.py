@@ -23,6 +23,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from typing import ClassVar
+from functools import cached_property
 
 import numpy as np
 
@@ -143,43 +144,35 @@ class StepStage(PointDecision):
 
     @property
     def inputs(self) -> tuple[str, ...]:
-        return (self._detector().points, *(f"z_{j}" for j in range(1, self.n + 1)))
+        return (self._detector.points, *(f"z_{j}" for j in range(1, self.n + 1)))
 
     @property
     def outputs(self) -> tuple[str, ...]:
-        return self._detector().stage_outputs()
+        return self._detector.stage_outputs()
 
+    @cached_property
     def _detector(self) -> StepDetector:
-        cached = self.__dict__.get("_built")
-        if cached is None:
-            cached = self.__dict__["_built"] = mosd_class(self.detector, "detector class")(**self.design)
-        return cached
+        return mosd_class(self.detector, "detector class")(**self.design)
 
-    def _declared(self) -> dict:
+    def declared_state(self) -> dict:
         cached = self.__dict__.get("_state")
         if cached is None:
-            cached = self.__dict__["_state"] = self._detector().step_state(self.n)
+            cached = self.__dict__["_state"] = self._detector.step_state(self.n)
         return cached
 
-    def state_vars(self) -> dict[str, StateVar]:
-        return {name: var for name, (var, _) in self._declared().items()}
-
-    def initial_state(self) -> dict:
-        return {name: value for name, (_, value) in self._declared().items()}
-
     def update(self, columns, state) -> dict[str, np.ndarray]:
-        detector = self._detector()
+        detector = self._detector
         rows, at, Z = points_of(columns, self.n, detector.points)
         number = np.asarray(columns[detector.points], np.int64)[at]
         params = {k: np.asarray([v]) for k, v in self.step.items()}
-        carried = {name: np.full((1, 1), float(state[name])) for name in self._declared()}
+        carried = {name: np.full((1, 1), float(state[name])) for name in self.declared_state()}
         out = detector.scan_points(params, carried, Z, number)
         count = len(at)
         per_point = {name: np.broadcast_to(out[name], (1, 1, count))[0, 0]
                      for name in self.outputs if name != "alarm"}
         per_point["decision"] = per_point["decision"].astype(np.int64)
         per_point["alarm"] = per_point["decision"] > 0
-        for name, (var, _) in self._declared().items():
+        for name, (var, _) in self.declared_state().items():
             values = np.asarray(out[name])[0, 0]
             per_point[name] = values.astype(np.int64) if var.integer else values.astype(float)
         return spread(rows, at, per_point, state)

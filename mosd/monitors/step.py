@@ -20,6 +20,7 @@ given. A stream scored whole, in chunks or row by row gives the batch's points (
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -134,21 +135,19 @@ class MonitorStage(OnlineStage):
     fitted: dict
     columns: tuple
 
+    @cached_property
     def _monitor(self) -> StepMonitor:
-        cached = self.__dict__.get("_built")
-        if cached is None:
-            cached = self.__dict__["_built"] = mosd_class(self.monitor, "monitor class")(**self.design)
-        return cached
+        return mosd_class(self.monitor, "monitor class")(**self.design)
 
-    def _declared(self) -> dict:
+    def declared_state(self) -> dict:
         cached = self.__dict__.get("_state")
         if cached is None:
-            cached = self.__dict__["_state"] = self._monitor().step_state(self.fitted, len(self.columns))
+            cached = self.__dict__["_state"] = self._monitor.step_state(self.fitted, len(self.columns))
         return cached
 
     @property
     def accepts_missing(self) -> bool:
-        return self._monitor().accepts_missing
+        return self._monitor.accepts_missing
 
     @property
     def inputs(self) -> tuple[str, ...]:
@@ -158,33 +157,27 @@ class MonitorStage(OnlineStage):
     def points(self) -> tuple[str, ...]:
         cached = self.__dict__.get("_points")   # asked for on every served request: made once
         if cached is None:
-            n = self._monitor().point_width(len(self.columns))
+            n = self._monitor.point_width(len(self.columns))
             cached = self.__dict__["_points"] = tuple(f"z_{j}" for j in range(1, n + 1))
         return cached
 
     @property
     def outputs(self) -> tuple[str, ...]:
-        return (*self._monitor().numbered, *self.points)
+        return (*self._monitor.numbered, *self.points)
 
     @property
     def internal(self) -> tuple[str, ...]:
         return ("point", *self.points)   # the detector's outputs say what each point decided
 
-    def state_vars(self) -> dict[str, StateVar]:
-        return {name: var for name, (var, _) in self._declared().items()}
-
-    def initial_state(self) -> dict:
-        return {name: value for name, (_, value) in self._declared().items()}
-
     def example_row(self) -> np.ndarray:
-        return np.asarray(self._monitor().example_row(self.fitted, len(self.columns)), float)
+        return np.asarray(self._monitor.example_row(self.fitted, len(self.columns)), float)
 
     def update(self, columns, state) -> dict[str, np.ndarray]:
-        monitor = self._monitor()
+        monitor = self._monitor
         X = (np.column_stack([np.asarray(columns[c], float) for c in self.columns]) if self.columns
              else np.empty((0, 0)))
         rows = len(X)
-        carried = {name: np.array([state[name]]) for name in self._declared()}
+        carried = {name: np.array([state[name]]) for name in self.declared_state()}
         out = monitor.scan(self.fitted, carried, X[None], trajectory=True)
         at = out["at"]
         number = np.zeros(rows, np.int64)
@@ -198,7 +191,7 @@ class MonitorStage(OnlineStage):
                 column = np.full(rows, np.nan)
                 column[at] = out["z"][0, :, j]
                 result[name] = column
-        for name, (var, _) in self._declared().items():
+        for name, (var, _) in self.declared_state().items():
             values = np.asarray(out[name])
             values = values[0] if values.shape == (1, rows) else np.broadcast_to(values, (1, rows))[0]
             result[name] = values.astype(np.int64) if var.integer else values.astype(float)
